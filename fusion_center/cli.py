@@ -1,0 +1,70 @@
+"""``fusion-center`` command line: one sub-command per module in ``fusion_center.commands``.
+
+Each command module exposes ``HELP`` (one line), ``add_arguments(parser)`` and
+``run(args) -> int``. Errors the user can fix (ParameterError, SceneError, UsageError)
+exit 2 with one line on stderr, never a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from .errors import ParameterError, SceneError
+
+# sub-command name -> module under fusion_center.commands (imported lazily: start-up stays fast)
+COMMANDS: dict[str, str] = {
+    "run": "run",
+    "demo": "demo",
+    "replay": "replay",
+    "threshold": "threshold",
+    "fuse": "fuse",
+    "bandwidth": "bandwidth",
+    "report": "report",
+}
+
+
+class UsageError(Exception):
+    """A bad input at the CLI level (unknown interface, unreadable file...): exit 2."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):  # argparse's own errors: one line, exit 2
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+def _load(name: str):
+    return importlib.import_module(f"fusion_center.commands.{COMMANDS[name]}")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="fusion-center", description="HEBTEM fusion centre for a CANopen taxel network")
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    for name in COMMANDS:
+        try:
+            module = _load(name)
+        except ModuleNotFoundError as exc:
+            if exc.name and exc.name.startswith("fusion_center.commands."):
+                continue  # command not built yet
+            raise
+        p = sub.add_parser(name, help=module.HELP, description=module.HELP)
+        module.add_arguments(p)
+        p.set_defaults(_run=module.run)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args._run(args) or 0)
+    except (ParameterError, SceneError, UsageError) as exc:
+        print(f"fusion-center {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

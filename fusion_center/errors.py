@@ -1,0 +1,29 @@
+"""Errors shared by the numerical core, the scene loader and the CLI."""
+
+from __future__ import annotations
+
+
+class ParameterError(ValueError):
+    """A parameter outside its allowed domain.
+
+    The message always names the parameter, the value received and what is allowed, e.g.
+    ``xi=1.5: must lie in the open interval (0, 1)``. The CLI prints it as one line on
+    stderr and exits 2.
+    """
+
+    def __init__(self, name: str, value: object, allowed: str):
+        self.name = name
+        self.value = value
+        self.allowed = allowed
+        super().__init__(f"{name}={value!r}: {allowed}")
+
+
+class SceneError(ValueError):
+    """A scene file that cannot be used: names the file, the field and the value."""
+
+    def __init__(self, path: str, field: str, value: object, problem: str):
+        self.path = path
+        self.field = field
+        self.value = value
+        self.problem = problem
+        super().__init__(f"{path}: {field}={value!r}: {problem}")
