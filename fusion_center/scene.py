@@ -63,7 +63,8 @@ class ObjectSpec:
     velocity: tuple[float, float] = (0.0, 0.0)  # "slipping": centre motion per cycle from slip_onset_cycle
     slip_onset_cycle: int | None = None
     tangential_force: float = 0.0     # force on each contacted calibrated taxel: signal = m F + c
-    readings_mv: tuple[float, ...] | None = None  # "script": X_i per taxel (scene order) while present
+    readings_mv: tuple[float, ...] | None = None  # "script": per taxel (scene order) while present
+    readings_are: str = "Y"           # "script": "Y" = readings are Y_i = X_i - N_i (eq 4) | "X" = raw X_i
 
 
 @dataclass(frozen=True)
@@ -90,6 +91,28 @@ class ForcesSpec:
     inclusion_angle_deg: float = 0.0  # α of eqs 25/28b
 
 
+FAULTS = ("stuck", "open_circuit", "silent")
+
+
+@dataclass(frozen=True)
+class FaultSpec:
+    """A simulated node fault: active for from_cycle <= cycle < until_cycle (None = for ever).
+
+    ``stuck``: the node keeps sending the reading it had at ``from_cycle``;
+    ``open_circuit``: the input reads NaN (the node decides absent and should raise EMCY);
+    ``silent``: the node stops transmitting PDOs and heartbeats (handled by the node twin).
+    """
+
+    node_id: int
+    fault: str                        # one of FAULTS
+    from_cycle: int
+    channel: int = 0
+    until_cycle: int | None = None
+
+    def active(self, cycle: int) -> bool:
+        return self.from_cycle <= cycle and (self.until_cycle is None or cycle < self.until_cycle)
+
+
 @dataclass(frozen=True)
 class Scene:
     path: str
@@ -103,11 +126,504 @@ class Scene:
     fusion: FusionSpec = field(default_factory=FusionSpec)
     forces: ForcesSpec = field(default_factory=ForcesSpec)
     stages: tuple[str, ...] = ("fusion",)  # requested; the pipeline builds only what the scene supports
+    faults: tuple[FaultSpec, ...] = ()
 
     @property
     def n(self) -> int:
         return len(self.taxels)
 
 
-def load_scene(path) -> Scene:  # implemented with the node rig (issue 4)
-    raise NotImplementedError("load_scene: see docs/scene-format.md")
+# ----------------------------------------------------------------------------------------
+# Loader
+# ----------------------------------------------------------------------------------------
+
+import csv  # noqa: E402  (kept below the dataclasses: they are the module's contract)
+import math  # noqa: E402
+import tomllib  # noqa: E402
+from dataclasses import asdict  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+from .errors import SceneError  # noqa: E402
+
+# CAN classic bit-rate range accepted in a scene (CiA 301 bit-timing table: 10 kbit/s .. 1 Mbit/s)
+BITRATE_MIN = 10_000
+BITRATE_MAX = 1_000_000
+FOOTPRINT_MODELS = ("point", "small", "large", "slipping")
+JAWS = ("left", "right")
+AXES = ("x", "y")
+BUS_MODES = ("decision", "raw")
+FORCE_UNITS = ("N", "kgf")
+ADDITIVE_ROOTS = ("lower", "upper")
+READINGS_ARE = ("Y", "X")
+
+# per-kind fields (allowed in [kinds.X], [[taxels]], CSV columns and [per_taxel])
+KIND_FIELDS = ("zeta_mv", "noise_mv", "noise_sigma_mv", "signal_mv", "pf", "pm",
+               "slope", "intercept", "grip_factor")
+TAXEL_FIELDS = ("node_id", "kind", "channel", "x", "y", "jaw", "axis") + KIND_FIELDS
+_INT_TAXEL_FIELDS = ("node_id", "channel")
+_STR_TAXEL_FIELDS = ("kind", "jaw", "axis")
+
+_TOP_KEYS = ("scene", "bus", "kinds", "taxels", "taxels_file", "per_taxel", "object", "fusion",
+             "forces", "outputs", "faults")
+_SCENE_KEYS = ("name", "description", "seed", "cycles")
+_BUS_KEYS = ("bitrate", "sync_period_ms", "sync_counter", "heartbeat_producer_ms",
+             "heartbeat_consumer_ms", "mode", "transmission_type", "inhibit_time_100us",
+             "event_timer_ms", "channels")
+_OBJECT_KEYS = ("model", "x", "y", "radius", "present", "velocity", "slip_onset_cycle",
+                "tangential_force", "readings_mv", "readings_are")
+_FUSION_KEYS = ("rules", "decide_with", "tuple", "xi", "alpha", "beta", "additive_root", "p", "q",
+                "k", "np_false_alarm", "prior_h1", "costs")
+_FORCES_KEYS = ("mu", "unit", "inclusion_angle_deg")
+_OUTPUTS_KEYS = ("stages",)
+_FAULT_KEYS = ("node_id", "channel", "fault", "from_cycle", "until_cycle")
+
+
+class _Where:
+    """Where a value comes from: the file and how a key is named in messages."""
+
+    def __init__(self, path: str, prefix: str = "", csv_line: int | None = None):
+        self.path = path
+        self.prefix = prefix
+        self.csv_line = csv_line
+
+    def name(self, key: str) -> str:
+        if self.csv_line is not None:
+            return f"line {self.csv_line}, column {key}"
+        return f"{self.prefix}.{key}" if self.prefix else key
+
+    def fail(self, key: str, value: object, problem: str):
+        raise SceneError(self.path, self.name(key), value, problem)
+
+
+def _is_int(v) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _is_num(v) -> bool:
+    return (isinstance(v, (int, float))) and not isinstance(v, bool)
+
+
+def _table(w: _Where, key: str, value, allowed: tuple[str, ...]) -> dict:
+    """A sub-table: must be a dict whose keys are all in ``allowed``."""
+    if not isinstance(value, dict):
+        w.fail(key, value, "must be a table")
+    sub = _Where(w.path, w.name(key) if key else w.prefix)
+    for k in value:
+        if k not in allowed:
+            sub.fail(k, value[k], f"unknown key (allowed: {', '.join(allowed)})")
+    return value
+
+
+def _int(w: _Where, key: str, v, lo: int | None = None, hi: int | None = None, allowed: str = "") -> int:
+    if not _is_int(v):
+        w.fail(key, v, "must be an integer")
+    if (lo is not None and v < lo) or (hi is not None and v > hi):
+        w.fail(key, v, allowed or f"must lie in {lo}..{hi}")
+    return v
+
+
+def _num(w: _Where, key: str, v, lo: float | None = None, hi: float | None = None,
+         lo_open: bool = False, hi_open: bool = False) -> float:
+    if not _is_num(v):
+        w.fail(key, v, "must be a number")
+    v = float(v)
+    if not math.isfinite(v):
+        w.fail(key, v, "must be finite")
+    bad = ((lo is not None and (v <= lo if lo_open else v < lo))
+           or (hi is not None and (v >= hi if hi_open else v > hi)))
+    if bad:
+        lb = "-inf" if lo is None else f"{lo:g}"
+        ub = "inf" if hi is None else f"{hi:g}"
+        w.fail(key, v, f"must lie in {'(' if lo_open or lo is None else '['}{lb}, "
+                       f"{ub}{')' if hi_open or hi is None else ']'}")
+    return v
+
+
+def _str(w: _Where, key: str, v, choices: tuple[str, ...] | None = None) -> str:
+    if not isinstance(v, str):
+        w.fail(key, v, "must be a string")
+    if choices is not None and v not in choices:
+        w.fail(key, v, f"must be one of {', '.join(choices)}")
+    return v
+
+
+def _list(w: _Where, key: str, v, length: int | None = None) -> list:
+    if not isinstance(v, list):
+        w.fail(key, v, "must be an array")
+    if length is not None and len(v) != length:
+        w.fail(key, v, f"must have {length} entries (has {len(v)})")
+    return v
+
+
+def _kind_field(w: _Where, key: str, v) -> float:
+    """Range of every per-kind field (eqs 1-4, 23, 27)."""
+    if key in ("zeta_mv", "noise_mv", "noise_sigma_mv"):
+        return _num(w, key, v, lo=0.0)
+    if key in ("pf", "pm"):
+        return _num(w, key, v, lo=0.0, hi=1.0, lo_open=True, hi_open=True)
+    return _num(w, key, v)
+
+
+def _read_toml(path: Path) -> dict:
+    try:
+        with open(path, "rb") as fh:
+            return tomllib.load(fh)
+    except tomllib.TOMLDecodeError as exc:
+        raise SceneError(str(path), "<toml>", None, f"TOML syntax error: {exc}") from None
+    except OSError as exc:
+        raise SceneError(str(path), "<file>", None, f"cannot read: {exc.strerror or exc}") from None
+
+
+def _read_csv_taxels(csv_path: Path, scene_w: _Where) -> list[tuple[_Where, dict]]:
+    """Rows of a taxels_file: header = taxel field names; an empty cell means "not given"."""
+    p = str(csv_path)
+    try:
+        with open(csv_path, newline="", encoding="utf-8") as fh:
+            rows = list(csv.reader(fh))
+    except OSError as exc:
+        scene_w.fail("taxels_file", p, f"cannot read: {exc.strerror or exc}")
+    except (UnicodeDecodeError, csv.Error) as exc:
+        raise SceneError(p, "line ?", None, f"not a UTF-8 CSV file: {exc}") from None
+    if not rows:
+        raise SceneError(p, "line 1", None, "empty file: needs a header line")
+    header = [h.strip() for h in rows[0]]
+    for col in header:
+        if col not in TAXEL_FIELDS:
+            raise SceneError(p, f"line 1, column {col}", col,
+                             f"unknown column (allowed: {', '.join(TAXEL_FIELDS)})")
+    if len(set(header)) != len(header):
+        dup = next(h for h in header if header.count(h) > 1)
+        raise SceneError(p, f"line 1, column {dup}", dup, "duplicate column")
+    out = []
+    for ln, row in enumerate(rows[1:], start=2):
+        if not row or all(not c.strip() for c in row):
+            continue  # blank line
+        w = _Where(p, csv_line=ln)
+        if len(row) != len(header):
+            raise SceneError(p, f"line {ln}", row, f"has {len(row)} cells, header has {len(header)}")
+        rec = {}
+        for col, cell in zip(header, row):
+            cell = cell.strip()
+            if cell == "":
+                continue
+            if col in _STR_TAXEL_FIELDS:
+                rec[col] = cell
+            elif col in _INT_TAXEL_FIELDS:
+                try:
+                    rec[col] = int(cell)
+                except ValueError:
+                    w.fail(col, cell, "must be an integer")
+            else:
+                try:
+                    rec[col] = float(cell)
+                except ValueError:
+                    w.fail(col, cell, "must be a number")
+        out.append((w, rec))
+    return out
+
+
+def load_scene(path) -> Scene:
+    """Read and validate a scene file (format: ``docs/scene-format.md``).
+
+    Raises :class:`SceneError` (file, dotted field, value, problem) on any unknown key, wrong
+    type, out-of-range value, missing required field, duplicate node-ID per channel, a
+    syntax error or an unreadable file. Precedence of per-taxel values:
+    ``[kinds.X]`` < the taxel's own row/table < ``[per_taxel]`` arrays.
+    """
+    path = Path(path)
+    sp = str(path)
+    doc = _read_toml(path)
+    top = _Where(sp)
+    _table(top, "", doc, _TOP_KEYS)
+
+    # [scene]
+    if "scene" not in doc:
+        top.fail("scene", None, "missing required table [scene]")
+    sc = _table(top, "scene", doc["scene"], _SCENE_KEYS)
+    sw = _Where(sp, "scene")
+    if "name" not in sc:
+        sw.fail("name", None, "missing required field")
+    name = _str(sw, "name", sc["name"])
+    if not name:
+        sw.fail("name", name, "must not be empty")
+    description = _str(sw, "description", sc.get("description", ""))
+    seed = _int(sw, "seed", sc.get("seed", 0), 0, 2**63 - 1, "must be an integer >= 0")
+    cycles = _int(sw, "cycles", sc.get("cycles", 100), 1, None, "must be an integer >= 1")
+
+    bus = _load_bus(sp, top, doc.get("bus", {}))
+    taxels = _load_taxels(path, top, doc, bus)
+    n = len(taxels)
+    obj = _load_object(sp, top, doc.get("object", {"model": "none"}), taxels)
+    if "fusion" not in doc:
+        top.fail("fusion", None, "missing required table [fusion] (its `tuple` is always explicit)")
+    fusion = _load_fusion(sp, top, doc["fusion"], taxels)
+    forces = _load_forces(sp, top, doc.get("forces", {}))
+    ow = _Where(sp, "outputs")
+    outs = _table(top, "outputs", doc.get("outputs", {}), _OUTPUTS_KEYS)
+    stages_raw = _list(ow, "stages", outs.get("stages", ["fusion"]))
+    stages = []
+    for i, s in enumerate(stages_raw):
+        _str(ow, f"stages[{i}]", s, STAGES)
+        if s in stages:
+            ow.fail(f"stages[{i}]", s, "listed twice")
+        stages.append(s)
+    faults = _load_faults(sp, top, doc.get("faults", []), taxels)
+    del n
+    return Scene(path=sp, name=name, description=description, seed=seed, cycles=cycles, bus=bus,
+                 taxels=taxels, object=obj, fusion=fusion, forces=forces, stages=tuple(stages),
+                 faults=faults)
+
+
+def _load_bus(sp: str, top: _Where, raw) -> BusSpec:
+    b = _table(top, "bus", raw, _BUS_KEYS)
+    w = _Where(sp, "bus")
+    d = BusSpec()
+    bitrate = _int(w, "bitrate", b.get("bitrate", d.bitrate), BITRATE_MIN, BITRATE_MAX,
+                   f"CAN bit rate must lie in {BITRATE_MIN}..{BITRATE_MAX} bit/s")
+    sync = _num(w, "sync_period_ms", b.get("sync_period_ms", d.sync_period_ms), lo=0.0, lo_open=True)
+    counter = _int(w, "sync_counter", b.get("sync_counter", d.sync_counter))
+    if not (counter == 0 or 2 <= counter <= 240):
+        w.fail("sync_counter", counter, "0x1019: 0 (no counter) or 2..240")
+    hb_p = _int(w, "heartbeat_producer_ms", b.get("heartbeat_producer_ms", d.heartbeat_producer_ms),
+                0, 0xFFFF)
+    hb_c = _int(w, "heartbeat_consumer_ms", b.get("heartbeat_consumer_ms", d.heartbeat_consumer_ms),
+                0, 0xFFFF)
+    mode = _str(w, "mode", b.get("mode", d.mode), BUS_MODES)
+    tt = _int(w, "transmission_type", b.get("transmission_type", d.transmission_type))
+    if not (1 <= tt <= 240 or tt in (254, 255)):
+        w.fail("transmission_type", tt, "must be 1..240 (synchronous) or 254/255 (event-driven)")
+    inhibit = _int(w, "inhibit_time_100us", b.get("inhibit_time_100us", d.inhibit_time_100us), 0, 0xFFFF)
+    ev = _int(w, "event_timer_ms", b.get("event_timer_ms", d.event_timer_ms), 0, 0xFFFF)
+    ch_raw = _list(w, "channels", b.get("channels", list(d.channels)))
+    if not ch_raw:
+        w.fail("channels", ch_raw, "needs at least one channel")
+    channels = []
+    for i, c in enumerate(ch_raw):
+        _str(w, f"channels[{i}]", c)
+        if not c:
+            w.fail(f"channels[{i}]", c, "must not be empty")
+        if c in channels:
+            w.fail(f"channels[{i}]", c, "listed twice")
+        channels.append(c)
+    return BusSpec(bitrate=bitrate, sync_period_ms=sync, sync_counter=counter,
+                   heartbeat_producer_ms=hb_p, heartbeat_consumer_ms=hb_c, mode=mode,
+                   transmission_type=tt, inhibit_time_100us=inhibit, event_timer_ms=ev,
+                   channels=tuple(channels))
+
+
+def _load_taxels(path: Path, top: _Where, doc: dict, bus: BusSpec) -> tuple[TaxelSpec, ...]:
+    sp = str(path)
+    # [kinds.X]
+    kinds_raw = _table(top, "kinds", doc.get("kinds", {}), tuple(TAXEL_KINDS))
+    kind_defaults: dict[str, dict] = {}
+    for kname, kt in kinds_raw.items():
+        _table(_Where(sp, "kinds"), kname, kt, KIND_FIELDS)
+        kw = _Where(sp, f"kinds.{kname}")
+        kind_defaults[kname] = {k: _kind_field(kw, k, v) for k, v in kt.items()}
+
+    # rows: [[taxels]] or taxels_file
+    if ("taxels" in doc) == ("taxels_file" in doc):
+        top.fail("taxels", None, "give exactly one of [[taxels]] or taxels_file")
+    rows: list[tuple[_Where, dict]] = []
+    if "taxels" in doc:
+        lst = _list(top, "taxels", doc["taxels"])
+        for i, t in enumerate(lst):
+            _table(top, f"taxels[{i}]", t, TAXEL_FIELDS)
+            rows.append((_Where(sp, f"taxels[{i}]"), t))
+    else:
+        rel = _str(top, "taxels_file", doc["taxels_file"])
+        csv_path = (path.parent / rel)
+        rows = _read_csv_taxels(csv_path, top)
+    if not rows:
+        top.fail("taxels", [], "needs at least one taxel")
+
+    # [per_taxel]: arrays in fusion order, highest precedence
+    per_raw = _table(top, "per_taxel", doc.get("per_taxel", {}), KIND_FIELDS)
+    pw = _Where(sp, "per_taxel")
+    per: dict[str, list[float]] = {}
+    for key, arr in per_raw.items():
+        _list(pw, key, arr, len(rows))
+        per[key] = [_kind_field(pw, f"{key}[{i}]", v) for i, v in enumerate(arr)]
+
+    taxels = []
+    seen: dict[tuple[int, int], str] = {}
+    for i, (w, t) in enumerate(rows):
+        for req in ("node_id", "kind"):
+            if req not in t:
+                w.fail(req, None, "missing required field")
+        node_id = _int(w, "node_id", t["node_id"], 1, 127, "CANopen node-ID must lie in 1..127")
+        kind = _str(w, "kind", t["kind"], tuple(TAXEL_KINDS))
+        channel = _int(w, "channel", t.get("channel", 0), 0, len(bus.channels) - 1,
+                       f"must index bus.channels (0..{len(bus.channels) - 1})")
+        key = (channel, node_id)
+        if key in seen:
+            w.fail("node_id", node_id, f"duplicate node-ID on channel {channel} (also at {seen[key]})")
+        seen[key] = w.name("node_id")
+        vals: dict = {}
+        for k in ("x", "y"):
+            if k in t:
+                vals[k] = _num(w, k, t[k])
+        if ("x" in vals) != ("y" in vals):
+            missing = "y" if "x" in vals else "x"
+            w.fail(missing, None, "x and y come together (both or neither)")
+        if "jaw" in t:
+            vals["jaw"] = _str(w, "jaw", t["jaw"], JAWS)
+        if "axis" in t:
+            vals["axis"] = _str(w, "axis", t["axis"], AXES)
+        merged = dict(kind_defaults.get(kind, {}))
+        for k in KIND_FIELDS:
+            if k in t:
+                merged[k] = _kind_field(w, k, t[k])
+            if k in per:
+                merged[k] = per[k][i]
+        taxels.append(TaxelSpec(node_id=node_id, kind=kind, channel=channel, **vals, **merged))
+    return tuple(taxels)
+
+
+def _load_object(sp: str, top: _Where, raw, taxels: tuple[TaxelSpec, ...]) -> ObjectSpec:
+    o = _table(top, "object", raw, _OBJECT_KEYS)
+    w = _Where(sp, "object")
+    if "model" not in o:
+        w.fail("model", None, "missing required field")
+    model = _str(w, "model", o["model"], OBJECT_MODELS)
+    x = _num(w, "x", o.get("x", 0.0))
+    y = _num(w, "y", o.get("y", 0.0))
+    radius = _num(w, "radius", o.get("radius", 0.0), lo=0.0)
+    present = []
+    for i, iv in enumerate(_list(w, "present", o.get("present", []))):
+        f = f"present[{i}]"
+        _list(w, f, iv, 2)
+        start = _int(w, f"{f}[0]", iv[0], 0, None, "start cycle must be >= 0")
+        end = _int(w, f"{f}[1]", iv[1])
+        if end <= start:
+            w.fail(f, iv, "[start, end) needs end > start")
+        present.append((start, end))
+    vel = _list(w, "velocity", o.get("velocity", [0.0, 0.0]), 2)
+    velocity = (_num(w, "velocity[0]", vel[0]), _num(w, "velocity[1]", vel[1]))
+    onset = o.get("slip_onset_cycle")
+    if onset is not None:
+        onset = _int(w, "slip_onset_cycle", onset, 0, None, "must be an integer >= 0")
+    force = _num(w, "tangential_force", o.get("tangential_force", 0.0), lo=0.0)
+    readings = None
+    if "readings_mv" in o:
+        if model != "script":
+            w.fail("readings_mv", o["readings_mv"], f"only used by model 'script' (model is {model!r})")
+        arr = _list(w, "readings_mv", o["readings_mv"], len(taxels))
+        readings = tuple(_num(w, f"readings_mv[{i}]", v) for i, v in enumerate(arr))
+    readings_are = _str(w, "readings_are", o.get("readings_are", "Y"), READINGS_ARE)
+    if model == "script" and readings is None:
+        w.fail("readings_mv", None, f"model 'script' needs readings_mv ({len(taxels)} values)")
+    if model == "slipping" and onset is None:
+        w.fail("slip_onset_cycle", None, "model 'slipping' needs slip_onset_cycle")
+    if model in ("small", "large", "slipping") and radius <= 0:
+        w.fail("radius", radius, f"model {model!r} needs a footprint radius > 0")
+    if model in FOOTPRINT_MODELS:
+        for i, t in enumerate(taxels):
+            if t.x is None:
+                raise SceneError(sp, f"taxels[{i}].x", None,
+                                 f"object.model={model} needs x,y for every taxel")
+    return ObjectSpec(model=model, x=x, y=y, radius=radius, present=tuple(present), velocity=velocity,
+                      slip_onset_cycle=onset, tangential_force=force, readings_mv=readings,
+                      readings_are=readings_are)
+
+
+def _load_fusion(sp: str, top: _Where, raw, taxels: tuple[TaxelSpec, ...]) -> FusionSpec:
+    f = _table(top, "fusion", raw, _FUSION_KEYS)
+    w = _Where(sp, "fusion")
+    d = FusionSpec()
+    if "tuple" not in f:
+        w.fail("tuple", None, "missing required field: 'pm1' or '01' (always explicit)")
+    enc = _str(w, "tuple", f["tuple"], ("pm1", "01"))
+    rules_raw = _list(w, "rules", f.get("rules", list(d.rules)))
+    if not rules_raw:
+        w.fail("rules", rules_raw, "needs at least one rule")
+    rules = []
+    for i, r in enumerate(rules_raw):
+        _str(w, f"rules[{i}]", r, RULES)
+        if r in rules:
+            w.fail(f"rules[{i}]", r, "listed twice")
+        rules.append(r)
+    decide = _str(w, "decide_with", f.get("decide_with", rules[0]))
+    if decide not in rules:
+        w.fail("decide_with", decide, f"must be one of fusion.rules ({', '.join(rules)})")
+    prob = dict(lo=0.0, hi=1.0, lo_open=True, hi_open=True)
+    xi = _num(w, "xi", f.get("xi", d.xi), **prob)
+    alpha = _num(w, "alpha", f.get("alpha", d.alpha), **prob)
+    beta = _num(w, "beta", f.get("beta", d.beta), **prob)
+    root = _str(w, "additive_root", f.get("additive_root", d.additive_root), ADDITIVE_ROOTS)
+    p = _num(w, "p", f.get("p", d.p), lo=0.0, hi=2.0)
+    q = _num(w, "q", f.get("q", d.q), lo=0.0, hi=2.0)
+    k = _int(w, "k", f.get("k", d.k), 1, len(taxels), f"k-of-n needs 1 <= k <= n = {len(taxels)}")
+    npfa = _num(w, "np_false_alarm", f.get("np_false_alarm", d.np_false_alarm), **prob)
+    prior = _num(w, "prior_h1", f.get("prior_h1", d.prior_h1), **prob)
+    costs_raw = _list(w, "costs", f.get("costs", list(d.costs)), 4)
+    costs = tuple(_num(w, f"costs[{i}]", c) for i, c in enumerate(costs_raw))
+    for rule in ("llr", "np"):
+        if rule in rules:
+            for i, t in enumerate(taxels):
+                if t.pf is None or t.pm is None:
+                    w.fail("rules", rules, f"rule {rule!r} needs pf and pm for every taxel "
+                                           f"(taxel {i}, node-ID {t.node_id}, kind {t.kind} has none)")
+    return FusionSpec(rules=tuple(rules), decide_with=decide, tuple=enc, xi=xi, alpha=alpha, beta=beta,
+                      additive_root=root, p=p, q=q, k=k, np_false_alarm=npfa, prior_h1=prior,
+                      costs=costs)
+
+
+def _load_forces(sp: str, top: _Where, raw) -> ForcesSpec:
+    f = _table(top, "forces", raw, _FORCES_KEYS)
+    w = _Where(sp, "forces")
+    d = ForcesSpec()
+    mu = _num(w, "mu", f.get("mu", d.mu), lo=0.0, lo_open=True)
+    unit = _str(w, "unit", f.get("unit", d.unit), FORCE_UNITS)
+    angle = _num(w, "inclusion_angle_deg", f.get("inclusion_angle_deg", d.inclusion_angle_deg),
+                 lo=0.0, hi=90.0, hi_open=True)
+    return ForcesSpec(mu=mu, unit=unit, inclusion_angle_deg=angle)
+
+
+def _load_faults(sp: str, top: _Where, raw, taxels: tuple[TaxelSpec, ...]) -> tuple[FaultSpec, ...]:
+    lst = _list(top, "faults", raw)
+    known = {(t.channel, t.node_id) for t in taxels}
+    out = []
+    for i, fr in enumerate(lst):
+        _table(top, f"faults[{i}]", fr, _FAULT_KEYS)
+        w = _Where(sp, f"faults[{i}]")
+        for req in ("node_id", "fault", "from_cycle"):
+            if req not in fr:
+                w.fail(req, None, "missing required field")
+        node_id = _int(w, "node_id", fr["node_id"], 1, 127, "CANopen node-ID must lie in 1..127")
+        channel = _int(w, "channel", fr.get("channel", 0), 0, None, "must be >= 0")
+        if (channel, node_id) not in known:
+            w.fail("node_id", node_id, f"no taxel with this node-ID on channel {channel}")
+        kind = _str(w, "fault", fr["fault"], FAULTS)
+        start = _int(w, "from_cycle", fr["from_cycle"], 0, None, "must be an integer >= 0")
+        until = fr.get("until_cycle")
+        if until is not None:
+            until = _int(w, "until_cycle", until, start + 1, None, f"must be > from_cycle ({start})")
+        out.append(FaultSpec(node_id=node_id, fault=kind, from_cycle=start, channel=channel,
+                             until_cycle=until))
+    return tuple(out)
+
+
+def taxel_index(scene: Scene, node_id: int, channel: int = 0) -> int:
+    """Fusion-order index of the taxel with ``node_id`` on ``channel`` (KeyError if none)."""
+    for i, t in enumerate(scene.taxels):
+        if t.node_id == node_id and t.channel == channel:
+            return i
+    raise KeyError((channel, node_id))
+
+
+def scene_to_dict(scene: Scene) -> dict:
+    """JSON-safe summary (lists, numbers, strings, None) for records and reports."""
+
+    def jsonable(v):
+        if isinstance(v, dict):
+            return {k: jsonable(x) for k, x in v.items()}
+        if isinstance(v, (list, tuple)):
+            return [jsonable(x) for x in v]
+        return v
+
+    d = jsonable(asdict(scene))
+    d["n"] = scene.n
+    d["kind_counts"] = {k: sum(1 for t in scene.taxels if t.kind == k)
+                        for k in TAXEL_KINDS if any(t.kind == k for t in scene.taxels)}
+    return d
