@@ -1,0 +1,327 @@
+"""Slip onset, slip velocity and slipped distance (chapter sec. 4: named, not modelled).
+
+Sec. 4 says the fusion model evaluates grip and slip force and "associated parameters, like
+slip velocity and slipped distance", but gives no model for them. This module supplies one,
+built only on quantities the chapter does define:
+
+Onset (either criterion, whichever *flags* first):
+
+* **force** (Coulomb, eq 26a read backwards): the measured total tangential force exceeds
+  the friction limit, ``TotF_t > mu F_g``, i.e. ``force_ratio = TotF_t / (mu F_g) > 1``,
+  for ``force_consecutive`` consecutive cycles (F_g = 0 with TotF_t > 0 counts as > 1);
+* **motion**: the centroid of the distinct locations of the active taxels (u_i = +1)
+  moves farther than ``noise_band`` (coordinate units) from its reference position for
+  ``motion_consecutive`` consecutive cycles. The reference is the mean centroid of the first
+  ``reference_cycles`` cycles of the contact episode (an episode ends when no taxel is
+  active); motion is not tested during those cycles.
+
+The onset index is the first cycle of the run that triggered; the flagged index is the
+cycle at which the run completed (what a live system can know). The slip state latches
+until contact is lost.
+
+Velocity and distance: least-squares line fit of the centroid track against time over the
+cycles from onset to the latest one in the episode (optionally only the last ``fit_window``
+of them for the velocity): velocity in coordinate units per time unit of ``times``, per
+cycle = velocity x cycle period; slipped distance = |fitted position(latest) -
+fitted position(onset)| over the full since-onset fit. The fit averages out the staircase
+the taxel pitch imposes on the centroid.
+
+All functions are pure numerics (no I/O); :class:`SlipTracker` is the incremental form of
+:func:`detect_slip` for the live service and gives the same answer on the same data.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .errors import ParameterError
+from .geometry import active_centroid, as_points
+
+__all__ = ["SlipResult", "SlipState", "detect_slip", "SlipTracker", "line_fit_velocity"]
+
+
+# --------------------------------------------------------------------------- helpers
+def _check_params(mu, noise_band, motion_consecutive, force_consecutive, reference_cycles, fit_window):
+    try:
+        mu_f = float(mu)
+    except (TypeError, ValueError):
+        raise ParameterError("mu", mu, "friction coefficient must be a finite number > 0") from None
+    if not np.isfinite(mu_f) or mu_f <= 0:
+        raise ParameterError("mu", mu, "friction coefficient must be a finite number > 0")
+    band = float(noise_band)
+    if not np.isfinite(band) or band < 0:
+        raise ParameterError("noise_band", noise_band, "must be a finite distance >= 0 (coordinate units)")
+    for value, name in ((motion_consecutive, "motion_consecutive"),
+                        (force_consecutive, "force_consecutive"),
+                        (reference_cycles, "reference_cycles")):
+        if isinstance(value, bool) or int(value) != value or value < 1:
+            raise ParameterError(name, value, "must be a whole number of cycles >= 1")
+    if fit_window is not None and (isinstance(fit_window, bool) or int(fit_window) != fit_window
+                                   or fit_window < 2):
+        raise ParameterError("fit_window", fit_window, "must be None or a whole number of cycles >= 2")
+    return mu_f, band
+
+
+def _force_ratio(tangential: float, grip: float, mu: float) -> float:
+    """``TotF_t / (mu F_g)``; +inf for F_g = 0 with a positive tangential force, 0 for 0/0."""
+    if grip < 0 or tangential < 0:
+        raise ParameterError("force", (tangential, grip), "tangential and grip force must be >= 0")
+    if grip == 0:
+        return float("inf") if tangential > 0 else 0.0
+    return tangential / (mu * grip)
+
+
+def line_fit_velocity(times, positions) -> np.ndarray:
+    """Least-squares slope d(position)/dt of an (n, 2) track; zeros for n < 2."""
+    t = np.asarray(times, dtype=float)
+    p = np.asarray(positions, dtype=float).reshape(len(t), -1)
+    if len(t) < 2:
+        return np.zeros(p.shape[1])
+    tc = t - t.mean()
+    denom = float(tc @ tc)
+    if denom == 0:
+        return np.zeros(p.shape[1])
+    return (tc @ (p - p.mean(axis=0))) / denom
+
+
+def _first_run(exceed: np.ndarray, run: int) -> int | None:
+    """Index where the first run of ``run`` consecutive True values completes, or None."""
+    if len(exceed) < run:
+        return None
+    counts = np.convolve(exceed.astype(np.int64), np.ones(run, dtype=np.int64), mode="valid")
+    hits = np.flatnonzero(counts == run)
+    return int(hits[0]) + run - 1 if len(hits) else None
+
+
+# --------------------------------------------------------------------------- results
+@dataclass(frozen=True)
+class SlipResult:
+    """Outcome of :func:`detect_slip` (see the module docstring for the model)."""
+
+    slipping: bool
+    onset_index: int | None          # first cycle of the triggering run
+    onset_time: float | None
+    flagged_index: int | None        # cycle at which the run completed
+    criterion: str | None            # "force" | "motion"
+    velocity: np.ndarray             # (2,) coordinate units per time unit of `times`
+    velocity_per_cycle: np.ndarray   # (2,) coordinate units per cycle
+    speed: float                     # |velocity|
+    distance: float                  # slipped distance, coordinate units
+    force_ratio: np.ndarray          # (n,) TotF_t / (mu F_g); nan where not available
+    displacement: np.ndarray         # (n,) |centroid - reference|; nan where not available
+
+
+@dataclass(frozen=True)
+class SlipState:
+    """State after one :meth:`SlipTracker.update` (one SYNC cycle)."""
+
+    cycle: int
+    time: float
+    contact: bool
+    centroid: np.ndarray             # (2,) or (nan, nan) without contact
+    displacement: float | None       # None before the reference is established
+    force_ratio: float | None        # None when forces were not given
+    slipping: bool
+    onset_index: int | None
+    onset_time: float | None
+    flagged_index: int | None
+    criterion: str | None
+    velocity: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    velocity_per_cycle: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    speed: float = 0.0
+    distance: float = 0.0
+
+
+def _kinematics(times: np.ndarray, track: np.ndarray, fit_window: int | None, period: float):
+    full_v = line_fit_velocity(times, track)
+    distance = float(np.hypot(*full_v) * (times[-1] - times[0])) if len(times) >= 2 else 0.0
+    if fit_window is not None and len(times) > fit_window:
+        v = line_fit_velocity(times[-fit_window:], track[-fit_window:])
+    else:
+        v = full_v
+    return v, v * period, float(np.hypot(*v)), distance
+
+
+# --------------------------------------------------------------------------- batch
+def detect_slip(times, centroids, tangential, grip_force, mu, *, noise_band: float,
+                motion_consecutive: int = 3, force_consecutive: int = 1,
+                reference_cycles: int = 3, fit_window: int | None = None,
+                period: float | None = None) -> SlipResult:
+    """Detect the first slip in a per-cycle record and estimate its velocity and distance.
+
+    ``times`` (n,) strictly increasing; ``centroids`` (n, 2) active-taxel centroids with
+    NaN rows for cycles without contact; ``tangential`` and ``grip_force`` (n,) totals in
+    one force unit (eqs 24-25/29 and 26a/27b), or None to use the motion criterion only;
+    ``mu`` the friction coefficient (eq 26). ``period`` is the cycle period in the time
+    unit of ``times`` (default: median spacing of ``times``).
+    """
+    mu_f, band = _check_params(mu, noise_band, motion_consecutive, force_consecutive,
+                               reference_cycles, fit_window)
+    t = np.asarray(times, dtype=float)
+    if t.ndim != 1 or len(t) == 0 or np.any(~np.isfinite(t)) or np.any(np.diff(t) <= 0):
+        raise ParameterError("times", times, "must be a non-empty, finite, strictly increasing 1-D array")
+    n = len(t)
+    c = np.asarray(centroids, dtype=float)
+    if c.shape != (n, 2):
+        raise ParameterError("centroids", c.shape, f"must have shape ({n}, 2), NaN rows = no contact")
+    if np.any(np.isinf(c)) or np.any(np.isnan(c[:, 0]) != np.isnan(c[:, 1])):
+        raise ParameterError("centroids", "inf or half-NaN row", "rows must be finite or (nan, nan)")
+    if period is None:
+        period = float(np.median(np.diff(t))) if n > 1 else 1.0
+    if not np.isfinite(period) or period <= 0:
+        raise ParameterError("period", period, "cycle period must be finite and > 0")
+    contact = np.isfinite(c[:, 0])
+
+    ratio = np.full(n, np.nan)
+    force_flag = force_onset = None
+    if (tangential is None) != (grip_force is None):
+        raise ParameterError("tangential/grip_force", (tangential is None, grip_force is None),
+                             "give both (force criterion) or neither (motion only)")
+    if tangential is not None:
+        ft = np.asarray(tangential, dtype=float)
+        fg = np.asarray(grip_force, dtype=float)
+        for arr, name in ((ft, "tangential"), (fg, "grip_force")):
+            if arr.shape != (n,) or np.any(~np.isfinite(arr)) or np.any(arr < 0):
+                raise ParameterError(name, arr.shape, f"must be {n} finite forces >= 0")
+        with np.errstate(divide="ignore", invalid="ignore"):
+            r = np.where(fg > 0, ft / (mu_f * np.where(fg > 0, fg, 1.0)),
+                         np.where(ft > 0, np.inf, 0.0))
+        ratio = np.where(contact, r, np.nan)
+        force_flag = _first_run(contact & (r > 1.0), force_consecutive)
+        force_onset = None if force_flag is None else force_flag - force_consecutive + 1
+
+    # motion criterion, per contact episode
+    displacement = np.full(n, np.nan)
+    motion_exceed = np.zeros(n, dtype=bool)
+    edges = np.diff(np.concatenate(([0], contact.astype(np.int8), [0])))
+    starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+    for s, e in zip(starts, ends):
+        if e - s <= reference_cycles:
+            continue
+        ref = c[s:s + reference_cycles].mean(axis=0)
+        d = np.hypot(*(c[s + reference_cycles:e] - ref).T)
+        displacement[s + reference_cycles:e] = d
+        motion_exceed[s + reference_cycles:e] = d > band
+    motion_flag = _first_run(motion_exceed, motion_consecutive)
+    motion_onset = None if motion_flag is None else motion_flag - motion_consecutive + 1
+
+    candidates = [(f, o, name) for f, o, name in ((force_flag, force_onset, "force"),
+                                                  (motion_flag, motion_onset, "motion")) if f is not None]
+    if not candidates:
+        zero = np.zeros(2)
+        return SlipResult(False, None, None, None, None, zero, zero.copy(), 0.0, 0.0, ratio, displacement)
+    flagged, onset, criterion = min(candidates, key=lambda x: (x[0], x[1]))
+    episode_end = int(ends[np.searchsorted(ends, onset, side="right")])
+    sel = np.arange(onset, episode_end)
+    v, v_cycle, speed, distance = _kinematics(t[sel], c[sel], fit_window, period)
+    return SlipResult(True, onset, float(t[onset]), flagged, criterion, v, v_cycle, speed,
+                      distance, ratio, displacement)
+
+
+# --------------------------------------------------------------------------- incremental
+class SlipTracker:
+    """Per-cycle slip detector for the live fusion centre (same model as :func:`detect_slip`).
+
+    ``update(t, active_xy, total_tangential, grip_force)`` once per SYNC cycle with the
+    coordinates of the taxels deciding u_i = +1 and the cycle's force totals (or None for
+    both to use the motion criterion only). Pure numerics: no I/O, no clock.
+    """
+
+    def __init__(self, mu, noise_band: float, *, motion_consecutive: int = 3,
+                 force_consecutive: int = 1, reference_cycles: int = 3,
+                 fit_window: int | None = None, period: float | None = None):
+        self.mu, self.noise_band = _check_params(mu, noise_band, motion_consecutive, force_consecutive,
+                                                 reference_cycles, fit_window)
+        if period is not None and (not np.isfinite(period) or period <= 0):
+            raise ParameterError("period", period, "cycle period must be finite and > 0")
+        self.motion_consecutive = int(motion_consecutive)
+        self.force_consecutive = int(force_consecutive)
+        self.reference_cycles = int(reference_cycles)
+        self.fit_window = fit_window
+        self.period = period
+        self.cycle = -1
+        self._last_time: float | None = None
+        self._dts: list[float] = []
+        self._new_episode()
+
+    def _new_episode(self) -> None:
+        self._ref_samples: list[np.ndarray] = []
+        self._reference: np.ndarray | None = None
+        self._force_run = 0
+        self._motion_run = 0
+        keep = max(self.motion_consecutive, self.force_consecutive)
+        self._recent: deque[tuple[int, float, np.ndarray]] = deque(maxlen=keep)
+        self._track_t: list[float] = []
+        self._track_c: list[np.ndarray] = []
+        self._onset: tuple[int, float, int, str] | None = None
+
+    def reset(self) -> None:
+        """Forget the current contact episode (e.g. after the gripper re-grasps)."""
+        self._new_episode()
+
+    def _period(self) -> float:
+        if self.period is not None:
+            return float(self.period)
+        return float(np.median(self._dts)) if self._dts else 1.0
+
+    def update(self, t, active_xy, total_tangential=None, grip_force=None) -> SlipState:
+        t = float(t)
+        if not np.isfinite(t) or (self._last_time is not None and t <= self._last_time):
+            raise ParameterError("t", t, f"time must be finite and > the previous one ({self._last_time})")
+        if (total_tangential is None) != (grip_force is None):
+            raise ParameterError("total_tangential/grip_force", (total_tangential, grip_force),
+                                 "give both (force criterion) or neither (motion only)")
+        if self._last_time is not None:
+            self._dts.append(t - self._last_time)
+        self._last_time = t
+        self.cycle += 1
+        centroid = active_centroid(as_points(active_xy, "active_xy"))
+        contact = bool(np.isfinite(centroid[0]))
+        if not contact:
+            self._new_episode()
+            return SlipState(self.cycle, t, False, centroid, None, None, False, None, None, None, None)
+
+        ratio = None
+        if total_tangential is not None:
+            ft, fg = float(total_tangential), float(grip_force)
+            if not (np.isfinite(ft) and np.isfinite(fg)):
+                raise ParameterError("force", (total_tangential, grip_force), "forces must be finite")
+            ratio = _force_ratio(ft, fg, self.mu)
+            self._force_run = self._force_run + 1 if ratio > 1.0 else 0
+
+        displacement = None
+        if self._reference is None:
+            self._ref_samples.append(centroid)
+            if len(self._ref_samples) == self.reference_cycles:
+                self._reference = np.mean(self._ref_samples, axis=0)
+        else:
+            displacement = float(np.hypot(*(centroid - self._reference)))
+            self._motion_run = self._motion_run + 1 if displacement > self.noise_band else 0
+
+        self._recent.append((self.cycle, t, centroid))
+        if self._onset is None:
+            hits = []
+            if ratio is not None and self._force_run >= self.force_consecutive:
+                hits.append((self.cycle - self.force_consecutive + 1, "force"))
+            if self._motion_run >= self.motion_consecutive:
+                hits.append((self.cycle - self.motion_consecutive + 1, "motion"))
+            if hits:
+                onset_idx, criterion = min(hits)
+                back = [(ti, ci) for k, ti, ci in self._recent if k >= onset_idx]
+                self._track_t = [b[0] for b in back]
+                self._track_c = [b[1] for b in back]
+                self._onset = (onset_idx, back[0][0], self.cycle, criterion)
+        else:
+            self._track_t.append(t)
+            self._track_c.append(centroid)
+
+        if self._onset is None:
+            return SlipState(self.cycle, t, True, centroid, displacement, ratio, False, None, None, None, None)
+        v, v_cycle, speed, distance = _kinematics(np.asarray(self._track_t), np.asarray(self._track_c),
+                                                  self.fit_window, self._period())
+        onset_idx, onset_t, flagged, criterion = self._onset
+        return SlipState(self.cycle, t, True, centroid, displacement, ratio, True, onset_idx, onset_t,
+                         flagged, criterion, v, v_cycle, speed, distance)

@@ -1,0 +1,135 @@
+"""Slip model (fusion_center.slip) on synthetic traces with known onset, speed and distance."""
+
+import numpy as np
+import pytest
+
+from fusion_center.errors import ParameterError
+from fusion_center.geometry import active_centroid
+from fusion_center.slip import SlipTracker, detect_slip, line_fit_velocity
+
+PERIOD = 0.01  # s per SYNC cycle
+
+
+def synthetic_trace(rng, *, n=120, onset=50, velocity=(0.6, 0.2), pitch=2.0, radius=7.0,
+                    dropout=0.05, mu=0.3, grip=10.0, force_noise=0.0, force_step=0.06):
+    """Object footprint on a taxel grid; static until `onset`, then moving at `velocity`/cycle.
+
+    Tangential force ramps so that the true ratio F_t / (mu F_g) crosses 1 exactly at `onset`.
+    Returns times, per-cycle active taxel coordinates, tangential, grip and the true centres.
+    """
+    gx, gy = np.meshgrid(np.arange(0, 80.1, pitch), np.arange(0, 80.1, pitch))
+    grid = np.column_stack([gx.ravel(), gy.ravel()])
+    times = np.arange(n) * PERIOD
+    k = np.arange(n)
+    centres = np.array([20.0, 30.0]) + np.outer(np.clip(k - onset, 0, None), velocity)
+    active = []
+    for c in centres:
+        inside = grid[np.hypot(*(grid - c).T) <= radius]
+        keep = rng.random(len(inside)) >= dropout
+        active.append(inside[keep])
+    ratio = 1.0 + force_step * (k - onset + 0.5)          # > 1 from `onset` on
+    tangential = np.clip(ratio * mu * grip + rng.normal(0, force_noise, n), 0, None)
+    grip_force = np.full(n, grip)
+    return times, active, tangential, grip_force, centres
+
+
+def centroids_of(active):
+    return np.array([active_centroid(a) for a in active])
+
+
+def test_force_criterion_flags_exact_onset_and_estimates_motion():
+    rng = np.random.default_rng(1)
+    v = np.array([0.6, 0.2])
+    times, active, ft, fg, centres = synthetic_trace(rng, velocity=tuple(v))
+    res = detect_slip(times, centroids_of(active), ft, fg, 0.3, noise_band=1.5)
+    assert res.slipping and res.criterion == "force"
+    assert res.onset_index == 50 and res.flagged_index == 50
+    assert res.onset_time == pytest.approx(0.5)
+    # 70 cycles of slip at 0.6325 units/cycle: true distance = 44.27
+    true_speed = np.hypot(*v)
+    np.testing.assert_allclose(res.velocity_per_cycle, v, atol=0.03)
+    np.testing.assert_allclose(res.velocity, v / PERIOD, atol=3.0)
+    assert res.speed == pytest.approx(true_speed / PERIOD, rel=0.05)
+    assert res.distance == pytest.approx(true_speed * 69, rel=0.05)
+
+
+def test_motion_criterion_without_forces():
+    rng = np.random.default_rng(2)
+    times, active, _, _, _ = synthetic_trace(rng, velocity=(1.0, 0.0))
+    res = detect_slip(times, centroids_of(active), None, None, 0.3, noise_band=1.5,
+                      motion_consecutive=2)
+    assert res.slipping and res.criterion == "motion"
+    # centre leaves the 1.5 band after 2 cycles at 1 unit/cycle; quantisation adds at most a pitch
+    assert 50 <= res.onset_index <= 53
+    assert res.flagged_index == res.onset_index + 1
+    assert res.velocity_per_cycle[0] == pytest.approx(1.0, abs=0.05)
+
+
+def test_static_grasp_with_dropouts_is_not_slip():
+    rng = np.random.default_rng(3)
+    times, active, ft, fg, _ = synthetic_trace(rng, onset=10_000, n=200, dropout=0.1)
+    res = detect_slip(times, centroids_of(active), ft, fg, 0.3, noise_band=1.5)
+    assert not res.slipping and res.onset_index is None
+    assert res.speed == 0.0 and res.distance == 0.0
+    assert np.nanmax(res.force_ratio) < 1.0
+    assert np.nanmax(res.displacement) < 1.5
+
+
+def test_tracker_matches_batch_on_random_traces():
+    rng = np.random.default_rng(4)
+    for trial in range(6):
+        onset = int(rng.integers(10, 60))
+        vel = tuple(rng.uniform(-0.2, 0.2, 2))  # stays on the grid: one contact episode
+        times, active, ft, fg, _ = synthetic_trace(rng, n=90, onset=onset, velocity=vel,
+                                                   force_noise=0.05)
+        use_forces = trial % 2 == 0
+        tracker = SlipTracker(0.3, 1.5, period=PERIOD, fit_window=15)
+        for t, a, f, g in zip(times, active, ft, fg):
+            state = tracker.update(t, a, f if use_forces else None, g if use_forces else None)
+        res = detect_slip(times, centroids_of(active), ft if use_forces else None,
+                          fg if use_forces else None, 0.3, noise_band=1.5, fit_window=15, period=PERIOD)
+        assert state.slipping == res.slipping
+        if res.slipping:
+            assert (state.onset_index, state.flagged_index, state.criterion) == \
+                (res.onset_index, res.flagged_index, res.criterion)
+            np.testing.assert_allclose(state.velocity, res.velocity, rtol=1e-9, atol=1e-9)
+            assert state.distance == pytest.approx(res.distance, rel=1e-9, abs=1e-12)
+
+
+def test_tracker_resets_on_contact_loss():
+    tracker = SlipTracker(0.3, 0.5, reference_cycles=1, motion_consecutive=1)
+    assert not tracker.update(0.0, [(0, 0)]).slipping
+    s = tracker.update(1.0, [(2, 0)])
+    assert s.slipping and s.criterion == "motion" and s.onset_index == 1
+    s = tracker.update(2.0, [(4, 0)])
+    np.testing.assert_allclose(s.velocity, [2.0, 0.0])      # 2 units per time unit
+    assert s.distance == pytest.approx(2.0)
+    lost = tracker.update(3.0, [])
+    assert not lost.contact and not lost.slipping
+    again = tracker.update(4.0, [(50, 50)])
+    assert not again.slipping and again.displacement is None
+
+
+def test_force_ratio_edge_cases_and_bad_input():
+    tracker = SlipTracker(0.5, 1.0)
+    s = tracker.update(0.0, [(0, 0)], 1.0, 0.0)             # no grip at all: slips
+    assert s.force_ratio == float("inf") and s.slipping and s.criterion == "force"
+    with pytest.raises(ParameterError, match="t"):
+        tracker.update(0.0, [(0, 0)], 1.0, 1.0)               # time not increasing
+    with pytest.raises(ParameterError):
+        tracker.update(1.0, [(0, 0)], 1.0, None)
+    with pytest.raises(ParameterError, match="mu"):
+        SlipTracker(0.0, 1.0)
+    with pytest.raises(ParameterError, match="noise_band"):
+        SlipTracker(0.3, -1.0)
+    with pytest.raises(ParameterError, match="times"):
+        detect_slip([0.0, 0.0], np.zeros((2, 2)), None, None, 0.3, noise_band=1.0)
+    with pytest.raises(ParameterError, match="centroids"):
+        detect_slip([0.0, 1.0], np.zeros((3, 2)), None, None, 0.3, noise_band=1.0)
+
+
+def test_line_fit_velocity_exact_on_a_line():
+    t = np.array([0.0, 0.5, 1.0, 2.0])
+    p = np.column_stack([3 + 2 * t, -1 - 0.5 * t])
+    np.testing.assert_allclose(line_fit_velocity(t, p), [2.0, -0.5])
+    np.testing.assert_array_equal(line_fit_velocity([1.0], [[1.0, 2.0]]), [0.0, 0.0])
