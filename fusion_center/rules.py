@@ -1,0 +1,163 @@
+"""Fusion rules of the chapter (sec. 2.2.1-2.2.2, eqs 5-7 and 15).
+
+Every rule takes the local decisions ``u`` and their ``encoding`` explicitly:
+
+* ``"pm1"``: u_i in {-1, +1};
+* ``"01"``:  u_i in {0, 1}.
+
+The rules are the chapter's formulas applied *literally* to the values of the given tuple
+(the chapter: "in a similar manner, we can obtain the values of U_G using {u_i}=[0,1] tuple").
+So the additive rule gives n - 2k (pm1) or n - k (01), the multiplicative rule e^(n-2k) or
+e^(n-k), where k is the number of taxels deciding "absent". For the preferential rule this
+literal reading is what reproduces the chapter's worked example of sec. 7.2 (U_G = 37 for the
+18-taxel gripper with 13 present, p = q = 1): eq 7 on the {0,1} tuple gives 37, on the
+{-1,+1} tuple it gives 14 (see docs/chapter-notes.md).
+
+Pure functions, no I/O.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+from .encoding import PRESENT, Encoding, validate_decisions
+from .errors import ParameterError
+
+__all__ = [
+    "MultiplicativeValue",
+    "additive",
+    "multiplicative",
+    "preferential",
+    "preferential_sister",
+    "k_of_n",
+    "g_of_n",
+    "check_weight",
+]
+
+
+class MultiplicativeValue(NamedTuple):
+    """U_G of the multiplicative rule (eq 5) in three forms that never overflow silently.
+
+    ``ln_U_G`` = sum u_i (exact), ``U_G`` = exp(ln_U_G) (``inf`` above ~e^709, ``0.0`` below
+    ~e^-745; never raises), ``scaled`` = U_G / e^n = exp(ln_U_G - n), the variable of the
+    threshold solver (``thresholds.multiplicative_threshold``).
+    """
+
+    ln_U_G: float
+    U_G: float
+    scaled: float
+
+
+def check_weight(name: str, value) -> float:
+    """p or q of eq 7: a finite real in [0, 2] (the chapter: 0 <= p, q <= 2)."""
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ParameterError(name, value, "must be a real number in [0, 2]") from None
+    if not math.isfinite(v) or v < 0.0 or v > 2.0:
+        raise ParameterError(name, value, "must be a real number in [0, 2]")
+    return v
+
+
+def _check_n(n) -> int:
+    if isinstance(n, bool):
+        raise ParameterError("n", n, "must be an integer >= 1")
+    try:
+        as_float = float(n)
+    except (TypeError, ValueError):
+        raise ParameterError("n", n, "must be an integer >= 1") from None
+    if not math.isfinite(as_float) or as_float != math.floor(as_float) or as_float < 1:
+        raise ParameterError("n", n, "must be an integer >= 1")
+    return int(as_float)
+
+
+def additive(u, encoding: Encoding) -> int:
+    """Additive rule, eq 6: U_G = sum u_i = n - 2k (pm1) or n - k (01), k = absent count."""
+    arr = validate_decisions(u, encoding)
+    return int(arr.sum(dtype=np.int64))
+
+
+def multiplicative(u, encoding: Encoding) -> MultiplicativeValue:
+    """Multiplicative rule, eq 5: U_G = prod e^(u_i) = e^(n-2k) (pm1) or e^(n-k) (01).
+
+    Returns ln U_G, U_G and U_G/e^n (see :class:`MultiplicativeValue`).
+    """
+    arr = validate_decisions(u, encoding)
+    ln_u_g = float(arr.sum(dtype=np.int64))
+    n = arr.size
+    # exp of a huge argument: inf, not OverflowError
+    try:
+        u_g = math.exp(ln_u_g)
+    except OverflowError:
+        u_g = math.inf
+    return MultiplicativeValue(ln_U_G=ln_u_g, U_G=u_g, scaled=math.exp(ln_u_g - n))
+
+
+def _pow(base: np.ndarray, exponent: float) -> np.ndarray:
+    # numpy already follows 0.0 ** 0.0 == 1.0 (the chapter's eq 15 needs (1+u)^0 = 1 for u=-1)
+    return np.power(base, exponent)
+
+
+def _neighbour_sum(values: np.ndarray, p: float, q: float, sign: float) -> float:
+    padded = np.concatenate(([0.0], values, [0.0]))  # u_0 = u_{n+1} = 0 (chapter, below eq 7)
+    nxt = padded[2:]
+    prv = padded[:-2]
+    terms = values * _pow(1.0 + sign * nxt, p) * _pow(1.0 + sign * prv, q)
+    return float(terms.sum())
+
+
+def preferential(u, p, q, encoding: Encoding) -> float:
+    """Preferential selection rule, eq 7: U_G = sum_i u_i (1 + u_{i+1})^p (1 + u_{i-1})^q.
+
+    u_0 = u_{n+1} = 0 (the chapter's boundary convention), 0**0 = 1, p and q real in [0, 2]
+    (weights of the succeeding and the preceding taxel). Applied to the values of the given
+    tuple. For all taxels present the value is g(n) of eq 15 (:func:`g_of_n`) in both tuples.
+    """
+    p = check_weight("p", p)
+    q = check_weight("q", q)
+    arr = validate_decisions(u, encoding).astype(float)
+    return _neighbour_sum(arr, p, q, +1.0)
+
+
+def preferential_sister(u, p, q, encoding: Encoding) -> float:
+    """The chapter's "sister model" of eq 7 (sec. 2.2.2): sum_i u_i (1 - u_{i+1})^p (1 - u_{i-1})^q.
+
+    Same boundary convention (u_0 = u_{n+1} = 0), 0**0 = 1, p, q in [0, 2].
+    """
+    p = check_weight("p", p)
+    q = check_weight("q", q)
+    arr = validate_decisions(u, encoding).astype(float)
+    return _neighbour_sum(arr, p, q, -1.0)
+
+
+def k_of_n(u, k, encoding: Encoding) -> int:
+    """The "k-out-of-n" rule of sec. 2.2.1: +1 if at least ``k`` taxels decide present, else -1.
+
+    (The chapter's k here counts *present* taxels, unlike its k in eqs 5-6 which counts absent
+    ones.) ``k`` must be an integer in 1..n.
+    """
+    arr = validate_decisions(u, encoding)
+    n = arr.size
+    if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 1 <= int(k) <= n:
+        raise ParameterError("k", k, f"must be an integer in 1..n (n = {n})")
+    present = int(np.count_nonzero(arr == PRESENT))
+    return 1 if present >= int(k) else -1
+
+
+def g_of_n(n, p, q) -> float:
+    """g(n) of eq 15: the maximum of U_G (eq 7) over all decision vectors, reached with all u_i = +1.
+
+    For n >= 2: g(n) = (2^p + 2^q) + (n - 2) 2^(p+q) (end taxels see one neighbour, the n - 2
+    inner ones two). For n = 1 the single taxel has u_0 = u_2 = 0, so eq 7 gives
+    U_G = 1 * 1^p * 1^q = 1: g(1) = 1 (eq 15 itself would give 2^p + 2^q - 2^(p+q), which is not
+    the value of eq 7; we use eq 7).
+    """
+    n = _check_n(n)
+    p = check_weight("p", p)
+    q = check_weight("q", q)
+    if n == 1:
+        return 1.0
+    return (2.0**p + 2.0**q) + (n - 2) * 2.0 ** (p + q)
