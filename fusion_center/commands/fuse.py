@@ -1,0 +1,332 @@
+"""``fusion-center fuse``: fuse one vector of local decisions with one rule and decide.
+
+Rules: the chapter's additive (eq 6), multiplicative (eq 5) and preferential (eq 7) rules
+with their P(H1) curves (eqs 10-14) and HEBTEM thresholds (eqs 16-18, 20); the k-out-of-n
+rule (sec. 2.2.1); and the two baselines of sec. 4.3.3, the Chair-Varshney LLR (eq 31) and
+the Neyman-Pearson statistic (eq 32).
+
+Decision convention (sec. 2.2.2): U_G >= lambda -> H1. Additive rule on {-1,+1}: eq 17
+has two roots +-lambda; with ``--root auto`` (default) the root on the side of U_G's sign is
+used (sec. 6.3.1, footnote 3: "we consider the left hand side of the curve since the sign of
+U_G is negative"; U_G = 0 counts as the right-hand side); ``--root positive|negative`` forces
+one. Multiplicative rule: compared in the log domain, ln U_G >= ln lambda; a threshold
+lambda <= 0 accepts every U_G > 0. Preferential rule: H1 at or above the upper band edge
+lambda_Th-final, H0 below the lower edge lambda_Th-initial, "undecided" inside the band
+(eq 20).
+
+Decisions are given as ``--u=1,-1,1`` (the ``=`` is optional: values starting with "-" are
+accepted as the argument). Bad input exits 2 with one line naming the parameter, its value
+and the allowed range.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import re
+import sys
+
+import numpy as np
+
+from .. import baselines
+from ..encoding import check_encoding, present_count, validate_decisions
+from ..errors import ParameterError
+
+HELP = "fuse one vector of local decisions u_i with a fusion rule (HEBTEM or a baseline) and decide H0/H1"
+
+RULES = ("additive", "multiplicative", "preferential", "k-of-n", "llr", "np")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    # let "--u -1,1,..." through: argparse would take "-1,1" for an option otherwise
+    # (this parser has no option that looks like a negative number)
+    parser._negative_number_matcher = re.compile(r"^-[\d.,\s+-]*$")
+    parser.add_argument("--rule", required=True, choices=RULES, help="fusion rule")
+    parser.add_argument("--u", required=True, help="local decisions, comma separated (e.g. 1,-1,1)")
+    parser.add_argument("--tuple", default="pm1", dest="tuple", help="decision tuple: pm1 ({-1,+1}, default) or 01")
+    parser.add_argument("--p", default="1", help="preferential: weight of the succeeding taxel, [0, 2] (default 1)")
+    parser.add_argument("--q", default="1", help="preferential: weight of the preceding taxel, [0, 2] (default 1)")
+    parser.add_argument("--k", help="k-of-n: H1 iff at least k taxels report present (1..n)")
+    parser.add_argument("--xi", help="P(H1) with every taxel absent, (0, 1): enables P(H1) and the HEBTEM threshold")
+    parser.add_argument("--alpha", help="Type I error level, (0, 1): additive and preferential thresholds")
+    parser.add_argument("--beta", help="Type II error level, (0, 1): multiplicative threshold")
+    parser.add_argument(
+        "--root", default="auto", choices=("auto", "positive", "negative"),
+        help="additive {-1,+1}: which root of eq 17 (auto: the side of U_G's sign, sec. 6.3.1)",
+    )
+    parser.add_argument("--pd", help="llr/np/k-of-n: detection probability 1 - P_M per taxel (list) or one value")
+    parser.add_argument("--pf", help="llr/np/k-of-n: false-alarm probability P_F per taxel (list) or one value")
+    parser.add_argument("--prior-h1", default="0.5", help="llr: prior P(H1) in (0, 1) (default 0.5)")
+    parser.add_argument("--false-alarm", help="np: system false-alarm rate in (0, 1) of the randomised N-P rule")
+    parser.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
+
+
+# ------------------------------------------------------------------ parsing helpers
+def _number(name: str, text, allowed: str, low=None, high=None, open_interval=False) -> float:
+    try:
+        value = float(text)
+    except (TypeError, ValueError):
+        raise ParameterError(name, text, allowed) from None
+    if not math.isfinite(value):
+        raise ParameterError(name, text, allowed)
+    if low is not None and (value < low or (open_interval and value == low)):
+        raise ParameterError(name, text, allowed)
+    if high is not None and (value > high or (open_interval and value == high)):
+        raise ParameterError(name, text, allowed)
+    return value
+
+
+def _open_unit(name: str, text) -> float:
+    return _number(name, text, "must be a number in the open interval (0, 1)", 0.0, 1.0, open_interval=True)
+
+
+def _number_list(name: str, text: str, allowed: str) -> np.ndarray:
+    tokens = [t.strip() for t in str(text).split(",")]
+    if tokens == [""]:
+        raise ParameterError(name, text, allowed + "; got an empty list (n >= 1 needed)")
+    values = []
+    for i, token in enumerate(tokens):
+        try:
+            value = float(token)
+        except ValueError:
+            raise ParameterError(f"{name}[{i}]", token, allowed) from None
+        if not math.isfinite(value):
+            raise ParameterError(f"{name}[{i}]", token, allowed)
+        values.append(value)
+    return np.array(values)
+
+
+def parse_decisions(text: str, encoding: str) -> np.ndarray:
+    allowed = "-1 or 1 for tuple 'pm1'" if encoding == "pm1" else "0 or 1 for tuple '01'"
+    values = _number_list("u", text, f"must be a comma-separated list of decisions ({allowed})")
+    return validate_decisions(values, encoding)
+
+
+def _probabilities(name: str, text, n: int) -> np.ndarray:
+    if text is None:
+        raise ParameterError(name, None, "required for this rule: one probability in (0, 1) or n comma-separated ones")
+    values = _number_list(name, text, "must be probabilities in the open interval (0, 1)")
+    if values.size not in (1, n):
+        raise ParameterError(name, f"{values.size} values", f"must give 1 or n={n} probabilities")
+    return baselines._open_probabilities(values if values.size == n else values[0], name, n)
+
+
+# ------------------------------------------------------------------ threshold adapters
+def _side_root(roots, u_g: float, side: str) -> tuple[float, str, str]:
+    """Pick the additive {-1,+1} threshold: (lambda, side, source).
+
+    ``side`` "auto" takes the side of U_G's sign (sec. 6.3.1, footnote 3; U_G = 0 counts as
+    positive). On that side we use a root of eq 17 if there is one ("root"); otherwise the
+    mirror image -lambda of the root on the other side ("mirror"): sec. 2.2.3.2, "we can use
+    either of the two thresholds, namely lambda_Th or -lambda_Th" (symmetric thresholding --
+    eq 17 itself has a single root for xi <= 1/4).
+    """
+    finite = sorted(float(r) for r in roots if r is not None and math.isfinite(float(r)))
+    if side == "auto":
+        side = "negative" if u_g < 0 else "positive"
+    on_side = [r for r in finite if (r < 0 if side == "negative" else r >= 0)]
+    if on_side:
+        return (on_side[0] if side == "negative" else on_side[-1]), side, "root"
+    other = [r for r in finite if r != 0.0]
+    if not other:
+        raise ParameterError("root", side, f"no {side} threshold: eq 17 roots are {finite}")
+    mirror = -(other[-1] if side == "negative" else other[0])
+    return mirror, side, "mirror"
+
+
+def _hebtem(args, rule: str, u: np.ndarray, encoding: str, record: dict) -> None:
+    """P(H1) on the rule's curve and, with --alpha/--beta, the HEBTEM threshold and decision."""
+    from .. import curves, rules  # the numerical core of sec. 2.2.3
+
+    n = u.size
+    xi = _open_unit("xi", args.xi) if args.xi is not None else None
+    alpha = _open_unit("alpha", args.alpha) if args.alpha is not None else None
+    beta = _open_unit("beta", args.beta) if args.beta is not None else None
+    if rule == "multiplicative" and alpha is not None and beta is None:
+        raise ParameterError("beta", None, "the multiplicative threshold (eq 16) needs --beta in (0, 1), not --alpha")
+    if rule in ("additive", "preferential") and beta is not None and alpha is None:
+        raise ParameterError("alpha", None, f"the {rule} threshold (eq 17/18) needs --alpha in (0, 1), not --beta")
+    if xi is None:
+        if alpha is not None or beta is not None:
+            raise ParameterError("xi", None, "required with --alpha/--beta: a number in the open interval (0, 1)")
+        return
+
+    if rule == "additive":
+        u_g = record["U_G"]
+        record["p_h1"] = float(
+            curves.p_additive_pm1(u_g, n, xi) if encoding == "pm1" else curves.p_additive_01(u_g, n, xi)
+        )
+        if alpha is None:
+            return
+        from .. import thresholds
+
+        result = thresholds.additive_threshold(n, xi, alpha, encoding=encoding)
+        if not result.thresholds:
+            domain = "[-n, n]" if encoding == "pm1" else "[0, n]"
+            raise ParameterError("alpha", alpha, f"eq 17 has no root in {domain} for n={n}, xi={xi}: choose another alpha")
+        if encoding == "pm1":
+            lam, side, source = _side_root(result.thresholds, u_g, args.root)
+            record["threshold_side"] = side
+            record["threshold_source"] = source
+        else:
+            lam = float(result.thresholds[-1])
+        record["threshold"] = lam
+        record["decision"] = "H1" if u_g >= lam else "H0"
+    elif rule == "multiplicative":
+        # the curve (eqs 10-11) and eq 16 are written for the {-1,+1} tuple (fig. 2a):
+        # with {0,1} decisions we evaluate them at the equivalent ln U_G = 2K - n
+        ln_u_g_pm1 = float(2 * record["present_count"] - n)
+        record["p_h1"] = float(curves.p_multiplicative(ln_u_g_pm1, n, xi))
+        if beta is None:
+            return
+        from .. import thresholds
+
+        result = thresholds.multiplicative_threshold(n, xi, beta)
+        if not result.scaled_thresholds:
+            raise ParameterError("beta", beta, f"eq 16 has no root in [-e^n, e^n] for n={n}, xi={xi}: choose a smaller beta")
+        scaled = float(result.scaled_thresholds[-1])
+        ln_lam = result.ln_thresholds[-1]
+        record["scaled_threshold"] = scaled  # lambda / e^n
+        if ln_lam is not None:
+            ln_lam = float(ln_lam)
+            record["ln_threshold"] = ln_lam
+            record["threshold"] = math.exp(ln_lam) if ln_lam < 709.0 else None
+            record["decision"] = "H1" if ln_u_g_pm1 >= ln_lam else "H0"
+        else:  # lambda <= 0: every U_G > 0 accepts H1
+            record["ln_threshold"] = None
+            record["threshold"] = scaled * math.exp(n) if n < 709 else None
+            record["decision"] = "H1"
+    elif rule == "preferential":
+        p = rules.check_weight("p", args.p)
+        q = rules.check_weight("q", args.q)
+        g = float(rules.g_of_n(n, p, q))
+        record["g"] = g
+        record["p_h1"] = float(curves.p_preferential(record["U_G"], g, xi))
+        if alpha is None:
+            return
+        from .. import thresholds
+
+        band = thresholds.preferential_threshold(n, xi, alpha, p, q, encoding=encoding)
+        if band.threshold_mean is None:
+            raise ParameterError(
+                "alpha", alpha, f"eq 18 has no root in [-g, g] for xi={xi}: needs 3 alpha / (1 - xi) <= 9/4"
+            )
+        low, high = float(band.threshold_initial), float(band.threshold_final)
+        record["threshold"] = float(band.threshold_mean)
+        record["threshold_initial"] = low
+        record["threshold_final"] = high
+        record["band_width"] = float(band.band_width)
+        u_g = record["U_G"]
+        record["decision"] = "H1" if u_g >= high else ("H0" if u_g < low else "undecided")
+
+
+# ------------------------------------------------------------------ the command
+def fuse(args) -> dict:
+    """Evaluate the requested rule; returns the record printed by the command."""
+    encoding = check_encoding(args.tuple)
+    u = parse_decisions(args.u, encoding)
+    n = int(u.size)
+    record: dict = {
+        "rule": args.rule,
+        "tuple": encoding,
+        "n": n,
+        "present_count": present_count(u, encoding),
+        "U_G": None,
+        "ln_U_G": None,
+        "p_h1": None,
+        "threshold": None,
+        "decision": None,
+    }
+    rule = args.rule
+    if rule in ("additive", "multiplicative", "preferential", "k-of-n"):
+        from .. import rules
+
+        if rule == "additive":
+            record["U_G"] = int(rules.additive(u, encoding))
+        elif rule == "multiplicative":
+            value = rules.multiplicative(u, encoding)
+            record["ln_U_G"] = float(value.ln_U_G)
+            record["U_G"] = float(value.U_G)
+        elif rule == "preferential":
+            record["p"] = rules.check_weight("p", args.p)
+            record["q"] = rules.check_weight("q", args.q)
+            record["U_G"] = float(rules.preferential(u, record["p"], record["q"], encoding))
+        else:
+            if args.k is None:
+                raise ParameterError("k", None, f"required for --rule k-of-n: an integer in 1..n (n = {n})")
+            k_value = _number("k", args.k, f"must be an integer in 1..n (n = {n})", 1, n)
+            if not k_value.is_integer():
+                raise ParameterError("k", args.k, f"must be an integer in 1..n (n = {n})")
+            k = int(k_value)
+            record["k"] = k
+            record["U_G"] = int(rules.k_of_n(u, k, encoding))
+            record["decision"] = "H1" if record["U_G"] == 1 else "H0"
+            if args.pd is not None or args.pf is not None:
+                pd = _probabilities("pd", args.pd, n)
+                pf = _probabilities("pf", args.pf, n)
+                rates = baselines.count_rule_error_rates(k, pd, pf)
+                record["p_detect"] = rates.p_detect
+                record["p_false_alarm"] = rates.p_false_alarm
+                record["log_p_false_alarm"] = rates.log_p_false_alarm
+        if rule != "k-of-n":
+            _hebtem(args, rule, u, encoding, record)
+        return record
+
+    pd = _probabilities("pd", args.pd, n)
+    pf = _probabilities("pf", args.pf, n)
+    if rule == "llr":
+        prior = _open_unit("prior_h1", args.prior_h1)
+        llr = baselines.chair_varshney_llr(u, pd, pf, encoding, prior_h1=prior)
+        record.update(U_G=llr, statistic="ln P(H1|U)/P(H0|U) (eq 31)", prior_h1=prior, threshold=0.0)
+        record["decision"] = "H1" if llr > 0 else ("undecided" if llr == 0 else "H0")
+        return record
+    # np
+    ln_lr = baselines.np_log_statistic(u, pd, pf, encoding)
+    record.update(U_G=ln_lr, statistic="ln P(U|H1)/P(U|H0) (eq 32)")
+    if args.false_alarm is None:
+        # the chapter's comparison: Lambda(U) against lambda_threshold = 1 (ln 1 = 0)
+        record["threshold"] = 0.0
+        record["decision"] = "H1" if ln_lr > 0 else ("undecided" if ln_lr == 0 else "H0")
+        return record
+    alpha = _open_unit("false_alarm", args.false_alarm)
+    np_rule = baselines.neyman_pearson_fusion(pd, pf, alpha)
+    record.update(
+        np_method=np_rule.method,
+        np_statistic=np_rule.statistic,
+        threshold=np_rule.log_threshold,
+        count_threshold=np_rule.count_threshold,
+        gamma=np_rule.gamma,
+        achieved_false_alarm=np_rule.achieved_false_alarm,
+        detection_probability=np_rule.detection_probability,
+        optimal=np_rule.optimal,
+        decision=np_rule.decide(u, encoding),
+    )
+    return record
+
+
+def _json_safe(value):
+    if isinstance(value, float) and not math.isfinite(value):
+        return None  # e.g. U_G = e^n beyond the float range: ln_U_G carries the value
+    if isinstance(value, (np.floating, np.integer)):
+        return _json_safe(value.item())
+    return value
+
+
+def run(args) -> int:
+    record = fuse(args)
+    if args.json:
+        print(json.dumps({key: _json_safe(value) for key, value in record.items()}))
+        return 0
+    from rich.console import Console
+    from rich.table import Table
+
+    table = Table(title=f"fusion-center fuse: {record['rule']} rule, tuple {record['tuple']}")
+    table.add_column("quantity")
+    table.add_column("value", justify="right")
+    for key, value in record.items():
+        if value is None or key in ("rule", "tuple"):
+            continue
+        table.add_row(key, f"{value:.6g}" if isinstance(value, float) else str(value))
+    Console(file=sys.stdout, width=100).print(table)
+    return 0
