@@ -1,0 +1,111 @@
+"""The taxel node's object dictionary: loaded from ``eds/taxel_node.eds``, never re-declared.
+
+The EDS (CiA 306 format; CiA 301 communication objects, CiA 404 analog-input objects and the
+manufacturer objects 0x2000-0x2002 of the local detector, chapter eqs 1-4) is the single
+source of the object dictionary. :func:`load_od` imports it with ``canopen.import_od``.
+
+canopen 2.4.1 loses some EDS content at import (documented and pinned by
+``tests/test_eds.py``): ``LowLimit``/``HighLimit`` of REAL32 entries are dropped (its parser
+only reads integer limits). The node needs the REAL32 limits for its SDO range checks
+(e.g. ζ ≥ 0 at 0x2001:1), so :func:`real_limits` reads exactly those keys from the same EDS
+file with ``configparser``; nothing is duplicated in Python.
+
+The index constants below name CiA 301/404 object indexes the code acts on (as canopen
+itself does); their types, defaults, access and mapping rights all come from the EDS.
+"""
+
+from __future__ import annotations
+
+import configparser
+import math
+import re
+from functools import lru_cache
+from pathlib import Path
+
+import canopen
+from canopen.objectdictionary import ObjectDictionary, datatypes
+
+from fusion_center.errors import ParameterError
+
+EDS_PATH = Path(__file__).resolve().parent.parent / "eds" / "taxel_node.eds"
+
+# CiA 301 communication area (0x1000-0x1FFF): restored by NMT reset-communication
+COMM_AREA = range(0x1000, 0x2000)
+DEVICE_TYPE = 0x1000
+ERROR_REGISTER = 0x1001
+ERROR_FIELD = 0x1003          # pre-defined error field, sub 0 = number of errors (newest at sub 1)
+COB_ID_SYNC = 0x1005
+COB_ID_EMCY = 0x1014
+HEARTBEAT_PRODUCER = 0x1017
+IDENTITY = 0x1018
+TPDO_COMM = (0x1800, 0x1801)  # sub 1 COB-ID, 2 transmission type, 3 inhibit (100 µs), 5 event timer (ms), 6 SYNC start
+TPDO_MAP = (0x1A00, 0x1A01)
+# manufacturer area
+LOCAL_DECISION = 0x2000       # u_i, INTEGER8 +1/-1 (eqs 2-3)
+DETECTOR = 0x2001             # sub 1 ζ mV, 2 N_i mV, 3 kind, 4 x, 5 y
+FAULT_DETECTION = 0x2002      # sub 1 full scale mV, 2 stuck-sample count M (0 = off)
+# CiA 404 analog input, channel 1 (sub 1)
+AI_SCALING_FACTOR = 0x6126    # calibration slope m (eq 23)
+AI_SCALING_OFFSET = 0x6127    # calibration intercept c (eq 23)
+AI_INPUT_PV = 0x6130          # process value X_i in mV, REAL32
+AI_STATUS = 0x6150            # bit 0 PV not valid, bit 1 positive overload, bit 2 negative overload
+
+ZETA = (DETECTOR, 1)
+NOISE_ESTIMATE = (DETECTOR, 2)
+TAXEL_KIND = (DETECTOR, 3)
+POS_X = (DETECTOR, 4)
+POS_Y = (DETECTOR, 5)
+FULL_SCALE = (FAULT_DETECTION, 1)
+STUCK_SAMPLES = (FAULT_DETECTION, 2)
+
+
+def check_eds(eds_path=EDS_PATH) -> Path:
+    path = Path(eds_path)
+    if not path.is_file():
+        raise ParameterError("eds", str(path), "the taxel node EDS file must exist (eds/taxel_node.eds)")
+    return path
+
+
+def load_od(node_id: int, eds_path=EDS_PATH) -> ObjectDictionary:
+    """Import the taxel node EDS for ``node_id`` (1..127) with ``canopen.import_od``."""
+    if not isinstance(node_id, int) or not 1 <= node_id <= 127:
+        raise ParameterError("node_id", node_id, "CANopen node-ID must be an integer 1..127")
+    path = check_eds(eds_path)
+    return canopen.import_od(str(path), node_id)
+
+
+@lru_cache(maxsize=8)
+def _real_limits_cached(path: str, mtime: float) -> dict[tuple[int, int], tuple[float, float]]:
+    parser = configparser.RawConfigParser(inline_comment_prefixes=(";",))
+    parser.optionxform = str
+    parser.read(path)
+    limits: dict[tuple[int, int], tuple[float, float]] = {}
+    for section in parser.sections():
+        m = re.fullmatch(r"([0-9A-Fa-f]{4})(?:[Ss]ub([0-9A-Fa-f]+))?", section)
+        if m is None:
+            continue
+        if int(parser.get(section, "DataType", fallback="0"), 0) not in datatypes.FLOAT_TYPES:
+            continue
+        low = parser.get(section, "LowLimit", fallback=None)
+        high = parser.get(section, "HighLimit", fallback=None)
+        if low is None and high is None:
+            continue
+        key = (int(m.group(1), 16), int(m.group(2), 16) if m.group(2) else 0)
+        limits[key] = (float(low) if low is not None else -math.inf,
+                       float(high) if high is not None else math.inf)
+    return limits
+
+
+def real_limits(eds_path=EDS_PATH) -> dict[tuple[int, int], tuple[float, float]]:
+    """``{(index, subindex): (low, high)}`` of the REAL32/REAL64 entries of the EDS that carry
+    ``LowLimit``/``HighLimit`` (the limits canopen 2.4.1 drops at import)."""
+    path = check_eds(eds_path)
+    return dict(_real_limits_cached(str(path), path.stat().st_mtime))
+
+
+def variable(od: ObjectDictionary, index: int, subindex: int = 0):
+    """The ``ODVariable`` at ``index:subindex`` (sub-index ignored for a VAR object)."""
+    obj = od[index]
+    if isinstance(obj, canopen.objectdictionary.ODVariable):
+        return obj
+    return obj[subindex]

@@ -1,0 +1,347 @@
+"""The rig: every node twin of a scene on its CAN bus(es), configured and booted.
+
+``Rig(scene, ...)`` opens ONE python-can bus object per scene channel (``scene.bus.channels``;
+more than 127 taxels need several, each its own CANopen network) and puts all that channel's
+node twins on it: python-can's ``virtual`` interface deep-copies every frame once per
+*receiving bus object*, so one bus per node would multiply the work by the node count.
+
+Start-up (what a real node has in its non-volatile memory; a master that configures
+nothing still gets working nodes): each node's OD is written from the scene — ζ, N_i, kind,
+x, y (0x2001), slope/intercept (0x6126/0x6127), heartbeat time (0x1017 =
+``bus.heartbeat_producer_ms``), TPDO transmission type / inhibit time / event timer
+(0x1800/0x1801 from ``bus``), TPDO2 enabled iff ``bus.mode == "raw"``, and the stuck-reading
+detector switched off (0x2002:2 = 0) for a taxel simulated without noise
+(``noise_sigma_mv == 0``: its readings are legitimately identical). These values are what
+NMT reset-node / reset-communication restore. Then every node sends its boot-up.
+
+SYNC cycle number: the nodes of a channel sample X_i for cycle ``c`` = the number of SYNCs
+the rig has seen on that channel since :meth:`Rig.start` (the first SYNC is cycle 0). When
+the SYNC carries a counter byte (``bus.sync_counter`` = overflow value 2..240), a jump of
+the counter is read as lost SYNCs: the cycle number advances by the counter difference and
+``lost_syncs`` counts the gap, so the nodes stay aligned with the master's cycles.
+
+Readings: ``reading_source(cycle) -> array`` (X_i in mV per taxel, scene order). Default:
+``node_sim.physics.sample_readings(scene, cycle)`` with its canonical per-cycle random
+numbers (reproducible in any process; ``seed`` replaces ``scene.seed``), which also applies
+the scene's stuck / open-circuit faults. "silent" faults (scene) and :meth:`Rig.drop_node`
+make a node dead (no frame out, none processed) until the fault ends / :meth:`Rig.restore_node`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import threading
+import time
+from typing import Callable, Mapping, Sequence
+
+import can
+import numpy as np
+
+from fusion_center.errors import ParameterError
+from fusion_center.scene import TAXEL_KINDS, Scene
+
+from . import od as odx
+from .node import COB_INVALID, NodeLink, Scheduler, TaxelNode
+
+logger = logging.getLogger(__name__)
+
+ReadingSource = Callable[[int], np.ndarray]
+
+
+class _Channel(can.Listener):
+    """One CANopen network: a bus object, its notifier, the nodes, one lock, one timer thread."""
+
+    def __init__(self, rig: "Rig", index: int, name: str, bus: can.BusABC):
+        self.rig = rig
+        self.index = index
+        self.name = name
+        self.bus = bus
+        self.lock = threading.RLock()
+        self.send_lock = threading.Lock()
+        self.scheduler = Scheduler(self.lock, name=f"node-sim-timers-{name}")
+        self.link = NodeLink(self.send, self.scheduler)
+        self.nodes: dict[int, TaxelNode] = {}
+        self.scene_index: dict[int, int] = {}   # node-ID -> taxel index in scene order
+        self.sync_count = 0                     # SYNCs seen (cycle of the next one if no loss)
+        self.cycle: int | None = None           # cycle number of the last SYNC
+        self.lost_syncs = 0
+        self._last_counter: int | None = None
+        self.frames_sent = 0
+        self.notifier: can.Notifier | None = None
+        self._sync_map: dict[int, list[TaxelNode]] | None = None
+
+    # -- python-can Listener
+    def on_message_received(self, msg: can.Message) -> None:
+        if msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id:
+            return
+        try:
+            with self.lock:
+                self._dispatch(msg.arbitration_id, bytes(msg.data))
+        except Exception:  # never kill the notifier thread
+            logger.exception("node-sim: handling frame 0x%03X failed", msg.arbitration_id)
+
+    def on_error(self, exc: Exception) -> None:
+        logger.error("node-sim channel %s: bus error %s", self.name, exc)
+
+    def _dispatch(self, can_id: int, data: bytes) -> None:
+        if can_id == 0x000:
+            if len(data) >= 2:
+                target = data[1]
+                nodes = self.nodes.values() if target == 0 else (
+                    [self.nodes[target]] if target in self.nodes else [])
+                for node in nodes:
+                    node.on_nmt(data[0])
+                self._sync_map = None  # resets restore 0x1005
+            return
+        if 0x601 <= can_id <= 0x67F:
+            node = self.nodes.get(can_id - 0x600)
+            if node is not None and len(data) == 8:
+                node.on_sdo_request(data)
+                self._sync_map = None  # 0x1005 may have changed
+            return
+        if self._sync_map is None:
+            self._sync_map = {}
+            for n in self.nodes.values():
+                self._sync_map.setdefault(n.read(odx.COB_ID_SYNC) & 0x7FF, []).append(n)
+        sync_nodes = self._sync_map.get(can_id)
+        if sync_nodes:
+            self._on_sync(data, sync_nodes)
+
+    def _on_sync(self, data: bytes, nodes: Sequence[TaxelNode]) -> None:
+        counter = data[0] if len(data) >= 1 else None
+        if counter is not None and self._last_counter is not None:
+            overflow = self.rig.scene.bus.sync_counter or 240
+            step = (counter - self._last_counter - 1) % overflow + 1
+        else:
+            step = 1
+        self._last_counter = counter
+        self.cycle = self.sync_count + step - 1
+        self.lost_syncs += step - 1
+        self.sync_count = self.cycle + 1
+        cycle = self.cycle
+        readings = self.rig._readings(cycle)
+        for node in nodes:
+            self.rig._apply_silence(self.index, node, cycle)
+            node.on_sync(cycle, float(readings[self.scene_index[node.node_id]]), counter)
+
+    def send(self, can_id: int, data: bytes) -> None:
+        msg = can.Message(arbitration_id=can_id, data=data, is_extended_id=False)
+        with self.send_lock:
+            try:
+                self.bus.send(msg)
+                self.frames_sent += 1
+            except can.CanError as exc:  # a full TX queue on a real bus: drop, like a node would
+                logger.warning("node-sim channel %s: send 0x%03X failed: %s", self.name, can_id, exc)
+
+
+class Rig:
+    """All node twins of ``scene`` (see module docstring).
+
+    ``interface``: any python-can interface name ("virtual", "udp_multicast", "socketcan", …).
+    ``channel``: None = the scene's channel names; a string (one scene channel) or a sequence
+    (one per scene channel). ``bitrate`` is passed to ``can.Bus`` when given.
+    ``bus_kwargs``: extra keyword arguments for every ``can.Bus`` (e.g. ``port`` of udp_multicast).
+    """
+
+    def __init__(self, scene: Scene, interface: str = "virtual", channel: str | Sequence[str] | None = None,
+                 bitrate: int | None = None, reading_source: ReadingSource | None = None,
+                 seed: int | None = None, eds_path=odx.EDS_PATH, bus_kwargs: Mapping | None = None):
+        if not isinstance(scene, Scene):
+            raise ParameterError("scene", type(scene).__name__, "must be a fusion_center.scene.Scene")
+        if scene.n == 0:
+            raise ParameterError("scene.taxels", (), "a rig needs at least one taxel")
+        self.scene = scene if seed is None else dataclasses.replace(scene, seed=int(seed))
+        self.interface = interface
+        names = list(scene.bus.channels)
+        if channel is None:
+            self.channel_names = names
+        elif isinstance(channel, str):
+            if len(names) != 1:
+                raise ParameterError("channel", channel,
+                                     f"the scene has {len(names)} channels: give one bus channel per scene channel")
+            self.channel_names = [channel]
+        else:
+            if len(channel) != len(names):
+                raise ParameterError("channel", list(channel), f"need exactly {len(names)} (one per scene channel)")
+            self.channel_names = [str(c) for c in channel]
+        self.bitrate = bitrate
+        self.bus_kwargs = dict(bus_kwargs or {})
+        self.eds_path = odx.check_eds(eds_path)
+        self._reading_source = reading_source
+        self._channels: list[_Channel] = []
+        self._dropped: set[tuple[int, int]] = set()
+        self._silent_faults = [f for f in getattr(self.scene, "faults", ()) if f.fault == "silent"]
+        self._reading_cache: tuple[int, np.ndarray] | None = None
+        self._reading_lock = threading.Lock()
+        self.started = False
+        for i, t in enumerate(scene.taxels):
+            if not 0 <= t.channel < len(names):
+                raise ParameterError(f"taxels[{i}].channel", t.channel, f"must index bus.channels (0..{len(names) - 1})")
+
+    # ------------------------------------------------------------------ life cycle
+    def __enter__(self) -> "Rig":
+        self.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+    def start(self) -> "Rig":
+        """Open the buses, create and configure every node, send the boot-ups."""
+        if self.started:
+            return self
+        try:
+            for index, name in enumerate(self.channel_names):
+                kwargs = dict(self.bus_kwargs)
+                if self.bitrate is not None:
+                    kwargs["bitrate"] = self.bitrate
+                try:
+                    bus = can.Bus(interface=self.interface, channel=name, **kwargs)
+                except Exception as exc:  # noqa: BLE001 - any backend failure is "cannot open"
+                    raise ParameterError("channel", name,
+                                         f"cannot be opened with python-can interface {self.interface!r}: "
+                                         f"{type(exc).__name__}: {exc}") from None
+                self._channels.append(_Channel(self, index, name, bus))
+            for i, t in enumerate(self.scene.taxels):
+                ch = self._channels[t.channel]
+                node = TaxelNode(t.node_id, ch.link, eds_path=self.eds_path)
+                node.configure(self._startup_values(t))
+                ch.nodes[t.node_id] = node
+                ch.scene_index[t.node_id] = i
+            for ch in self._channels:
+                ch.notifier = can.Notifier(ch.bus, [ch], timeout=0.05)
+            for ch in self._channels:
+                with ch.lock:
+                    for node in ch.nodes.values():
+                        self._apply_silence(ch.index, node, 0)
+                        node.power_on()
+        except BaseException:
+            self.stop()
+            raise
+        self.started = True
+        return self
+
+    def stop(self) -> None:
+        """Stop timers, notifiers and buses (idempotent)."""
+        for ch in self._channels:
+            ch.scheduler.stop()
+            with ch.lock:
+                for node in ch.nodes.values():
+                    node.shutdown()
+            if ch.notifier is not None:
+                ch.notifier.stop(timeout=2)
+            try:
+                ch.bus.shutdown()
+            except Exception:  # noqa: BLE001
+                logger.exception("node-sim: bus shutdown failed")
+        self._channels = []
+        self.started = False
+
+    # ------------------------------------------------------------------ configuration
+    def _startup_values(self, t) -> dict[tuple[int, int], object]:
+        bus = self.scene.bus
+        values: dict[tuple[int, int], object] = {
+            odx.ZETA: float(t.zeta_mv),
+            odx.NOISE_ESTIMATE: float(t.noise_mv),
+            odx.TAXEL_KIND: TAXEL_KINDS[t.kind],
+            (odx.HEARTBEAT_PRODUCER, 0): int(bus.heartbeat_producer_ms),
+        }
+        if t.x is not None:
+            values[odx.POS_X] = float(t.x)
+        if t.y is not None:
+            values[odx.POS_Y] = float(t.y)
+        if t.slope is not None:
+            values[(odx.AI_SCALING_FACTOR, 1)] = float(t.slope)
+        if t.intercept is not None:
+            values[(odx.AI_SCALING_OFFSET, 1)] = float(t.intercept)
+        if t.noise_sigma_mv == 0:
+            values[odx.STUCK_SAMPLES] = 0
+        for pdo, comm in enumerate(odx.TPDO_COMM):
+            values[(comm, 2)] = int(bus.transmission_type)
+            values[(comm, 3)] = int(bus.inhibit_time_100us)
+            values[(comm, 5)] = int(bus.event_timer_ms)
+        tpdo2_cob = 0x280 + t.node_id
+        values[(odx.TPDO_COMM[1], 1)] = tpdo2_cob if bus.mode == "raw" else tpdo2_cob | COB_INVALID
+        return values
+
+    # ------------------------------------------------------------------ readings and faults
+    def _readings(self, cycle: int) -> np.ndarray:
+        with self._reading_lock:
+            cached = self._reading_cache
+            if cached is not None and cached[0] == cycle:
+                return cached[1]
+            if self._reading_source is not None:
+                x = np.asarray(self._reading_source(cycle), dtype=float)
+            else:
+                from . import physics
+
+                x = physics.sample_readings(self.scene, cycle)
+            if x.shape != (self.scene.n,):
+                raise ParameterError("reading_source", x.shape, f"must return {self.scene.n} readings (scene order)")
+            self._reading_cache = (cycle, x)
+            return x
+
+    def _apply_silence(self, channel: int, node: TaxelNode, cycle: int) -> None:
+        key = (channel, node.node_id)
+        silent = key in self._dropped or any(
+            f.channel == channel and f.node_id == node.node_id and f.active(cycle) for f in self._silent_faults)
+        node.silent = silent
+
+    def drop_node(self, node_id: int, channel: int = 0) -> None:
+        """Make a node dead (silent) until :meth:`restore_node`."""
+        node = self._node(node_id, channel)
+        with self._channels[channel].lock:
+            self._dropped.add((channel, node_id))
+            node.silent = True
+
+    def restore_node(self, node_id: int, channel: int = 0) -> None:
+        """End a :meth:`drop_node`; the node resumes in the NMT state it had (no new boot-up)."""
+        node = self._node(node_id, channel)
+        ch = self._channels[channel]
+        with ch.lock:
+            self._dropped.discard((channel, node_id))
+            self._apply_silence(channel, node, ch.cycle if ch.cycle is not None else 0)
+
+    # ------------------------------------------------------------------ introspection
+    def _node(self, node_id: int, channel: int) -> TaxelNode:
+        if not self._channels:
+            raise ParameterError("rig", "stopped", "start() the rig first")
+        if not 0 <= channel < len(self._channels):
+            raise ParameterError("channel", channel, f"must lie in 0..{len(self._channels) - 1}")
+        node = self._channels[channel].nodes.get(node_id)
+        if node is None:
+            raise ParameterError("node_id", node_id, f"no such node on channel {channel}")
+        return node
+
+    def node(self, node_id: int, channel: int = 0) -> TaxelNode:
+        return self._node(node_id, channel)
+
+    @property
+    def nodes(self) -> dict[tuple[int, int], TaxelNode]:
+        """``{(channel, node_id): TaxelNode}`` of every node (scene order)."""
+        return {(ch.index, nid): n for ch in self._channels for nid, n in ch.nodes.items()}
+
+    @property
+    def buses(self) -> list[can.BusABC]:
+        return [ch.bus for ch in self._channels]
+
+    def cycle(self, channel: int = 0) -> int | None:
+        """Cycle number of the last SYNC seen on ``channel`` (None before the first)."""
+        return self._channels[channel].cycle
+
+    def lost_syncs(self, channel: int = 0) -> int:
+        return self._channels[channel].lost_syncs
+
+    def frames_sent(self) -> int:
+        return sum(ch.frames_sent for ch in self._channels)
+
+    def wait_cycle(self, cycle: int, channel: int = 0, timeout: float = 10.0) -> bool:
+        """Block until ``channel`` has processed the SYNC of ``cycle`` (test/demo helper)."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            c = self._channels[channel].cycle
+            if c is not None and c >= cycle:
+                return True
+            time.sleep(0.001)
+        return False
