@@ -1,0 +1,221 @@
+"""Exact bit accounting of classic CAN frames (ISO 11898-1 / Bosch CAN 2.0 A and B).
+
+Numerical core: no CAN hardware, no I/O. The chapter (sec. 3.1, 4.3) leaves the transport
+open; this module prices the bus cost of the fusion centre's traffic (one TPDO per taxel per
+SYNC, eqs 1-4 decisions or raw X_i) so the bandwidth report is exact, frame by frame.
+
+A data frame on the wire, in transmission order (bit value 0 = dominant)::
+
+    SOF(1)=0 | ID(11) | RTR(1)=0 | IDE(1)=0 | r0(1)=0 | DLC(4) | DATA(8n) | CRC(15)     <- stuffed
+    | CRC delimiter(1)=1 | ACK slot(1) | ACK delimiter(1)=1 | EOF(7)=1111111 | intermission(3)
+
+extended (2.0B): SOF | base ID(11) | SRR(1)=1 | IDE(1)=1 | ID extension(18) | RTR | r1 | r0 | DLC |
+DATA | CRC. The CRC-15 (generator x^15+x^14+x^10+x^8+x^7+x^4+x^3+1, i.e. 0x4599, initial value
+0) is computed over the *unstuffed* bits from SOF to the end of the data field. Bit stuffing
+(after five consecutive equal bits the transmitter inserts one complementary bit, which itself
+starts the next run) applies from SOF to the end of the CRC sequence, including a stuff bit
+after the CRC's last bit when its last five bits are equal. The 10 bits from the CRC delimiter
+to the EOF and the 3-bit intermission are fixed form.
+
+Worst case (Davis, Burns, Bril & Lukkien, "Controller Area Network (CAN) schedulability
+analysis: Refuted, revisited and revised", Real-Time Systems 35(3), 2007, eq. 2; it corrects
+Tindell's floor((34+8n)/5)): with g = 34 (standard) or 54 (extended) stuffable overhead bits,
+
+    C = g + 8n + 13 + floor((g + 8n - 1) / 4)      bits, incl. the 3-bit intermission,
+
+i.e. 8n + 47 + floor((34 + 8n - 1)/4) for 2.0A (135 bits for 8 bytes; the "8n + 44" form found
+elsewhere omits the intermission) and 8n + 67 + floor((54 + 8n - 1)/4) for 2.0B (160 bits).
+The Linux kernel (include/linux/can/length.h, ``can_frame_bits``) counts the same numbers.
+Best case: no stuff bit at all, 8n + 47 (2.0A) or 8n + 67 (2.0B).
+
+CAN FD (ISO 11898-1:2015) is not modelled. What differs: FDF/res/BRS/ESI bits in the control
+field; DLC codes 9..15 mean 12..64 bytes; a 3-bit Gray-coded stuff-bit count + parity bit
+before the CRC; CRC-17 (<= 16 bytes) or CRC-21 (> 16 bytes) with *fixed* stuff bits (one
+every 4 bits) in the CRC field instead of dynamic stuffing; and the data phase (from BRS to
+the CRC delimiter) at a second, higher bit rate, so a frame's duration is the sum of two
+bit-time products, not bits / bitrate.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+
+from .errors import ParameterError
+
+CRC15_POLY = 0x4599                 # x^15 + x^14 + x^10 + x^8 + x^7 + x^4 + x^3 + 1 (x^15 implicit)
+STUFF_RUN = 5                       # a stuff bit after 5 equal consecutive bits
+INTERMISSION_BITS = 3
+TRAILER_BITS = 1 + 2 + 7            # CRC delimiter, ACK slot + delimiter, EOF
+STUFFABLE_OVERHEAD = {False: 34, True: 54}   # g: SOF..CRC minus the data field, 2.0A / 2.0B
+MAX_STD_ID = 0x7FF
+MAX_EXT_ID = 0x1FFFFFFF
+
+
+def _to_bits(value: int, width: int) -> list[int]:
+    return [(value >> (width - 1 - k)) & 1 for k in range(width)]
+
+
+def _check_bits(bits) -> list[int]:
+    out = [int(b) for b in bits]
+    if any(b not in (0, 1) for b in out):
+        raise ParameterError("bits", bits, "must contain only 0 and 1")
+    return out
+
+
+def crc15(bits: Iterable[int]) -> int:
+    """CRC-15 of CAN (polynomial 0x4599, init 0) over a bit sequence, MSB first (ISO 11898-1 10.4.2.6).
+
+    Shift-register form of the spec: CRC_NXT = bit XOR CRC[14]; shift left; XOR 0x4599 if CRC_NXT.
+    """
+    crc = 0
+    for b in _check_bits(bits):
+        nxt = b ^ ((crc >> 14) & 1)
+        crc = (crc << 1) & 0x7FFF
+        if nxt:
+            crc ^= CRC15_POLY
+    return crc
+
+
+def stuff_bits(bits: Iterable[int]) -> int:
+    """Number of stuff bits the transmitter inserts into ``bits`` (the SOF..CRC sequence).
+
+    After 5 consecutive equal bits a complementary bit is inserted; the stuff bit counts as
+    the first bit of the next run. A stuff bit after the last bit is counted (CRC end).
+    """
+    seq = _check_bits(bits)
+    return len(stuff(seq)) - len(seq)
+
+
+def stuff(bits: Iterable[int]) -> list[int]:
+    """The bit sequence as transmitted, with stuff bits inserted (see ``stuff_bits``)."""
+    out: list[int] = []
+    run_value, run_len = None, 0
+    for b in _check_bits(bits):
+        out.append(b)
+        if b == run_value:
+            run_len += 1
+        else:
+            run_value, run_len = b, 1
+        if run_len == STUFF_RUN:
+            s = 1 - b
+            out.append(s)
+            run_value, run_len = s, 1
+    return out
+
+
+def _check_frame(can_id, data, extended: bool, remote: bool, dlc) -> tuple[int, bytes, int]:
+    if isinstance(can_id, bool) or not isinstance(can_id, int):
+        raise ParameterError("can_id", can_id, "must be an integer")
+    limit = MAX_EXT_ID if extended else MAX_STD_ID
+    if not 0 <= can_id <= limit:
+        raise ParameterError("can_id", can_id, f"must lie in 0..0x{limit:X} for "
+                                               f"{'extended (2.0B)' if extended else 'standard (2.0A)'} frames")
+    try:
+        payload = bytes(data)
+    except (TypeError, ValueError):
+        raise ParameterError("data", data, "must be bytes or a sequence of integers 0..255") from None
+    if len(payload) > 8:
+        raise ParameterError("data", len(payload), "classic CAN carries 0..8 data bytes")
+    if remote:
+        if payload:
+            raise ParameterError("data", payload, "a remote frame has no data field")
+        code = 0 if dlc is None else dlc
+    else:
+        code = len(payload) if dlc is None else dlc
+        if dlc is not None and dlc != len(payload):
+            raise ParameterError("dlc", dlc, f"must equal len(data)={len(payload)} for a data frame")
+    if isinstance(code, bool) or not isinstance(code, int) or not 0 <= code <= 8:
+        raise ParameterError("dlc", code, "must lie in 0..8")
+    return can_id, payload, code
+
+
+def frame_fields(can_id: int, data: bytes | Sequence[int] = b"", extended: bool = False,
+                 remote: bool = False, dlc: int | None = None) -> list[int]:
+    """Unstuffed bits from SOF to the end of the data field (what the CRC covers)."""
+    can_id, payload, code = _check_frame(can_id, data, extended, remote, dlc)
+    rtr = 1 if remote else 0
+    bits = [0]                                            # SOF
+    if extended:
+        bits += _to_bits(can_id >> 18, 11)                # base identifier ID28..ID18
+        bits += [1, 1]                                    # SRR, IDE
+        bits += _to_bits(can_id & 0x3FFFF, 18)            # identifier extension ID17..ID0
+        bits += [rtr, 0, 0]                               # RTR, r1, r0
+    else:
+        bits += _to_bits(can_id, 11)
+        bits += [rtr, 0, 0]                               # RTR, IDE, r0
+    bits += _to_bits(code, 4)                             # DLC
+    for byte in payload:
+        bits += _to_bits(byte, 8)
+    return bits
+
+
+def frame_stuffable_bits(can_id: int, data: bytes | Sequence[int] = b"", extended: bool = False,
+                         remote: bool = False, dlc: int | None = None) -> list[int]:
+    """Unstuffed SOF..CRC sequence: ``frame_fields`` followed by its 15-bit CRC."""
+    fields = frame_fields(can_id, data, extended, remote, dlc)
+    return fields + _to_bits(crc15(fields), 15)
+
+
+def frame_bits(can_id: int, data: bytes | Sequence[int] = b"", extended: bool = False,
+               remote: bool = False, dlc: int | None = None, intermission: bool = True) -> int:
+    """Exact length on the wire, in bits, of one classic CAN data (or remote) frame.
+
+    SOF..CRC with its actual stuff bits + CRC delimiter, ACK slot, ACK delimiter, EOF
+    (+ the 3-bit intermission unless ``intermission=False``). ``dlc`` only for a remote
+    frame (the requested length); for a data frame DLC = len(data).
+    """
+    seq = frame_stuffable_bits(can_id, data, extended, remote, dlc)
+    return len(seq) + stuff_bits(seq) + TRAILER_BITS + (INTERMISSION_BITS if intermission else 0)
+
+
+def _check_dlc(dlc) -> int:
+    if isinstance(dlc, bool) or not isinstance(dlc, int) or not 0 <= dlc <= 8:
+        raise ParameterError("dlc", dlc, "must lie in 0..8")
+    return dlc
+
+
+def worst_case_frame_bits(dlc: int, extended: bool = False, intermission: bool = True) -> int:
+    """Upper bound g + 8n + 13 + floor((g + 8n - 1)/4) (Davis et al. 2007, eq. 2; g = 34 or 54).
+
+    With ``intermission=False`` 3 bits less (8n + 44 + ... for 2.0A)."""
+    n = _check_dlc(dlc)
+    g = STUFFABLE_OVERHEAD[bool(extended)]
+    total = g + 8 * n + TRAILER_BITS + INTERMISSION_BITS + (g + 8 * n - 1) // 4
+    return total if intermission else total - INTERMISSION_BITS
+
+
+def best_case_frame_bits(dlc: int, extended: bool = False, intermission: bool = True) -> int:
+    """Lower bound: the frame without any stuff bit, g + 8n + 13 (8n + 47 for 2.0A)."""
+    n = _check_dlc(dlc)
+    g = STUFFABLE_OVERHEAD[bool(extended)]
+    return g + 8 * n + TRAILER_BITS + (INTERMISSION_BITS if intermission else 0)
+
+
+def _check_bitrate(bitrate) -> float:
+    if isinstance(bitrate, bool) or not isinstance(bitrate, (int, float)) or not bitrate > 0 \
+            or bitrate != bitrate or bitrate == float("inf"):
+        raise ParameterError("bitrate", bitrate, "must be a finite number of bit/s > 0")
+    return float(bitrate)
+
+
+def frame_time_s(bits: int, bitrate: float) -> float:
+    """Transmission time of ``bits`` at ``bitrate`` bit/s (classic CAN: one bit time each)."""
+    if isinstance(bits, bool) or not isinstance(bits, int) or bits < 0:
+        raise ParameterError("bits", bits, "must be an integer >= 0")
+    return bits / _check_bitrate(bitrate)
+
+
+def bus_load(frames_bits_per_cycle: Iterable[int], cycle_period_s: float, bitrate: float) -> float:
+    """Fraction of the bus time the frames of one cycle occupy: sum(bits) / (period * bitrate).
+
+    A value > 1 means the cycle's traffic does not fit in the period.
+    """
+    total = 0
+    for k, b in enumerate(frames_bits_per_cycle):
+        if isinstance(b, bool) or not isinstance(b, int) or b < 0:
+            raise ParameterError(f"frames_bits_per_cycle[{k}]", b, "must be an integer >= 0")
+        total += b
+    if isinstance(cycle_period_s, bool) or not isinstance(cycle_period_s, (int, float)) \
+            or not cycle_period_s > 0 or cycle_period_s == float("inf"):
+        raise ParameterError("cycle_period_s", cycle_period_s, "must be a finite number of seconds > 0")
+    return total / (float(cycle_period_s) * _check_bitrate(bitrate))
