@@ -1,0 +1,432 @@
+"""HEBTEM dynamic thresholds (sec. 2.2.3.4, eqs 16-20, Appendix I), solved without overflow.
+
+The chapter's threshold equations are "area under the P(H1) curve from lambda to the right end
+= (1 - alpha) (or (1 - beta)) times the rectangle" (Appendix I). Dividing by the width turns each
+into "mean of P(H1) over [lambda, right end] = 1 - alpha" and every mean has a closed form in
+the function
+
+    D(z) = 1 - (1 - e^-z)/z = 1 - phi(z),   D(0+) = 0, D increasing and concave, D(inf) = 1,
+
+evaluated by its Taylor series for small z (no cancellation) and by (z + expm1(-z))/z else.
+
+* multiplicative, eq 16, curve eqs 10-11: with x = e^n s, L = ln(1/xi), L' = L/(1 - e^-2n) and
+  w = 1 - t (t = lambda/e^n) the equation is D(L' w) = beta. Its non-trivial root is unique:
+  z = D^-1(beta), w = z/L', t = 1 - w.
+* additive {0,1}, eq 17 with eq 12: D(L v) = alpha, v = 1 - lambda/n in (0, 1].
+* additive {-1,+1}, eq 17 with eq 13: with v = 1 - lambda/n in (0, 2], r, ln r, c of eq 13,
+  Q(v) = (r/2) D(v ln r) + (c/2) v = alpha. Q(0) = 0 and Q is concave, so there are 0, 1 or
+  2 roots (2 only when c < 0, i.e. xi > 1/4, where Q rises then falls inside (0, 2]).
+* preferential, eq 18 with eq 14: with y = lambda/g the cubic of eq 18 divided by (g - lambda)
+  is y^2 + y - 2 + 3 alpha/(1 - xi) = 0.
+
+Roots of D(z) = b are found by Newton's method from a starting point on the safe side of a
+concave/convex function (monotone, quadratic convergence, typically 2-5 steps), in plain
+``math`` floats: a solve costs a few microseconds. The trivial root (lambda = right end point,
+where both sides of the area equation vanish) is never returned.
+
+Domains (documented in README and docs/chapter-notes.md):
+
+* multiplicative: lambda in [-e^n, e^n] (t in [-1, 1]). The chapter draws the curve on
+  [e^-n, e^n] but says the roots are "one positive and the other negative" and discusses
+  "-lambda"; U_G itself is always > 0, so a root t <= e^-2n means "every U_G accepts" and
+  present_counts reports 0 there. A root with t < -1 is "no root" (empty tuples).
+* additive: lambda in [-n, n] ({-1,+1}) or [0, n] ({0,1}).
+* preferential: lambda_mean in [-g, g].
+
+Direction: a stricter (smaller) alpha or beta gives a larger lambda, i.e. a tougher test for
+accepting H1 (the chapter, sec. 2.2.3.4) -- property-tested.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from .curves import additive_pm1_constants, check_n, check_open_unit, check_xi
+from .encoding import check_encoding
+from .errors import ParameterError
+from .rules import check_weight, g_of_n
+
+__all__ = [
+    "MultiplicativeThreshold",
+    "AdditiveThreshold",
+    "PreferentialThreshold",
+    "multiplicative_threshold",
+    "additive_threshold",
+    "preferential_threshold",
+    "max_preferential_value",
+    "solve_mean_deficit",
+    "DEFAULT_RTOL",
+]
+
+_EPS = 2.220446049250313e-16
+DEFAULT_RTOL = 4 * _EPS
+_MAX_ITER = 100
+
+# Taylor coefficients: D(z) = sum_{k>=2} (-1)^k z^(k-1)/k!,  D'(z) = sum_{k>=2} (-1)^k (k-1) z^(k-2)/k!
+_D_COEF = [(-1) ** k / math.factorial(k) for k in range(2, 24)]
+_DP_COEF = [(-1) ** k * (k - 1) / math.factorial(k) for k in range(2, 24)]
+_DPP_COEF = [(-1) ** k * (k - 1) * (k - 2) / math.factorial(k) for k in range(3, 25)]
+_SERIES_LIMIT = 0.5  # 0.5^22/23! < 1e-28: the truncated series is exact to double precision
+
+
+def _horner(coef, z):
+    acc = 0.0
+    for c in reversed(coef):
+        acc = acc * z + c
+    return acc
+
+
+def _d(z: float) -> float:
+    """D(z) = 1 - (1 - e^-z)/z for z >= 0, relative accuracy ~1 ulp."""
+    if z <= _SERIES_LIMIT:
+        return z * _horner(_D_COEF, z)
+    return (z + math.expm1(-z)) / z
+
+
+def _dprime(z: float) -> float:
+    """D'(z) = (1 - (1 + z) e^-z)/z^2."""
+    if z <= _SERIES_LIMIT:
+        return _horner(_DP_COEF, z)
+    return -(math.expm1(-z) + z * math.exp(-z)) / (z * z)
+
+
+def _dsecond(z: float) -> float:
+    """D''(z) = e^-z/z + 2 e^-z/z^2 - 2 (1 - e^-z)/z^3 (< 0: D is concave)."""
+    if z <= _SERIES_LIMIT:
+        return _horner(_DPP_COEF, z)
+    e = math.exp(-z)
+    return e / z + 2.0 * e / (z * z) + 2.0 * math.expm1(-z) / (z * z * z)
+
+
+def solve_mean_deficit(b: float, rtol: float = DEFAULT_RTOL) -> tuple[float, int]:
+    """The unique z > 0 with D(z) = b, b in (0, 1); returns (z, function evaluations).
+
+    b <= 1/2: Newton on D(z) - b from z0 = 2b + 4b^2/3 (series inversion; D concave, so the
+    iterates approach the root monotonically after one step). b > 1/2: with c = 1 - b (exact in
+    floating point for b >= 1/2) Newton on the convex F(z) = c z - 1 + e^-z from z0 = 1/c,
+    which lies right of the root, so the iterates decrease monotonically. Both ends stay
+    accurate: b -> 0 (z ~ 2b) and b -> 1 (z ~ 1/(1 - b)).
+    """
+    evals = 0
+    if b <= 0.5:
+        z = 2.0 * b + (4.0 / 3.0) * b * b
+        for _ in range(_MAX_ITER):
+            step = (_d(z) - b) / _dprime(z)
+            evals += 1
+            z -= step
+            if abs(step) <= rtol * z:
+                break
+        return z, evals
+    c = 1.0 - b
+    z = 1.0 / c
+    for _ in range(_MAX_ITER):
+        e = math.exp(-z)
+        step = (c * z - 1.0 + e) / (c - e)
+        evals += 1
+        z -= step
+        if abs(step) <= rtol * z:
+            break
+    return z, evals
+
+
+def _check_level(name: str, value) -> float:
+    return check_open_unit(name, value)
+
+
+# ----------------------------------------------------------------------------- multiplicative
+
+
+@dataclass(frozen=True)
+class MultiplicativeThreshold:
+    """Solution of eq 16 (multiplicative rule, {-1,+1} tuple, curve eqs 10-11).
+
+    scaled_thresholds: t = lambda/e^n of every non-trivial root in [-1, 1] (ascending; eq 16 has
+        at most one). ln_thresholds: ln lambda = n + ln t, None where t <= 0.
+    present_counts: per root, the smallest number of present taxels j (0..n) whose
+        U_G = e^(2j - n) >= lambda; 0 when lambda <= e^-n; None if no j qualifies.
+    """
+
+    n: int
+    xi: float
+    beta: float
+    scaled_thresholds: tuple[float, ...]
+    ln_thresholds: tuple[float | None, ...]
+    present_counts: tuple[int | None, ...]
+
+
+def multiplicative_threshold(n, xi, beta, *, rtol: float = DEFAULT_RTOL, info: dict | None = None) -> MultiplicativeThreshold:
+    """HEBTEM threshold of the multiplicative rule, eq 16:
+
+        int_lambda^{e^n} f(x) dx = (1 - beta)(e^n - lambda),  f = eqs 10-11.
+
+    Solved as D(L' w) = beta with w = 1 - lambda/e^n, L' = ln(1/xi)/(1 - e^-2n) (module doc).
+    Works for every n >= 1 (no e^n is formed). ``info``, if given, receives the number of
+    function evaluations under "evaluations".
+    """
+    n = check_n(n)
+    xi = check_xi(xi)
+    beta = _check_level("beta", beta)
+    l_prime = -math.log(xi) / -math.expm1(-2.0 * n)
+    z, evals = solve_mean_deficit(beta, rtol)
+    if info is not None:
+        info["evaluations"] = evals
+    w = z / l_prime
+    if w > 2.0:  # t < -1: outside [-e^n, e^n]
+        return MultiplicativeThreshold(n, xi, beta, (), (), ())
+    t = 1.0 - w
+    if t > 0.0:
+        ln_t = math.log1p(-w)
+        ln_lambda = n + ln_t
+        present = min(n, max(0, math.ceil(n + 0.5 * ln_t)))  # 2j - n >= n + ln t
+    else:
+        ln_lambda = None
+        present = 0
+    return MultiplicativeThreshold(n, xi, beta, (t,), (ln_lambda,), (present,))
+
+
+# ----------------------------------------------------------------------------------- additive
+
+
+@dataclass(frozen=True)
+class AdditiveThreshold:
+    """Solution of eq 17 (additive rule; curve eq 13 for "pm1", eq 12 for "01").
+
+    thresholds: every non-trivial root lambda in the domain ([-n, n] or [0, n]), ascending;
+        0, 1 or 2 of them ("no root" is the empty tuple).
+    present_counts: per root, the smallest number of present taxels j with U_G >= lambda
+        (U_G = 2j - n for "pm1", j for "01").
+    """
+
+    n: int
+    xi: float
+    alpha: float
+    encoding: str
+    thresholds: tuple[float, ...]
+    present_counts: tuple[int, ...]
+
+
+def _q_pm1(v, half_r, ln_r, half_c):
+    return half_r * _d(ln_r * v) + half_c * v
+
+
+def _qprime_pm1(v, half_r, ln_r, half_c):
+    return half_r * ln_r * _dprime(ln_r * v) + half_c
+
+
+def _newton_q(alpha, v, half_r, ln_r, half_c, rtol, evals):
+    for _ in range(_MAX_ITER):
+        step = (_q_pm1(v, half_r, ln_r, half_c) - alpha) / _qprime_pm1(v, half_r, ln_r, half_c)
+        evals[0] += 1
+        v -= step
+        if abs(step) <= rtol * v:
+            break
+    return v
+
+
+def _additive_pm1_roots(alpha: float, xi: float, rtol: float, evals: list) -> list[float]:
+    """Roots v in (0, 2] of Q(v) = alpha (module doc), ascending in v."""
+    r, ln_r, c = additive_pm1_constants(xi)
+    half_r, half_c = 0.5 * r, 0.5 * c
+    slope0 = 0.25 * r * ln_r + half_c  # Q'(0) = p'(n) n / 2 > 0
+    q_end = _q_pm1(2.0, half_r, ln_r, half_c)
+    evals[0] += 1
+    roots: list[float] = []
+    if c >= 0.0 or _qprime_pm1(2.0, half_r, ln_r, half_c) >= 0.0:
+        if alpha <= q_end:  # Q increasing on [0, 2]
+            roots.append(min(2.0, _newton_q(alpha, alpha / slope0, half_r, ln_r, half_c, rtol, evals)))
+        return roots
+    # xi > 1/4 and Q has its maximum inside (0, 2): find it (Newton on Q', safeguarded)
+    lo, hi = 0.0, 2.0
+    v = 1.0
+    for _ in range(_MAX_ITER):
+        qp = _qprime_pm1(v, half_r, ln_r, half_c)
+        evals[0] += 1
+        if qp > 0.0:
+            lo = v
+        else:
+            hi = v
+        qpp = half_r * ln_r * ln_r * _dsecond(ln_r * v)
+        nxt = v - qp / qpp
+        if not (lo < nxt < hi):
+            nxt = 0.5 * (lo + hi)
+        if abs(nxt - v) <= rtol * v or hi - lo <= rtol * hi:
+            v = nxt
+            break
+        v = nxt
+    v_star = v
+    q_max = _q_pm1(v_star, half_r, ln_r, half_c)
+    if alpha > q_max:
+        return roots
+    first = _newton_q(alpha, alpha / slope0, half_r, ln_r, half_c, rtol, evals)
+    roots.append(min(first, v_star))
+    if q_end <= alpha:
+        second = _newton_q(alpha, 2.0, half_r, ln_r, half_c, rtol, evals)
+        second = min(2.0, max(second, v_star))
+        if second > roots[0] * (1.0 + 1e-12):  # a tangent (double) root is reported once
+            roots.append(second)
+    return roots
+
+
+def additive_threshold(n, xi, alpha, encoding: str = "pm1", *, rtol: float = DEFAULT_RTOL, info: dict | None = None) -> AdditiveThreshold:
+    """HEBTEM threshold of the additive rule, eq 17:
+
+        int_lambda^n f(x) dx = (1 - alpha)(n - lambda),
+
+    f = eq 13 on [-n, n] for ``encoding="pm1"`` or eq 12 on [0, n] for ``"01"``. Every root in
+    the domain is returned (module doc); none is a result, never an error.
+    """
+    n = check_n(n)
+    xi = check_xi(xi)
+    alpha = _check_level("alpha", alpha)
+    encoding = check_encoding(encoding)
+    evals = [0]
+    if encoding == "01":
+        z, evals[0] = solve_mean_deficit(alpha, rtol)
+        v = z / -math.log(xi)
+        vs = [v] if v <= 1.0 else []
+        lambdas = [n * (1.0 - v) for v in vs]
+        counts = [min(n, max(0, math.ceil(n - n * v))) for v in vs]
+    else:
+        vs = _additive_pm1_roots(alpha, xi, rtol, evals)
+        lambdas = [n * (1.0 - v) for v in vs]
+        counts = [min(n, max(0, math.ceil(n - 0.5 * n * v))) for v in vs]  # 2j - n >= n (1 - v)
+    if info is not None:
+        info["evaluations"] = evals[0]
+    order = sorted(range(len(lambdas)), key=lambda i: lambdas[i])
+    return AdditiveThreshold(
+        n, xi, alpha, encoding, tuple(lambdas[i] for i in order), tuple(counts[i] for i in order)
+    )
+
+
+# ------------------------------------------------------------------------------- preferential
+
+
+@dataclass(frozen=True)
+class PreferentialThreshold:
+    """Solution of eqs 18-20 (preferential rule, curve eq 14).
+
+    g_max: g(n) of eq 15. threshold_mean: the non-trivial root of eq 18 in [-g, g] (the larger
+    one if two lie there); band_width: alpha g / 4 (eq 20); threshold_initial/final:
+    mean -/+ band/2 (the band is centred on the mean, "mid-point of the band", sec. 2.2.3.3;
+    eq 19 then holds identically and adds no condition). present_count: smallest number of
+    present taxels j for which some arrangement reaches U_G >= threshold_mean (eq 7; the best
+    arrangement of j present taxels is one contiguous run, see :func:`max_preferential_value`).
+    threshold_mean/initial/final and present_count are None when eq 18 has no root in [-g, g]
+    (alpha > 3(1 - xi)/4); band_width and g_max do not depend on the root and are always set.
+    """
+
+    n: int
+    xi: float
+    alpha: float
+    p: float
+    q: float
+    encoding: str
+    g_max: float
+    threshold_mean: float | None
+    band_width: float | None
+    threshold_initial: float | None
+    threshold_final: float | None
+    present_count: int | None
+
+
+def _run_value(n: int, left: int, run: int, p: float, q: float, absent: float) -> float:
+    """Eq 7 for `left` absent taxels, a run of `run` present ones, then absent ones, in O(1).
+
+    A segment of >= 3 equal decisions only adds "bulk" terms for its inner taxels (both
+    neighbours equal), so each segment is shortened to <= 3 taxels and the bulk terms are added.
+    """
+    right = n - left - run
+    seg = [(absent, left), (1.0, run), (absent, right)]
+    short: list[float] = []
+    extra = 0.0
+    for value, length in seg:
+        keep = min(length, 3)
+        short.extend([value] * keep)
+        extra += (length - keep) * value * (1.0 + value) ** p * (1.0 + value) ** q
+    padded = [0.0, *short, 0.0]
+    total = 0.0
+    for i in range(1, len(padded) - 1):
+        total += padded[i] * (1.0 + padded[i + 1]) ** p * (1.0 + padded[i - 1]) ** q
+    return total + extra
+
+
+def max_preferential_value(n, present, p, q, encoding: str = "pm1") -> float:
+    """max of U_G (eq 7) over all decision vectors with exactly `present` present taxels.
+
+    The maximum is reached by one contiguous run of present taxels (checked exhaustively against
+    every vector for n <= 12 in tests/test_thresholds.py); the run's best position is found among
+    the O(1) distinct placements (touching the left end, the right end, one or two taxels away,
+    or in the bulk). O(1) in n.
+    """
+    n = check_n(n)
+    p = check_weight("p", p)
+    q = check_weight("q", q)
+    encoding = check_encoding(encoding)
+    if isinstance(present, bool) or not float(present).is_integer() or not 0 <= present <= n:
+        raise ParameterError("present", present, f"must be an integer in 0..n (n = {n})")
+    present = int(present)
+    absent = -1.0 if encoding == "pm1" else 0.0
+    free = n - present
+    lefts = {a for a in (0, 1, 2, 3, free, free - 1, free - 2, free - 3) if 0 <= a <= free}
+    return max(_run_value(n, a, present, p, q, absent) for a in lefts)
+
+
+def _smallest_present(n: int, p: float, q: float, encoding: str, lam: float) -> int | None:
+    low_end = min(n, 3)
+    for j in range(0, low_end + 1):
+        if max_preferential_value(n, j, p, q, encoding) >= lam:
+            return j
+    hi_start = max(low_end + 1, n - 7)
+    if hi_start > low_end + 1:
+        # 3 <= j <= n - 7: every placement has a run >= 3 and an absent segment >= 4, so
+        # M(j + 1) - M(j) = bulk(present) - bulk(absent) > 0 (linear, increasing)
+        absent = -1.0 if encoding == "pm1" else 0.0
+        slope = 2.0 ** (p + q) - absent * (1.0 + absent) ** p * (1.0 + absent) ** q
+        m0 = max_preferential_value(n, low_end, p, q, encoding)
+        j = low_end + max(1, math.ceil((lam - m0) / slope))
+        if j < hi_start:
+            # guard against rounding at an exact integer boundary
+            while j > low_end + 1 and m0 + (j - 1 - low_end) * slope >= lam:
+                j -= 1
+            return j
+    for j in range(hi_start, n + 1):
+        if max_preferential_value(n, j, p, q, encoding) >= lam:
+            return j
+    return None
+
+
+def preferential_threshold(n, xi, alpha, p, q, encoding: str = "pm1") -> PreferentialThreshold:
+    """HEBTEM threshold band of the preferential rule, eqs 18-20 with eq 14, g = g(n) of eq 15:
+
+        int_{lambda_mean}^{g} f(x) dx = (1 - alpha)(g - lambda_mean)           (18)
+        delta lambda = alpha g / 4                                              (20)
+
+    With y = lambda/g, eq 18 divided by (g - lambda) is y^2 + y - 2 + a = 0, a = 3 alpha/(1-xi),
+    roots y = (-1 +- sqrt(9 - 4a))/2. The "+" root lies in [-1/2, 1) and exists iff
+    a <= 9/4; it is formed as 1 - 2a/(3 + s) (a < 1) or 2(2 - a)/(1 + s) (a >= 1), s = sqrt(9-4a),
+    without cancellation. ``encoding`` only affects present_count (U_G of eq 7 on that tuple).
+    """
+    n = check_n(n)
+    xi = check_xi(xi)
+    alpha = _check_level("alpha", alpha)
+    p = check_weight("p", p)
+    q = check_weight("q", q)
+    encoding = check_encoding(encoding)
+    g = g_of_n(n, p, q)
+    one_minus_xi = 1.0 - xi
+    a = 3.0 * alpha / one_minus_xi
+    disc = 9.0 - 4.0 * a
+    band = alpha * g / 4.0  # eq 20, independent of the root
+    if disc < 0.0:
+        return PreferentialThreshold(n, xi, alpha, p, q, encoding, g, None, band, None, None, None)
+    s = math.sqrt(disc)
+    if a < 1.0:
+        y = 1.0 - 2.0 * a / (3.0 + s)
+    else:
+        y = 2.0 * (2.0 * one_minus_xi - 3.0 * alpha) / (one_minus_xi * (1.0 + s))
+    mean = y * g
+    present = _smallest_present(n, p, q, encoding, mean)
+    return PreferentialThreshold(
+        n, xi, alpha, p, q, encoding, g, mean, band, mean - 0.5 * band, mean + 0.5 * band, present
+    )
