@@ -307,3 +307,19 @@ def test_no_root_is_a_result():
     assert multiplicative_threshold(57, 0.999999, 0.5).scaled_thresholds == ()
     none = preferential_threshold(18, 0.003, 0.9, 1, 1)
     assert none.threshold_mean is None and none.g_max == 68
+
+
+@pytest.mark.parametrize("n", [1, 57, 1_000_000])
+@pytest.mark.parametrize("xi,alpha", [(0.999999, 0.36), (0.999999, 0.38), (0.999999, 0.4), (0.5, 0.42),
+                                      (0.5, 0.425), (0.3, 0.4), (0.26, 0.45), (0.9, 0.3)])
+def test_additive_pm1_two_roots_when_xi_above_quarter(n, xi, alpha):
+    """For xi > 1/4 eq 13 dips below its value at -n, so eq 17 can have two roots (sec. 2.2.3.2)."""
+    ours = additive_threshold(n, xi, alpha, "pm1")
+    ref = ref_additive(n, xi, alpha, "pm1")
+    assert len(ours.thresholds) == len(ref)
+    for lam, lam_ref in zip(ours.thresholds, ref):
+        assert _rel(lam, lam_ref) <= REL
+
+
+def test_two_roots_do_occur():
+    assert len(additive_threshold(57, 0.999999, 0.38).thresholds) == 2
