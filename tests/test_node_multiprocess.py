@@ -1,0 +1,199 @@
+"""``node-sim`` as its own process on python-can's udp_multicast interface, driven by a
+canopen master in the test process (loopback only: TTL 0, a test-specific group and port);
+the CLI's exit codes; socketcan by name (skipped without a vcan interface)."""
+
+from __future__ import annotations
+
+import os
+import random
+import signal
+import struct
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import can
+import canopen
+import pytest
+
+from node_sim.od import EDS_PATH
+
+pytestmark = pytest.mark.multiprocess
+
+ROOT = Path(__file__).resolve().parent.parent
+
+SCENE = """
+[scene]
+name = "mp3"
+seed = 3
+cycles = 10
+
+[bus]
+heartbeat_producer_ms = 50
+channels = ["taxel0"]
+
+[kinds.R]
+zeta_mv = 1.5
+noise_mv = 0.5
+noise_sigma_mv = 0.0
+signal_mv = 0.0
+
+[[taxels]]
+node_id = 4
+kind = "R"
+
+[[taxels]]
+node_id = 9
+kind = "R"
+
+[[taxels]]
+node_id = 17
+kind = "R"
+
+[object]
+model = "script"
+present = [[0, 1000]]
+readings_mv = [2.0, 0.5, 1.5]
+
+[fusion]
+tuple = "pm1"
+"""
+
+
+def start_node_sim(args, env=None):
+    proc = subprocess.Popen([sys.executable, "-m", "node_sim.cli", *args], cwd=ROOT,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    return proc
+
+
+def wait_ready(proc, timeout=60.0) -> str:
+    out: list[str] = []
+
+    def reader():
+        out.append(proc.stdout.readline())
+
+    t = threading.Thread(target=reader, daemon=True)
+    t.start()
+    t.join(timeout)
+    if not out or "ready" not in out[0]:
+        proc.kill()
+        raise AssertionError(f"node-sim did not start: {out} {proc.stderr.read()}")
+    return out[0]
+
+
+@pytest.fixture
+def multicast():
+    group = f"239.74.{random.randint(164, 250)}.{random.randint(1, 250)}"
+    port = 47000 + (os.getpid() % 1000) + random.randint(0, 999)
+    return group, port
+
+
+def test_node_sim_process_serves_a_canopen_master(tmp_path, multicast):
+    group, port = multicast
+    scene = tmp_path / "mp3.toml"
+    scene.write_text(SCENE)
+    proc = start_node_sim(["--scene", str(scene), "--interface", "udp_multicast", "--channel", group,
+                           "--bus-option", f"port={port}", "--bus-option", "hop_limit=0"])
+    network = canopen.Network()
+    try:
+        network.connect(interface="udp_multicast", channel=group, port=port, hop_limit=0)
+        received: list[can.Message] = []
+        network.notifier.add_listener(received.append)
+        wait_ready(proc)
+        nodes = {}
+        for nid in (4, 9, 17):
+            rn = canopen.RemoteNode(nid, str(EDS_PATH))
+            rn.sdo.RESPONSE_TIMEOUT = 3.0
+            network.add_node(rn)
+            nodes[nid] = rn
+        assert nodes[9].sdo[0x1000].raw == 0x194
+        assert nodes[17].sdo[0x2001][1].raw == pytest.approx(1.5)
+        assert nodes[4].sdo[0x1017].raw == 50
+        network.nmt.send_command(0x01)
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline:      # heartbeats say operational
+            states = {m.arbitration_id - 0x700: m.data[0] for m in list(received)
+                      if 0x700 < m.arbitration_id < 0x780 and len(m.data) == 1}
+            if all(states.get(n) == 0x05 for n in nodes):
+                break
+            time.sleep(0.02)
+        else:
+            raise AssertionError(f"heartbeat states {states}")
+        for _ in range(3):
+            network.sync.transmit()
+            time.sleep(0.05)
+        deadline = time.monotonic() + 10
+        expected = {0x184: 1, 0x189: -1, 0x191: 1}   # script readings Y = [2.0, 0.5, 1.5] vs ζ = 1.5
+        while time.monotonic() < deadline:
+            tpdos = [m for m in list(received) if m.arbitration_id in expected]
+            if len(tpdos) >= 9:
+                break
+            time.sleep(0.02)
+        assert len(tpdos) == 9
+        for m in tpdos:
+            assert struct.unpack("<b", bytes(m.data))[0] == expected[m.arbitration_id]
+        with pytest.raises(canopen.SdoAbortedError) as info:
+            nodes[4].sdo[0x2001][1].raw = -1.0
+        assert info.value.code == 0x06090032
+    finally:
+        network.disconnect()
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+        rc = proc.wait(timeout=30)
+    assert rc == 0, proc.stderr.read()
+
+
+def test_node_sim_sigint_clean_exit(tmp_path, multicast):
+    group, port = multicast
+    scene = tmp_path / "mp3.toml"
+    scene.write_text(SCENE)
+    proc = start_node_sim(["--scene", str(scene), "--interface", "udp_multicast", "--channel", group,
+                           "--bus-option", f"port={port}", "--bus-option", "hop_limit=0"])
+    wait_ready(proc)
+    proc.send_signal(signal.SIGINT)
+    assert proc.wait(timeout=30) == 0
+    assert proc.stderr.read() == ""
+
+
+@pytest.mark.parametrize("args, names", [
+    (["--interface", "no_such_bus"], "interface"),
+    (["--interface", "udp_multicast", "--channel", "not-a-group"], "channel"),
+    (["--eds", "/nonexistent/taxel_node.eds"], "eds"),
+])
+def test_node_sim_errors_exit_2_with_one_line(tmp_path, args, names):
+    scene = tmp_path / "mp3.toml"
+    scene.write_text(SCENE)
+    proc = subprocess.run([sys.executable, "-m", "node_sim.cli", "--scene", str(scene), *args], cwd=ROOT,
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and names in lines[0]
+
+
+def test_node_sim_bad_scene_exit_2(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text(SCENE.replace('node_id = 9', 'node_id = 200'))
+    proc = subprocess.run([sys.executable, "-m", "node_sim.cli", "--scene", str(bad)], cwd=ROOT,
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2
+    assert len(proc.stderr.strip().splitlines()) == 1 and "node_id" in proc.stderr
+
+
+def test_socketcan_by_name():
+    if not Path("/sys/class/net/vcan0").exists():
+        pytest.skip("no SocketCAN interface vcan0 on this machine (create one with "
+                    "`ip link add dev vcan0 type vcan && ip link set up vcan0`)")
+    from fusion_center.scene import BusSpec, Scene, TaxelSpec
+    from node_sim.rig import Rig
+
+    scene = Scene(path="<t>", name="sc", taxels=(TaxelSpec(node_id=1, kind="R"),),
+                  bus=BusSpec(channels=("vcan0",)))
+    mon = can.Bus(interface="socketcan", channel="vcan0")
+    try:
+        with Rig(scene, interface="socketcan"):
+            msg = mon.recv(5.0)
+            assert msg is not None and msg.arbitration_id == 0x701 and bytes(msg.data) == b"\x00"
+    finally:
+        mon.shutdown()
