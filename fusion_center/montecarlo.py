@@ -19,7 +19,10 @@ Local decisions u_i = +1 iff Y_i >= zeta_i (eqs 2-3). Then, per trial, in decisi
 * np, Neyman-Pearson fusion of the decisions (eq 32) at the scene's ``np_false_alarm``,
   randomised at the boundary (``fusion_center.baselines.neyman_pearson_fusion``).
 * the centralised raw-data tests ``centralised_known`` and ``centralised_glrt``
-  (``fusion_center.centralised``) at the same false-alarm rate.
+  (``fusion_center.centralised``) at the same false-alarm rate, and ``centralised_bayes``:
+  the known-footprint likelihood ratio against the Bayes threshold ln lambda_0 (eq 22) - the
+  smallest Bayes risk any detector can reach on the scene (with 0-1 costs and P1 = 1/2:
+  the smallest total error).
 
 LLR and N-P use the scene's *declared* per-taxel pf/pm (what the fusion centre is told, as in
 the chapter's P_fi.txt / P_mi.txt); the simulation measures what the decisions *actually* do.
@@ -50,7 +53,7 @@ from .stages import plan_stages
 
 COUNT_RULES = ("additive", "multiplicative", "k-of-n")
 DECISION_RULES = ("additive", "multiplicative", "preferential", "k-of-n", "llr", "np")
-CENTRAL_TESTS = ("centralised_known", "centralised_glrt")
+CENTRAL_TESTS = ("centralised_known", "centralised_glrt", "centralised_bayes")
 
 
 # --------------------------------------------------------------------------- intervals
@@ -330,7 +333,15 @@ def setup_rules(scene, rules=None, central=True, central_samples: int = 200_000,
                 setup.skipped[name] = why
                 continue
             method = name.split("_", 1)[1]
-            params = centralised.params_from_scene(scene, method, rng=rng, n_samples=central_samples)
+            if method == "bayes":
+                known = setup.central.get("centralised_known") or centralised.params_from_scene(
+                    scene, "known", rng=rng, n_samples=central_samples)
+                c00, c01, c10, c11 = f.costs
+                tau = baselines.bayes_log_threshold(f.prior_h1, c00, c01, c10, c11)
+                params = centralised.CentralisedParams(known.noise_mv, known.sigma_mv, known.signal_patterns_mv,
+                                                       known.taxel_signal_mv, "known", tau, {"bayes": True})
+            else:
+                params = centralised.params_from_scene(scene, method, rng=rng, n_samples=central_samples)
             setup.central[name] = params
             setup.thresholds[name] = params.threshold
     return setup
@@ -407,7 +418,10 @@ def _statistics(setup: RuleSetup, y: np.ndarray, present: np.ndarray) -> dict[st
     if setup.np_rule is not None and setup.np_rule.statistic == "llr":
         out["np"] = np_log_statistic_batch(present, setup.np_rule.pd, setup.np_rule.pf)
     for name, params in setup.central.items():
-        out[name] = centralised.statistic_from_offsets(y, params)
+        if name == "centralised_bayes" and "centralised_known" in out:
+            out[name] = out["centralised_known"]  # same statistic, other threshold
+        else:
+            out[name] = centralised.statistic_from_offsets(y, params)
     return out
 
 

@@ -1,0 +1,410 @@
+"""``fusion-center report``: detection error against run time for every rule, on one scene.
+
+Answers "is decentralised decision fusion over CAN worth it against streaming raw data, for
+this sensor at this bit rate, and what error does it cost?". Writes to ``--out``:
+
+* ``report.json`` - every figure below, plus the stage plan (which stages/rules ran and why
+  others did not) and the bandwidth figures;
+* ``error_vs_runtime.png`` - total error (Monte Carlo, 95 % Wilson CI; exact Poisson-binomial
+  value for count rules) of every rule in decision mode and of the centralised raw-data tests,
+  against bus time per cycle (decision_sync resp. raw mode, ``fusion-center bandwidth``) and
+  against the measured CPU time per fused decision (the per-cycle functions of
+  ``fusion_center.rules`` / ``baselines`` / ``centralised``);
+* ``roc.png`` - ROC curves and the rules' operating points;
+* ``achieved_alpha.png`` - achieved P_F vs requested alpha (HEBTEM additive eq 17, preferential
+  eq 18, N-P, centralised) and achieved P_M vs requested beta (multiplicative eq 16);
+* ``work_precision.png`` - threshold solvers (eqs 16-18) against an mpmath reference;
+* ``probability_curves.png`` - the chapter's figs 2-7 (eqs 10-14) with their thresholds;
+* ``taxel_map.png`` - taxels, the active ones of a present cycle and their convex hull (eq 35).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .. import baselines, centralised, curves, montecarlo, rules, thresholds
+from ..encoding import local_decision
+from ..errors import ParameterError
+from ..scene import load_scene
+from ..stages import plan_stages
+from . import bandwidth
+
+HELP = "detection error vs bus/CPU time of every fusion rule and the centralised raw test (JSON + PNG)"
+
+DEFAULT_TRIALS = 200_000
+ALPHA_GRID = (0.001, 0.003, 0.01, 0.03, 0.1, 0.2, 0.3, 0.473, 0.6)
+BETA_GRID = (0.05, 0.1, 0.2, 0.3, 0.5, 0.7, 0.83, 0.9)
+PNG_FILES = ("error_vs_runtime.png", "roc.png", "achieved_alpha.png", "work_precision.png",
+             "probability_curves.png", "taxel_map.png")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--scene", required=True, help="scene file (TOML)")
+    parser.add_argument("--out", required=True, help="output directory (created)")
+    parser.add_argument("--trials", type=int, default=DEFAULT_TRIALS,
+                        help=f"Monte Carlo trials per hypothesis (default {DEFAULT_TRIALS})")
+    parser.add_argument("--seed", type=int, default=None, help="RNG seed (default: the scene's seed)")
+    parser.add_argument("--bitrate", type=int, default=None, help="bit/s for the bus figures (default: the scene's)")
+
+
+# --------------------------------------------------------------------------- CPU time
+def _time_per_call(fn, args_list, min_calls: int = 200) -> float:
+    """Mean seconds per call of fn(*args) over args_list cycled (best of 3 passes)."""
+    best = math.inf
+    calls = max(min_calls, len(args_list))
+    for _ in range(3):
+        t0 = time.perf_counter()
+        for j in range(calls):
+            fn(*args_list[j % len(args_list)])
+        best = min(best, (time.perf_counter() - t0) / calls)
+    return best
+
+
+def cpu_time_per_decision(scene, setup: montecarlo.RuleSetup, rng) -> dict[str, float]:
+    """Measured seconds per fused decision with the per-cycle functions the live service uses."""
+    enc = setup.encoding
+    n = scene.n
+    zeta = np.array([t.zeta_mv for t in scene.taxels])
+    noise = np.array([t.noise_mv for t in scene.taxels])
+    sigma = np.array([t.noise_sigma_mv for t in scene.taxels])
+    x = noise + sigma * rng.standard_normal((64, n))
+    u_list = [(local_decision(row, noise, zeta, enc),) for row in x]
+    out: dict[str, float] = {}
+    for rule, m in setup.min_present_count.items():
+        thr = setup.thresholds[rule]
+        if rule == "additive":
+            out[rule] = _time_per_call(lambda u: rules.additive(u, enc) >= thr, u_list)
+        elif rule == "multiplicative":
+            out[rule] = _time_per_call(lambda u: rules.multiplicative(u, enc).ln_U_G >= thr, u_list)
+        else:
+            k = scene.fusion.k
+            out[rule] = _time_per_call(lambda u: rules.k_of_n(u, k, enc) == 1, u_list)
+    if setup.preferential is not None:
+        p, q, tm = setup.preferential
+        out["preferential"] = _time_per_call(lambda u: rules.preferential(u, p, q, enc) >= tm, u_list)
+    if setup.llr is not None:
+        pd, pf, prior, ln_l0 = setup.llr
+        out["llr"] = _time_per_call(lambda u: baselines.chair_varshney_llr(u, pd, pf, enc, prior) > ln_l0, u_list)
+    if setup.np_rule is not None:
+        rule_np = setup.np_rule
+        out["np"] = _time_per_call(lambda u: rule_np.decide(u, enc, rng), u_list)
+    x_list = [(row,) for row in x]
+    for name, params in setup.central.items():
+        out[name] = _time_per_call(lambda xr: centralised.centralised_llr(xr, params) > params.threshold, x_list)
+    return out
+
+
+# --------------------------------------------------------------------------- achieved levels
+def achieved_levels(scene, mc: montecarlo.MonteCarloResult, rng) -> dict:
+    """Achieved P_F per requested alpha (and P_M per beta) - exact for count rules."""
+    setup = mc.setup
+    out: dict[str, dict] = {}
+    n0 = mc.statistics_h0["present_count"].size
+    if "additive" in setup.min_present_count:
+        req, ach = [], []
+        for a in ALPHA_GRID:
+            try:
+                m, _ = montecarlo.count_threshold_for("additive", scene, alpha=a)
+            except ParameterError:
+                continue
+            req.append(a)
+            ach.append(montecarlo.exact_count_rates(m, mc.taxel_pf, mc.taxel_pd_patterns, mc.pattern_weights)[1])
+        out["additive"] = {"requested": req, "achieved": ach, "source": "exact Poisson-binomial"}
+    if "multiplicative" in setup.min_present_count and mc.taxel_pd_patterns.shape[0]:
+        req, ach = [], []
+        for b in BETA_GRID:
+            try:
+                m, _ = montecarlo.count_threshold_for("multiplicative", scene, beta=b)
+            except ParameterError:
+                continue
+            pd, _ = montecarlo.exact_count_rates(m, mc.taxel_pf, mc.taxel_pd_patterns, mc.pattern_weights)
+            req.append(b)
+            ach.append(1.0 - pd)
+        out["multiplicative"] = {"requested": req, "achieved": ach, "source": "exact Poisson-binomial (P_M)"}
+    if setup.preferential is not None and "preferential" in mc.statistics_h0:
+        req, ach = [], []
+        stat = mc.statistics_h0["preferential"]
+        for a in ALPHA_GRID:
+            try:
+                tm = montecarlo.preferential_threshold_mean(scene, alpha=a)
+            except ParameterError:
+                continue
+            req.append(a)
+            ach.append(float(np.mean(stat >= tm)))
+        out["preferential"] = {"requested": req, "achieved": ach, "source": f"MC, {n0} H0 trials"}
+    if setup.np_rule is not None:
+        pd_dec, pf_dec = montecarlo.declared_pd_pf(scene)
+        req, ach = [], []
+        for a in ALPHA_GRID:
+            r = baselines.neyman_pearson_fusion(pd_dec, pf_dec, a)
+            if r.statistic == "present_count":
+                ach.append(montecarlo._exact_randomised_count(r, mc.taxel_pf, mc.taxel_pd_patterns, mc.pattern_weights)[1])
+            else:
+                s = mc.statistics_h0["np"]
+                ach.append(float(np.mean(s > r.log_threshold) + r.gamma * np.mean(np.isclose(s, r.log_threshold))))
+            req.append(a)
+        src = "exact Poisson-binomial" if setup.np_rule.statistic == "present_count" else f"MC, {n0} H0 trials"
+        out["np"] = {"requested": req, "achieved": ach, "source": src}
+    if "centralised_glrt" in setup.central and "centralised_glrt" in mc.statistics_h0:
+        params = setup.central["centralised_glrt"]
+        stat = mc.statistics_h0["centralised_glrt"]
+        req, ach = [], []
+        for a in ALPHA_GRID:
+            if a * 50_000 < 20:
+                continue
+            tau = centralised.centralised_threshold(params, a, rng=rng, n_samples=50_000)
+            req.append(a)
+            ach.append(float(np.mean(stat > tau)))
+        out["centralised_glrt"] = {"requested": req, "achieved": ach,
+                                   "source": f"threshold from 5e4 H0 draws, checked on {n0} independent ones"}
+    return out
+
+
+# --------------------------------------------------------------------------- work-precision
+def _mp_reference(kind: str, n: int, xi: float, level: float, mp):
+    """Threshold from the area equations (eqs 16-18) solved directly in mpmath (50 digits)."""
+    mp.mp.dps = 50
+    xi_m, lv = mp.mpf(xi), mp.mpf(level)
+    if kind == "additive_pm1":
+        r = (xi_m + 1) + mp.sqrt(xi_m * (xi_m + 2))
+        f = lambda x: mp.mpf("0.5") * mp.e ** (mp.log(r) / n * x) + (1 - mp.mpf("0.5") * r) / n * x  # eq 13
+        right = mp.mpf(n)
+        eq = lambda lam: mp.quad(f, [lam, right]) - (1 - lv) * (right - lam)  # eq 17
+    elif kind == "multiplicative":
+        big = mp.e ** n
+        m = big * mp.log(1 / xi_m) / (big**2 - 1)                  # eq 11a
+        ln_a = -(big**2) * mp.log(1 / xi_m) / (big**2 - 1)         # eq 11b
+        # eq 16 in t = lambda / e^n: mean of p over [t, 1] = 1 - beta, p = a e^(m e^n t)
+        F = lambda t: mp.e ** (ln_a + m * big * t) / (m * big)
+        eq = lambda t: (F(1) - F(t)) - (1 - lv) * (1 - t)
+        right = mp.mpf(1)
+    else:  # preferential, eq 14 / 18 with g = g(n) (p = q = 1)
+        g = mp.mpf(rules.g_of_n(n, 1.0, 1.0))
+        f = lambda x: (1 - xi_m) / g**2 * x**2 + xi_m
+        right = g
+        eq = lambda lam: mp.quad(f, [lam, right]) - (1 - lv) * (right - lam)
+    return eq, right
+
+
+def work_precision_rows(sizes=(10, 57, 200)) -> list[dict]:
+    """Time per solve and relative error of the threshold solvers against mpmath (50 digits).
+
+    Uses ``bench.threshold_precision.work_precision()`` when that module exposes it; otherwise
+    solves eqs 16, 17 (pm1) and 18 directly (mpmath quad + findroot started at our solution).
+    """
+    try:  # pragma: no cover - depends on another helper's bench script
+        from bench import threshold_precision  # type: ignore
+
+        fn = getattr(threshold_precision, "work_precision", None)
+        if callable(fn):
+            return list(fn())
+    except Exception:
+        pass
+    import mpmath as mp
+
+    rows_out = []
+    xi = 0.003
+    for n in sizes:
+        for kind, level, solve, extract in (
+            ("additive_pm1", 0.03, lambda n_: thresholds.additive_threshold(n_, xi, 0.03, "pm1"),
+             lambda r: r.thresholds[0] if r.thresholds else None),
+            ("multiplicative", 0.83, lambda n_: thresholds.multiplicative_threshold(n_, xi, 0.83),
+             lambda r: r.scaled_thresholds[0] if r.scaled_thresholds else None),
+            ("preferential", 0.48, lambda n_: thresholds.preferential_threshold(n_, xi, 0.48, 1.0, 1.0),
+             lambda r: r.threshold_mean),
+        ):
+            value = extract(solve(n))
+            if value is None:
+                continue
+            t = _time_per_call(solve, [(n,)], min_calls=200)
+            eq, _ = _mp_reference(kind, n, xi, level, mp)
+            ref = mp.findroot(eq, mp.mpf(value))
+            rel = float(abs((mp.mpf(value) - ref) / ref)) if ref != 0 else float(abs(mp.mpf(value)))
+            rows_out.append({"solver": kind, "n": n, "time_us": 1e6 * t, "relative_error": rel,
+                             "value": value, "reference": float(ref)})
+    return rows_out
+
+
+# --------------------------------------------------------------------------- P(H1) curves
+def probability_curve_data(n: int, xi: float, alpha: float, beta: float, pref_alpha: float) -> dict:
+    """Figs 2-7: the curves of eqs 10-14 with the HEBTEM thresholds of eqs 16-18, 20."""
+    out = {}
+    ln_u = np.linspace(-n, n, 401)
+    mt = thresholds.multiplicative_threshold(n, xi, beta)
+    ths = [{"x": v, "label": f"ln λ = {v:.2f} (β={beta})"} for v in mt.ln_thresholds if v is not None]
+    out["fig 2a/7a: multiplicative, {-1,+1} (eqs 10-11, 16)"] = {
+        "lines": [{"x": ln_u.tolist(), "y": np.asarray(curves.p_multiplicative(ln_u, n, xi)).tolist()}],
+        "thresholds": ths, "xlabel": "ln U_G = sum u_i"}
+    # {0,1}: U_G = e^(n-k) in [1, e^n]; two-point exponential fit through (e^0, xi) and (e^n, 1)
+    # in t = U_G / e^n: p = exp(-L (1 - t) / (1 - e^-n)), the {0,1} analogue of eqs 10-11
+    ln_u01 = np.linspace(0, n, 401)
+    t = np.exp(ln_u01 - n)
+    p01 = np.exp(math.log(xi) * (1 - t) / -math.expm1(-n))
+    out["fig 2b: multiplicative, {0,1}"] = {"lines": [{"x": ln_u01.tolist(), "y": p01.tolist()}],
+                                            "xlabel": "ln U_G = sum u_i (01)"}
+    u01 = np.linspace(0, n, 401)
+    at01 = thresholds.additive_threshold(n, xi, alpha, "01")
+    out["fig 3: additive, {0,1} (eqs 12, 17)"] = {
+        "lines": [{"x": u01.tolist(), "y": np.asarray(curves.p_additive_01(u01, n, xi)).tolist()}],
+        "thresholds": [{"x": v, "label": f"λ = {v:.2f} (α={alpha})"} for v in at01.thresholds], "xlabel": "U_G"}
+    upm = np.linspace(-n, n, 401)
+    atpm = thresholds.additive_threshold(n, xi, alpha, "pm1")
+    out["fig 4/7b: additive, {-1,+1} (eqs 13, 17)"] = {
+        "lines": [{"x": upm.tolist(), "y": np.asarray(curves.p_additive_pm1(upm, n, xi)).tolist()}],
+        "thresholds": [{"x": v, "label": f"λ = {v:.2f} (α={alpha})"} for v in atpm.thresholds], "xlabel": "U_G"}
+    lines, ths, bands = [], [], []
+    gmax = 0.0
+    for p_w, q_w in ((0.0, 1.0), (1.0, 1.0), (1.0, 2.0), (2.0, 2.0)):
+        g = rules.g_of_n(n, p_w, q_w)
+        gmax = max(gmax, g)
+        ug = np.linspace(-g, g, 301)
+        lines.append({"x": ug.tolist(), "y": np.asarray(curves.p_preferential(ug, g, xi)).tolist(),
+                      "label": f"(p,q)=({p_w:g},{q_w:g}), g(n)={g:g}"})
+        pt = thresholds.preferential_threshold(n, xi, pref_alpha, p_w, q_w)
+        if pt.threshold_mean is not None:
+            ths.append({"x": pt.threshold_mean, "label": f"λ_mean={pt.threshold_mean:.1f}", "color": "C%d" % (len(ths))})
+            bands.append([pt.threshold_initial, pt.threshold_final])
+    out[f"figs 5-6: preferential (eqs 14-15, 18-20), α={pref_alpha}"] = {
+        "lines": lines, "thresholds": ths, "bands": bands, "xlabel": "U_G (eq 7)"}
+    return out
+
+
+# --------------------------------------------------------------------------- main
+def build_report(scene, out_dir: Path, trials: int, seed: int, bitrate: int | None = None,
+                 progress=None) -> dict:
+    """Compute everything, write report.json and the PNGs into ``out_dir``; return the JSON."""
+    from .. import report_plots
+
+    if isinstance(trials, bool) or not isinstance(trials, int) or trials < 100:
+        raise ParameterError("trials", trials, "must be an integer >= 100")
+    out_dir.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(seed)
+    step = progress or (lambda what, frac=None: None)
+
+    plan = plan_stages(scene)
+    step("stage plan, rule thresholds")
+    setup = montecarlo.setup_rules(scene, central=True, rng=np.random.default_rng([seed, 1]))
+    step("bandwidth")
+    bw = bandwidth.bandwidth_figures(scene, bitrate)
+    step("Monte Carlo", 0.0)
+    mc = montecarlo.simulate(scene, trials, rng, setup=setup,
+                             progress=lambda d, t: step("Monte Carlo", d / t))
+    step("CPU time per decision")
+    cpu = cpu_time_per_decision(scene, setup, np.random.default_rng([seed, 2]))
+
+    points = []
+    for name, res in mc.rules.items():
+        mode = "raw" if name in montecarlo.CENTRAL_TESTS else "decision_sync"
+        points.append({
+            "rule": name, "mode": mode,
+            "bus_time_per_cycle_ms": bw["modes"][mode]["bus_time_per_cycle_ms"],
+            "bus_load": bw["modes"][mode]["bus_load"],
+            "cpu_time_per_decision_us": 1e6 * cpu[name],
+            "total_error": res.total_error,
+            "pd": None if res.pd is None else res.pd.to_dict(),
+            "pf": res.pf.to_dict(),
+        })
+
+    step("ROC and achieved error levels")
+    roc = {}
+    if mc.taxel_pd_patterns.shape[0]:
+        roc["count_exact"] = montecarlo.exact_count_roc(mc.taxel_pf, mc.taxel_pd_patterns, mc.pattern_weights)
+        for key in ("preferential", "llr", "np", "centralised_known", "centralised_glrt"):  # bayes: same ROC as known
+            if key in mc.statistics_h0 and key in mc.statistics_h1:
+                roc[key] = montecarlo.empirical_roc(mc.statistics_h0[key], mc.statistics_h1[key])
+    for key, r in roc.items():
+        r["auc"] = montecarlo.area_under_roc(r["pf"], r["pd"])
+    achieved = achieved_levels(scene, mc, np.random.default_rng([seed, 3]))
+
+    step("solver work-precision (mpmath reference)")
+    wp = work_precision_rows()
+    step("P(H1) curves, taxel map")
+    f = scene.fusion
+    pcurves = probability_curve_data(scene.n, f.xi, f.alpha, f.beta, f.alpha)
+
+    # taxel map: decisions of the first present cycle (canonical readings)
+    from node_sim import physics
+
+    xy = np.array([[np.nan if t.x is None else t.x, np.nan if t.y is None else t.y] for t in scene.taxels])
+    present_cycles = [c for c in range(scene.cycles) if physics.object_present(scene, c)]
+    cycle = present_cycles[len(present_cycles) // 2] if present_cycles else 0
+    xr = physics.sample_readings(scene, cycle)
+    active = local_decision(xr, [t.noise_mv for t in scene.taxels], [t.zeta_mv for t in scene.taxels], "pm1") == 1
+    hull = None
+    has_xy = bool(np.all(np.isfinite(xy)))
+    if has_xy and active.any():
+        from ..geometry import convex_hull
+
+        hull = convex_hull(xy[active])
+    floor = 0.5 / trials
+
+    data = {
+        "scene": scene.name,
+        "scene_path": str(scene.path),
+        "taxels": scene.n,
+        "trials_per_hypothesis": trials,
+        "seed": seed,
+        "stage_plan": plan.to_dict(),
+        "prior_h1": mc.prior_h1,
+        "rules": {k: v.to_dict() for k, v in mc.rules.items()},
+        "thresholds": {k: (None if v is None or not math.isfinite(v) else v) for k, v in setup.thresholds.items()},
+        "skipped": mc.skipped,
+        "bandwidth": bw,
+        "cpu_time_per_decision_s": cpu,
+        "error_vs_runtime": points,
+        "roc": roc,
+        "achieved_vs_requested": achieved,
+        "work_precision": wp,
+        "taxel_map": {"cycle": cycle, "active_taxels": [scene.taxels[i].node_id for i in np.flatnonzero(active)],
+                      "hull": None if hull is None else np.asarray(hull).tolist(),
+                      "has_coordinates": has_xy},
+        "taxel_decisions_simulated": mc.taxel_decisions,
+        "files": ["report.json", *PNG_FILES],
+    }
+    step("plots")
+    report_plots.error_vs_runtime(points, floor, out_dir / "error_vs_runtime.png")
+    report_plots.roc_curves(roc, {k: (v.pf.estimate, None if v.pd is None else v.pd.estimate) for k, v in mc.rules.items()},
+                            out_dir / "roc.png")
+    report_plots.achieved_vs_requested(achieved, out_dir / "achieved_alpha.png")
+    report_plots.work_precision(wp, out_dir / "work_precision.png")
+    report_plots.probability_curves(pcurves, out_dir / "probability_curves.png")
+    title = f"{scene.name}: cycle {cycle}, {int(active.sum())} active taxels"
+    if not has_xy:
+        xy_plot = np.column_stack([np.arange(scene.n, dtype=float), np.zeros(scene.n)])
+        title += " (no coordinates: taxels in fusion order)"
+    else:
+        xy_plot = xy
+    report_plots.taxel_map(xy_plot, active, hull, title, out_dir / "taxel_map.png")
+    (out_dir / "report.json").write_text(json.dumps(data, indent=1, default=_json_default))
+    return data
+
+
+def _json_default(o):
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    raise TypeError(type(o).__name__)
+
+
+def run(args) -> int:
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    scene = load_scene(Path(args.scene))
+    seed = scene.seed if args.seed is None else args.seed
+    with Progress(TextColumn("{task.description}"), BarColumn(), TimeElapsedColumn()) as bar:
+        task = bar.add_task("report", total=1.0)
+
+        def step(what, frac=None):
+            bar.update(task, description=what, completed=0.0 if frac is None else frac)
+
+        data = build_report(scene, Path(args.out), args.trials, seed, args.bitrate, step)
+        bar.update(task, description="done", completed=1.0)
+    print(f"wrote {', '.join(data['files'])} to {args.out}")
+    return 0

@@ -1,0 +1,189 @@
+"""fusion-center bandwidth: hand-computed figures for a two-taxel scene.
+
+Frame lengths come from an independent bit-level CAN 2.0A encoder written here (CRC-15 by
+polynomial long division, not the shift register of fusion_center.bus_timing), and the
+per-cycle sums, loads, rates and latencies are worked by hand in each test.
+"""
+
+from __future__ import annotations
+
+import json
+import struct
+
+import numpy as np
+import pytest
+
+from fusion_center import cli
+from fusion_center.commands import bandwidth
+from fusion_center.scene import load_scene
+
+TINY = """
+[scene]
+name = "tiny"
+cycles = 10
+
+[bus]
+bitrate = 125000
+sync_period_ms = 10.0
+heartbeat_producer_ms = 100
+inhibit_time_100us = {inhibit}
+channels = ["taxel0"]
+
+[kinds.R]
+zeta_mv = 1.0
+noise_mv = 0.5
+noise_sigma_mv = 0.0
+signal_mv = 3.0
+
+[[taxels]]
+node_id = 1
+kind = "R"
+x = 0.0
+y = 0.0
+
+[[taxels]]
+node_id = 2
+kind = "R"
+x = 10.0
+y = 0.0
+
+[object]
+model = "large"
+x = 5.0
+y = 0.0
+radius = 20.0
+present = [[2, 4]]
+
+[fusion]
+rules = ["additive", "k-of-n"]
+tuple = "pm1"
+k = 1
+"""
+
+
+def _bits(value, width):
+    return [(value >> (width - 1 - i)) & 1 for i in range(width)]
+
+
+def _crc15_long_division(bits):
+    # remainder of M(x) * x^15 divided by G(x) = x^15+x^14+x^10+x^8+x^7+x^4+x^3+1
+    gen = [1, 1, 0, 0, 0, 1, 0, 1, 1, 0, 0, 1, 1, 0, 0, 1]
+    work = list(bits) + [0] * 15
+    for i in range(len(bits)):
+        if work[i]:
+            for j, g in enumerate(gen):
+                work[i + j] ^= g
+    return work[-15:]
+
+
+def reference_frame_bits(can_id: int, data: bytes) -> int:
+    fields = [0] + _bits(can_id, 11) + [0, 0, 0] + _bits(len(data), 4)
+    for b in data:
+        fields += _bits(b, 8)
+    seq = fields + _crc15_long_division(fields)
+    stuffed, run, last = 0, 0, None
+    for b in seq:
+        run = run + 1 if b == last else 1
+        last = b
+        if run == 5:
+            stuffed += 1
+            last, run = 1 - b, 1
+    return len(seq) + stuffed + 10 + 3  # + CRC delim, ACK slot, ACK delim, EOF(7) + intermission(3)
+
+
+@pytest.fixture
+def tiny(tmp_path):
+    def make(inhibit=0):
+        p = tmp_path / f"tiny{inhibit}.toml"
+        p.write_text(TINY.format(inhibit=inhibit))
+        return load_scene(p)
+    return make
+
+
+def test_reference_encoder_bounds():
+    # no frame can be shorter than the unstuffed length 8n + 47 nor longer than the worst case
+    for can_id in (0x080, 0x181, 0x282, 0x701):
+        for data in (b"", b"\x01", b"\xff", b"\x00\x00\x00\x00"):
+            n = len(data)
+            assert 8 * n + 47 <= reference_frame_bits(can_id, data) <= 8 * n + 47 + (34 + 8 * n - 1) // 4
+
+
+def test_decision_sync_hand_computed(tiny):
+    scene = tiny()
+    fig = bandwidth.bandwidth_figures(scene)
+    sync = reference_frame_bits(0x080, b"")
+    hb = reference_frame_bits(0x701, b"\x05") + reference_frame_bits(0x702, b"\x05")
+    hb_per_cycle = hb * 10.0 / 100.0  # one heartbeat per node every 100 ms, SYNC every 10 ms
+    absent = reference_frame_bits(0x181, b"\xff") + reference_frame_bits(0x182, b"\xff")  # u = -1 (INTEGER8)
+    present = reference_frame_bits(0x181, b"\x01") + reference_frame_bits(0x182, b"\x01")
+    # cycles 2, 3 present (object [2, 4)), the other 8 absent
+    cycle_bits = [sync + (present if c in (2, 3) else absent) for c in range(10)]
+    m = fig["modes"]["decision_sync"]
+    assert m["sync_bits"] == sync
+    assert m["bits_per_cycle"] == pytest.approx(np.mean(cycle_bits) + hb_per_cycle)
+    assert m["bits_per_cycle_worst"] == pytest.approx(max(cycle_bits) + hb_per_cycle)
+    assert m["bus_load"] == pytest.approx((np.mean(cycle_bits) + hb_per_cycle) / (0.010 * 125000))
+    assert m["latency_ms"] == pytest.approx(1000 * max(cycle_bits) / 125000)
+    hb_bits_per_s = hb / 0.1
+    assert m["max_cycle_rate_hz"] == pytest.approx((125000 - hb_bits_per_s) / max(cycle_bits))
+    assert m["pdo_frames_per_cycle"] == 2
+
+
+def test_raw_hand_computed(tiny):
+    scene = tiny()
+    fig = bandwidth.bandwidth_figures(scene)
+    # sigma = 0: X = N = 0.5 mV absent, X = S + N = 3.5 mV present, as REAL32 little endian
+    def pdo(x):
+        data = struct.pack("<f", x)
+        return reference_frame_bits(0x281, data) + reference_frame_bits(0x282, data)
+    sync = reference_frame_bits(0x080, b"")
+    cycle_bits = [sync + (pdo(3.5) if c in (2, 3) else pdo(0.5)) for c in range(10)]
+    hb = (reference_frame_bits(0x701, b"\x05") + reference_frame_bits(0x702, b"\x05")) * 0.1
+    assert fig["modes"]["raw"]["bits_per_cycle"] == pytest.approx(np.mean(cycle_bits) + hb)
+    assert fig["modes"]["raw"]["latency_ms"] == pytest.approx(1000 * max(cycle_bits) / 125000)
+
+
+def test_decision_event_counts_changes(tiny):
+    scene = tiny()
+    fig = bandwidth.bandwidth_figures(scene)
+    # each node sends at cycle 0 (first value), 2 (-1 -> +1) and 4 (+1 -> -1): 6 frames in 10 cycles
+    m = fig["modes"]["decision_event"]
+    assert m["pdo_frames_per_cycle"] == pytest.approx(6 / 10)
+    sync = reference_frame_bits(0x080, b"")
+    f_abs = reference_frame_bits(0x181, b"\xff") + reference_frame_bits(0x182, b"\xff")
+    f_pre = reference_frame_bits(0x181, b"\x01") + reference_frame_bits(0x182, b"\x01")
+    hb = (reference_frame_bits(0x701, b"\x05") + reference_frame_bits(0x702, b"\x05")) * 0.1
+    assert m["bits_per_cycle"] == pytest.approx((10 * sync + 2 * f_abs + f_pre) / 10 + hb)
+
+
+def test_inhibit_time_delays_events():
+    # decisions of one node: -1 -1 +1 +1 -1 -1 -1 ; SYNC 10 ms, inhibit 25 ms (250 x 100 us)
+    u = np.array([[-1], [-1], [1], [1], [-1], [-1], [-1]])
+    sends = bandwidth.event_transmissions(u, 10.0, 250, 0)[:, 0]
+    # cycle 0 sends; change at 2 (20 ms) inhibited until 25 ms -> sent at cycle 3 (30 ms);
+    # change at 4 (40 ms) inhibited until 55 ms -> sent at cycle 6 (60 ms)
+    assert sends.tolist() == [True, False, False, True, False, False, True]
+    # event timer 30 ms without inhibit: a frame at least every 3 cycles even without change
+    sends = bandwidth.event_transmissions(np.full((7, 1), -1), 10.0, 0, 30)[:, 0]
+    assert sends.tolist() == [True, False, False, True, False, False, True]
+
+
+def test_two_channels_reported_separately():
+    scene = load_scene("scenes/two_buses_200.toml")
+    fig = bandwidth.bandwidth_figures(scene, 500000, cycles=3)
+    chans = fig["modes"]["decision_sync"]["channels"]
+    assert [c["channel"] for c in chans] == ["taxel0", "taxel1"]
+    assert [c["taxels"] for c in chans] == [100, 100]
+    # 100 one-byte TPDOs and one SYNC per cycle on each bus
+    assert all(c["pdo_frames_per_cycle"] == 100 for c in chans)
+
+
+def test_cli_json_and_bad_bitrate(tiny, capsys):
+    scene = tiny()
+    assert cli.main(["bandwidth", "--scene", scene.path, "--bitrate", "500000", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert set(out["modes"]) == {"raw", "decision_sync", "decision_event"}
+    assert out["bitrate"] == 500000
+    assert cli.main(["bandwidth", "--scene", scene.path, "--bitrate", "2000000"]) == 2
+    err = capsys.readouterr().err
+    assert "bitrate=2000000" in err and len(err.strip().splitlines()) == 1
