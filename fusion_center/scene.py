@@ -8,7 +8,13 @@ This is I/O (it reads files), so it is *not* part of the numerical core.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import csv
+import math
+import tomllib
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+from .errors import SceneError
 
 # 0x2001:3 taxel kind codes (UNSIGNED8); 0 is "unset" and refused by the node.
 TAXEL_KINDS: dict[str, int] = {"R": 1, "C": 2, "P": 3, "LC": 4, "TBS": 5, "IR": 6}
@@ -136,14 +142,6 @@ class Scene:
 # ----------------------------------------------------------------------------------------
 # Loader
 # ----------------------------------------------------------------------------------------
-
-import csv  # noqa: E402  (kept below the dataclasses: they are the module's contract)
-import math  # noqa: E402
-import tomllib  # noqa: E402
-from dataclasses import asdict  # noqa: E402
-from pathlib import Path  # noqa: E402
-
-from .errors import SceneError  # noqa: E402
 
 # CAN classic bit-rate range accepted in a scene (CiA 301 bit-timing table: 10 kbit/s .. 1 Mbit/s)
 BITRATE_MIN = 10_000
@@ -352,7 +350,6 @@ def load_scene(path) -> Scene:
 
     bus = _load_bus(sp, top, doc.get("bus", {}))
     taxels = _load_taxels(path, top, doc, bus)
-    n = len(taxels)
     obj = _load_object(sp, top, doc.get("object", {"model": "none"}), taxels)
     if "fusion" not in doc:
         top.fail("fusion", None, "missing required table [fusion] (its `tuple` is always explicit)")
@@ -368,7 +365,6 @@ def load_scene(path) -> Scene:
             ow.fail(f"stages[{i}]", s, "listed twice")
         stages.append(s)
     faults = _load_faults(sp, top, doc.get("faults", []), taxels)
-    del n
     return Scene(path=sp, name=name, description=description, seed=seed, cycles=cycles, bus=bus,
                  taxels=taxels, object=obj, fusion=fusion, forces=forces, stages=tuple(stages),
                  faults=faults)

@@ -44,7 +44,7 @@ from __future__ import annotations
 import numpy as np
 
 from fusion_center.errors import ParameterError
-from fusion_center.scene import Scene
+from fusion_center.scene import Scene, taxel_index
 
 OPEN_CIRCUIT_MV = float("nan")   # reading of an open-circuit input
 _TIE_TOL = 1e-9                  # "point": taxels within this of the minimum distance all count
@@ -176,8 +176,6 @@ def canonical_eps(scene: Scene, cycle: int) -> np.ndarray:
 def _apply_faults(scene: Scene, cycles: np.ndarray, x: np.ndarray) -> np.ndarray:
     if not scene.faults:
         return x
-    from fusion_center.scene import taxel_index
-
     for f in scene.faults:
         if f.fault == "silent":
             continue
