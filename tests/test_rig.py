@@ -1,0 +1,225 @@
+"""The rig: start-up configuration from the scene, one network per channel, SYNC cycle
+numbering (and lost-SYNC detection with a counter), default physics readings."""
+
+from __future__ import annotations
+
+import struct
+import threading
+import time
+import uuid
+from pathlib import Path
+
+import can
+import canopen
+import numpy as np
+import pytest
+
+from fusion_center.errors import ParameterError
+from fusion_center.scene import TAXEL_KINDS, BusSpec, Scene, TaxelSpec, load_scene
+from node_sim.od import EDS_PATH
+from node_sim.rig import Rig
+
+ROOT = Path(__file__).resolve().parent.parent
+WAIT = 5.0
+
+
+def uid(prefix="rig"):
+    return f"test-{prefix}-{uuid.uuid4().hex[:10]}"
+
+
+class Recorder:
+    def __init__(self, channel):
+        self.bus = can.Bus(interface="virtual", channel=channel)
+        self.frames: list[can.Message] = []
+        self.lock = threading.Lock()
+        self.notifier = can.Notifier(self.bus, [self.on], timeout=0.05)
+
+    def on(self, m):
+        with self.lock:
+            self.frames.append(m)
+
+    def of(self, can_id):
+        with self.lock:
+            return [m for m in self.frames if m.arbitration_id == can_id]
+
+    def wait_count(self, can_id, n, timeout=WAIT):
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if len(self.of(can_id)) >= n:
+                return self.of(can_id)
+            time.sleep(0.005)
+        raise AssertionError(f"0x{can_id:03X}: {len(self.of(can_id))} < {n}")
+
+    def send(self, can_id, data=b""):
+        self.bus.send(can.Message(arbitration_id=can_id, data=data, is_extended_id=False))
+
+    def close(self):
+        self.notifier.stop()
+        self.bus.shutdown()
+
+
+def sync_and_wait(rec: Recorder, rig: Rig, channel: int = 0, data: bytes = b"", expect_cycle=None):
+    before = rig.cycle(channel)
+    rec.send(0x80, data)
+    target = expect_cycle if expect_cycle is not None else (0 if before is None else before + 1)
+    assert rig.wait_cycle(target, channel, timeout=WAIT)
+
+
+def test_startup_configuration_written_from_scene():
+    ch = uid()
+    taxels = (TaxelSpec(node_id=3, kind="TBS", x=1.0, y=2.0, zeta_mv=0.75, noise_mv=0.25, slope=0.307,
+                        intercept=-0.0163, noise_sigma_mv=0.1),
+              TaxelSpec(node_id=8, kind="IR", zeta_mv=2.0))
+    bus = BusSpec(channels=(ch,), heartbeat_producer_ms=250, mode="raw", transmission_type=255,
+                  inhibit_time_100us=30, event_timer_ms=500)
+    scene = Scene(path="<t>", name="cfg", taxels=taxels, bus=bus)
+    net = canopen.Network()
+    with Rig(scene, reading_source=lambda c: np.zeros(2)) as rig:
+        net.connect(interface="virtual", channel=ch)
+        try:
+            rn = canopen.RemoteNode(3, str(EDS_PATH))
+            rn.sdo.RESPONSE_TIMEOUT = 2.0
+            net.add_node(rn)
+            assert rn.sdo[0x2001][1].raw == pytest.approx(0.75)
+            assert rn.sdo[0x2001][2].raw == pytest.approx(0.25)
+            assert rn.sdo[0x2001][3].raw == TAXEL_KINDS["TBS"] == 5
+            assert (rn.sdo[0x2001][4].raw, rn.sdo[0x2001][5].raw) == (1.0, 2.0)
+            assert rn.sdo[0x6126][1].raw == pytest.approx(0.307, rel=1e-6)
+            assert rn.sdo[0x6127][1].raw == pytest.approx(-0.0163, rel=1e-6)
+            assert rn.sdo[0x1017].raw == 250
+            for comm in (0x1800, 0x1801):
+                assert rn.sdo[comm][2].raw == 255
+                assert rn.sdo[comm][3].raw == 30
+                assert rn.sdo[comm][5].raw == 500
+            assert rn.sdo[0x1801][1].raw == 0x283        # raw mode: TPDO2 valid
+            assert rn.sdo[0x2002][2].raw == 20           # noisy taxel: stuck detector on (EDS default)
+        finally:
+            net.disconnect()
+        n8 = rig.node(8)
+        assert n8.read(0x2001, 3) == 6 and n8.read(0x2002, 2) == 0   # noiseless: stuck detector off
+        assert n8.read(0x2001, 4) == 0.0                             # no geometry: EDS default
+        assert set(rig.nodes) == {(0, 3), (0, 8)}
+
+
+def test_decision_mode_leaves_tpdo2_disabled():
+    ch = uid()
+    scene = Scene(path="<t>", name="d", taxels=(TaxelSpec(node_id=1, kind="R"),), bus=BusSpec(channels=(ch,)))
+    with Rig(scene, reading_source=lambda c: np.zeros(1)) as rig:
+        assert rig.node(1).read(0x1801, 1) == 0x80000281
+        assert rig.node(1).read(0x1800, 1) == 0x181
+
+
+def test_more_than_127_taxels_use_one_network_per_channel():
+    a, b = uid("a"), uid("b")
+    taxels = tuple(TaxelSpec(node_id=i, kind="C", channel=0) for i in range(1, 128)) + \
+        tuple(TaxelSpec(node_id=i, kind="P", channel=1) for i in (1, 2, 3))
+    scene = Scene(path="<t>", name="big", taxels=taxels, bus=BusSpec(channels=(a, b), heartbeat_producer_ms=0))
+    seen = []
+
+    def source(cycle):
+        seen.append(cycle)
+        x = np.zeros(len(taxels))
+        x[127:] = 5.0            # channel b's taxels (scene indices 127..129) see contact
+        return x
+
+    rec_a, rec_b = Recorder(a), Recorder(b)
+    try:
+        with Rig(scene, reading_source=source) as rig:
+            assert len(rig.buses) == 2 and len(rig.nodes) == 130
+            rec_a.wait_count(0x701, 1)
+            rec_b.wait_count(0x703, 1)
+            assert rec_b.of(0x704) == [] and rec_a.of(0x77F)   # node 127 only on network a
+            rec_b.send(0x000, bytes([0x01, 0]))                 # start network b only
+            deadline = time.monotonic() + WAIT
+            while rig.node(3, 1).state != 0x05 and time.monotonic() < deadline:
+                time.sleep(0.005)
+            sync_and_wait(rec_b, rig, channel=1)
+            frames = rec_b.wait_count(0x181, 1)
+            assert struct.unpack("<b", bytes(frames[0].data))[0] == 1      # 5.0 - 0 >= ζ = 1.0
+            assert rig.cycle(0) is None and rig.cycle(1) == 0
+            time.sleep(0.05)
+            assert rec_a.of(0x181) == []                        # network a is still pre-operational
+            assert rig.node(1, 0).state == 0x7F
+    finally:
+        rec_a.close()
+        rec_b.close()
+
+
+def test_sync_counter_gap_counts_lost_syncs():
+    ch = uid()
+    scene = Scene(path="<t>", name="c", taxels=(TaxelSpec(node_id=1, kind="R", zeta_mv=1.0),),
+                  bus=BusSpec(channels=(ch,), sync_counter=4, heartbeat_producer_ms=0))
+    requested = []
+
+    def source(cycle):
+        requested.append(cycle)
+        return np.array([float(cycle)])    # X = cycle: present from cycle 1 on (X - 0 >= 1)
+
+    rec = Recorder(ch)
+    try:
+        with Rig(scene, reading_source=source) as rig:
+            rec.send(0x000, bytes([0x01, 1]))
+            deadline = time.monotonic() + WAIT
+            while rig.node(1).state != 0x05 and time.monotonic() < deadline:
+                time.sleep(0.005)
+            for counter, cycle in ((1, 0), (2, 1), (4, 3), (1, 4), (3, 6)):
+                sync_and_wait(rec, rig, data=bytes([counter]), expect_cycle=cycle)
+            assert requested == [0, 1, 3, 4, 6]
+            assert rig.lost_syncs() == 2
+            frames = rec.wait_count(0x181, 5)
+            assert [struct.unpack("<b", bytes(f.data))[0] for f in frames] == [-1, 1, 1, 1, 1]
+    finally:
+        rec.close()
+
+
+def test_default_readings_come_from_scene_physics():
+    scene = load_scene(ROOT / "scenes" / "matrix57.toml")
+    ch = uid("m57")
+    from dataclasses import replace
+
+    from node_sim import physics
+
+    scene = replace(scene, bus=replace(scene.bus, channels=(ch,), heartbeat_producer_ms=0))
+    rec = Recorder(ch)
+    try:
+        with Rig(scene, seed=11) as rig:
+            assert rig.scene.seed == 11
+            rec.send(0x000, bytes([0x01, 0]))
+            deadline = time.monotonic() + WAIT
+            while any(n.state != 0x05 for n in rig.nodes.values()) and time.monotonic() < deadline:
+                time.sleep(0.005)
+            cycles = 25                            # the object is present from cycle 20 on
+            for _ in range(cycles):
+                sync_and_wait(rec, rig)
+            for i, t in enumerate(scene.taxels):
+                frames = rec.wait_count(0x180 + t.node_id, cycles)
+                got = [struct.unpack("<b", bytes(f.data))[0] for f in frames]
+                x = [physics.sample_readings(rig.scene, c)[i] for c in range(cycles)]
+                want = [1 if xi - t.noise_mv >= t.zeta_mv else -1 for xi in x]   # eqs 3-4 by hand
+                assert got == want, t.node_id
+            present = sum(struct.unpack("<b", bytes(f.data))[0] == 1
+                          for t in scene.taxels for f in rec.of(0x180 + t.node_id)[20:])
+            assert present > 0
+    finally:
+        rec.close()
+
+
+def test_rig_parameter_errors():
+    ch = uid()
+    scene = Scene(path="<t>", name="e", taxels=(TaxelSpec(node_id=1, kind="R"),), bus=BusSpec(channels=(ch,)))
+    with pytest.raises(ParameterError, match="channel"):
+        Rig(scene, channel=["a", "b"])
+    with pytest.raises(ParameterError, match="channels"):
+        Rig(Scene(path="<t>", name="e", taxels=(TaxelSpec(node_id=1, kind="R", channel=1),),
+                  bus=BusSpec(channels=(ch,))))
+    with pytest.raises(ParameterError, match="cannot be opened"):
+        Rig(scene, interface="udp_multicast", channel="no-such-group").start()
+    with pytest.raises(ParameterError, match="eds"):
+        Rig(scene, eds_path="/nonexistent.eds")
+    with pytest.raises(ParameterError, match="taxels"):
+        Rig(Scene(path="<t>", name="e", bus=BusSpec(channels=(ch,))))
+    rig = Rig(scene, reading_source=lambda c: np.zeros(1)).start()
+    rig.stop()
+    rig.stop()   # idempotent
+    with pytest.raises(ParameterError):
+        rig.drop_node(1)
