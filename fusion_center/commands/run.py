@@ -1,0 +1,132 @@
+"""``fusion-center run``: the fusion centre as CANopen master on any python-can bus."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+
+HELP = "run the fusion centre (CANopen master, SYNC, fusion, decision log) on a python-can bus"
+
+
+def add_common_outputs(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--cycles", type=int, default=None, metavar="N",
+                        help="SYNC cycles to run (default: the scene's [scene] cycles)")
+    parser.add_argument("--json-lines", metavar="OUT", default=None,
+                        help="decision log: one JSON object per cycle, flushed every cycle")
+    parser.add_argument("--log", metavar="TRACE", default=None,
+                        help="raw CAN trace via python-can's Logger; format by extension "
+                             "(.log candump, .asc Vector, .blf, .csv); replay it with `fusion-center replay`")
+    parser.add_argument("--no-live", action="store_true", help="no live terminal view (off anyway without a TTY)")
+    parser.add_argument("--boot-timeout", type=float, default=3.0, metavar="S",
+                        help="seconds to wait for the nodes' boot-ups; later ones are missing (default 3)")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--scene", required=True, metavar="FILE", help="scene file (TOML, docs/scene-format.md)")
+    parser.add_argument("--interface", default="virtual",
+                        help="python-can interface: virtual, socketcan, udp_multicast, pcan, kvaser... (default virtual)")
+    parser.add_argument("--channel", default=None,
+                        help="bus channel(s), comma-separated, one per scene channel (default: the scene's names)")
+    parser.add_argument("--bitrate", type=int, default=None, metavar="B", help="bit/s passed to python-can")
+    parser.add_argument("--bus-option", action="append", default=[], metavar="KEY=VALUE",
+                        help="extra can.Bus keyword argument (repeatable), e.g. port=43114")
+    add_common_outputs(parser)
+
+
+def parse_bus_options(options: list[str]) -> dict:
+    from ..cli import UsageError
+
+    out: dict = {}
+    for option in options:
+        key, sep, value = option.partition("=")
+        if not sep or not key:
+            raise UsageError(f"--bus-option {option!r}: expected KEY=VALUE")
+        for convert in (int, float):
+            try:
+                out[key] = convert(value)
+                break
+            except ValueError:
+                continue
+        else:
+            out[key] = {"true": True, "false": False}.get(value.lower(), value)
+    return out
+
+
+def setup_logging() -> None:
+    logging.basicConfig(level=logging.WARNING, stream=sys.stderr,
+                        format="%(levelname)s %(name)s: %(message)s")
+
+
+def execute(service, cycles: int, *, live: bool, boot_timeout: float, before_sync=None, on_start=None) -> dict:
+    """Boot, run and summarise one service (shared by ``run`` and ``demo``)."""
+    from ..service.core import stdout_is_tty
+
+    view = None
+    if live and stdout_is_tty():
+        from ..service.live import LiveView
+
+        view = LiveView(service)
+        service.on_record.append(view.update)
+    if on_start is not None:
+        on_start()
+    if view is not None:
+        with view:
+            service.boot(boot_timeout)
+            summary = service.run(cycles, before_sync=before_sync)
+    else:
+        service.boot(boot_timeout)
+        summary = service.run(cycles, before_sync=before_sync)
+    return summarise(service, summary)
+
+
+def summarise(service, summary) -> dict:
+    records = [r for r in service.records if "decision" in r]
+    decisions = {d: sum(r["decision"] == d for r in records) for d in ("H1", "H0", "undecided")}
+    with_truth = [r for r in records if "truth" in r and r["decision"] != "undecided"]
+    correct = sum(r["decision"] == r["truth"] for r in with_truth)
+    out = {
+        "cycles": summary.cycles,
+        "records": len(service.records),
+        "decisions": decisions,
+        "agree_with_truth": f"{correct}/{len(with_truth)}" if with_truth else None,
+        "degraded_cycles": sum(bool(r.get("degraded")) for r in records),
+        "missing_at_boot": summary.missing_at_boot,
+        "counters": {k: v for k, v in summary.counters.items() if v},
+        "sdo": {"writes": summary.sdo_writes, "aborts": summary.sdo_aborts, "timeouts": summary.sdo_timeouts},
+        "sync_overruns": summary.sync_overruns,
+        "latency_ms_p50": _round(summary.latency_percentile(50)),
+        "latency_ms_p99": _round(summary.latency_percentile(99)),
+    }
+    if summary.own_echoes:
+        out["own_echoes_dropped"] = summary.own_echoes
+    return out
+
+
+def _round(x):
+    return None if x is None else round(x, 3)
+
+
+def print_summary(summary: dict) -> None:
+    for key, value in summary.items():
+        print(f"{key}: {value}")
+
+
+def run(args) -> int:
+    from ..cli import UsageError
+    from ..scene import load_scene
+    from ..service import FusionService
+
+    setup_logging()
+    scene = load_scene(args.scene)
+    cycles = args.cycles if args.cycles is not None else scene.cycles
+    if cycles < 1:
+        raise UsageError(f"--cycles {cycles}: must be >= 1")
+    channels = args.channel.split(",") if args.channel else None
+    service = FusionService(scene, interface=args.interface, channels=channels, bitrate=args.bitrate,
+                            bus_kwargs=parse_bus_options(args.bus_option), json_lines=args.json_lines,
+                            trace=args.log)
+    with service:
+        summary = execute(service, cycles, live=not args.no_live, boot_timeout=args.boot_timeout)
+    print_summary(summary)
+    return 0

@@ -1,0 +1,536 @@
+"""The fusion centre on the bus: buses, the serialised event stream, the worker, replay.
+
+Threads of a live run:
+
+* one python-can ``Notifier`` thread per bus: canopen's listener (SDO client) and ours,
+  :class:`_StreamListener`, which feeds :meth:`EventStream.receive` - guarded: an exception
+  is counted as ``internal_error`` and never escapes (a raising listener stops python-can's
+  Notifier for good);
+* the SYNC producer (:class:`~fusion_center.service.master.Master`), monotonic clock;
+* the worker: evaluates closed cycles in order (:class:`CyclePipeline`) and appends one JSON
+  line per cycle (flushed), then calls the ``on_record`` callbacks (live view, demo hooks).
+
+:class:`EventStream` is the single point where events are ordered: under one lock each
+event is time-stamped (integer µs, clamped to be monotonic), written to the trace
+(``can.Logger``), and fed to the :class:`CycleAssembler`. ``replay`` feeds a trace through the
+same class, so it reproduces the live records exactly.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import queue
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Iterable, Sequence
+
+import can
+
+from ..cli import UsageError
+from ..scene import Scene
+from .cycles import (
+    COUNTER_NAMES,
+    FLAG_ERROR,
+    FLAG_EXTENDED,
+    FLAG_REMOTE,
+    MALFORMED,
+    ClosedCycle,
+    CycleAssembler,
+    quantise_timestamp,
+)
+from .decoder import BASE_SDO_REQUEST, COB_NMT, COB_SYNC
+from .pipeline import CyclePipeline
+from .records import RecordWriter
+
+logger = logging.getLogger("fusion_center.service")
+
+DEFAULT_EDS = Path(__file__).resolve().parent.parent.parent / "eds" / "taxel_node.eds"
+TRACE_SUFFIXES = (".log", ".asc", ".blf", ".csv", ".trc", ".mf4", ".txt", ".db")
+
+
+class RateLimitedLog:
+    """Log a cause at most once per ``interval`` seconds, with the count since the last line."""
+
+    def __init__(self, log: logging.Logger, interval: float = 1.0):
+        self.log = log
+        self.interval = interval
+        self._last: dict[str, float] = {}
+        self._suppressed: dict[str, int] = {}
+        self._lock = threading.Lock()
+
+    def warning(self, cause: str, message: str, *args) -> None:
+        now = time.monotonic()
+        with self._lock:
+            last = self._last.get(cause)
+            if last is not None and now - last < self.interval:
+                self._suppressed[cause] = self._suppressed.get(cause, 0) + 1
+                return
+            self._last[cause] = now
+            suppressed = self._suppressed.pop(cause, 0)
+        if suppressed:
+            message += f" (+{suppressed} similar suppressed)"
+        self.log.warning(message, *args)
+
+
+def message_flags(msg: can.Message) -> int:
+    flags = 0
+    if msg.is_error_frame:
+        flags |= FLAG_ERROR
+    if msg.is_remote_frame:
+        flags |= FLAG_REMOTE
+    if msg.is_extended_id:
+        flags |= FLAG_EXTENDED
+    return flags
+
+
+class EventStream:
+    """Serialises events: time-stamp (µs, monotonic), trace, assembler - under one lock."""
+
+    def __init__(self, assembler: CycleAssembler, *, trace: can.Listener | None = None,
+                 on_closed: Callable[[ClosedCycle], None] | None = None,
+                 buses: Sequence[can.BusABC] = ()):
+        self.assembler = assembler
+        self.trace = trace
+        self.on_closed = on_closed
+        self.buses = list(buses)
+        self.lock = threading.Lock()
+        self.fed = 0
+        self.last_us: int | None = None
+        self.tx_errors = 0
+        self.rate_log = RateLimitedLog(logger)
+
+    def _feed_locked(self, msg: can.Message, channel: int) -> None:
+        self.fed += 1
+        try:
+            us = quantise_timestamp(msg.timestamp)
+            last = self.last_us
+            if last is not None and us < last:
+                us = last
+            self.last_us = us
+            if self.trace is not None:
+                msg.timestamp = us / 1e6
+                msg.channel = channel
+                self.trace.on_message_received(msg)
+            flags = message_flags(msg)
+            closed = self.assembler.feed(us, channel, msg.arbitration_id, msg.data, flags)
+            if closed is not None and self.on_closed is not None:
+                self.on_closed(closed)
+        except Exception as exc:  # noqa: BLE001 - the receive path never raises
+            if self.assembler.events < self.fed:
+                self.assembler.count_internal_error()
+            self.rate_log.warning("internal_error", "receive path: %s: %s", type(exc).__name__, exc)
+
+    def receive(self, msg: can.Message, channel: int) -> None:
+        """A frame from the bus (or from a trace, in replay)."""
+        with self.lock:
+            self._feed_locked(msg, channel)
+
+    def transmit(self, channel: int, can_id: int, data: bytes, remote: bool = False) -> None:
+        """Send a frame of the master on ``channel`` and feed it as an event (same order)."""
+        self.transmit_all([(channel, can_id, data)], remote)
+
+    def transmit_all(self, frames: Iterable[tuple[int, int, bytes]], remote: bool = False) -> None:
+        """Send several frames back to back (e.g. SYNC on every channel) as one atomic step."""
+        with self.lock:
+            for channel, can_id, data in frames:
+                msg = can.Message(arbitration_id=can_id, data=data, is_extended_id=False,
+                                  is_remote_frame=remote, channel=channel)
+                try:
+                    self.buses[channel].send(msg)
+                except can.CanError as exc:
+                    self.tx_errors += 1
+                    self.rate_log.warning("tx_error", "transmit 0x%03X on channel %d failed: %s", can_id, channel, exc)
+                    continue
+                msg.timestamp = time.time()
+                self._feed_locked(msg, channel)
+
+    def cycle_open(self) -> bool:
+        with self.lock:
+            return self.assembler.is_open
+
+    def counters(self) -> dict[str, int]:
+        with self.lock:
+            return self.assembler.counters()
+
+
+class _StreamListener(can.Listener):
+    """python-can listener of one channel: hands every frame to the stream, never raises."""
+
+    def __init__(self, service: "FusionService", channel: int):
+        self.service = service
+        self.channel = channel
+        self.stream = service.stream
+        self.drop_echo = service.drop_own_echo
+        self.own_ids = service.master_cob_ids
+
+    def on_message_received(self, msg: can.Message) -> None:
+        try:
+            if self.drop_echo and msg.arbitration_id in self.own_ids and not msg.is_extended_id:
+                self.service.own_echoes += 1  # our own frame looped back (udp_multicast)
+                return
+            self.stream.receive(msg, self.channel)
+            bootups = self.stream.assembler.bootups
+            if bootups:
+                with self.stream.lock:
+                    drained = list(bootups)
+                    bootups.clear()
+                for index in drained:
+                    self.service.on_bootup(index)
+        except Exception as exc:  # noqa: BLE001 - never let the Notifier thread die
+            with self.stream.lock:
+                self.stream.assembler.count_internal_error()
+            self.stream.rate_log.warning("listener", "listener: %s: %s", type(exc).__name__, exc)
+
+    def on_error(self, exc: Exception) -> None:
+        self.stream.rate_log.warning("bus_error", "bus error on channel %d: %s", self.channel, exc)
+
+    def stop(self) -> None:
+        pass
+
+
+@dataclass
+class RunSummary:
+    cycles: int = 0
+    records: int = 0
+    counters: dict = field(default_factory=dict)
+    sdo_writes: int = 0
+    sdo_aborts: int = 0
+    sdo_timeouts: int = 0
+    sync_overruns: int = 0
+    missing_at_boot: list = field(default_factory=list)
+    own_echoes: int = 0
+    tx_errors: int = 0
+    latency_ms: list = field(default_factory=list)
+
+    def latency_percentile(self, q: float) -> float | None:
+        if not self.latency_ms:
+            return None
+        data = sorted(self.latency_ms)
+        k = min(len(data) - 1, max(0, math.ceil(q / 100.0 * len(data)) - 1))
+        return data[k]
+
+
+class FusionService:
+    """The fusion centre on one python-can interface (one bus per scene channel).
+
+    ``with FusionService(scene, ...) as svc: svc.boot(); svc.run(cycles)``. ``open`` (called by
+    ``__enter__``) raises :class:`~fusion_center.cli.UsageError` for an unknown interface, a
+    channel that cannot be opened, a missing EDS or an unwritable output file.
+    """
+
+    def __init__(self, scene: Scene, *, interface: str = "virtual", channels: Sequence[str] | None = None,
+                 bitrate: int | None = None, bus_kwargs: dict | None = None, json_lines=None, trace=None,
+                 eds_path=DEFAULT_EDS, truth: bool = True, keep_records: bool = True,
+                 on_record: Callable[[dict], None] | None = None):
+        self.scene = scene
+        self.interface = interface
+        names = list(scene.bus.channels)
+        if channels is not None:
+            channels = list(channels)
+            if len(channels) != len(names):
+                raise UsageError(f"--channel: the scene has {len(names)} channel(s) {names}, got {len(channels)}")
+            names = channels
+        self.channel_names = names
+        self.bitrate = bitrate
+        self.bus_kwargs = dict(bus_kwargs or {})
+        self.json_lines = json_lines
+        self.trace_path = trace
+        self.eds_path = Path(eds_path)
+        self.keep_records = keep_records
+        self.on_record: list[Callable[[dict], None]] = [on_record] if on_record else []
+        self.assembler = CycleAssembler(scene)
+        self.labels = self.assembler.labels
+        self.pipeline = CyclePipeline(scene, truth=truth)
+        self.records: list[dict] = []
+        self.latency_ms: list[float] = []
+        self.pipeline_errors = 0
+        self.own_echoes = 0
+        self.drop_own_echo = interface == "udp_multicast"
+        self.master_cob_ids = frozenset([COB_NMT, COB_SYNC] + [BASE_SDO_REQUEST + t.node_id for t in scene.taxels])
+        self.buses: list[can.BusABC] = []
+        self.notifiers: list[can.Notifier] = []
+        self.networks = []
+        self.master = None
+        self.stream = EventStream(self.assembler, on_closed=self._enqueue)
+        self.writer: RecordWriter | None = None
+        self._trace_logger = None
+        self._queue: queue.SimpleQueue = queue.SimpleQueue()
+        self._worker: threading.Thread | None = None
+        self._records_done = threading.Condition()
+        self._opened = False
+        self.missing_at_boot: list[int] = []
+        self._malformed_seen = {name: 0 for name in MALFORMED}
+        self._rate_log = RateLimitedLog(logger, 2.0)
+
+    # ------------------------------------------------------------------ life cycle
+    def __enter__(self) -> "FusionService":
+        self.open()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def open(self) -> "FusionService":
+        import canopen
+
+        if not self.eds_path.is_file():
+            raise UsageError(f"EDS file {str(self.eds_path)!r} not found (needed for the SDO configuration)")
+        try:
+            od = canopen.import_od(str(self.eds_path))
+        except Exception as exc:  # noqa: BLE001
+            raise UsageError(f"EDS file {str(self.eds_path)!r} cannot be read: {exc}") from None
+        try:
+            for name in self.channel_names:
+                self.buses.append(self._open_bus(name))
+            self.stream.buses = self.buses
+            if self.trace_path is not None:
+                self._trace_logger = open_trace_writer(self.trace_path)
+                self.stream.trace = self._trace_logger
+            if self.json_lines is not None:
+                self.writer = RecordWriter(self.json_lines)
+            self._worker = threading.Thread(target=self._work, name="fusion-worker", daemon=True)
+            self._worker.start()
+            from canopen.network import MessageListener
+
+            for index, bus in enumerate(self.buses):
+                network = canopen.Network(bus)
+                network.send_message = self._sender(index)
+                self.networks.append(network)
+                listeners = [_StreamListener(self, index), MessageListener(network)]
+                self.notifiers.append(can.Notifier(bus, listeners, timeout=0.05))
+                network.notifier = self.notifiers[-1]
+            from .master import Master
+
+            self.master = Master(self, self.scene, self.networks, od)
+        except BaseException:
+            self.close()
+            raise
+        self._opened = True
+        return self
+
+    def _sender(self, channel: int):
+        def send_message(can_id: int, data, remote: bool = False) -> None:
+            self.stream.transmit(channel, can_id, bytes(data), remote)
+        return send_message
+
+    def _open_bus(self, name: str) -> can.BusABC:
+        kwargs = dict(self.bus_kwargs)
+        if self.bitrate is not None:
+            kwargs["bitrate"] = self.bitrate
+        try:
+            return can.Bus(interface=self.interface, channel=name, **kwargs)
+        except can.exceptions.CanInterfaceNotImplementedError as exc:
+            raise UsageError(f"--interface {self.interface!r}: not usable by python-can ({exc})") from None
+        except Exception as exc:  # noqa: BLE001 - any backend failure: cannot open
+            raise UsageError(f"--channel {name!r} cannot be opened with interface {self.interface!r}: "
+                             f"{type(exc).__name__}: {exc}") from None
+
+    def close(self) -> None:
+        if self.master is not None:
+            self.master.stop()
+        for notifier in self.notifiers:
+            try:
+                notifier.stop(timeout=2)
+            except Exception:  # noqa: BLE001
+                logger.exception("notifier stop failed")
+        self.notifiers = []
+        if self._worker is not None and self._worker.is_alive():
+            self._queue.put(None)
+            self._worker.join(10)
+        self._worker = None
+        for bus in self.buses:
+            try:
+                bus.shutdown()
+            except Exception:  # noqa: BLE001
+                logger.exception("bus shutdown failed")
+        self.buses = []
+        with self.stream.lock:
+            if self._trace_logger is not None:
+                try:
+                    self._trace_logger.stop()
+                except Exception:  # noqa: BLE001
+                    logger.exception("trace close failed")
+                self._trace_logger = None
+                self.stream.trace = None
+        if self.writer is not None:
+            self.writer.close()
+            self.writer = None
+        self._opened = False
+
+    # ------------------------------------------------------------------ master steps
+    def never_heard(self) -> list[int]:
+        with self.stream.lock:
+            return [int(i) for i in (self.assembler.last_heard < 0).nonzero()[0]]
+
+    def boot(self, timeout_s: float = 3.0, configure: bool = True) -> list[int]:
+        """Wait for the boot-ups, configure the nodes heard over SDO, NMT-start them.
+
+        Returns the taxel indexes that never booted (missing from the first cycle)."""
+        missing = self.master.wait_for_boot(timeout_s)
+        self.missing_at_boot = missing
+        present = [i for i in range(self.scene.n) if i not in set(missing)]
+        if configure:
+            self.master.configure(present)
+        self.master.start_nodes()
+        return missing
+
+    def on_bootup(self, index: int) -> None:
+        if self.master is not None:
+            self.master.on_bootup(index)
+
+    def run(self, cycles: int, *, before_sync: Callable[[int], None] | None = None,
+            timeout_s: float | None = None) -> RunSummary:
+        """Produce ``cycles`` SYNCs, wait for their records, return the summary."""
+        if cycles < 1:
+            raise UsageError(f"--cycles {cycles}: must be >= 1")
+        period = self.scene.bus.sync_period_ms / 1000.0
+        self.master.start_sync(cycles, before_sync)
+        if timeout_s is None:
+            timeout_s = cycles * period * 3 + 10.0
+        self.master.wait_sync_done(timeout_s)
+        self.master.stop()
+        self.drain(timeout=5.0)
+        return self.summary()
+
+    def drain(self, timeout: float = 5.0) -> None:
+        """Wait until the worker has handled every closed cycle queued so far."""
+        done = threading.Event()
+        self._queue.put(done)
+        done.wait(timeout)
+
+    def summary(self) -> RunSummary:
+        m = self.master
+        return RunSummary(
+            cycles=m.sync_sent if m else 0,
+            records=len(self.records) if self.keep_records else (self.writer.count if self.writer else 0),
+            counters=self.stream.counters(),
+            sdo_writes=m.sdo_writes if m else 0,
+            sdo_aborts=m.sdo_aborts if m else 0,
+            sdo_timeouts=m.sdo_timeouts if m else 0,
+            sync_overruns=m.sync_overruns if m else 0,
+            missing_at_boot=[self.labels[i] for i in self.missing_at_boot],
+            own_echoes=self.own_echoes,
+            tx_errors=self.stream.tx_errors,
+            latency_ms=list(self.latency_ms),
+        )
+
+    # ------------------------------------------------------------------ worker
+    def _enqueue(self, closed: ClosedCycle) -> None:
+        self._queue.put(closed)
+
+    def _work(self) -> None:
+        while True:
+            item = self._queue.get()
+            if item is None:
+                return
+            if isinstance(item, threading.Event):
+                item.set()
+                continue
+            try:
+                record = self.evaluate(item)
+            except Exception as exc:  # noqa: BLE001
+                self.pipeline_errors += 1
+                logger.exception("cycle %d: evaluation failed", item.cycle)
+                record = {"cycle": item.cycle, "t": round(item.sync_us * 1e-6, 6), "error": str(exc)}
+            sent = self.master.sync_sent_at.get(item.cycle) if self.master else None
+            if sent is not None:
+                self.latency_ms.append((time.perf_counter() - sent) * 1e3)
+            if self.writer is not None:
+                try:
+                    self.writer.write(record)
+                except (OSError, ValueError) as exc:
+                    self._rate_log.warning("writer", "decision log write failed: %s", exc)
+            if self.keep_records:
+                self.records.append(record)
+            for callback in self.on_record:
+                try:
+                    callback(record)
+                except Exception:  # noqa: BLE001
+                    logger.exception("on_record callback failed")
+            if item.bad_frames:
+                self._log_malformed()
+
+    def evaluate(self, closed: ClosedCycle) -> dict:
+        return self.pipeline.evaluate(closed)
+
+    def _log_malformed(self) -> None:
+        counters = self.stream.counters()
+        for name in MALFORMED:
+            new = counters[name] - self._malformed_seen[name]
+            if new > 0:
+                self._malformed_seen[name] = counters[name]
+                self._rate_log.warning(name, "%d malformed frame(s): %s (total %d)", new, name, counters[name])
+
+
+# ---------------------------------------------------------------------- traces and replay
+def open_trace_writer(path) -> can.Listener:
+    """``can.Logger(path)``: the format follows the extension (.log candump, .asc, .blf, .csv...)."""
+    p = Path(path)
+    if p.suffix.lower() not in TRACE_SUFFIXES:
+        raise UsageError(f"--log {str(path)!r}: unknown trace format {p.suffix!r} "
+                         f"(python-can writes {', '.join(TRACE_SUFFIXES)})")
+    try:
+        return can.Logger(str(p))
+    except (OSError, ValueError) as exc:
+        raise UsageError(f"--log {str(path)!r}: cannot be written: {exc}") from None
+
+
+def trace_channel(msg: can.Message) -> int:
+    """Scene channel index of a frame read back from a trace (see ``EventStream``)."""
+    from can.util import channel2int
+
+    channel = channel2int(msg.channel)
+    return 0 if channel is None else channel
+
+
+def replay_trace(scene: Scene, trace_path, *, json_lines=None, truth: bool = True,
+                 on_record: Callable[[dict], None] | None = None) -> tuple[list[dict], dict[str, int]]:
+    """Re-fuse a recorded trace offline: the same stream -> the same records as live.
+
+    Returns (records, counters). The open cycle at the end of the trace is not reported
+    (live runs end theirs with an NMT broadcast, which is in the trace).
+    """
+    p = Path(trace_path)
+    if not p.is_file():
+        raise UsageError(f"trace {str(trace_path)!r} not found")
+    try:
+        reader = can.LogReader(str(p))
+    except Exception as exc:  # noqa: BLE001
+        raise UsageError(f"trace {str(trace_path)!r} cannot be read: {exc}") from None
+    assembler = CycleAssembler(scene)
+    pipeline = CyclePipeline(scene, truth=truth)
+    closed_cycles: list[ClosedCycle] = []
+    stream = EventStream(assembler, on_closed=closed_cycles.append)
+    records: list[dict] = []
+    writer = RecordWriter(json_lines) if json_lines is not None else None
+    try:
+        try:
+            for msg in reader:
+                stream.receive(msg, trace_channel(msg))
+                while closed_cycles:
+                    record = pipeline.evaluate(closed_cycles.pop(0))
+                    records.append(record)
+                    if writer is not None:
+                        writer.write(record)
+                    if on_record is not None:
+                        on_record(record)
+        except (ValueError, OSError, EOFError) as exc:
+            raise UsageError(f"trace {str(trace_path)!r}: unreadable frame: {exc}") from None
+    finally:
+        if writer is not None:
+            writer.close()
+        stop = getattr(reader, "stop", None)
+        if stop is not None:
+            stop()
+    return records, assembler.counters()
+
+
+def stdout_is_tty() -> bool:
+    try:
+        return sys.stdout.isatty()
+    except (AttributeError, ValueError):
+        return False

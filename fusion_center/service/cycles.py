@@ -1,0 +1,442 @@
+"""Deterministic SYNC-cycle assembler: a pure state machine over the serialised event stream.
+
+Contract (what makes ``replay`` reproduce ``run`` exactly)
+----------------------------------------------------------
+The assembler sees ONE ordered stream of events ``(timestamp_us, channel, can_id, data,
+flags)``: every frame received from the bus *and* every frame the master sends itself (SYNC,
+NMT, SDO requests), serialised under one lock by the service, which writes the very same
+events, in the same order, to the CAN trace (``--log``). The assembler never reads a clock:
+everything it decides is a function of that stream, so feeding the trace back
+(``fusion-center replay``) reproduces every closed cycle, hence every record.
+
+* Cycle ``n`` opens at the ``n``-th valid SYNC event on channel 0 (``n`` counts from 0;
+  with several channels the master sends the SYNCs of all channels back to back, and those
+  of the other channels are only counted).
+* At that SYNC, liveness is evaluated from the stream (CiA 301 heartbeat consumer, 0x1016
+  semantics): a node is *missing* when it has never been heard or when nothing valid
+  (heartbeat, boot-up, TPDO, EMCY, SDO response) was heard from it for more than
+  ``heartbeat_consumer_ms`` before the SYNC timestamp. A consumer time of 0 disables the
+  timeout (only never-heard nodes are missing). Hearing a node again brings it back.
+* A node is *expected* in a cycle when it is live and operational (its NMT state follows the
+  heartbeat byte, the master's own NMT commands seen in the stream, and "a node that sends a
+  PDO is operational").
+* The cycle closes (``closed_by``) when every expected node has delivered its primary PDO
+  (``"complete"``: TPDO1 in decision mode, TPDO2 in raw mode; only for synchronous
+  transmission type 1 and at least one expected node), at the next valid SYNC
+  (``"sync"``), or at an NMT broadcast stop / pre-operational / reset (``"nmt"``, the master
+  sends one at the end of a run). A cycle still open when the stream ends is never reported.
+* A PDO that cannot belong to the open cycle - a second PDO of a node that already reported,
+  or any PDO while no cycle is open (after an early close, before the first SYNC) - is
+  counted as ``late`` and dropped, never mixed into a finished cycle.
+
+Limit: a 1-byte TPDO1 carries no cycle tag (the SYNC counter is in the SYNC frame only), so a
+PDO delayed past the next SYNC is indistinguishable from an early answer to that SYNC; it is
+attributed to the cycle open when it arrives. Only ordering in the stream is used.
+
+Every event fed is counted under exactly one disposition in :data:`COUNTER_NAMES`, so the
+counters always sum to the number of events fed (the fuzz test checks this).
+
+Timestamps are integers in microseconds (:func:`quantise_timestamp`): candump ``.log`` and
+Vector ``.asc`` keep 6 decimals of a second, so microsecond integers survive the round trip
+through every trace format exactly (see ``FusionService`` for the monotonic clamp applied
+before writing the trace).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..scene import Scene
+from .decoder import (
+    HEARTBEAT_STATES,
+    K_EMCY,
+    K_HEARTBEAT,
+    K_NMT,
+    K_SDO_REQUEST,
+    K_SDO_RESPONSE,
+    K_SYNC,
+    K_TIME,
+    K_TPDO1,
+    K_TPDO2,
+    NMT_COMMANDS,
+    NMT_PRE_OPERATIONAL,
+    NMT_RESET_COMMUNICATION,
+    NMT_RESET_NODE,
+    NMT_START,
+    NMT_STOP,
+    STATE_BOOTUP,
+    STATE_OPERATIONAL,
+    STATE_PRE_OPERATIONAL,
+    STATE_STOPPED,
+    build_cob_tables,
+    decode_emcy,
+    decode_real32,
+)
+
+# event flags
+FLAG_EXTENDED = 1
+FLAG_REMOTE = 2
+FLAG_ERROR = 4
+
+STATE_UNKNOWN = -1
+STATE_RESETTING = -2  # NMT reset sent: silent until its boot-up
+
+# one disposition per event fed (their sum == number of events)
+COUNTER_NAMES: tuple[str, ...] = (
+    "sync",            # valid SYNC (opened a cycle)
+    "tpdo1",           # TPDO1 accepted into the open cycle
+    "tpdo2",           # TPDO2 accepted into the open cycle
+    "late",            # PDO for a closed cycle / duplicate / no cycle open: dropped
+    "heartbeat",       # heartbeat (state != boot-up)
+    "bootup",          # boot-up message (heartbeat state 0)
+    "emcy",            # emergency message
+    "nmt",             # NMT module control (the master's own, or another master's)
+    "sdo",             # SDO request or response
+    "sdo_abort",       # SDO abort transfer (server -> client, command byte 0x80)
+    "time",            # TIME stamp object
+    "bad_dlc",         # known COB-ID, wrong data length
+    "bad_value",       # known COB-ID, value outside its domain (u_i not ±1, state, counter...)
+    "unknown_cob_id",  # COB-ID of no node/object in the scene
+    "remote_frame",    # RTR frame (CiA 301 discourages RTR; not used by the taxel nodes)
+    "error_frame",     # CAN error frame reported by the interface
+    "extended_id",     # 29-bit identifier (CANopen uses 11-bit COB-IDs)
+    "internal_error",  # an exception inside the receive path (counted, never raised)
+)
+_C = {name: i for i, name in enumerate(COUNTER_NAMES)}
+C_SYNC, C_TPDO1, C_TPDO2, C_LATE = _C["sync"], _C["tpdo1"], _C["tpdo2"], _C["late"]
+C_HEARTBEAT, C_BOOTUP, C_EMCY, C_NMT = _C["heartbeat"], _C["bootup"], _C["emcy"], _C["nmt"]
+C_SDO, C_SDO_ABORT, C_TIME = _C["sdo"], _C["sdo_abort"], _C["time"]
+C_BAD_DLC, C_BAD_VALUE, C_UNKNOWN = _C["bad_dlc"], _C["bad_value"], _C["unknown_cob_id"]
+C_REMOTE, C_ERROR, C_EXTENDED, C_INTERNAL = (
+    _C["remote_frame"], _C["error_frame"], _C["extended_id"], _C["internal_error"])
+MALFORMED = ("bad_dlc", "bad_value", "unknown_cob_id", "remote_frame", "error_frame", "extended_id")
+_MALFORMED_IDX = frozenset(_C[name] for name in MALFORMED)
+
+
+def quantise_timestamp(timestamp: float | None) -> int:
+    """Seconds (python-can ``Message.timestamp``) -> integer microseconds."""
+    if timestamp is None or not math.isfinite(timestamp):
+        return 0
+    return int(round(timestamp * 1e6))
+
+
+@dataclass(frozen=True)
+class EmcyEvent:
+    node: int | str       # node label (node-ID, or "channel:node-ID" off channel 0)
+    taxel: int            # index in fusion order
+    code: int             # emergency error code (CiA 301 table 21), 0x0000 = error reset
+    register: int         # error register 0x1001
+    manufacturer: str     # 5 manufacturer-specific bytes, hex
+    t_us: int             # microseconds since the first event of the stream
+
+    def as_record(self) -> dict:
+        return {
+            "node": self.node,
+            "code": f"0x{self.code:04X}",
+            "register": f"0x{self.register:02X}",
+            "manufacturer": self.manufacturer,
+            "t": round(self.t_us * 1e-6, 6),
+        }
+
+
+@dataclass(frozen=True)
+class ClosedCycle:
+    """Everything the stream said about one SYNC cycle (input of the per-cycle pipeline)."""
+
+    cycle: int                 # 0-based index of the opening SYNC in the stream
+    sync_us: int               # SYNC time, µs since the first event of the stream
+    close_us: int              # time of the closing event
+    sync_counter: int | None   # SYNC counter byte (0x1019 > 0), else None
+    closed_by: str             # "complete" | "sync" | "nmt"
+    decisions: np.ndarray      # int8 per taxel: wire u_i in {-1,+1} if TPDO1 arrived, else 0
+    readings: np.ndarray       # float64 per taxel: X_i (mV) if TPDO2 arrived, else NaN
+    received: np.ndarray       # bool per taxel: primary PDO arrived in this cycle
+    expected: np.ndarray       # bool per taxel: live and operational at the SYNC
+    missing: np.ndarray        # bool per taxel: heartbeat consumer time expired / never heard
+    held_decisions: np.ndarray  # int8: last u_i ever received per taxel (0 = never)
+    held_readings: np.ndarray   # float64: last X_i ever received (NaN = never)
+    late_frames: int           # late PDOs counted since the previous closed cycle
+    bad_frames: int            # malformed frames since the previous closed cycle
+    emcy: tuple[EmcyEvent, ...]  # EMCY frames since the previous closed cycle
+
+
+class CycleAssembler:
+    """Pure state machine: ``feed`` events in stream order, get closed cycles back."""
+
+    def __init__(self, scene: Scene):
+        self.scene = scene
+        n = scene.n
+        self.n = n
+        self.tables = build_cob_tables(scene)
+        self.labels: list[int | str] = [
+            t.node_id if t.channel == 0 else f"{t.channel}:{t.node_id}" for t in scene.taxels
+        ]
+        self.index_by_node: list[dict[int, int]] = [dict() for _ in scene.bus.channels]
+        for i, t in enumerate(scene.taxels):
+            self.index_by_node[t.channel][t.node_id] = i
+        self.channel_members = [
+            np.array([i for i, t in enumerate(scene.taxels) if t.channel == c], dtype=np.intp)
+            for c in range(len(scene.bus.channels))
+        ]
+        bus = scene.bus
+        self.primary = K_TPDO2 if bus.mode == "raw" else K_TPDO1
+        self.synchronous_every_sync = bus.transmission_type == 1
+        self.consumer_us = int(bus.heartbeat_consumer_ms) * 1000
+        self.sync_overflow = int(bus.sync_counter)
+
+        self.counts = [0] * len(COUNTER_NAMES)
+        self.t0_us: int | None = None
+        self.last_us = 0
+        self.last_heard = np.full(n, -1, dtype=np.int64)  # relative µs, -1 = never
+        self.state = np.full(n, STATE_UNKNOWN, dtype=np.int16)
+        self.decisions = np.zeros(n, dtype=np.int8)
+        self.readings = np.full(n, np.nan)
+        self.got1 = np.zeros(n, dtype=bool)
+        self.got2 = np.zeros(n, dtype=bool)
+        self.held_decisions = np.zeros(n, dtype=np.int8)
+        self.held_readings = np.full(n, np.nan)
+        self.expected = np.zeros(n, dtype=bool)
+        self.missing = np.ones(n, dtype=bool)
+        self.pending = 0
+        self.is_open = False
+        self.cycle = -1
+        self.sync_us = 0
+        self.sync_counter: int | None = None
+        self.late_since = 0
+        self.bad_since = 0
+        self.emcy_since: list[EmcyEvent] = []
+        self.bootups: list[int] = []  # taxel indexes that sent boot-up (drained by the master)
+
+    # ------------------------------------------------------------------ queries
+    @property
+    def events(self) -> int:
+        return sum(self.counts)
+
+    def counters(self) -> dict[str, int]:
+        return dict(zip(COUNTER_NAMES, self.counts))
+
+    def malformed(self) -> int:
+        return sum(self.counts[i] for i in _MALFORMED_IDX)
+
+    def node_states(self) -> np.ndarray:
+        return self.state.copy()
+
+    def count_internal_error(self) -> None:
+        self.counts[C_INTERNAL] += 1
+
+    # ------------------------------------------------------------------ the machine
+    def feed(self, timestamp_us: int, channel: int, can_id: int, data: bytes, flags: int = 0):
+        """Consume one event; return the :class:`ClosedCycle` it closed, or None."""
+        if self.t0_us is None:
+            self.t0_us = timestamp_us
+        t = timestamp_us - self.t0_us
+        if t < self.last_us:  # the stream is monotonic by contract; clamp defensively
+            t = self.last_us
+        self.last_us = t
+        counts = self.counts
+        if flags:
+            if flags & FLAG_ERROR:
+                counts[C_ERROR] += 1
+            elif flags & FLAG_REMOTE:
+                counts[C_REMOTE] += 1
+            else:
+                counts[C_EXTENDED] += 1
+            self.bad_since += 1
+            return None
+        try:
+            table = self.tables[channel]
+        except (IndexError, TypeError):
+            table = None
+        entry = table.get(can_id) if table is not None else None
+        if entry is None:
+            counts[C_UNKNOWN] += 1
+            self.bad_since += 1
+            return None
+        kind, idx = entry
+        size = len(data)
+        if kind == K_TPDO1:
+            if size != 1:
+                return self._bad(C_BAD_DLC)
+            value = data[0]
+            if value == 1:
+                u = 1
+            elif value == 0xFF:
+                u = -1
+            else:
+                return self._bad(C_BAD_VALUE)
+            self.last_heard[idx] = t
+            self.state[idx] = STATE_OPERATIONAL
+            self.held_decisions[idx] = u
+            if not self.is_open or self.got1[idx]:
+                counts[C_LATE] += 1
+                self.late_since += 1
+                return None
+            self.got1[idx] = True
+            self.decisions[idx] = u
+            counts[C_TPDO1] += 1
+            if self.primary == K_TPDO1:
+                return self._delivered(idx, t)
+            return None
+        if kind == K_HEARTBEAT:
+            if size != 1:
+                return self._bad(C_BAD_DLC)
+            state = data[0]
+            if state not in HEARTBEAT_STATES:
+                return self._bad(C_BAD_VALUE)
+            self.last_heard[idx] = t
+            if state == STATE_BOOTUP:
+                self.state[idx] = STATE_PRE_OPERATIONAL  # a node boots into pre-operational
+                self.bootups.append(idx)
+                counts[C_BOOTUP] += 1
+            else:
+                self.state[idx] = state
+                counts[C_HEARTBEAT] += 1
+            return None
+        if kind == K_SYNC:
+            return self._sync(t, channel, data)
+        if kind == K_TPDO2:
+            if size != 4:
+                return self._bad(C_BAD_DLC)
+            reading = decode_real32(data)
+            if not math.isfinite(reading):
+                return self._bad(C_BAD_VALUE)
+            self.last_heard[idx] = t
+            self.state[idx] = STATE_OPERATIONAL
+            self.held_readings[idx] = reading
+            if not self.is_open or self.got2[idx]:
+                counts[C_LATE] += 1
+                self.late_since += 1
+                return None
+            self.got2[idx] = True
+            self.readings[idx] = reading
+            counts[C_TPDO2] += 1
+            if self.primary == K_TPDO2:
+                return self._delivered(idx, t)
+            return None
+        if kind == K_EMCY:
+            if size != 8:
+                return self._bad(C_BAD_DLC)
+            code, register, manufacturer = decode_emcy(data)
+            self.last_heard[idx] = t
+            self.emcy_since.append(EmcyEvent(self.labels[idx], idx, code, register, manufacturer.hex(), t))
+            counts[C_EMCY] += 1
+            return None
+        if kind == K_SDO_RESPONSE or kind == K_SDO_REQUEST:
+            if size != 8:
+                return self._bad(C_BAD_DLC)
+            if kind == K_SDO_RESPONSE:
+                self.last_heard[idx] = t
+                if data[0] == 0x80:
+                    counts[C_SDO_ABORT] += 1
+                    return None
+            counts[C_SDO] += 1
+            return None
+        if kind == K_NMT:
+            return self._nmt(t, channel, data)
+        # K_TIME
+        if size != 6:
+            return self._bad(C_BAD_DLC)
+        counts[C_TIME] += 1
+        return None
+
+    # ------------------------------------------------------------------ helpers
+    def _bad(self, counter: int):
+        self.counts[counter] += 1
+        self.bad_since += 1
+        return None
+
+    def _delivered(self, idx: int, t: int):
+        if self.expected[idx] and self.synchronous_every_sync:
+            self.pending -= 1
+            if self.pending == 0:
+                return self._close("complete", t)
+        return None
+
+    def _sync(self, t: int, channel: int, data: bytes):
+        counter = None
+        if self.sync_overflow:
+            if len(data) != 1:
+                return self._bad(C_BAD_DLC)
+            counter = data[0]
+            if not 1 <= counter <= self.sync_overflow:
+                return self._bad(C_BAD_VALUE)
+        elif len(data) != 0:
+            return self._bad(C_BAD_DLC)
+        self.counts[C_SYNC] += 1
+        if channel != 0:
+            return None  # one cycle per SYNC instant: channel 0's SYNC opens it (the master
+            # sends the SYNCs of all channels back to back under the stream lock)
+        closed = self._close("sync", t) if self.is_open else None
+        # open the next cycle: liveness from the stream (heartbeat consumer semantics)
+        heard = self.last_heard >= 0
+        if self.consumer_us > 0:
+            live = heard & ((t - self.last_heard) <= self.consumer_us)
+        else:
+            live = heard
+        self.missing = ~live
+        self.expected = live & (self.state == STATE_OPERATIONAL)
+        self.pending = int(np.count_nonzero(self.expected)) if self.synchronous_every_sync else -1
+        if self.pending == 0:
+            self.pending = -1  # nothing to wait for: close at the next SYNC only
+        self.decisions[:] = 0
+        self.readings[:] = np.nan
+        self.got1[:] = False
+        self.got2[:] = False
+        self.cycle += 1
+        self.sync_us = t
+        self.sync_counter = counter
+        self.is_open = True
+        return closed
+
+    def _nmt(self, t: int, channel: int, data: bytes):
+        if len(data) != 2:
+            return self._bad(C_BAD_DLC)
+        command, node_id = data[0], data[1]
+        if command not in NMT_COMMANDS or node_id > 127:
+            return self._bad(C_BAD_VALUE)
+        self.counts[C_NMT] += 1
+        new_state = {
+            NMT_START: STATE_OPERATIONAL,
+            NMT_STOP: STATE_STOPPED,
+            NMT_PRE_OPERATIONAL: STATE_PRE_OPERATIONAL,
+            NMT_RESET_NODE: STATE_RESETTING,
+            NMT_RESET_COMMUNICATION: STATE_RESETTING,
+        }[command]
+        if node_id == 0:
+            members = self.channel_members[channel] if 0 <= channel < len(self.channel_members) else ()
+            self.state[members] = new_state
+            if command != NMT_START and self.is_open:
+                return self._close("nmt", t)
+        else:
+            idx = self.index_by_node[channel].get(node_id) if 0 <= channel < len(self.index_by_node) else None
+            if idx is not None:
+                self.state[idx] = new_state
+        return None
+
+    def _close(self, closed_by: str, t: int) -> ClosedCycle:
+        primary_got = self.got2 if self.primary == K_TPDO2 else self.got1
+        closed = ClosedCycle(
+            cycle=self.cycle,
+            sync_us=self.sync_us,
+            close_us=t,
+            sync_counter=self.sync_counter,
+            closed_by=closed_by,
+            decisions=self.decisions.copy(),
+            readings=self.readings.copy(),
+            received=primary_got.copy(),
+            expected=self.expected.copy(),
+            missing=self.missing.copy(),
+            held_decisions=self.held_decisions.copy(),
+            held_readings=self.held_readings.copy(),
+            late_frames=self.late_since,
+            bad_frames=self.bad_since,
+            emcy=tuple(self.emcy_since),
+        )
+        self.is_open = False
+        self.late_since = 0
+        self.bad_since = 0
+        self.emcy_since = []
+        return closed

@@ -1,0 +1,123 @@
+"""Hot-path frame classification for the fusion centre (CiA 301 predefined connection set).
+
+Every frame on a taxel channel is mapped, through one precomputed dict lookup per frame,
+from its COB-ID to ``(kind, taxel_index)``: no canopen PDO objects on the hot path (those cost
+~6 µs per frame against ~0.4 µs for a dict lookup plus ``int.from_bytes``/``struct``).
+
+COB-IDs of the predefined connection set (CiA 301 §7.3.5), node-ID ``id`` in 1..127:
+
+====================  ==========  ==================================================
+object                COB-ID      payload
+====================  ==========  ==================================================
+NMT module control    0x000       2 bytes: command specifier, node-ID (0 = all)
+SYNC                  0x080       0 bytes, or 1 byte counter 1..overflow (0x1019)
+EMCY                  0x080+id    8 bytes: error code (U16 LE), error register (U8), 5 mfr
+TIME                  0x100       6 bytes TIME_OF_DAY
+TPDO1                 0x180+id    INTEGER8 local decision u_i in {-1,+1} (eqs 1-4)
+TPDO2                 0x280+id    REAL32 little endian: process value X_i in mV (raw mode)
+SDO server → client   0x580+id    8 bytes (byte 0 = 0x80: abort, bytes 4..7 abort code)
+SDO client → server   0x600+id    8 bytes
+NMT error control     0x700+id    1 byte NMT state (0 boot-up, 4 stopped, 5 operational,
+                                  127 pre-operational)
+====================  ==========  ==================================================
+"""
+
+from __future__ import annotations
+
+import struct
+
+from ..scene import Scene
+
+# frame kinds (small ints: compared on the hot path)
+K_TPDO1 = 1
+K_TPDO2 = 2
+K_HEARTBEAT = 3
+K_EMCY = 4
+K_SDO_RESPONSE = 5
+K_SDO_REQUEST = 6
+K_SYNC = 7
+K_NMT = 8
+K_TIME = 9
+
+COB_NMT = 0x000
+COB_SYNC = 0x080
+COB_TIME = 0x100
+BASE_EMCY = 0x080
+BASE_TPDO1 = 0x180
+BASE_TPDO2 = 0x280
+BASE_SDO_RESPONSE = 0x580
+BASE_SDO_REQUEST = 0x600
+BASE_HEARTBEAT = 0x700
+
+# NMT command specifiers (CiA 301 §7.2.8.3.1)
+NMT_START = 0x01
+NMT_STOP = 0x02
+NMT_PRE_OPERATIONAL = 0x80
+NMT_RESET_NODE = 0x81
+NMT_RESET_COMMUNICATION = 0x82
+NMT_COMMANDS = (NMT_START, NMT_STOP, NMT_PRE_OPERATIONAL, NMT_RESET_NODE, NMT_RESET_COMMUNICATION)
+
+# NMT states carried by heartbeat frames
+STATE_BOOTUP = 0x00
+STATE_STOPPED = 0x04
+STATE_OPERATIONAL = 0x05
+STATE_PRE_OPERATIONAL = 0x7F
+HEARTBEAT_STATES = (STATE_BOOTUP, STATE_STOPPED, STATE_OPERATIONAL, STATE_PRE_OPERATIONAL)
+STATE_NAMES = {
+    -1: "unknown",
+    STATE_BOOTUP: "boot-up",
+    STATE_STOPPED: "stopped",
+    STATE_OPERATIONAL: "operational",
+    STATE_PRE_OPERATIONAL: "pre-operational",
+}
+
+_REAL32 = struct.Struct("<f")
+_EMCY = struct.Struct("<HB5s")
+
+
+def build_cob_tables(scene: Scene) -> list[dict[int, tuple[int, int]]]:
+    """One dict per scene channel: COB-ID -> (frame kind, taxel index in fusion order).
+
+    Channel-wide objects (NMT, SYNC, TIME) map to taxel index -1. COB-IDs of node-IDs the
+    scene does not name are absent: the assembler counts them as ``unknown_cob_id``.
+    """
+    tables: list[dict[int, tuple[int, int]]] = [
+        {COB_NMT: (K_NMT, -1), COB_SYNC: (K_SYNC, -1), COB_TIME: (K_TIME, -1)}
+        for _ in scene.bus.channels
+    ]
+    for index, taxel in enumerate(scene.taxels):
+        table = tables[taxel.channel]
+        nid = taxel.node_id
+        table[BASE_TPDO1 + nid] = (K_TPDO1, index)
+        table[BASE_TPDO2 + nid] = (K_TPDO2, index)
+        table[BASE_HEARTBEAT + nid] = (K_HEARTBEAT, index)
+        table[BASE_EMCY + nid] = (K_EMCY, index)
+        table[BASE_SDO_RESPONSE + nid] = (K_SDO_RESPONSE, index)
+        table[BASE_SDO_REQUEST + nid] = (K_SDO_REQUEST, index)
+    return tables
+
+
+def decode_decision(data: bytes) -> int:
+    """TPDO1 payload (INTEGER8, two's complement) -> u_i as a Python int (range check by caller)."""
+    value = data[0]
+    return value - 256 if value > 127 else value
+
+
+def decode_real32(data: bytes) -> float:
+    """TPDO2 payload (REAL32 little endian, CiA 301 data type 0x0008) -> float mV."""
+    return _REAL32.unpack_from(data)[0]
+
+
+def encode_real32(value: float) -> bytes:
+    return _REAL32.pack(value)
+
+
+def decode_emcy(data: bytes) -> tuple[int, int, bytes]:
+    """EMCY payload -> (error code, error register, manufacturer-specific 5 bytes)."""
+    code, register, manufacturer = _EMCY.unpack_from(data)
+    return code, register, manufacturer
+
+
+def sync_payload(counter: int | None) -> bytes:
+    """SYNC data field: empty, or the 1-byte counter when 0x1019 (sync_counter) is > 0."""
+    return b"" if counter is None else bytes((counter,))

@@ -1,0 +1,273 @@
+"""CANopen master duties of the fusion centre (CiA 301): boot-up wait, SDO configuration from
+the scene, NMT start, the SYNC producer, and the heartbeat consumer's bookkeeping.
+
+Every frame the master sends goes through :meth:`EventStream.transmit` (SYNC, NMT and the
+SDO requests canopen's client makes), so it lands in the trace and in the cycle assembler in
+the order it was put on the bus. Liveness (0x1016 semantics) itself is evaluated by the
+assembler at each SYNC from the event stream (see :mod:`fusion_center.service.cycles`).
+
+Object dictionary entries written to every node (``eds/taxel_node.eds``):
+
+========  ===  =====================================================================
+index     sub  value
+========  ===  =====================================================================
+0x2001    1-5  ζ (REAL32 mV, eq 3), N_i (eq 4), kind code, x, y (x/y only if given)
+0x6126    1    calibration slope m (eq 23), only when the scene gives one
+0x6127    1    calibration intercept c (eq 23), only when the scene gives one
+0x1017    0    heartbeat producer time (ms)
+0x1800    1-5  TPDO1: COB-ID invalid -> transmission type, inhibit time, event timer
+                -> COB-ID 0x180+id valid (CiA 301: sub 3 only while the PDO is invalid)
+0x1801    1-5  TPDO2: the same; left invalid unless the scene is in raw mode
+========  ===  =====================================================================
+
+SDO aborts and time-outs are logged and counted (``sdo_aborts``, ``sdo_timeouts``), never
+raised: a node whose configuration failed still takes part with its stored values.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
+from typing import Callable
+
+import canopen
+
+from ..scene import TAXEL_KINDS, Scene
+from .decoder import (
+    BASE_TPDO1,
+    BASE_TPDO2,
+    COB_NMT,
+    COB_SYNC,
+    NMT_PRE_OPERATIONAL,
+    NMT_RESET_COMMUNICATION,
+    NMT_START,
+    sync_payload,
+)
+
+logger = logging.getLogger("fusion_center.master")
+
+COB_INVALID = 0x8000_0000
+HEARTBEAT_PRODUCER = 0x1017
+TPDO_COMM = (0x1800, 0x1801)
+DETECTOR = 0x2001
+AI_SCALING_FACTOR = 0x6126
+AI_SCALING_OFFSET = 0x6127
+
+
+def node_configuration(scene: Scene, index: int) -> list[tuple[int, int, object]]:
+    """The SDO downloads (index, subindex, value) that configure taxel ``index`` of ``scene``."""
+    t = scene.taxels[index]
+    bus = scene.bus
+    writes: list[tuple[int, int, object]] = [
+        (DETECTOR, 1, float(t.zeta_mv)),
+        (DETECTOR, 2, float(t.noise_mv)),
+        (DETECTOR, 3, TAXEL_KINDS[t.kind]),
+    ]
+    if t.x is not None:
+        writes.append((DETECTOR, 4, float(t.x)))
+    if t.y is not None:
+        writes.append((DETECTOR, 5, float(t.y)))
+    if t.slope is not None:
+        writes.append((AI_SCALING_FACTOR, 1, float(t.slope)))
+    if t.intercept is not None:
+        writes.append((AI_SCALING_OFFSET, 1, float(t.intercept)))
+    writes.append((HEARTBEAT_PRODUCER, 0, int(bus.heartbeat_producer_ms)))
+    for comm, base, enabled in ((TPDO_COMM[0], BASE_TPDO1, True),
+                                (TPDO_COMM[1], BASE_TPDO2, bus.mode == "raw")):
+        cob = base + t.node_id
+        writes.append((comm, 1, cob | COB_INVALID))
+        writes.append((comm, 2, int(bus.transmission_type)))
+        writes.append((comm, 3, int(bus.inhibit_time_100us)))
+        writes.append((comm, 5, int(bus.event_timer_ms)))
+        if enabled:
+            writes.append((comm, 1, cob))
+    return writes
+
+
+class Master:
+    """NMT master + SYNC producer over a :class:`~fusion_center.service.core.EventStream`."""
+
+    def __init__(self, service, scene: Scene, networks: list[canopen.Network], od):
+        self.service = service
+        self.stream = service.stream
+        self.scene = scene
+        self.networks = networks
+        self.nodes: list[canopen.RemoteNode] = []
+        for t in scene.taxels:
+            node = canopen.RemoteNode(t.node_id, od)
+            node.sdo.RESPONSE_TIMEOUT = 0.5
+            networks[t.channel].add_node(node)
+            self.nodes.append(node)
+        self.sdo_writes = 0
+        self.sdo_aborts = 0
+        self.sdo_timeouts = 0
+        self.configured: set[int] = set()
+        self.sync_sent = 0
+        self.sync_overruns = 0
+        self.sync_sent_at: dict[int, float] = {}  # cycle -> perf_counter at SYNC transmission
+        self._stats_lock = threading.Lock()
+        self._stop = threading.Event()
+        self._sync_thread: threading.Thread | None = None
+        self._reconfigure: set[int] = set()
+
+    # ------------------------------------------------------------------ NMT
+    def nmt(self, command: int, node_id: int = 0, channel: int | None = None) -> None:
+        channels = range(len(self.networks)) if channel is None else (channel,)
+        for ch in channels:
+            self.stream.transmit(ch, COB_NMT, bytes((command, node_id)))
+
+    def wait_for_boot(self, timeout_s: float, listen_s: float = 0.3) -> list[int]:
+        """Wait for every scene node to be heard (boot-up or heartbeat); return the missing.
+
+        Nodes not heard within ``listen_s`` get an NMT reset-communication (they answer with a
+        boot-up); whoever is still silent at ``timeout_s`` is missing (and is configured and
+        started later if it ever boots).
+        """
+        start = time.monotonic()
+        deadline = start + timeout_s
+        reset_sent = False
+        while True:
+            silent = self.service.never_heard()
+            now = time.monotonic()
+            if not silent:
+                return []
+            if not reset_sent and now - start >= min(listen_s, timeout_s / 2):
+                for i in silent:
+                    t = self.scene.taxels[i]
+                    self.stream.transmit(t.channel, COB_NMT, bytes((NMT_RESET_COMMUNICATION, t.node_id)))
+                reset_sent = True
+            if now >= deadline:
+                for i in silent:
+                    logger.warning("node %s never booted within %.1f s: missing", self.service.labels[i], timeout_s)
+                return silent
+            time.sleep(0.005)
+
+    # ------------------------------------------------------------------ SDO
+    def configure_node(self, index: int) -> bool:
+        node = self.nodes[index]
+        label = self.service.labels[index]
+        ok = True
+        for idx, sub, value in node_configuration(self.scene, index):
+            try:
+                var = node.sdo[idx][sub] if sub or not _is_variable(node, idx) else node.sdo[idx]
+                var.raw = value
+                with self._stats_lock:
+                    self.sdo_writes += 1
+            except canopen.SdoAbortedError as exc:
+                with self._stats_lock:
+                    self.sdo_aborts += 1
+                logger.warning("node %s: SDO download 0x%04X:%d = %r aborted: %s", label, idx, sub, value, exc)
+                ok = False
+            except canopen.SdoCommunicationError as exc:
+                with self._stats_lock:
+                    self.sdo_timeouts += 1
+                logger.warning("node %s: SDO download 0x%04X:%d: %s", label, idx, sub, exc)
+                return False  # the node does not answer: no point in going on
+            except (KeyError, canopen.ObjectDictionaryError) as exc:
+                logger.warning("node %s: 0x%04X:%d not in the EDS: %s", label, idx, sub, exc)
+                ok = False
+            except Exception as exc:  # noqa: BLE001 - a bus error must not stop the others
+                with self._stats_lock:
+                    self.sdo_timeouts += 1
+                logger.warning("node %s: SDO download 0x%04X:%d failed: %s", label, idx, sub, exc)
+                return False
+        self.configured.add(index)
+        return ok
+
+    def configure(self, indexes, workers: int = 8) -> None:
+        indexes = list(indexes)
+        if not indexes:
+            return
+        with ThreadPoolExecutor(max_workers=min(workers, len(indexes)), thread_name_prefix="sdo") as pool:
+            list(pool.map(self.configure_node, indexes))
+
+    def start_nodes(self) -> None:
+        self.nmt(NMT_START, 0)
+
+    # ------------------------------------------------------------------ recovery
+    def on_bootup(self, index: int) -> None:
+        """A node booted while running: configure it and start it (off the receive thread)."""
+        if self._stop.is_set() or self._sync_thread is None:
+            return
+        with self._stats_lock:
+            if index in self._reconfigure:
+                return
+            self._reconfigure.add(index)
+
+        def work():
+            try:
+                self.configure_node(index)
+                t = self.scene.taxels[index]
+                self.stream.transmit(t.channel, COB_NMT, bytes((NMT_START, t.node_id)))
+                logger.info("node %s booted again: reconfigured and started", self.service.labels[index])
+            except Exception:  # noqa: BLE001
+                logger.exception("node %s: recovery failed", self.service.labels[index])
+            finally:
+                with self._stats_lock:
+                    self._reconfigure.discard(index)
+
+        threading.Thread(target=work, name=f"recover-{index}", daemon=True).start()
+
+    # ------------------------------------------------------------------ SYNC
+    def start_sync(self, cycles: int, before_sync: Callable[[int], None] | None = None) -> None:
+        self._stop.clear()
+        self._sync_thread = threading.Thread(target=self._sync_loop, args=(cycles, before_sync),
+                                             name="sync-producer", daemon=True)
+        self._sync_thread.start()
+
+    def wait_sync_done(self, timeout: float | None = None) -> bool:
+        if self._sync_thread is None:
+            return True
+        self._sync_thread.join(timeout)
+        return not self._sync_thread.is_alive()
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._sync_thread is not None:
+            self._sync_thread.join(5)
+
+    def _sync_loop(self, cycles: int, before_sync) -> None:
+        period = self.scene.bus.sync_period_ms / 1000.0
+        overflow = self.scene.bus.sync_counter
+        counter = 0
+        channels = list(range(len(self.networks)))
+        next_at = time.monotonic()
+        try:
+            for k in range(cycles):
+                if self._stop.is_set():
+                    break
+                delay = next_at - time.monotonic()
+                if delay > 0:
+                    if self._stop.wait(delay):
+                        break
+                elif delay < -period:
+                    self.sync_overruns += 1
+                    next_at = time.monotonic()  # fell behind by more than a period: re-phase
+                if before_sync is not None:
+                    try:
+                        before_sync(k)
+                    except Exception:  # noqa: BLE001
+                        logger.exception("before_sync hook failed at cycle %d", k)
+                if overflow:
+                    counter = counter % overflow + 1
+                payload = sync_payload(counter if overflow else None)
+                self.sync_sent_at[k] = time.perf_counter()
+                self.stream.transmit_all([(ch, COB_SYNC, payload) for ch in channels])
+                self.sync_sent += 1
+                next_at += period
+            # let the last cycle complete (early close) for up to one period, then end it
+            deadline = time.monotonic() + period
+            while time.monotonic() < deadline and self.stream.cycle_open():
+                time.sleep(0.0005)
+            self.stream.transmit_all([(ch, COB_NMT, bytes((NMT_PRE_OPERATIONAL, 0))) for ch in channels])
+        except Exception:  # noqa: BLE001 - e.g. the bus went away: end the run, never hang
+            logger.exception("SYNC producer stopped")
+
+
+def _is_variable(node, index: int) -> bool:
+    try:
+        return isinstance(node.object_dictionary[index], canopen.objectdictionary.ODVariable)
+    except KeyError:
+        return False

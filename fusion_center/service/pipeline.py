@@ -1,0 +1,343 @@
+"""Per-cycle evaluation: one :class:`ClosedCycle` -> one JSON-able record (dict).
+
+Pure with respect to the bus: the record is a function of the closed cycle, the scene and
+the pipeline's own state carried from cycle to cycle (the slip tracker), so live runs and
+replays produce identical records.
+
+What is computed (chapter sections in brackets):
+
+* fusion (sec. 2.2): every rule of ``[fusion] rules`` the scene supports
+  (:func:`fusion_center.stages.plan_stages`) over the decisions *received* in the cycle, in
+  fusion order, with n adjusted to the number received (a missing or silent node is left
+  out; for the preferential rule eq 7 the remaining taxels become neighbours). HEBTEM
+  thresholds depend only on (n, xi, alpha/beta, p, q) and are cached per n, so a degraded
+  cycle costs one solve once. The record's ``decision`` is the verdict of
+  ``[fusion] decide_with``.
+* forces (sec. 4.1, eqs 30, 24-25, 26a, 26b): need the readings X_i, which travel on the bus
+  only in raw mode (TPDO2). In decision mode a node sends only u_i (1 byte), so no force,
+  grip limit or load is computable and the stage is not run. In raw mode the calibrated
+  cells (non-zero slope) that decide "present" give F = (Y - c)/m with Y = X - N_i (eq 4).
+* area (sec. 4.3.2, 6.2.3.3, eq 35): convex hull of the scene coordinates of the taxels
+  deciding "present" - computable from u_i alone.
+* contact type (sec. 5.2, eqs 34a/34b, Table 1): t_c = present / n_received and
+  fp_c = area / area of the hull of all taxels.
+* slip (sec. 4): :class:`fusion_center.slip.SlipTracker`, motion criterion over the centroid
+  of the present taxels (plus the force criterion when raw-mode forces and a load-cell grip
+  force exist).
+"""
+
+from __future__ import annotations
+
+import math
+from functools import lru_cache
+
+import numpy as np
+
+from .. import baselines, contact, curves, forces, geometry, rules, thresholds
+from ..encoding import local_decision
+from ..errors import ParameterError
+from ..scene import Scene
+from ..stages import plan_stages
+from .cycles import ClosedCycle
+
+DECISIONS = ("H1", "H0", "undecided")
+
+
+# --------------------------------------------------------------------------- cached thresholds
+@lru_cache(maxsize=512)
+def additive_threshold_cached(n: int, xi: float, alpha: float, encoding: str):
+    return thresholds.additive_threshold(n, xi, alpha, encoding)
+
+
+@lru_cache(maxsize=512)
+def multiplicative_threshold_cached(n: int, xi: float, beta: float):
+    return thresholds.multiplicative_threshold(n, xi, beta)
+
+
+@lru_cache(maxsize=512)
+def preferential_threshold_cached(n: int, xi: float, alpha: float, p: float, q: float, encoding: str):
+    return thresholds.preferential_threshold(n, xi, alpha, p, q, encoding)
+
+
+def _jsonable(value):
+    """Plain Python scalars for json; non-finite floats become None (JSON has no NaN)."""
+    if value is None or isinstance(value, (bool, str)):
+        return value
+    if isinstance(value, (np.bool_,)):
+        return bool(value)
+    if isinstance(value, (int, np.integer)):
+        return int(value)
+    value = float(value)
+    return value if math.isfinite(value) else None
+
+
+def _verdict(condition: bool) -> str:
+    return "H1" if condition else "H0"
+
+
+class CyclePipeline:
+    """Evaluate closed cycles of one scene (stateful only through the slip tracker)."""
+
+    def __init__(self, scene: Scene, *, truth: bool = True):
+        self.scene = scene
+        self.with_truth = truth
+        self.plan = plan_stages(scene)
+        fusion = scene.fusion
+        self.encoding = fusion.tuple
+        self.rules = tuple(r for r in fusion.rules if r in self.plan.rules_run)
+        self.decide_with = fusion.decide_with
+        taxels = scene.taxels
+        self.labels = [t.node_id if t.channel == 0 else f"{t.channel}:{t.node_id}" for t in taxels]
+        self.n = scene.n
+        self.zeta = np.array([t.zeta_mv for t in taxels], dtype=float)
+        self.noise = np.array([t.noise_mv for t in taxels], dtype=float)
+        has_pf = all(t.pf is not None and t.pm is not None for t in taxels)
+        self.pf = np.array([t.pf for t in taxels], dtype=float) if has_pf else None
+        self.pd = np.array([1.0 - t.pm for t in taxels], dtype=float) if has_pf else None
+        self.slope = np.array([t.slope if t.slope is not None else 0.0 for t in taxels], dtype=float)
+        self.intercept = np.array([t.intercept if t.intercept is not None else 0.0 for t in taxels],
+                                  dtype=float)
+        self.tangential = self.slope != 0.0
+        self.raw_mode = scene.bus.mode == "raw"
+        self.hold = scene.bus.transmission_type != 1
+        has_xy = all(t.x is not None and t.y is not None for t in taxels)
+        self.xy = np.array([[t.x, t.y] for t in taxels], dtype=float) if has_xy else None
+        self.total_area = geometry.contact_area(self.xy) if has_xy and self.n >= 3 else 0.0
+        self.want_forces = "forces" in self.plan.run and self.raw_mode and bool(self.tangential.any())
+        self.want_area = "area" in self.plan.run and self.xy is not None
+        self.want_contact = "contact_type" in self.plan.run
+        self.slip = None
+        if "slip" in self.plan.run and self.xy is not None:
+            from ..slip import SlipTracker
+
+            self.slip = SlipTracker(scene.forces.mu, noise_band=self._noise_band(),
+                                    period=scene.bus.sync_period_ms * 1e-3)
+        self._last_slip_t: float | None = None
+        if "llr" in self.rules and self.pf is not None:
+            c00, c01, c10, c11 = fusion.costs
+            p1 = fusion.prior_h1
+            # eq 31 carries ln(P1/P0); the Bayes rule (eq 22) then compares it with
+            # ln((C10 - C00)/(C01 - C11)); the comparison flips when both differences are < 0
+            self.llr_threshold = baselines.bayes_log_threshold(p1, c00, c01, c10, c11) + math.log(p1 / (1 - p1))
+            self.llr_flip = (c10 - c00) < 0
+        self._np_rules: dict[bytes, object] = {}
+        self._areas: dict[bytes, float] = {}
+
+    def _noise_band(self) -> float:
+        """Half the smallest distance between distinct taxel locations: one taxel pitch of
+        centroid motion is slip, less is the staircase of the taxel grid."""
+        pts = np.unique(self.xy, axis=0)
+        if len(pts) < 2:
+            return 1.0
+        d = np.hypot(*(pts[:, None, :] - pts[None, :, :]).transpose(2, 0, 1))
+        d[d == 0] = np.inf
+        return float(d.min()) / 2.0
+
+    def _area(self, present_mask: np.ndarray) -> float:
+        """Eq 35 on the convex hull of the present taxels (cached per pattern: contacts repeat)."""
+        key = present_mask.tobytes()
+        area = self._areas.get(key)
+        if area is None:
+            if len(self._areas) > 1024:
+                self._areas.clear()
+            area = self._areas[key] = geometry.contact_area(self.xy[present_mask])
+        return area
+
+    # ------------------------------------------------------------------ rules
+    def _np_rule(self, received: np.ndarray):
+        key = received.tobytes()
+        rule = self._np_rules.get(key)
+        if rule is None:
+            if len(self._np_rules) > 256:
+                self._np_rules.clear()
+            rule = baselines.neyman_pearson_fusion(self.pd[received], self.pf[received],
+                                                   self.scene.fusion.np_false_alarm)
+            self._np_rules[key] = rule
+        return rule
+
+    def _rule(self, name: str, u: np.ndarray, n: int, present: int, received: np.ndarray) -> dict:
+        f = self.scene.fusion
+        enc = self.encoding
+        if name == "additive":
+            value = rules.additive(u, enc)
+            th = additive_threshold_cached(n, f.xi, f.alpha, enc)
+            if not th.thresholds:
+                lam, decision = None, "undecided"
+            else:
+                lam = th.thresholds[0] if f.additive_root == "lower" else th.thresholds[-1]
+                decision = _verdict(value >= lam)
+            p = (curves.p_additive_pm1(value, n, f.xi) if enc == "pm1"
+                 else curves.p_additive_01(value, n, f.xi))
+            return {"U_G": value, "threshold": lam, "decision": decision, "p_h1": p}
+        if name == "multiplicative":
+            mv = rules.multiplicative(u, enc)
+            th = multiplicative_threshold_cached(n, f.xi, f.beta)
+            if not th.present_counts or th.present_counts[0] is None:
+                lam = ln_lam = None
+                decision = "undecided"
+            else:
+                ln_lam = th.ln_thresholds[0]
+                lam = math.exp(ln_lam) if ln_lam is not None else 0.0
+                # U_G = e^(2j - n) >= lambda  <=>  j >= present_counts[0] (eq 16's root)
+                decision = _verdict(present >= th.present_counts[0])
+            # eqs 10-11 are fitted on the {-1,+1} tuple (fig 2a): ln U_G = 2j - n
+            p = curves.p_multiplicative(2 * present - n, n, f.xi) if enc == "pm1" else None
+            return {"U_G": mv.U_G, "ln_U_G": mv.ln_U_G, "threshold": lam, "ln_threshold": ln_lam,
+                    "decision": decision, "p_h1": p}
+        if name == "preferential":
+            value = rules.preferential(u, f.p, f.q, enc)
+            th = preferential_threshold_cached(n, f.xi, f.alpha, f.p, f.q, enc)
+            if th.threshold_mean is None:
+                decision = "undecided"
+            elif value >= th.threshold_final:
+                decision = "H1"
+            elif value < th.threshold_initial:
+                decision = "H0"
+            else:
+                decision = "undecided"  # inside the threshold band: the fuzzy zone (eqs 19-20)
+            p = curves.p_preferential(value, th.g_max, f.xi)
+            return {"U_G": value, "threshold": th.threshold_mean, "band": [th.threshold_initial, th.threshold_final],
+                    "g_max": th.g_max, "decision": decision, "p_h1": p}
+        if name == "k-of-n":
+            k = f.k
+            if not 1 <= k <= n:
+                return {"U_G": present, "threshold": None, "decision": "undecided", "p_h1": None}
+            verdict = rules.k_of_n(u, k, enc)
+            value = int(u.sum(dtype=np.int64))
+            lam = 2 * k - n if enc == "pm1" else k  # sec 2.2.1: sum u_i >= 2k - n
+            return {"U_G": value, "threshold": lam, "decision": _verdict(verdict == 1), "p_h1": None}
+        if name == "llr":
+            value = baselines.chair_varshney_llr(u, self.pd[received], self.pf[received], enc, f.prior_h1)
+            if value == self.llr_threshold:
+                decision = "undecided"
+            else:
+                decision = _verdict((value > self.llr_threshold) != self.llr_flip)
+            # eq 31 is the log posterior ratio: P(H1|U) = 1 / (1 + e^-llr)
+            p = 1.0 / (1.0 + math.exp(-value)) if value > -700 else 0.0
+            return {"U_G": value, "threshold": self.llr_threshold, "decision": decision, "p_h1": p}
+        if name == "np":
+            rule = self._np_rule(received)
+            value = rule.statistic_value(u, enc)
+            lam = rule.log_threshold if rule.statistic == "llr" else rule.count_threshold
+            return {"U_G": value, "threshold": lam, "statistic": rule.statistic,
+                    "decision": rule.decide(u, enc), "p_h1": None}
+        raise ParameterError("rule", name, "unknown fusion rule")
+
+    # ------------------------------------------------------------------ the record
+    def evaluate(self, closed: ClosedCycle) -> dict:
+        scene = self.scene
+        labels = self.labels
+        if self.raw_mode:
+            readings = closed.readings
+            if self.hold:
+                readings = np.where(np.isnan(readings) & ~closed.missing, closed.held_readings, readings)
+            available = ~np.isnan(readings)
+            wire = np.zeros(self.n, dtype=np.int8)
+            if available.any():
+                wire[available] = local_decision(readings[available], self.noise[available],
+                                                 self.zeta[available], "pm1")
+        else:
+            wire = closed.decisions
+            if self.hold:
+                wire = np.where((wire == 0) & ~closed.missing, closed.held_decisions, wire).astype(np.int8)
+            available = wire != 0
+            readings = None
+        received = available
+        n_received = int(np.count_nonzero(received))
+        present_mask = received & (wire == 1)
+        present = int(np.count_nonzero(present_mask))
+        silent = closed.expected & ~closed.received
+
+        record: dict = {
+            "cycle": closed.cycle,
+            "t": round(closed.sync_us * 1e-6, 6),
+            "sync_counter": closed.sync_counter,
+            "closed_by": closed.closed_by,
+            "n_expected": self.n,
+            "n_live": int(np.count_nonzero(~closed.missing)),
+            "n_received": n_received,
+            "present_count": present,
+        }
+        stages_run: list[str] = []
+        rule_results: dict[str, dict] = {}
+        if n_received > 0:
+            u_pm1 = wire[received]
+            u = u_pm1 if self.encoding == "pm1" else ((u_pm1 + 1) // 2).astype(np.int8)
+            for name in self.rules:
+                try:
+                    result = self._rule(name, u, n_received, present, received)
+                except ParameterError as exc:
+                    result = {"U_G": None, "threshold": None, "decision": "undecided", "p_h1": None,
+                              "error": str(exc)}
+                rule_results[name] = {k: (_jsonable(v) if not isinstance(v, list) else [_jsonable(x) for x in v])
+                                      for k, v in result.items()}
+            stages_run.append("fusion")
+        main = rule_results.get(self.decide_with)
+        record["U_G"] = main["U_G"] if main else None
+        record["threshold"] = main["threshold"] if main else None
+        record["decision"] = main["decision"] if main else "undecided"
+        record["p_h1"] = main["p_h1"] if main else None
+        record["decide_with"] = self.decide_with
+        record["degraded"] = n_received < self.n
+        record["missing_nodes"] = [labels[i] for i in np.flatnonzero(closed.missing)]
+        record["silent_nodes"] = [labels[i] for i in np.flatnonzero(silent)]
+        record["late_frames"] = closed.late_frames
+        record["bad_frames"] = closed.bad_frames
+        record["emcy"] = [e.as_record() for e in closed.emcy]
+        record["rules"] = rule_results
+
+        t_seconds = closed.sync_us * 1e-6
+        if self.want_forces and readings is not None:
+            cells = present_mask & self.tangential & ~np.isnan(readings)
+            if cells.any():
+                y = readings[cells] - self.noise[cells]  # Y = X - N (eq 4)
+                report = forces.matrix_force_report(
+                    y, self.slope[cells], self.intercept[cells], scene.forces.mu, unit=scene.forces.unit,
+                    inclusion_angle=math.radians(scene.forces.inclusion_angle_deg))
+                record["forces"] = {
+                    "unit": report.unit,
+                    "per_taxel": {str(labels[i]): _jsonable(f) for i, f in zip(np.flatnonzero(cells), report.per_cell)},
+                    "total_tangential": _jsonable(report.total_tangential),
+                    "grip_force_limit": _jsonable(report.grip_force_limit),
+                    "max_load": _jsonable(report.max_load),
+                }
+            else:
+                record["forces"] = {"unit": scene.forces.unit, "per_taxel": {}, "total_tangential": 0.0,
+                                    "grip_force_limit": 0.0, "max_load": 0.0}
+            stages_run.append("forces")
+        area = None
+        if self.want_area:
+            area = self._area(present_mask) if present else 0.0
+            record["area"] = _jsonable(area)
+            stages_run.append("area")
+        if self.want_contact and n_received > 0:
+            t_c = contact.taxel_count_ratio(present, n_received)
+            record["t_c"] = _jsonable(t_c)
+            record["contact_type"] = contact.classify(t_c).value
+            if area is not None and self.total_area > 0:
+                fp_c = contact.friction_plane_ratio(min(area, self.total_area), self.total_area)
+                record["fp_c"] = _jsonable(fp_c)
+                record["contact_type_fp"] = contact.classify(fp_c).value
+            stages_run.append("contact_type")
+        if self.slip is not None and (self._last_slip_t is None or t_seconds > self._last_slip_t):
+            self._last_slip_t = t_seconds
+            state = self.slip.update(t_seconds, self.xy[present_mask])
+            record["slip"] = {
+                "contact": state.contact,
+                "slipping": state.slipping,
+                "criterion": state.criterion,
+                "onset_cycle": None if state.onset_index is None else closed.cycle - (state.cycle - state.onset_index),
+                "displacement": _jsonable(state.displacement),
+                "speed": _jsonable(state.speed),
+                "distance": _jsonable(state.distance),
+            }
+            stages_run.append("slip")
+        record["stages_run"] = stages_run
+        if self.with_truth:
+            record["truth"] = self.truth(closed.cycle)
+        return record
+
+    def truth(self, cycle: int) -> str:
+        from node_sim.physics import object_present
+
+        return "H1" if object_present(self.scene, cycle) else "H0"

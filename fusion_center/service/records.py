@@ -1,0 +1,52 @@
+"""The decision log: one JSON object per SYNC cycle, one line each (JSON Lines).
+
+Every record is written and flushed as soon as its cycle is evaluated, so a killed process
+loses at most the cycle in flight (no ``os.fsync``: the OS keeps what was flushed). Floats are
+written with Python's shortest round-trip repr and NaN/inf are refused (``allow_nan=False``:
+the pipeline turns them into ``null``), so two runs that computed the same values write the
+same bytes.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from ..cli import UsageError
+
+
+def dumps(record: dict) -> str:
+    return json.dumps(record, separators=(",", ":"), allow_nan=False)
+
+
+class RecordWriter:
+    """Append records to a JSON-lines file (created or truncated at open), flush per record."""
+
+    def __init__(self, path):
+        self.path = Path(path)
+        try:
+            self._file = open(self.path, "w", encoding="utf-8")
+        except OSError as exc:
+            raise UsageError(f"cannot write the decision log {str(path)!r}: {exc.strerror or exc}") from None
+        self.count = 0
+
+    def write(self, record: dict) -> None:
+        self._file.write(dumps(record) + "\n")
+        self._file.flush()
+        self.count += 1
+
+    def close(self) -> None:
+        if not self._file.closed:
+            self._file.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+def read_records(path) -> list[dict]:
+    """Parse a decision log (every line must be one JSON object)."""
+    with open(path, encoding="utf-8") as f:
+        return [json.loads(line) for line in f if line.strip()]
