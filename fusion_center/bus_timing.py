@@ -28,7 +28,8 @@ elsewhere omits the intermission) and 8n + 67 + floor((54 + 8n - 1)/4) for 2.0B 
 The Linux kernel (include/linux/can/length.h, ``can_frame_bits``) counts the same numbers.
 Best case: no stuff bit at all, 8n + 47 (2.0A) or 8n + 67 (2.0B).
 
-CAN FD (ISO 11898-1:2015) is not modelled. What differs: FDF/res/BRS/ESI bits in the control
+CAN FD (ISO 11898-1:2015) is only estimated (``fd_frame_bits_estimate``: worst-case dynamic
+stuffing, bits split between the two phases), not built bit by bit. What differs: FDF/res/BRS/ESI bits in the control
 field; DLC codes 9..15 mean 12..64 bytes; a 3-bit Gray-coded stuff-bit count + parity bit
 before the CRC; CRC-17 (<= 16 bytes) or CRC-21 (> 16 bytes) with *fixed* stuff bits (one
 every 4 bits) in the CRC field instead of dynamic stuffing; and the data phase (from BRS to
@@ -219,3 +220,43 @@ def bus_load(frames_bits_per_cycle: Iterable[int], cycle_period_s: float, bitrat
             or not cycle_period_s > 0 or cycle_period_s == float("inf"):
         raise ParameterError("cycle_period_s", cycle_period_s, "must be a finite number of seconds > 0")
     return total / (float(cycle_period_s) * _check_bitrate(bitrate))
+
+
+# ---------------------------------------------------------------- CAN FD (estimate only)
+
+FD_LENGTHS = (0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64)
+
+
+def fd_frame_bits_estimate(data_len: int, extended: bool = False) -> tuple[int, int]:
+    """Worst-case CAN FD frame length split as (nominal-phase bits, data-phase bits).
+
+    Header up to and including BRS (SOF, ID, RRS/SRR, IDE, [ID ext, RRS,] FDF, res, BRS:
+    17 bits standard, 36 extended) and, after the CRC, CRC delimiter + ACK slot + ACK delimiter
+    + EOF + 3-bit intermission run at the nominal rate; ESI, DLC, data, stuff-bit count (4),
+    CRC-17 (<= 16 bytes) or CRC-21 and its fixed stuff bits (6 or 7) at the data rate. Dynamic
+    stuffing of SOF..data is bounded by floor((L - 1)/4), as for classic frames; the stuff bits
+    of the first A header bits are floor((A - 1)/4), the rest are charged to the data phase.
+    The total equals the Linux kernel's ``can_frame_bits(is_fd=true, bitstuffing=true,
+    intermission=true)`` (include/linux/can/length.h).
+    """
+    if isinstance(data_len, bool) or not isinstance(data_len, int) or data_len not in FD_LENGTHS:
+        raise ParameterError("data_len", data_len, f"CAN FD carries one of {FD_LENGTHS} bytes")
+    header = 41 if extended else 22           # SOF .. DLC
+    before_brs = 36 if extended else 17       # SOF .. BRS
+    dynamic = header + 8 * data_len
+    stuff_total = (dynamic - 1) // 4
+    stuff_nominal = (before_brs - 1) // 4
+    crc_field = 4 + (17 + 6 if data_len <= 16 else 21 + 7)   # SBC + CRC + fixed stuff bits
+    nominal = before_brs + stuff_nominal + TRAILER_BITS + INTERMISSION_BITS   # CRC delim..EOF, IFS
+    data = (header - before_brs) + 8 * data_len + (stuff_total - stuff_nominal) + crc_field
+    return nominal, data
+
+
+def fd_frame_time_s(data_len: int, nominal_bitrate: float, data_bitrate: float | None = None,
+                    extended: bool = False) -> float:
+    """Worst-case duration of a CAN FD frame: nominal bits at the nominal rate plus data-phase
+    bits at ``data_bitrate`` (bit-rate switch); ``data_bitrate=None`` = no switch (BRS = 0)."""
+    nominal, data = fd_frame_bits_estimate(data_len, extended)
+    nb = _check_bitrate(nominal_bitrate)
+    db = nb if data_bitrate is None else _check_bitrate(data_bitrate)
+    return nominal / nb + data / db

@@ -210,3 +210,22 @@ def test_bad_input_names_parameter(call, name):
     with pytest.raises(ParameterError) as exc:
         call()
     assert exc.value.name == name
+
+
+def test_fd_estimate_total_agrees_with_linux_can_length_h():
+    from fusion_center.bus_timing import FD_LENGTHS, fd_frame_bits_estimate, fd_frame_time_s
+
+    # include/linux/can/length.h: FD header 22 (SFF) / 41 (EFF) bits stuffed as L + (L-1)//4,
+    # CRC field 28 (CRC-17) / 33 (CRC-21) incl. stuff count, delimiter and fixed stuff bits,
+    # footer 9, intermission 3
+    for extended, header in ((False, 22), (True, 41)):
+        for n in FD_LENGTHS:
+            destuffed = header + 8 * n
+            linux = destuffed + (destuffed - 1) // 4 + (28 if n <= 16 else 33) + 9 + 3
+            nominal, data = fd_frame_bits_estimate(n, extended)
+            assert nominal + data == linux
+    nominal, data = fd_frame_bits_estimate(64)
+    assert fd_frame_time_s(64, 500_000, 2_000_000) == pytest.approx(nominal / 5e5 + data / 2e6)
+    assert fd_frame_time_s(64, 500_000) == pytest.approx((nominal + data) / 5e5)
+    with pytest.raises(ParameterError):
+        fd_frame_bits_estimate(9)
