@@ -101,10 +101,10 @@ def achieved_vs_requested(data: dict, path) -> None:
         d = data["multiplicative"]
         ax.plot(d["requested"], d["achieved"], "o-", color=_COLOURS["multiplicative"], label=f"multiplicative ({d['source']})")
         ax.plot([0, 1], [0, 1], "k:")
+        ax.legend(fontsize=7)
     ax.set_xlabel("requested beta (HEBTEM eq 16)")
     ax.set_ylabel("achieved system P_M (miss)")
     ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=7)
     fig.suptitle("is the requested error level honoured? (alpha, beta of HEBTEM are curve-fit levels)")
     _save(fig, path)
 
