@@ -1,0 +1,247 @@
+"""The SYNC-cycle assembler as a pure state machine: hand-built event streams, hand-worked
+expectations (no bus, no clock)."""
+
+import numpy as np
+import pytest
+
+from fusion_center.scene import BusSpec, FusionSpec, Scene, TaxelSpec
+from fusion_center.service.cycles import COUNTER_NAMES, FLAG_ERROR, FLAG_EXTENDED, FLAG_REMOTE, CycleAssembler
+
+MS = 1000  # µs
+
+
+def scene(n=3, consumer_ms=300, sync_counter=0, tx_type=1, mode="decision", channels=("c0",)):
+    taxels = tuple(TaxelSpec(node_id=10 + i, kind="R", zeta_mv=1.0) for i in range(n))
+    bus = BusSpec(sync_counter=sync_counter, heartbeat_consumer_ms=consumer_ms, transmission_type=tx_type,
+                  mode=mode, channels=channels)
+    return Scene(path="<test>", name="t", bus=bus, taxels=taxels, fusion=FusionSpec())
+
+
+def boot_all(a, sc, t=0):
+    for tx in sc.taxels:
+        assert a.feed(t, 0, 0x700 + tx.node_id, b"\x00") is None
+    assert a.feed(t, 0, 0x000, bytes([0x01, 0])) is None  # NMT start all
+
+
+def tpdo(node_id, u):
+    return 0x180 + node_id, bytes([u & 0xFF])
+
+
+def test_early_close_when_every_expected_node_reported():
+    sc = scene()
+    a = CycleAssembler(sc)
+    boot_all(a, sc)
+    assert a.feed(10 * MS, 0, 0x80, b"") is None  # cycle 0 opens
+    assert a.feed(10 * MS + 100, 0, *tpdo(10, 1)) is None
+    assert a.feed(10 * MS + 200, 0, *tpdo(11, -1)) is None
+    closed = a.feed(10 * MS + 300, 0, *tpdo(12, 1))
+    assert closed is not None
+    assert closed.cycle == 0 and closed.closed_by == "complete"
+    assert closed.decisions.tolist() == [1, -1, 1]
+    assert closed.received.all() and not closed.missing.any()
+    assert closed.sync_us == 10 * MS and closed.close_us == 10 * MS + 300
+
+
+def test_duplicate_and_after_close_frames_are_late_and_never_mixed_in():
+    sc = scene()
+    a = CycleAssembler(sc)
+    boot_all(a, sc)
+    a.feed(10 * MS, 0, 0x80, b"")
+    a.feed(10 * MS + 1, 0, *tpdo(10, 1))
+    a.feed(10 * MS + 2, 0, *tpdo(10, -1))  # duplicate: late, value not used
+    a.feed(10 * MS + 3, 0, *tpdo(11, 1))
+    closed = a.feed(10 * MS + 4, 0, *tpdo(12, 1))
+    assert closed.decisions.tolist() == [1, 1, 1]
+    a.feed(10 * MS + 5, 0, *tpdo(12, -1))  # after the early close: late
+    nxt = None
+    a.feed(20 * MS, 0, 0x80, b"")
+    for node_id in (10, 11):
+        a.feed(20 * MS + 1, 0, *tpdo(node_id, -1))
+    nxt = a.feed(20 * MS + 2, 0, *tpdo(12, -1))
+    assert nxt.decisions.tolist() == [-1, -1, -1]
+    assert a.counters()["late"] == 2
+    assert closed.late_frames == 1  # the duplicate, before cycle 0 closed
+    assert nxt.late_frames == 1     # the one after cycle 0's close, reported with cycle 1
+
+
+def test_close_at_next_sync_marks_silent_node_and_adjusts_nothing_else():
+    sc = scene()
+    a = CycleAssembler(sc)
+    boot_all(a, sc)
+    a.feed(10 * MS, 0, 0x80, b"")
+    a.feed(10 * MS + 1, 0, *tpdo(10, 1))
+    a.feed(10 * MS + 2, 0, *tpdo(12, 1))
+    closed = a.feed(20 * MS, 0, 0x80, b"")
+    assert closed.closed_by == "sync"
+    assert closed.received.tolist() == [True, False, True]
+    assert closed.expected.tolist() == [True, True, True]
+    assert closed.decisions.tolist() == [1, 0, 1]
+    assert not closed.missing.any()  # silent for 10 ms only: not missing yet
+
+
+def test_heartbeat_consumer_time_declares_missing_and_recovery():
+    # node 11 last heard at t=0 (boot-up); consumer 300 ms: at a SYNC at 300 ms it is still
+    # live (not > 300 ms), at 301 ms it is missing; a heartbeat brings it back.
+    sc = scene(consumer_ms=300)
+    a = CycleAssembler(sc)
+    boot_all(a, sc)
+    for t in (300 * MS, 301 * MS):
+        for node_id in (10, 12):
+            a.feed(t - 1, 0, 0x700 + node_id, b"\x05")
+        a.feed(t, 0, 0x80, b"")
+        closed_missing = a.missing.copy()
+        if t == 300 * MS:
+            assert closed_missing.tolist() == [False, False, False]
+        else:
+            assert closed_missing.tolist() == [False, True, False]
+    # missing nodes are not waited for: the cycle closes as soon as 10 and 12 reported
+    a.feed(301 * MS + 1, 0, *tpdo(10, 1))
+    closed = a.feed(301 * MS + 2, 0, *tpdo(12, 1))
+    assert closed is not None and closed.closed_by == "complete"
+    assert closed.missing.tolist() == [False, True, False]
+    # recovery: a heartbeat (operational) from node 11
+    a.feed(305 * MS, 0, 0x700 + 11, b"\x05")
+    a.feed(310 * MS, 0, 0x80, b"")
+    assert a.missing.tolist() == [False, False, False]
+    assert a.expected.tolist() == [True, True, True]
+
+
+def test_never_heard_node_is_missing_and_cycles_without_expected_nodes_close_at_sync():
+    sc = scene()
+    a = CycleAssembler(sc)
+    a.feed(0, 0, 0x80, b"")
+    assert a.missing.all()
+    # a TPDO from a never-heard node while a cycle is open is accepted (the node is back)
+    assert a.feed(1, 0, *tpdo(10, 1)) is None
+    closed = a.feed(10 * MS, 0, 0x80, b"")
+    assert closed.closed_by == "sync" and closed.decisions.tolist() == [1, 0, 0]
+    assert a.missing.tolist() == [False, True, True]
+
+
+def test_nmt_broadcast_stop_closes_the_open_cycle_and_start_does_not():
+    sc = scene()
+    a = CycleAssembler(sc)
+    boot_all(a, sc)
+    a.feed(10 * MS, 0, 0x80, b"")
+    assert a.feed(10 * MS + 1, 0, 0x000, bytes([0x01, 0])) is None
+    closed = a.feed(10 * MS + 2, 0, 0x000, bytes([0x80, 0]))
+    assert closed.closed_by == "nmt" and closed.cycle == 0
+    # pre-operational nodes are not expected in the next cycle
+    a.feed(20 * MS, 0, 0x80, b"")
+    assert not a.expected.any()
+
+
+def test_pre_operational_node_is_not_waited_for():
+    sc = scene()
+    a = CycleAssembler(sc)
+    boot_all(a, sc)
+    a.feed(1, 0, 0x000, bytes([0x80, 11]))  # node 11 to pre-operational
+    a.feed(10 * MS, 0, 0x80, b"")
+    assert a.expected.tolist() == [True, False, True]
+    a.feed(10 * MS + 1, 0, *tpdo(10, 1))
+    assert a.feed(10 * MS + 2, 0, *tpdo(12, 1)).closed_by == "complete"
+
+
+@pytest.mark.parametrize("data,counter", [(b"\x01", "bad_value"), (b"\x00", "bad_value"), (b"", "bad_dlc"),
+                                          (b"\x01\x01", "bad_dlc")])
+def test_tpdo_domain_checks(data, counter):
+    sc = scene()
+    a = CycleAssembler(sc)
+    boot_all(a, sc)
+    a.feed(10 * MS, 0, 0x80, b"")
+    if data == b"\x01":
+        data = b"\x02"  # 2 is no decision
+    a.feed(10 * MS + 1, 0, 0x180 + 10, data)
+    assert a.counters()[counter] == 1
+    assert a.decisions[0] == 0
+
+
+def test_sync_counter_validation_and_value():
+    sc = scene(sync_counter=4)
+    a = CycleAssembler(sc)
+    boot_all(a, sc)
+    a.feed(10 * MS, 0, 0x80, b"")          # no counter byte: wrong DLC
+    a.feed(11 * MS, 0, 0x80, b"\x05")      # 5 > overflow 4
+    a.feed(12 * MS, 0, 0x80, b"\x00")      # 0 is not a counter value
+    assert a.cycle == -1
+    assert a.counters()["bad_dlc"] == 1 and a.counters()["bad_value"] == 2
+    a.feed(13 * MS, 0, 0x80, b"\x04")
+    closed = a.feed(14 * MS, 0, 0x80, b"\x01")
+    assert closed.sync_counter == 4 and a.sync_counter == 1
+
+
+def test_emcy_decoded_and_reported_once():
+    sc = scene()
+    a = CycleAssembler(sc)
+    boot_all(a, sc)
+    a.feed(10 * MS, 0, 0x80, b"")
+    # error code 0x5010 little endian, error register 0x81, manufacturer bytes
+    a.feed(10 * MS + 5, 0, 0x80 + 11, bytes([0x10, 0x50, 0x81, 1, 2, 3, 4, 5]))
+    a.feed(10 * MS + 6, 0, 0x80 + 11, bytes([0x10, 0x50, 0x81]))  # short EMCY: bad_dlc
+    closed = a.feed(20 * MS, 0, 0x80, b"")
+    assert len(closed.emcy) == 1
+    e = closed.emcy[0].as_record()
+    assert e == {"node": 11, "code": "0x5010", "register": "0x81", "manufacturer": "0102030405", "t": 0.010005}
+    assert closed.bad_frames == 1
+    later = a.feed(30 * MS, 0, 0x80, b"")
+    assert later.emcy == ()
+
+
+def test_flags_unknown_ids_and_counter_sum():
+    sc = scene()
+    a = CycleAssembler(sc)
+    events = [
+        (0, 0, 0x123, b"", FLAG_ERROR),
+        (0, 0, 0x18A, b"\x01", FLAG_REMOTE),
+        (0, 0, 0x18A, b"\x01", FLAG_EXTENDED),
+        (0, 0, 0x180 + 99, b"\x01", 0),   # node 99 is not in the scene
+        (0, 5, 0x80, b"", 0),             # channel the scene does not have
+        (0, 0, 0x100, bytes(6), 0),       # TIME
+        (0, 0, 0x580 + 10, bytes([0x80] + [0] * 7), 0),  # SDO abort
+        (0, 0, 0x600 + 10, bytes(8), 0),  # SDO request
+    ]
+    for e in events:
+        a.feed(*e)
+    c = a.counters()
+    assert (c["error_frame"], c["remote_frame"], c["extended_id"], c["unknown_cob_id"]) == (1, 1, 1, 2)
+    assert (c["time"], c["sdo_abort"], c["sdo"]) == (1, 1, 1)
+    assert sum(c.values()) == len(events) == a.events
+    assert set(c) == set(COUNTER_NAMES)
+
+
+def test_timestamps_are_relative_to_first_event_and_clamped_monotonic():
+    sc = scene()
+    a = CycleAssembler(sc)
+    boot_all(a, sc, t=5_000_000)
+    a.feed(5_010_000, 0, 0x80, b"")
+    a.feed(5_009_000, 0, *tpdo(10, 1))  # earlier than the SYNC: clamped to it
+    assert a.last_heard[0] == 10_000
+
+
+def test_second_channel_sync_is_counted_but_opens_no_cycle():
+    taxels = (TaxelSpec(node_id=1, kind="R", channel=0), TaxelSpec(node_id=1, kind="R", channel=1))
+    sc = Scene(path="<t>", name="t", bus=BusSpec(channels=("a", "b")), taxels=taxels)
+    a = CycleAssembler(sc)
+    a.feed(0, 0, 0x701, b"\x05")
+    a.feed(0, 1, 0x701, b"\x05")
+    a.feed(10, 0, 0x80, b"")
+    a.feed(11, 1, 0x80, b"")
+    assert a.cycle == 0 and a.counters()["sync"] == 2
+    a.feed(12, 1, 0x181, b"\x01")
+    closed = a.feed(13, 0, 0x181, b"\xff")
+    assert closed.closed_by == "complete" and closed.decisions.tolist() == [-1, 1]
+    assert a.labels == [1, "1:1"]
+
+
+def test_hold_mode_keeps_last_values_for_non_every_sync_transmission():
+    sc = scene(tx_type=2)
+    a = CycleAssembler(sc)
+    boot_all(a, sc)
+    a.feed(10 * MS, 0, 0x80, b"")
+    for node_id in (10, 11, 12):
+        assert a.feed(10 * MS + 1, 0, *tpdo(node_id, 1)) is None  # no early close
+    closed = a.feed(20 * MS, 0, 0x80, b"")
+    assert closed.closed_by == "sync"
+    closed = a.feed(30 * MS, 0, 0x80, b"")
+    assert closed.decisions.tolist() == [0, 0, 0] and closed.held_decisions.tolist() == [1, 1, 1]
+    assert np.array_equal(closed.received, [False] * 3)
