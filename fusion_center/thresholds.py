@@ -330,25 +330,38 @@ class PreferentialThreshold:
     present_count: int | None
 
 
-def _run_value(n: int, left: int, run: int, p: float, q: float, absent: float) -> float:
+def _factor_tables(p: float, q: float) -> tuple[dict, dict]:
+    """(1 + v)^p and (1 + v)^q for v in {-1, 0, +1} (0**0 = 1)."""
+    return ({v: (1.0 + v) ** p for v in (-1.0, 0.0, 1.0)}, {v: (1.0 + v) ** q for v in (-1.0, 0.0, 1.0)})
+
+
+def _run_value(n: int, left: int, run: int, fp: dict, fq: dict, absent: float) -> float:
     """Eq 7 for `left` absent taxels, a run of `run` present ones, then absent ones, in O(1).
 
     A segment of >= 3 equal decisions only adds "bulk" terms for its inner taxels (both
     neighbours equal), so each segment is shortened to <= 3 taxels and the bulk terms are added.
     """
     right = n - left - run
-    seg = [(absent, left), (1.0, run), (absent, right)]
-    short: list[float] = []
+    short = [0.0]
     extra = 0.0
-    for value, length in seg:
-        keep = min(length, 3)
-        short.extend([value] * keep)
-        extra += (length - keep) * value * (1.0 + value) ** p * (1.0 + value) ** q
-    padded = [0.0, *short, 0.0]
+    for value, length in ((absent, left), (1.0, run), (absent, right)):
+        if length > 3:
+            extra += (length - 3) * value * fp[value] * fq[value]
+            length = 3
+        short.extend([value] * length)
+    short.append(0.0)
     total = 0.0
-    for i in range(1, len(padded) - 1):
-        total += padded[i] * (1.0 + padded[i + 1]) ** p * (1.0 + padded[i - 1]) ** q
+    for i in range(1, len(short) - 1):
+        v = short[i]
+        if v != 0.0:
+            total += v * fp[short[i + 1]] * fq[short[i - 1]]
     return total + extra
+
+
+def _max_value(n: int, present: int, fp: dict, fq: dict, absent: float) -> float:
+    free = n - present
+    lefts = {a for a in (0, 1, 2, 3, free, free - 1, free - 2, free - 3) if 0 <= a <= free}
+    return max(_run_value(n, a, present, fp, fq, absent) for a in lefts)
 
 
 def max_preferential_value(n, present, p, q, encoding: str = "pm1") -> float:
@@ -365,25 +378,25 @@ def max_preferential_value(n, present, p, q, encoding: str = "pm1") -> float:
     encoding = check_encoding(encoding)
     if isinstance(present, bool) or not float(present).is_integer() or not 0 <= present <= n:
         raise ParameterError("present", present, f"must be an integer in 0..n (n = {n})")
-    present = int(present)
     absent = -1.0 if encoding == "pm1" else 0.0
-    free = n - present
-    lefts = {a for a in (0, 1, 2, 3, free, free - 1, free - 2, free - 3) if 0 <= a <= free}
-    return max(_run_value(n, a, present, p, q, absent) for a in lefts)
+    return _max_value(n, int(present), *_factor_tables(p, q), absent)
 
 
 def _smallest_present(n: int, p: float, q: float, encoding: str, lam: float) -> int | None:
+    fp, fq = _factor_tables(p, q)
+    absent = -1.0 if encoding == "pm1" else 0.0
     low_end = min(n, 3)
-    for j in range(0, low_end + 1):
-        if max_preferential_value(n, j, p, q, encoding) >= lam:
-            return j
+    # each present taxel adds at most 2^(p+q), absent ones add <= 0: M(j) <= j 2^(p+q)
+    if lam <= low_end * 2.0 ** (p + q):
+        for j in range(0, low_end + 1):
+            if _max_value(n, j, fp, fq, absent) >= lam:
+                return j
     hi_start = max(low_end + 1, n - 7)
     if hi_start > low_end + 1:
         # 3 <= j <= n - 7: every placement has a run >= 3 and an absent segment >= 4, so
         # M(j + 1) - M(j) = bulk(present) - bulk(absent) > 0 (linear, increasing)
-        absent = -1.0 if encoding == "pm1" else 0.0
-        slope = 2.0 ** (p + q) - absent * (1.0 + absent) ** p * (1.0 + absent) ** q
-        m0 = max_preferential_value(n, low_end, p, q, encoding)
+        slope = fp[1.0] * fq[1.0] - absent * fp[absent] * fq[absent]
+        m0 = _max_value(n, low_end, fp, fq, absent)
         j = low_end + max(1, math.ceil((lam - m0) / slope))
         if j < hi_start:
             # guard against rounding at an exact integer boundary
@@ -391,7 +404,7 @@ def _smallest_present(n: int, p: float, q: float, encoding: str, lam: float) -> 
                 j -= 1
             return j
     for j in range(hi_start, n + 1):
-        if max_preferential_value(n, j, p, q, encoding) >= lam:
+        if _max_value(n, j, fp, fq, absent) >= lam:
             return j
     return None
 

@@ -1,0 +1,238 @@
+"""Precision vs run time of the HEBTEM threshold solvers (eqs 16-18), side by side with a naive
+linear-domain scipy.optimize.brentq on the raw equations.
+
+For each rule and a few cases the script sweeps the solver tolerance (our Newton rtol, brentq's
+xtol/rtol), measures the relative error against an mpmath reference at 80 digits (the original
+integral equation, mean form, refined by mp.findroot), the number of function evaluations and
+the time per solve, prints a table and writes a log-log PNG (error vs time per solve).
+
+    .venv/bin/python bench/threshold_precision.py [--out out/threshold_precision.png]
+
+Runtime: well under a minute on one core.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import time
+import warnings
+from pathlib import Path
+
+import mpmath as mp
+import numpy as np
+from scipy.optimize import brentq
+
+from fusion_center.thresholds import additive_threshold, multiplicative_threshold, preferential_threshold
+
+FLOOR = 1e-17  # errors of exactly 0 are drawn here on the log axis
+RTOLS = [1e-2, 1e-4, 1e-6, 1e-8, 1e-11, 1e-14, 4 * 2.0**-52]
+XTOLS = [1e-2, 1e-4, 1e-6, 1e-8, 1e-11, 1e-14, 2e-12 * 0 + 1e-300]
+
+
+# ------------------------------------------------------------------ mpmath reference (80 digits)
+
+
+def ref_multiplicative(n, xi, beta, guess_t):
+    with mp.workdps(80 + int(-math.log10(xi))):
+        N, X, B = mp.mpf(n), mp.mpf(xi), mp.mpf(beta)
+        E, e2n = mp.e**N, mp.e ** (2 * N)
+        m = E * mp.log(1 / X) / (e2n - 1)
+        a = mp.e ** (-(e2n * mp.log(1 / X) / (e2n - 1)))
+        F = lambda x: a / m * mp.e ** (m * x)
+        H = lambda w: (F(E) - F(E - E * w)) / (E * w) - (1 - B)
+        w = mp.findroot(H, mp.mpf(1) - mp.mpf(guess_t))
+        return [float(1 - w)]
+
+
+def ref_additive(n, xi, alpha, guesses, encoding="pm1"):
+    with mp.workdps(80 + int(-math.log10(xi))):
+        N, X, A = mp.mpf(n), mp.mpf(xi), mp.mpf(alpha)
+        if encoding == "pm1":
+            r = (X + 1) + mp.sqrt(X * (X + 2))
+            F = lambda U: n * r ** (U / N) / (2 * mp.log(r)) + (1 - r / 2) * U**2 / (2 * N)
+        else:
+            L = mp.log(1 / X)
+            F = lambda U: X * N / L * mp.e ** (L * U / N)
+        H = lambda d: (F(N) - F(N - d)) / d - (1 - A)
+        return sorted(float(N - mp.findroot(H, N - mp.mpf(g))) for g in guesses)
+
+
+def ref_preferential(n, xi, alpha, g, guess):
+    with mp.workdps(80):
+        X, A, G = mp.mpf(xi), mp.mpf(alpha), mp.mpf(g)
+        F = lambda x: (1 - X) * x**3 / (3 * G**2) + X * x
+        H = lambda d: (F(G) - F(G - d)) / d - (1 - A)
+        return [float(G - mp.findroot(H, G - mp.mpf(guess)))]
+
+
+# ----------------------------------------------------------------------- naive brentq baselines
+
+
+def naive_multiplicative(n, xi, beta, xtol, rtol):
+    """brentq on eq 16 as printed: m, a from eqs 11a-11b, antiderivative (a/m) e^(m x)."""
+    e2n = math.exp(2 * n)  # OverflowError for n >= 355
+    en = math.exp(n)
+    L = math.log(1 / xi)
+    m = en * L / (e2n - 1)
+    a = math.exp(-(e2n * L / (e2n - 1)))
+    calls = [0]
+
+    def G(lam):
+        calls[0] += 1
+        return a / m * (math.exp(m * en) - math.exp(m * lam)) - (1 - beta) * (en - lam)
+
+    lam = brentq(G, -en, en * (1 - 1e-13), xtol=xtol, rtol=rtol, maxiter=500)
+    return [lam / en], calls[0]
+
+
+def naive_additive(n, xi, alpha, xtol, rtol, encoding="pm1"):
+    """brentq on eq 17 as printed, closed-form antiderivative of eq 13 (or 12) in floats."""
+    calls = [0]
+    if encoding == "pm1":
+        r = (xi + 1) + math.sqrt(xi * (xi + 2))
+        F = lambda U: 0.5 * n * r ** (U / n) / math.log(r) + (1 - 0.5 * r) * U * U / (2 * n)
+        lo = -n
+    else:
+        L = math.log(1 / xi)
+        F = lambda U: xi * n / L * math.exp(L * U / n)
+        lo = 0.0
+
+    def G(lam):
+        calls[0] += 1
+        return F(n) - F(lam) - (1 - alpha) * (n - lam)
+
+    lam = brentq(G, lo, n * (1 - 1e-12), xtol=xtol, rtol=rtol, maxiter=500)
+    return [lam], calls[0]
+
+
+def naive_preferential(n, xi, alpha, g, xtol, rtol):
+    calls = [0]
+
+    def G(lam):
+        calls[0] += 1
+        return (1 - xi) * (g**3 - lam**3) / (3 * g * g) + xi * (g - lam) - (1 - alpha) * (g - lam)
+
+    lam = brentq(G, -g, g * (1 - 1e-12), xtol=xtol, rtol=rtol, maxiter=500)
+    return [lam], calls[0]
+
+
+# ------------------------------------------------------------------------------------- harness
+
+
+def _time(fn, budget=0.02):
+    fn()
+    reps, start = 0, time.perf_counter()
+    while True:
+        fn()
+        reps += 1
+        elapsed = time.perf_counter() - start
+        if elapsed > budget or reps >= 20000:
+            return elapsed / reps
+
+
+def _err(values, ref):
+    if len(values) != len(ref):
+        return math.inf
+    return max((abs(v - r) / abs(r) if r else abs(v)) for v, r in zip(values, ref)) if ref else 0.0
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--out", default="out/threshold_precision.png", help="PNG path (log-log error vs time)")
+    args = parser.parse_args(argv)
+
+    cases = [
+        ("multiplicative", dict(n=57, xi=0.003, level=0.83)),
+        ("multiplicative", dict(n=354, xi=0.003, level=0.3)),
+        ("multiplicative", dict(n=355, xi=0.003, level=0.3)),
+        ("multiplicative", dict(n=1_000_000, xi=1e-12, level=0.03)),
+        ("additive", dict(n=57, xi=0.003, level=0.03)),
+        ("additive", dict(n=57, xi=0.003, level=0.473)),
+        ("additive", dict(n=57, xi=1e-12, level=0.03)),
+        ("additive", dict(n=1_000_000, xi=1e-300, level=0.03)),
+        ("additive", dict(n=57, xi=0.999999, level=0.38)),
+        ("additive-01", dict(n=57, xi=0.003, level=0.03)),
+        ("preferential", dict(n=18, xi=0.003, level=0.48)),
+        ("preferential", dict(n=1_000_000, xi=0.5, level=0.03)),
+    ]
+    rows = []  # (rule, case, method, tol, err, evals, seconds, note)
+    for rule, c in cases:
+        n, xi, level = c["n"], c["xi"], c["level"]
+        label = f"n={n:g} xi={xi:g} {'beta' if rule == 'multiplicative' else 'alpha'}={level:g}"
+        if rule == "multiplicative":
+            best = multiplicative_threshold(n, xi, level).scaled_thresholds
+            ref = ref_multiplicative(n, xi, level, best[0])
+            ours = lambda rt: multiplicative_threshold(n, xi, level, rtol=rt, info=info).scaled_thresholds
+            naive = lambda xt, rt: naive_multiplicative(n, xi, level, xt, rt)
+        elif rule.startswith("additive"):
+            enc = "01" if rule.endswith("01") else "pm1"
+            best = additive_threshold(n, xi, level, enc).thresholds
+            ref = ref_additive(n, xi, level, best, enc)
+            ours = lambda rt, enc=enc: additive_threshold(n, xi, level, enc, rtol=rt, info=info).thresholds
+            naive = lambda xt, rt, enc=enc: naive_additive(n, xi, level, xt, rt, enc)
+        else:
+            res = preferential_threshold(n, xi, level, 1, 1)
+            ref = ref_preferential(n, xi, level, res.g_max, res.threshold_mean)
+            ours = None
+            g = res.g_max
+            naive = lambda xt, rt: naive_preferential(n, xi, level, g, xt, rt)
+        if ours is None:
+            f = lambda: (preferential_threshold(n, xi, level, 1, 1).threshold_mean,)
+            rows.append((rule, label, "ours (closed form)", "-", _err(f(), ref), 0, _time(f), ""))
+        else:
+            for rt in RTOLS:
+                info = {}
+                vals = ours(rt)
+                rows.append((rule, label, "ours (Newton)", f"{rt:.0e}", _err(vals, ref), info.get("evaluations", 0),
+                             _time(lambda: ours(rt)), ""))
+        for xt, rt in zip(XTOLS, RTOLS):
+            rt_b = max(rt, 4 * 2.0**-52)
+            try:
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")
+                    vals, calls = naive(xt, rt_b)
+                    secs = _time(lambda: naive(xt, rt_b))
+                note = "finds 1 of 2 roots" if len(vals) != len(ref) else ""
+                rows.append((rule, label, "naive brentq", f"{xt:.0e}", _err(vals, ref), calls, secs, note))
+            except (OverflowError, ValueError, ZeroDivisionError) as exc:
+                rows.append((rule, label, "naive brentq", f"{xt:.0e}", math.nan, 0, math.nan,
+                             f"fails: {type(exc).__name__}: {str(exc)[:40]}"))
+                break
+
+    print(f"{'rule':<15} {'case':<32} {'method':<19} {'tol':>7} {'rel.err':>9} {'evals':>5} {'us/solve':>9}  note")
+    for rule, label, method, tol, err, evals, secs, note in rows:
+        e = "nan" if math.isnan(err) else ("inf" if math.isinf(err) else f"{err:.1e}")
+        s = "-" if math.isnan(secs) else f"{secs * 1e6:.2f}"
+        print(f"{rule:<15} {label:<32} {method:<19} {tol:>7} {e:>9} {evals:>5} {s:>9}  {note}")
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rules = ["multiplicative", "additive", "additive-01", "preferential"]
+    fig, axes = plt.subplots(1, len(rules), figsize=(5 * len(rules), 4.2), sharey=True)
+    for ax, rule in zip(axes, rules):
+        for label in dict.fromkeys(r[1] for r in rows if r[0] == rule):
+            for method, marker in (("ours", "o-"), ("naive", "x--")):
+                pts = [(r[6], max(r[4], FLOOR)) for r in rows
+                       if r[0] == rule and r[1] == label and r[2].startswith(method) and math.isfinite(r[4])
+                       and math.isfinite(r[6])]
+                if pts:
+                    ax.loglog([p[0] * 1e6 for p in pts], [p[1] for p in pts], marker, label=f"{method}: {label}", ms=4)
+        ax.set_title(rule)
+        ax.set_xlabel("time per solve [us]")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=6)
+    axes[0].set_ylabel(f"relative error vs mpmath (0 drawn at {FLOOR:g})")
+    fig.tight_layout()
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=110)
+    print(f"wrote {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
