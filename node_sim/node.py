@@ -323,11 +323,10 @@ class TaxelNode:
         def beat():
             if self.state != INITIALISING:
                 self._send(0x700 + self.node_id, bytes([self.state]))
-            # drift-free: next beat relative to the planned time, not to now
-            nxt = when + period_s
+            # next beat one period after the planned time (no drift); after a beat that
+            # came late by more than 10 % of the period, one period after now (no burst)
             now = time.monotonic()
-            if nxt < now:
-                nxt = now + period_s
+            nxt = when + period_s if now - when <= 0.1 * period_s else now + period_s
             self._schedule_heartbeat(nxt, period_s)
 
         self._heartbeat = self.link.scheduler.call_at(when, beat)
