@@ -277,6 +277,9 @@ class FusionService:
     def open(self) -> "FusionService":
         import canopen
 
+        if self.interface not in can.interfaces.VALID_INTERFACES:
+            raise UsageError(f"--interface {self.interface!r}: not a python-can interface (known: "
+                             + ", ".join(sorted(can.interfaces.VALID_INTERFACES)) + ")")
         if not self.eds_path.is_file():
             raise UsageError(f"EDS file {str(self.eds_path)!r} not found (needed for the SDO configuration)")
         try:
