@@ -1,0 +1,80 @@
+"""Node twins (the node-sim CLI) and the fusion centre in two processes on udp_multicast."""
+
+import os
+import random
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import can
+import pytest
+
+from fusion_center.scene import load_scene
+from fusion_center.service import FusionService
+
+pytestmark = pytest.mark.multiprocess
+
+ROOT = Path(__file__).resolve().parent.parent
+MATRIX = ROOT / "scenes" / "matrix57.toml"
+GROUP = "239.74.163.2"  # python-can's UdpMulticastBus.DEFAULT_GROUP_IPv4
+
+
+def multicast_works(port: int) -> str | None:
+    """None if two udp_multicast buses of this process see each other's frames, else why not."""
+    try:
+        a = can.Bus(interface="udp_multicast", channel=GROUP, port=port)
+        b = can.Bus(interface="udp_multicast", channel=GROUP, port=port)
+    except Exception as exc:  # noqa: BLE001
+        return f"cannot open udp_multicast: {exc}"
+    try:
+        a.send(can.Message(arbitration_id=0x7E5, data=b"\x01", is_extended_id=False))
+        deadline = time.monotonic() + 2
+        while time.monotonic() < deadline:
+            msg = b.recv(0.2)
+            if msg is not None and msg.arbitration_id == 0x7E5:
+                return None
+        return "multicast on loopback delivers nothing (no multicast route?)"
+    finally:
+        a.shutdown()
+        b.shutdown()
+
+
+def test_node_sim_process_and_fusion_centre_on_udp_multicast(tmp_path):
+    port = random.randint(40000, 60000)
+    why = multicast_works(port)
+    if why is not None:
+        pytest.skip(why)
+    scene = load_scene(MATRIX)
+    sim = subprocess.Popen(
+        [sys.executable, "-c", "import sys; from node_sim.cli import main; sys.exit(main())",
+         "--scene", str(MATRIX), "--interface", "udp_multicast", "--channel", GROUP,
+         "--bus-option", f"port={port}"],
+        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        ready = sim.stdout.readline()
+        assert "ready" in ready, sim.stderr.read() if sim.poll() is not None else ready
+        cycles = 60
+        with FusionService(scene, interface="udp_multicast", channels=[GROUP], bus_kwargs={"port": port},
+                           json_lines=tmp_path / "mp.jsonl") as service:
+            missing = service.boot(5.0)
+            summary = service.run(cycles)
+    finally:
+        sim.terminate()
+        try:
+            sim.wait(10)
+        except subprocess.TimeoutExpired:
+            sim.kill()
+    assert missing == []  # every node answered the NMT reset-communication with a boot-up
+    records = service.records
+    assert [r["cycle"] for r in records] == list(range(cycles))
+    # UDP may lose datagrams: count the losses instead of failing on them
+    expected = cycles * scene.n
+    received = sum(r["n_received"] for r in records)
+    lost = expected - received
+    print(f"udp_multicast: {received}/{expected} decisions received, {lost} lost or late, "
+          f"{summary.own_echoes} own frames looped back and dropped")
+    assert received >= 0.9 * expected
+    assert summary.own_echoes >= cycles  # our own SYNCs came back and were not fed twice
+    assert summary.counters["sync"] == cycles
+    assert summary.sdo_writes > 0
