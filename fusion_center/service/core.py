@@ -246,7 +246,8 @@ class FusionService:
         self.labels = self.assembler.labels
         self.pipeline = CyclePipeline(scene, truth=truth)
         self.records: list[dict] = []
-        self.latency_ms: list[float] = []
+        self.latency_ms: list[float] = []         # SYNC transmission -> record written
+        self.centre_latency_ms: list[float] = []  # closing event (last TPDO / SYNC) -> record written
         self.pipeline_errors = 0
         self.own_echoes = 0
         self.drop_own_echo = interface == "udp_multicast"
@@ -442,6 +443,9 @@ class FusionService:
             sent = self.master.sync_sent_at.get(item.cycle) if self.master else None
             if sent is not None:
                 self.latency_ms.append((time.perf_counter() - sent) * 1e3)
+                t0 = self.assembler.t0_us
+                if t0 is not None:
+                    self.centre_latency_ms.append((time.time() - (t0 + item.close_us) * 1e-6) * 1e3)
             if self.writer is not None:
                 try:
                     self.writer.write(record)

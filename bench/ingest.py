@@ -1,0 +1,192 @@
+"""Ingest rate and SYNC -> decision latency of the fusion centre (figures and ratios to the targets).
+
+Targets (brief): ingest >= 3x the frame rate of a saturated 1 Mbit/s bus of one-byte frames,
+and SYNC -> decision p99 <= 2 ms for the 57 nodes of scenes/matrix57.toml on the virtual bus.
+
+    .venv/bin/python bench/ingest.py [--frames 200000] [--cycles 200]
+
+Measured side by side in one run:
+  1. the event stream alone (EventStream.receive: time-stamp, decode, assemble) on prepared
+     python-can Messages, with and without a candump trace writer;
+  2. the same through python-can: frames queued on a virtual bus, then drained by a Notifier
+     into the service's listener (what the receive thread does live);
+  3. for comparison, decoding the same frames with canopen PDO objects (the slow path avoided);
+  4. the demo (57 node twins + centre, virtual bus): SYNC -> record latency, split into the
+     bus/twin part (SYNC -> last TPDO) and the centre's part (closing event -> record).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import time
+import uuid
+from pathlib import Path
+
+import can
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from fusion_center.bus_timing import frame_bits  # noqa: E402
+from fusion_center.scene import load_scene  # noqa: E402
+from fusion_center.service.core import EventStream, open_trace_writer  # noqa: E402
+from fusion_center.service.cycles import CycleAssembler  # noqa: E402
+
+SCENE = ROOT / "scenes" / "matrix57.toml"
+
+
+def saturated_rate(bitrate: int = 1_000_000) -> tuple[float, int]:
+    """Frames/s of a bus saturated with TPDO1 frames (1 byte), exact bits incl. stuffing."""
+    bits = [frame_bits(0x180 + nid, bytes([v])) for nid in range(1, 58) for v in (0x01, 0xFF)]
+    mean_bits = float(np.mean(bits))
+    return bitrate / mean_bits, int(min(bits)), int(max(bits)), mean_bits
+
+
+def prepared_frames(scene, cycles: int) -> list[can.Message]:
+    rng = np.random.default_rng(1)
+    frames = []
+    t = 1_700_000_000.0
+    for _ in range(cycles):
+        t += 0.001
+        frames.append(can.Message(timestamp=t, arbitration_id=0x80, data=b"", is_extended_id=False))
+        for taxel in scene.taxels:
+            t += 55e-6
+            frames.append(can.Message(timestamp=t, arbitration_id=0x180 + taxel.node_id,
+                                      data=bytes([0x01 if rng.random() < 0.1 else 0xFF]), is_extended_id=False))
+    return frames
+
+
+def bench_stream(scene, frames, trace: Path | None) -> float:
+    assembler = CycleAssembler(scene)
+    closed = []
+    writer = open_trace_writer(trace) if trace else None
+    stream = EventStream(assembler, trace=writer, on_closed=closed.append)
+    start = time.perf_counter()
+    for msg in frames:
+        stream.receive(msg, 0)
+    elapsed = time.perf_counter() - start
+    if writer:
+        writer.stop()
+    assert sum(assembler.counters().values()) == len(frames)
+    return len(frames) / elapsed
+
+
+def bench_virtual_notifier(scene, frames) -> float:
+    """Frames queued on a virtual bus first, then drained by a Notifier into the listener."""
+    from fusion_center.service.core import _StreamListener
+
+    channel = f"bench-{uuid.uuid4().hex}"
+    rx = can.Bus(interface="virtual", channel=channel)
+    tx = can.Bus(interface="virtual", channel=channel)
+
+    class _Service:  # the listener's view of the service
+        def __init__(self):
+            self.stream = EventStream(CycleAssembler(scene), on_closed=lambda c: None)
+            self.drop_own_echo = False
+            self.master_cob_ids = frozenset()
+            self.own_echoes = 0
+
+        def on_bootup(self, index):
+            pass
+
+    service = _Service()
+    for msg in frames:
+        tx.send(msg)
+    listener = _StreamListener(service, 0)
+    start = time.perf_counter()
+    notifier = can.Notifier(rx, [listener], timeout=0.01)
+    while service.stream.fed < len(frames):
+        time.sleep(0.001)
+    elapsed = time.perf_counter() - start
+    notifier.stop()
+    rx.shutdown()
+    tx.shutdown()
+    return len(frames) / elapsed
+
+
+def bench_canopen_pdo(frames) -> float:
+    """Decoding with canopen's PDO machinery: one RemoteNode TPDO1 map per node."""
+    import canopen
+
+    network = canopen.Network()
+    eds = ROOT / "eds" / "taxel_node.eds"
+    maps = {}
+    for nid in range(1, 58):
+        node = canopen.RemoteNode(nid, str(eds))
+        network.add_node(node)
+        node.tpdo.read(from_od=True)
+        maps[0x180 + nid] = node.tpdo[1]
+    subset = [m for m in frames if m.arbitration_id in maps][:20000]
+    start = time.perf_counter()
+    for msg in subset:
+        pdo = maps[msg.arbitration_id]
+        pdo.on_message(msg.arbitration_id, msg.data, msg.timestamp)
+        _ = pdo.map[0].raw if len(pdo.map) else None
+    return len(subset) / (time.perf_counter() - start)
+
+
+def bench_latency(scene, cycles: int):
+    from fusion_center.commands.demo import run_demo
+
+    with tempfile.TemporaryDirectory() as tmp:
+        trace = Path(tmp) / "t.log"
+        service, _ = run_demo(scene, cycles, trace=trace)
+        bus_part = []
+        sync_t = last = None
+        for msg in can.LogReader(str(trace)):
+            if msg.arbitration_id == 0x80:
+                if sync_t is not None and last is not None:
+                    bus_part.append((last - sync_t) * 1e3)
+                sync_t, last = msg.timestamp, None
+            elif 0x180 < msg.arbitration_id < 0x200 and sync_t is not None:
+                last = msg.timestamp
+    return (np.array(service.latency_ms), np.array(service.centre_latency_ms), np.array(bus_part),
+            [r["closed_by"] for r in service.records])
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--frames", type=int, default=120_000)
+    parser.add_argument("--cycles", type=int, default=200)
+    parser.add_argument("--switch-interval-ms", type=float, default=None,
+                        help="sys.setswitchinterval for the latency run (default: Python's 5 ms)")
+    args = parser.parse_args()
+    scene = load_scene(SCENE)
+
+    rate, bmin, bmax, bmean = saturated_rate()
+    target = 3 * rate
+    print(f"saturated 1 Mbit/s bus of TPDO1 frames (1 byte): {bmin}..{bmax} bits/frame incl. stuffing, "
+          f"mean {bmean:.2f} -> {rate:,.0f} frames/s; ingest target 3x = {target:,.0f} frames/s")
+    frames = prepared_frames(scene, max(1, args.frames // (scene.n + 1)))
+    with tempfile.TemporaryDirectory() as tmp:
+        rows = [
+            ("event stream (decode + assemble)", bench_stream(scene, frames, None)),
+            ("event stream + candump trace writer", bench_stream(scene, frames, Path(tmp) / "b.log")),
+            ("virtual bus -> Notifier -> listener", bench_virtual_notifier(scene, frames)),
+            ("canopen PDO objects (decode only)", bench_canopen_pdo(frames)),
+        ]
+    print(f"{'ingest path':40s} {'frames/s':>12s} {'us/frame':>9s} {'x target':>9s} {'x bus':>7s}")
+    for name, fps in rows:
+        print(f"{name:40s} {fps:12,.0f} {1e6 / fps:9.2f} {fps / target:9.2f} {fps / rate:7.2f}")
+
+    if args.switch_interval_ms is not None:
+        sys.setswitchinterval(args.switch_interval_ms / 1e3)
+    print(f"\nGIL switch interval {sys.getswitchinterval() * 1e3:g} ms")
+    total, centre, bus, closed_by = bench_latency(scene, args.cycles)
+    print(f"SYNC -> decision, {len(total)} cycles of {scene.n} nodes on the virtual bus "
+          f"({closed_by.count('complete')} closed complete, {closed_by.count('sync')} at the next SYNC):")
+    print(f"{'part':42s} {'p50 ms':>8s} {'p99 ms':>8s} {'max ms':>8s} {'p99/2ms':>8s}")
+    for name, arr in (("SYNC sent -> record written (total)", total),
+                      ("  SYNC -> last TPDO (twins + virtual bus)", bus),
+                      ("  closing event -> record (the centre)", centre)):
+        if len(arr):
+            p50, p99 = np.percentile(arr, [50, 99])
+            print(f"{name:42s} {p50:8.3f} {p99:8.3f} {arr.max():8.3f} {p99 / 2.0:8.2f}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
