@@ -321,7 +321,8 @@ def test_matrix57_is_the_chapter_sensor():
     assert kind_counts(s) == {"C": 21, "P": 4, "R": 32}      # sec 6.1
     assert [t.node_id for t in s.taxels] == list(range(1, 58))
     f = s.fusion
-    assert (f.xi, f.alpha, f.beta, f.tuple) == (0.003, 0.03, 0.83, "pm1")   # sec 6.3
+    # sec 6.3: beta = 0.83; the decision of sec 6.3.1 uses the negative root found with alpha = 0.473
+    assert (f.xi, f.alpha, f.beta, f.tuple) == (0.003, 0.473, 0.83, "pm1")
     assert set(f.rules) == {"additive", "multiplicative", "k-of-n", "llr", "np"}
     assert (s.bus.bitrate, s.bus.sync_period_ms, s.bus.transmission_type) == (1_000_000, 10.0, 1)
     assert (s.forces.mu, s.forces.unit) == (0.3, "kgf")
