@@ -9,7 +9,8 @@ after an NMT reset: canopen issues #145, #520, #558, #47), so this module adds a
   stop (0x02), enter pre-operational (0x80), reset node (0x81: the whole OD back to the
   start-up values), reset communication (0x82: only 0x1000-0x1FFF back); both resets send a
   new boot-up and return to pre-operational. SDO is served in pre-operational and
-  operational only; in stopped only NMT and heartbeat are alive.
+  operational only; in stopped only NMT and heartbeat are alive. Expedited and segmented
+  transfers come from canopen's SdoServer; block transfers are refused with 0x05040001.
 * heartbeat producer per 0x1017 (state byte 0x7F pre-op, 0x05 operational, 0x04 stopped).
 * the application, on every SYNC (any state but INITIALISING): take X_i for that cycle,
   check it for sensor faults, run the local detector of the chapter (eqs 1-4, via
@@ -72,13 +73,21 @@ NMT_ENTER_PRE_OPERATIONAL = 0x80
 NMT_RESET_NODE = 0x81
 NMT_RESET_COMMUNICATION = 0x82
 
+# SDO client command specifiers (CiA 301, bits 5-7 of byte 0) and the server's abort
+SDO_CCS_DOWNLOAD = 0x20
+SDO_CCS_UPLOAD = 0x40
+SDO_CCS_BLOCK_UPLOAD = 0xA0
+SDO_ABORT = 0x80
+
 # SDO abort codes (CiA 301) used by the range checks
+ABORT_COMMAND_SPECIFIER = 0x05040001
 ABORT_UNSUPPORTED_ACCESS = 0x06010000
 ABORT_READ_ONLY = 0x06010002
 ABORT_NOT_IN_OD = 0x06020000
 ABORT_NOT_MAPPABLE = 0x06040041
 ABORT_PDO_LENGTH_EXCEEDED = 0x06040042
 ABORT_LENGTH_MISMATCH = 0x06070010
+ABORT_SUBINDEX_NOT_IN_OD = 0x06090011
 ABORT_VALUE_RANGE = 0x06090030
 ABORT_VALUE_TOO_HIGH = 0x06090031
 ABORT_VALUE_TOO_LOW = 0x06090032
@@ -341,7 +350,37 @@ class TaxelNode:
     def on_sdo_request(self, data: bytes) -> None:
         if self.silent or self.state not in (PRE_OPERATIONAL, OPERATIONAL):
             return
+        refusal = self._sdo_refusal(data)
+        if refusal is not None:
+            index, subindex = struct.unpack_from("<HB", data, 1)
+            self._send(0x580 + self.node_id, struct.pack("<BHBL", SDO_ABORT, index, subindex, refusal))
+            return
         self.local.sdo.on_request(0x600 + self.node_id, data, 0.0)
+
+    def _sdo_refusal(self, data: bytes) -> int | None:
+        """Abort code for the initiate requests canopen's SdoServer answers unlike a CiA 301
+        server: a sub-index other than 0 of a VAR object (it serves the VAR instead of
+        0x06090011) and a block upload the client did not allow to fall back to a normal
+        upload (protocol switch threshold 0 or below the object's size: it answers with a
+        normal upload anyway instead of 0x05040001; this node has no block transfer)."""
+        ccs = data[0] & 0xE0
+        initiate = ccs in (SDO_CCS_DOWNLOAD, SDO_CCS_UPLOAD) or \
+            (ccs == SDO_CCS_BLOCK_UPLOAD and data[0] & 0x03 == 0)
+        if not initiate:
+            return None
+        index, subindex = struct.unpack_from("<HB", data, 1)
+        obj = self.od.get(index)
+        if isinstance(obj, ODVariable) and subindex != 0:
+            return ABORT_SUBINDEX_NOT_IN_OD
+        if ccs == SDO_CCS_BLOCK_UPLOAD and obj is not None:
+            protocol_switch_threshold = data[5]
+            try:
+                size = len(self.local.get_data(index, subindex))
+            except KeyError:
+                return None  # canopen answers 0x06020000 / 0x06090011
+            if size > protocol_switch_threshold:
+                return ABORT_COMMAND_SPECIFIER
+        return None
 
     def _on_sdo_write(self, index: int, subindex: int, od: ODVariable, data: bytes) -> None:
         """LocalNode write callback (runs before the value is stored): range checks raise

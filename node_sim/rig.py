@@ -64,7 +64,7 @@ class _Channel(can.Listener):
         self.nodes: dict[int, TaxelNode] = {}
         self.scene_index: dict[int, int] = {}   # node-ID -> taxel index in scene order
         self.sync_count = 0                     # SYNCs seen (cycle of the next one if no loss)
-        self.cycle: int | None = None           # cycle number of the last SYNC
+        self.cycle: int | None = None           # cycle number of the last SYNC fully processed
         self.lost_syncs = 0
         self._last_counter: int | None = None
         self.frames_sent = 0
@@ -116,14 +116,15 @@ class _Channel(can.Listener):
         else:
             step = 1
         self._last_counter = counter
-        self.cycle = self.sync_count + step - 1
+        cycle = self.sync_count + step - 1
         self.lost_syncs += step - 1
-        self.sync_count = self.cycle + 1
-        cycle = self.cycle
+        self.sync_count = cycle + 1
         readings = self.rig._readings(cycle)
         for node in nodes:
             self.rig._apply_silence(self.index, node, cycle)
             node.on_sync(cycle, float(readings[self.scene_index[node.node_id]]), counter)
+        # published last: once a waiter sees this cycle, every node has sampled it and sent its TPDOs
+        self.cycle = cycle
 
     def send(self, can_id: int, data: bytes) -> None:
         msg = can.Message(arbitration_id=can_id, data=data, is_extended_id=False)
@@ -327,7 +328,7 @@ class Rig:
         return [ch.bus for ch in self._channels]
 
     def cycle(self, channel: int = 0) -> int | None:
-        """Cycle number of the last SYNC seen on ``channel`` (None before the first)."""
+        """Cycle number of the last SYNC processed on ``channel`` (None before the first)."""
         return self._channels[channel].cycle
 
     def lost_syncs(self, channel: int = 0) -> int:
@@ -337,7 +338,8 @@ class Rig:
         return sum(ch.frames_sent for ch in self._channels)
 
     def wait_cycle(self, cycle: int, channel: int = 0, timeout: float = 10.0) -> bool:
-        """Block until ``channel`` has processed the SYNC of ``cycle`` (test/demo helper)."""
+        """Block until ``channel`` has processed the SYNC of ``cycle``: every node has sampled it
+        and sent the TPDOs it triggers (test/demo helper). False on timeout."""
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             c = self._channels[channel].cycle

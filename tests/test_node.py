@@ -8,6 +8,7 @@ are protocol behaviour and are checked on the frames' timestamps.
 
 from __future__ import annotations
 
+import itertools
 import math
 import struct
 import threading
@@ -27,13 +28,21 @@ from node_sim.rig import Rig
 WAIT = 5.0  # generous upper bound for "eventually"
 
 
+MARKER_ID = 0x1ABCDEF  # extended ID: the node twins and canopen's master ignore it
+
+
 class Monitor:
-    """Records every frame on a virtual channel (bus timestamps)."""
+    """Records every frame on a virtual channel (bus timestamps, set by the sender's ``send``).
+
+    ``since=t`` (a ``time.time()`` taken after the test saw a state change) keeps only frames
+    sent after it; :meth:`barrier` returns once every frame sent before the call is recorded
+    (python-can's virtual bus queues are FIFO), so "no such frame" checks cannot race."""
 
     def __init__(self, channel: str):
-        self.bus = can.Bus(interface="virtual", channel=channel)
+        self.bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=True)
         self.frames: list[can.Message] = []
         self._lock = threading.Lock()
+        self._markers = itertools.count()
         self.notifier = can.Notifier(self.bus, [self._on], timeout=0.05)
 
     def _on(self, msg: can.Message) -> None:
@@ -44,12 +53,14 @@ class Monitor:
         with self._lock:
             return list(self.frames)
 
-    def clear(self) -> None:
-        with self._lock:
-            self.frames.clear()
+    def of(self, can_id: int, since: float = -math.inf) -> list[can.Message]:
+        return [m for m in self.snapshot()
+                if m.arbitration_id == can_id and not m.is_extended_id and m.timestamp > since]
 
-    def of(self, can_id: int) -> list[can.Message]:
-        return [m for m in self.snapshot() if m.arbitration_id == can_id]
+    def barrier(self) -> None:
+        tag = struct.pack("<Q", next(self._markers))
+        self.bus.send(can.Message(arbitration_id=MARKER_ID, data=tag, is_extended_id=True))
+        self.wait_for(lambda m: m.is_extended_id and m.arbitration_id == MARKER_ID and bytes(m.data) == tag)
 
     def wait_for(self, pred, timeout: float = WAIT) -> list[can.Message]:
         deadline = time.monotonic() + timeout
@@ -60,14 +71,15 @@ class Monitor:
             time.sleep(0.005)
         raise AssertionError("expected frame never arrived")
 
-    def wait_count(self, can_id: int, count: int, timeout: float = WAIT) -> list[can.Message]:
+    def wait_count(self, can_id: int, count: int, timeout: float = WAIT,
+                   since: float = -math.inf) -> list[can.Message]:
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
-            hits = self.of(can_id)
+            hits = self.of(can_id, since)
             if len(hits) >= count:
                 return hits
             time.sleep(0.005)
-        raise AssertionError(f"0x{can_id:03X}: {len(self.of(can_id))} frames, expected {count}")
+        raise AssertionError(f"0x{can_id:03X}: {len(self.of(can_id, since))} frames, expected {count}")
 
     def close(self) -> None:
         self.notifier.stop()
@@ -146,9 +158,17 @@ def wait_until(pred, timeout=WAIT):
 
 
 def heartbeat_state(s: Setup, node_id: int) -> int:
-    s.monitor.clear()
-    hb = s.monitor.wait_count(0x700 + node_id, 1)
-    return hb[-1].data[0]
+    """State byte of the first heartbeat sent after the call (the node sends its state and
+    changes it under one lock, so a beat sent later carries the state the test saw)."""
+    hb = s.monitor.wait_count(0x700 + node_id, 1, since=time.time())
+    return hb[0].data[0]
+
+
+def from_bootup(frames: list[can.Message]) -> list[bytes]:
+    """Payloads from the (single) boot-up frame on: what the node sent after a reset."""
+    payloads = [bytes(f.data) for f in frames]
+    assert payloads.count(b"\x00") == 1, payloads
+    return payloads[payloads.index(b"\x00"):]
 
 
 # ------------------------------------------------------------------------ boot-up / heartbeat
@@ -187,7 +207,7 @@ def test_nmt_addressed_and_broadcast(setup_factory):
     s.nmt(0x80, 0)
     assert wait_until(lambda: all(s.rig.node(i).state == 0x7F for i in (1, 2, 3)))
     s.nmt(0x01, 9)                                   # a node-ID that is not on the bus
-    time.sleep(0.05)
+    assert s.remote[2].sdo[0x1000].raw == 0x194      # answered after the NMT frame was handled
     assert all(s.rig.node(i).state == 0x7F for i in (1, 2, 3))
 
 
@@ -200,15 +220,16 @@ def test_reset_node_restores_scene_values_and_boots(setup_factory):
     rn.sdo[0x6126][1].raw = 2.0           # CiA 404 area
     s.nmt(0x01, 2)
     assert wait_until(lambda: s.rig.node(2).state == 0x05)
-    s.monitor.clear()
+    t0 = time.time()
     s.nmt(0x81, 2)
-    frames = s.monitor.wait_count(0x702, 2)
-    assert bytes(frames[0].data) == b"\x00" and bytes(frames[1].data) == b"\x7f"
+    assert wait_until(lambda: len(s.monitor.of(0x702, t0)) >= 2
+                      and b"\x00" in [bytes(f.data) for f in s.monitor.of(0x702, t0)[:-1]])
+    assert from_bootup(s.monitor.of(0x702, t0))[:2] == [b"\x00", b"\x7f"]   # boot-up, pre-op beat
     assert s.rig.node(2).state == 0x7F
     assert rn.sdo[0x2001][1].raw == pytest.approx(1.5)       # scene ζ
     assert rn.sdo[0x1017].raw == 20                          # scene heartbeat
     assert rn.sdo[0x6126][1].raw == pytest.approx(0.1661, rel=1e-6)  # scene slope (REAL32)
-    assert s.rig.node(1).state == 0x7F and not any(bytes(f.data) == b"\x00" for f in s.monitor.of(0x701))
+    assert s.rig.node(1).state == 0x7F and b"\x00" not in [bytes(f.data) for f in s.monitor.of(0x701, t0)]
 
 
 def test_reset_communication_restores_only_comm_area(setup_factory):
@@ -218,11 +239,11 @@ def test_reset_communication_restores_only_comm_area(setup_factory):
     rn.sdo[0x2001][1].raw = 4.25
     rn.sdo[0x1017].raw = 35
     rn.sdo[0x1800][5].raw = 123
-    s.monitor.clear()
+    t0 = time.time()
     s.nmt(0x82, 0)
     for nid in (1, 2, 3):
-        frames = s.monitor.wait_count(0x700 + nid, 2)
-        assert bytes(frames[0].data) == b"\x00" and bytes(frames[1].data) == b"\x7f"
+        assert wait_until(lambda: b"\x00" in [bytes(f.data) for f in s.monitor.of(0x700 + nid, t0)[:-1]])
+        assert from_bootup(s.monitor.of(0x700 + nid, t0))[:2] == [b"\x00", b"\x7f"]
     assert rn.sdo[0x1017].raw == 20
     assert rn.sdo[0x1800][5].raw == 0
     assert rn.sdo[0x2001][1].raw == pytest.approx(4.25)      # not communication area: kept
@@ -239,7 +260,7 @@ def _readings_by_cycle(cycle: int) -> np.ndarray:
 def test_sync_tpdo_type_1_carries_local_decisions(setup_factory):
     s = setup_factory(_readings_by_cycle)
     s.sync(2)                                  # pre-operational: samples, but no TPDO
-    time.sleep(0.05)
+    s.monitor.barrier()
     assert s.monitor.of(0x181) == []
     assert s.remote[1].sdo[0x2000].raw == -1   # cycle 1: X = 1.99 -> absent
     assert s.remote[1].sdo[0x6130][1].raw == pytest.approx(1.99, rel=1e-6)
@@ -250,6 +271,7 @@ def test_sync_tpdo_type_1_carries_local_decisions(setup_factory):
         frames = s.monitor.wait_count(0x180 + nid, 6)
         assert [struct.unpack("<b", bytes(f.data))[0] for f in frames] == expected
         assert all(len(f.data) == 1 for f in frames)
+    s.monitor.barrier()
     assert s.monitor.of(0x281) == []           # TPDO2 (raw mode) disabled in decision mode
 
 
@@ -258,8 +280,7 @@ def test_sync_tpdo_every_third_sync(setup_factory):
     s.nmt(0x01)
     assert wait_until(lambda: s.rig.node(1).state == 0x05)
     s.sync(9, gap=0.003)
-    s.monitor.wait_count(0x181, 3)
-    time.sleep(0.05)
+    s.monitor.barrier()
     syncs = [m.timestamp for m in s.monitor.of(0x080)]
     tpdos = s.monitor.of(0x181)
     assert len(syncs) == 9 and len(tpdos) == 3
@@ -290,7 +311,13 @@ def test_event_driven_inhibit_time_spacing(setup_factory):
     s.nmt(0x01)
     assert wait_until(lambda: s.rig.node(1).state == 0x05)
     s.sync(60, gap=0.002)
-    time.sleep(0.1)  # let a deferred (inhibited) transmission go out
+    # a change inside the inhibit window goes out when the window ends (<= 40 ms after the
+    # last transmission): wait that long, then until every timer due by now has run
+    time.sleep(0.040)
+    timers_ran = threading.Event()
+    s.rig.node(1).link.scheduler.call_at(time.monotonic(), timers_ran.set)
+    assert timers_ran.wait(WAIT)
+    s.monitor.barrier()
     frames = s.monitor.of(0x181)
     assert len(frames) >= 2
     gaps = np.diff([f.timestamp for f in frames])
@@ -312,10 +339,10 @@ def test_event_timer_refreshes_unchanged_data(setup_factory):
     assert s.monitor.of(0x181) == []  # node 1 still pre-operational
     s.nmt(0x80, 2)
     assert wait_until(lambda: s.rig.node(2).state == 0x7F)
-    time.sleep(0.05)
-    n = len(s.monitor.of(0x182))
-    time.sleep(0.1)
-    assert len(s.monitor.of(0x182)) == n   # no refresh outside operational
+    t0 = time.time()
+    time.sleep(0.1)                        # > 3 event-timer periods
+    s.monitor.barrier()
+    assert s.monitor.of(0x182, t0) == []   # no refresh outside operational
 
 
 # ------------------------------------------------------------------------ SDO
@@ -383,6 +410,54 @@ def test_sdo_abort_codes(setup_factory):
     rn.sdo[0x1800][1].raw = 0x181
 
 
+def test_sdo_transfer_protocols_seen_by_a_canopen_master(setup_factory):
+    s = setup_factory()
+    rn = s.remote[1]
+    # expedited upload of a REAL32: scs 2, e = 1, s = 1, n = 0 -> command byte 0x43
+    t0 = time.time()
+    assert struct.unpack("<f", rn.sdo.upload(0x2001, 1))[0] == 1.5
+    response = s.monitor.wait_count(0x581, 1, since=t0)[0]
+    assert bytes(response.data) == bytes([0x43, 0x01, 0x20, 0x01]) + struct.pack("<f", 1.5)
+    # identity object (CiA 301 0x1018), expedited UNSIGNED32s
+    assert [rn.sdo[0x1018][sub].raw for sub in range(5)] == [4, 0, 0x7A01, 0x00010000, 0]
+    # segmented upload of the 15-byte device name 0x1008: initiate (0x41, size 15), then
+    # segments of 7, 7 and 1 bytes: 0x00 (toggle 0), 0x10 (toggle 1), 0x0D (toggle 0, 6 unused, last)
+    t0 = time.time()
+    assert rn.sdo[0x1008].raw == "taxel node twin"
+    s.monitor.barrier()
+    frames = [bytes(f.data) for f in s.monitor.of(0x581, t0)]
+    assert frames[0] == bytes([0x41, 0x08, 0x10, 0x00, 15, 0, 0, 0])
+    assert [f[0] for f in frames[1:]] == [0x00, 0x10, 0x0D]
+    assert b"".join([frames[1][1:], frames[2][1:], frames[3][1:2]]) == b"taxel node twin"
+    # segmented download of a REAL32 goes through the same range checks as an expedited one
+    rn.sdo.download(0x2001, 1, struct.pack("<f", 2.25), force_segment=True)
+    assert rn.sdo[0x2001][1].raw == 2.25
+    assert _abort(lambda: rn.sdo.download(0x2001, 1, struct.pack("<f", -1.0), force_segment=True)) == 0x06090032
+    # sub-index that does not exist, of a VAR and of a RECORD
+    assert _abort(lambda: rn.sdo.upload(0x1017, 1)) == 0x06090011
+    assert _abort(lambda: rn.sdo.upload(0x2001, 9)) == 0x06090011
+    assert _abort(lambda: rn.sdo.download(0x1008, 0, b"x")) == 0x06010002      # const
+    # no block transfer (and no protocol switch allowed by canopen's client): refused
+    assert _abort(lambda: rn.sdo[0x2001][1].open("rb", block_transfer=True).read()) == 0x05040001
+    assert _abort(lambda: rn.sdo[0x2001][1].open("wb", block_transfer=True).write(b"\0" * 4)) == 0x05040001
+
+
+def test_canopen_nmt_master_and_heartbeat_consumer(setup_factory):
+    s = setup_factory()
+    rn = s.remote[3]
+    assert wait_until(lambda: rn.nmt.wait_for_heartbeat(WAIT) == "PRE-OPERATIONAL")
+    rn.nmt.state = "OPERATIONAL"
+    assert wait_until(lambda: rn.nmt.wait_for_heartbeat(WAIT) == "OPERATIONAL")
+    s.network.nmt.state = "STOPPED"                       # broadcast
+    assert wait_until(lambda: s.remote[1].nmt.wait_for_heartbeat(WAIT) == "STOPPED")
+    assert wait_until(lambda: rn.nmt.wait_for_heartbeat(WAIT) == "STOPPED")
+    t0 = time.time()
+    rn.nmt.state = "RESET"
+    assert wait_until(lambda: b"\x00" in [bytes(f.data) for f in s.monitor.of(0x703, t0)])
+    assert wait_until(lambda: rn.nmt.wait_for_heartbeat(WAIT) == "PRE-OPERATIONAL")
+    assert s.remote[1].nmt.wait_for_heartbeat(WAIT) == "STOPPED"   # addressed: node 1 untouched
+
+
 def test_master_remaps_tpdo1_with_canopen_pdo_api(setup_factory):
     s = setup_factory(_readings_by_cycle)
     rn = s.remote[1]
@@ -423,6 +498,7 @@ def test_emcy_open_circuit_and_clear(setup_factory):
     s.nmt(0x01)
     assert wait_until(lambda: s.rig.node(1).state == 0x05)
     s.sync(2, gap=0.003)
+    s.monitor.barrier()
     assert s.monitor.of(0x081) == []
     s.sync(1)
     frame = s.monitor.wait_count(0x081, 1)[0]
@@ -436,7 +512,8 @@ def test_emcy_open_circuit_and_clear(setup_factory):
     assert rn.sdo[0x6150][1].raw & 0x01 == 0x01        # ... and flagged (PV not valid)
     s.sync(1)                                          # cycle 3: still faulted, no new EMCY
     s.sync(1)                                          # cycle 4: fine again
-    frames = s.monitor.wait_count(0x081, 2)
+    s.monitor.barrier()
+    frames = s.monitor.of(0x081)
     assert len(frames) == 2
     assert em.parse_emcy(bytes(frames[1].data))[:2] == (0x0000, 0x00)
     assert rn.sdo[0x1001].raw == 0 and rn.sdo[0x2000].raw == 1 and rn.sdo[0x6150][1].raw == 0
@@ -466,6 +543,7 @@ def test_emcy_stuck_reading_and_history_newest_first(setup_factory):
     s.nmt(0x01)
     assert wait_until(lambda: s.rig.node(1).state == 0x05)
     s.sync(6)                               # cycles 0..5: 2.5 seen in 3, 4, 5
+    s.monitor.barrier()
     assert s.monitor.of(0x081) == []
     s.sync(1)                               # cycle 6: 4th identical sample
     f = s.monitor.wait_count(0x081, 1)[0]
@@ -479,6 +557,7 @@ def test_emcy_stuck_reading_and_history_newest_first(setup_factory):
     assert rn.sdo[0x1003][0].raw == 2
     assert rn.sdo[0x1003][1].raw & 0xFFFF == 0x5000   # newest first
     assert rn.sdo[0x1003][2].raw & 0xFFFF == 0x7300
+    s.monitor.barrier()
     assert s.monitor.of(0x082) == [] and s.monitor.of(0x083) == []
 
 
@@ -487,7 +566,7 @@ def test_emcy_not_sent_when_stopped_but_error_register_set(setup_factory):
     s.nmt(0x02)
     assert wait_until(lambda: s.rig.node(1).state == 0x04)
     s.sync(2)
-    time.sleep(0.05)
+    s.monitor.barrier()
     assert s.monitor.of(0x081) == []
     assert s.rig.node(1).read(0x1001) == 0x21
 
@@ -499,11 +578,12 @@ def test_drop_and_restore_node(setup_factory):
     s.nmt(0x01)
     assert wait_until(lambda: s.rig.node(2).state == 0x05)
     s.rig.drop_node(2)
-    s.monitor.clear()
+    t0 = time.time()
     s.sync(3, gap=0.01)
-    s.monitor.wait_count(0x701, 3)            # others keep beating
-    assert s.monitor.of(0x702) == [] and s.monitor.of(0x182) == []
-    assert len(s.monitor.of(0x181)) == 3
+    s.monitor.wait_count(0x701, 3, since=t0)  # others keep beating
+    s.monitor.barrier()
+    assert s.monitor.of(0x702, t0) == [] and s.monitor.of(0x182, t0) == []
+    assert len(s.monitor.of(0x181, t0)) == 3
     s.rig.restore_node(2)
     assert heartbeat_state(s, 2) == 0x05     # resumes in its NMT state, no boot-up
     s.sync(1)
@@ -519,7 +599,7 @@ def test_scene_silent_fault_window(channel):
         s.nmt(0x01)
         assert wait_until(lambda: s.rig.node(1).state == 0x05)
         s.sync(6, gap=0.004)
-        time.sleep(0.05)
+        s.monitor.barrier()
         frames = s.monitor.of(0x181)
         assert len(frames) == 4 and len(s.monitor.of(0x182)) == 6   # cycles 2, 3 missing
         syncs = [m.timestamp for m in s.monitor.of(0x080)]
