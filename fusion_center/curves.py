@@ -71,11 +71,15 @@ def _out(arr: np.ndarray):
 
 
 def p_linear(k, n, xi):
-    """Eq 8, straight-line map: p = ((xi - 1)/n) k + 1, k = number of absent taxels in [0, n]."""
+    """Eq 8, straight-line map: p = ((xi - 1)/n) k + 1, k = number of absent taxels in [0, n].
+
+    Evaluated as xi (k/n) + (n - k)/n: both terms are >= 0, so there is no cancellation where
+    p -> xi (k -> n); the printed form gives (xi - 1) + 1 = 0 for xi = 1e-300 at k = n.
+    """
     n = check_n(n)
     xi = check_xi(xi)
     k = _array("k", k, 0.0, n, f"[0, n] = [0, {n}]")
-    return _out((xi - 1.0) * (k / n) + 1.0)
+    return _out(xi * (k / n) + (n - k) / n)
 
 
 def p_exponential(k, n, xi):
