@@ -18,6 +18,14 @@ Support conditions (chapter sections in brackets):
 * ``slip`` (sec. 4, eqs 24-26, 28-29): needs tangential-calibrated cells (slope present and
   non-zero); a scene with load cells only has no slip model.
 
+Bus mode (``[bus] mode``, or the ``mode`` argument): in ``decision`` mode a node sends only
+u_i (TPDO1, one byte), so nothing that needs the readings X_i can run - ``forces`` is skipped
+with that reason and ``slip`` runs on its motion criterion alone (centroid of the present
+taxels). In ``raw`` mode (TPDO2, X_i as REAL32 mV) forces run when calibrated, slip gets its
+force criterion when both a tangential and a grip force exist, and the centralised raw-data
+tests (:mod:`fusion_center.centralised`, ``CENTRAL_TESTS``) run when every taxel has a noise
+std > 0.
+
 Rules:
 
 * ``additive`` (eq 6, threshold eq 17), ``multiplicative`` (eq 5, threshold eq 16) and
@@ -32,7 +40,15 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from .scene import RULES, STAGES, Scene
+from .errors import ParameterError
+from .scene import BUS_MODES, RULES, STAGES, Scene
+
+# centralised raw-data tests of the live service (fusion_center.centralised methods)
+CENTRAL_TESTS = ("centralised_glrt", "centralised_known")
+DECISION_MODE_FORCES = ("decision mode carries only u_i (TPDO1); needs raw mode (TPDO2 X_i) "
+                        "and a force calibration")
+DECISION_MODE_CENTRAL = ("decision mode carries only u_i (TPDO1); the centralised test needs "
+                         "raw mode (TPDO2 X_i)")
 
 _LIST_MAX = 12
 
@@ -53,8 +69,9 @@ class StagePlan:
 
     ``run``: stages built, in ``scene.STAGES`` order; ``skipped``: stage -> reason for every
     other stage (not requested, or requested but unsupported); ``rules_run`` /
-    ``rules_skipped`` the same for fusion rules; ``notes``: stage -> remark on a stage that
-    runs in a reduced or implied form.
+    ``rules_skipped`` the same for fusion rules; ``central_run`` / ``central_skipped`` the
+    same for the centralised raw-data tests (``CENTRAL_TESTS``); ``notes``: stage -> remark on
+    a stage that runs in a reduced or implied form; ``mode`` the bus mode planned for.
     """
 
     run: tuple[str, ...]
@@ -62,13 +79,24 @@ class StagePlan:
     rules_run: tuple[str, ...] = ()
     rules_skipped: dict[str, str] = field(default_factory=dict)
     notes: dict[str, str] = field(default_factory=dict)
+    mode: str = "decision"
+    central_run: tuple[str, ...] = ()
+    central_skipped: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def all_rules_skipped(self) -> dict[str, str]:
+        """Fusion rules and centralised tests that do not run, with the reason."""
+        return {**self.rules_skipped, **self.central_skipped}
 
     def to_dict(self) -> dict:
         return {
+            "mode": self.mode,
             "run": list(self.run),
             "skipped": dict(self.skipped),
             "rules_run": list(self.rules_run),
             "rules_skipped": dict(self.rules_skipped),
+            "central_run": list(self.central_run),
+            "central_skipped": dict(self.central_skipped),
             "notes": dict(self.notes),
         }
 
@@ -112,14 +140,16 @@ def rule_support(scene: Scene, rule: str) -> str | None:
     return f"unknown rule {rule!r}"
 
 
-def stage_support(scene: Scene, stage: str) -> str | None:
-    """None when ``stage`` can run on ``scene``, else the reason it cannot."""
+def stage_support(scene: Scene, stage: str, mode: str | None = None) -> str | None:
+    """None when ``stage`` can run on ``scene`` in bus ``mode`` (default: the scene's), else
+    the reason it cannot."""
+    mode = _mode(scene, mode)
     if stage in ("fusion", "contact_type"):
         return None if scene.n >= 1 else "the scene has no taxels"
     if stage == "forces":
-        if any(_calibrated(t) for t in scene.taxels):
-            return None
-        return "no taxel has a force calibration (non-zero slope, eq 23/30, or grip_factor, eq 27b)"
+        if not any(_calibrated(t) for t in scene.taxels):
+            return "no taxel has a force calibration (non-zero slope, eq 23/30, or grip_factor, eq 27b)"
+        return DECISION_MODE_FORCES if mode == "decision" else None
     if stage == "area":
         missing = _missing_coordinates(scene)
         if not missing:
@@ -133,8 +163,31 @@ def stage_support(scene: Scene, stage: str) -> str | None:
     return f"unknown stage {stage!r}"
 
 
-def plan_stages(scene: Scene) -> StagePlan:
-    """Plan the stages and rules for ``scene`` (see the module docstring for the conditions)."""
+def _mode(scene: Scene, mode: str | None) -> str:
+    mode = scene.bus.mode if mode is None else mode
+    if mode not in BUS_MODES:
+        raise ParameterError("mode", mode, f"must be one of {BUS_MODES}")
+    return mode
+
+
+def central_support(scene: Scene, test: str, mode: str | None = None) -> str | None:
+    """None when the centralised raw-data test ``test`` can run, else the reason."""
+    from .centralised import centralised_support
+
+    if test not in CENTRAL_TESTS:
+        return f"unknown centralised test {test!r}"
+    if _mode(scene, mode) == "decision":
+        return DECISION_MODE_CENTRAL
+    if scene.n < 1:
+        return "the scene has no taxels"
+    why = centralised_support(scene)
+    return None if why is None else why.removeprefix("centralised: ")
+
+
+def plan_stages(scene: Scene, mode: str | None = None) -> StagePlan:
+    """Plan the stages and rules for ``scene`` in bus ``mode`` ("decision" | "raw"; default
+    the scene's ``[bus] mode``) - see the module docstring for the conditions."""
+    mode = _mode(scene, mode)
     requested = set(scene.stages)
     requested.add("fusion")  # the global decision always runs
     run: list[str] = []
@@ -143,10 +196,13 @@ def plan_stages(scene: Scene) -> StagePlan:
     if "fusion" not in scene.stages:
         notes["fusion"] = "always runs (the record's decision)"
 
-    supported = {s: stage_support(scene, s) for s in STAGES}
-    if "slip" in requested and supported["slip"] is None and "forces" not in requested:
-        requested.add("forces")
-        notes["forces"] = "built because slip needs the tangential forces"
+    supported = {s: stage_support(scene, s, mode) for s in STAGES}
+    if "slip" in requested and supported["slip"] is None:
+        if mode == "decision":
+            notes["slip"] = "motion criterion only (centroid of the present taxels): the force criterion needs raw mode"
+        elif "forces" not in requested:
+            requested.add("forces")
+            notes["forces"] = "built because slip needs the tangential forces"
 
     for stage in STAGES:
         if stage not in requested:
@@ -169,4 +225,13 @@ def plan_stages(scene: Scene) -> StagePlan:
             rules_run.append(rule)
         else:
             rules_skipped[rule] = f"{rule}: {why}"
-    return StagePlan(tuple(run), skipped, tuple(rules_run), rules_skipped, notes)
+    central_run: list[str] = []
+    central_skipped: dict[str, str] = {}
+    for test in CENTRAL_TESTS:
+        why = central_support(scene, test, mode)
+        if why is None:
+            central_run.append(test)
+        else:
+            central_skipped[test] = f"{test}: {why}"
+    return StagePlan(tuple(run), skipped, tuple(rules_run), rules_skipped, notes, mode,
+                     tuple(central_run), central_skipped)

@@ -52,7 +52,8 @@ def test_report_json_keys(gripper_report):
 
 def test_stage_plan_recorded(gripper_report):
     plan = json.loads((gripper_report / "report.json").read_text())["stage_plan"]
-    assert plan["run"] == ["fusion", "forces"]
+    assert plan["mode"] == "decision" and plan["run"] == ["fusion"]
+    assert plan["skipped"]["forces"].startswith("forces: decision mode carries only u_i")
     assert plan["skipped"]["area"] == "not requested in [outputs] stages"
     assert plan["rules_run"] == ["preferential", "k-of-n"]
     assert plan["rules_skipped"]["llr"] == "not requested in [fusion] rules"

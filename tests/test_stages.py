@@ -25,10 +25,37 @@ def test_every_scene_loads_and_plans(path):
 
 
 def test_matrix57_plan():
-    plan = plan_stages(load_scene("scenes/matrix57.toml"))
-    assert plan.run == ("fusion", "forces", "area", "contact_type")
+    scene = load_scene("scenes/matrix57.toml")
+    plan = plan_stages(scene)
+    assert scene.bus.mode == "decision" and plan.mode == "decision"
+    # decision mode: u_i only on the bus, no forces and no centralised raw-data test
+    assert plan.run == ("fusion", "area", "contact_type")
+    assert plan.skipped["forces"].startswith("forces: decision mode carries only u_i")
+    assert "raw mode (TPDO2" in plan.skipped["forces"]
     assert plan.skipped["slip"] == "not requested in [outputs] stages"
     assert plan.rules_run == ("additive", "multiplicative", "k-of-n", "llr", "np")
+    assert plan.central_run == ()
+    assert set(plan.central_skipped) == {"centralised_glrt", "centralised_known"}
+    assert all("raw mode" in why for why in plan.central_skipped.values())
+    raw = plan_stages(scene, "raw")
+    assert raw.run == ("fusion", "forces", "area", "contact_type")
+    assert raw.central_run == ("centralised_glrt", "centralised_known") and raw.central_skipped == {}
+    assert raw.all_rules_skipped == {"preferential": "not requested in [fusion] rules"}
+    assert plan_stages(load_scene("scenes/matrix57_raw.toml")) == raw
+
+
+def test_bad_mode_is_a_parameter_error():
+    from fusion_center.errors import ParameterError
+
+    with pytest.raises(ParameterError, match="mode"):
+        plan_stages(load_scene("scenes/matrix57.toml"), "streaming")
+
+
+def test_centralised_needs_noise():
+    # the chapter scenes replay printed readings with sigma = 0: no raw-data LLR exists
+    plan = plan_stages(load_scene("scenes/matrix57_chapter.toml"), "raw")
+    assert plan.central_run == ()
+    assert "noise_sigma_mv = 0" in plan.central_skipped["centralised_glrt"]
 
 
 def test_gripper18_without_pf_pm_skips_llr_and_np():
@@ -53,11 +80,16 @@ def test_area_needs_coordinates():
 
 def test_slip_needs_tangential_calibration_and_pulls_in_forces():
     scene = load_scene("scenes/slipping.toml")
-    plan = plan_stages(dataclasses.replace(scene, stages=("fusion", "slip")))
+    plan = plan_stages(dataclasses.replace(scene, stages=("fusion", "slip")), "raw")
     assert plan.run == ("fusion", "forces", "slip")
     assert "slip" in plan.notes["forces"]
+    # decision mode: slip on its motion criterion alone, forces impossible
+    plan = plan_stages(dataclasses.replace(scene, stages=("fusion", "slip")), "decision")
+    assert plan.run == ("fusion", "slip")
+    assert "motion criterion only" in plan.notes["slip"]
+    assert plan.skipped["forces"] == "not requested in [outputs] stages"
     flat = tuple(dataclasses.replace(t, slope=0.0 if t.slope is not None else None) for t in scene.taxels)
-    plan = plan_stages(dataclasses.replace(scene, taxels=flat))
+    plan = plan_stages(dataclasses.replace(scene, taxels=flat), "raw")
     assert plan.skipped["slip"].startswith("slip: no tangential-calibrated taxel")
     assert plan.skipped["forces"].startswith("forces: no taxel has a force calibration")
 

@@ -6,9 +6,10 @@ import argparse
 import uuid
 from pathlib import Path
 
-from .run import add_common_outputs, execute, print_summary, setup_logging
+from .run import add_common_outputs, apply_mode, execute, print_summary, setup_logging
 
-HELP = "demo: the 57-taxel matrix sensor's node twins and the fusion centre on an embedded virtual bus"
+HELP = ("demo: node twins of a scene (default the 57-taxel matrix) and the fusion centre on an embedded "
+        "virtual bus; --mode raw|decision to compare both")
 
 DEFAULT_SCENE = Path(__file__).resolve().parent.parent.parent / "scenes" / "matrix57.toml"
 
@@ -72,7 +73,8 @@ def run(args) -> int:
     from ..scene import load_scene
 
     setup_logging()
-    scene = load_scene(args.scene)
+    # --mode: the node twins' Rig and the fusion centre get the same (overridden) scene
+    scene = apply_mode(load_scene(args.scene), args.mode)
     cycles = args.cycles if args.cycles is not None else scene.cycles
     if cycles < 1:
         raise UsageError(f"--cycles {cycles}: must be >= 1")

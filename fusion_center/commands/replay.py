@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+from .run import add_mode_argument
+
 HELP = "re-fuse a recorded CAN trace (python-can LogReader: .log, .asc, .blf, .csv) offline"
 
 
@@ -13,16 +15,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("trace", metavar="TRACE", help="trace written by `run --log` / `demo --log`")
     parser.add_argument("--json-lines", metavar="OUT", default=None,
                         help="write the records here (default: print them on stdout)")
+    add_mode_argument(parser)
 
 
 def run(args) -> int:
     from ..scene import load_scene
     from ..service import replay_trace
     from ..service.records import dumps
-    from .run import setup_logging
+    from .run import apply_mode, setup_logging
 
     setup_logging()
-    scene = load_scene(args.scene)
+    scene = apply_mode(load_scene(args.scene), args.mode)  # the mode of the recorded run
     on_record = None if args.json_lines else (lambda r: print(dumps(r)))
     records, counters = replay_trace(scene, args.trace, json_lines=args.json_lines, on_record=on_record)
     out = sys.stderr if not args.json_lines else sys.stdout

@@ -20,6 +20,22 @@ def add_common_outputs(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-live", action="store_true", help="no live terminal view (off anyway without a TTY)")
     parser.add_argument("--boot-timeout", type=float, default=3.0, metavar="S",
                         help="seconds to wait for the nodes' boot-ups; later ones are missing (default 3)")
+    add_mode_argument(parser)
+
+
+def add_mode_argument(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--mode", choices=("decision", "raw"), default=None,
+                        help="override the scene's [bus] mode: decision (TPDO1 u_i) or raw "
+                             "(TPDO2 X_i, central per-taxel decisions + centralised raw-data tests)")
+
+
+def apply_mode(scene, mode: str | None):
+    """The scene with ``[bus] mode`` replaced by ``mode`` (None: unchanged)."""
+    import dataclasses
+
+    if mode is None or mode == scene.bus.mode:
+        return scene
+    return dataclasses.replace(scene, bus=dataclasses.replace(scene.bus, mode=mode))
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -118,7 +134,7 @@ def run(args) -> int:
     from ..service import FusionService
 
     setup_logging()
-    scene = load_scene(args.scene)
+    scene = apply_mode(load_scene(args.scene), args.mode)
     cycles = args.cycles if args.cycles is not None else scene.cycles
     if cycles < 1:
         raise UsageError(f"--cycles {cycles}: must be >= 1")

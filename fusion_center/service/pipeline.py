@@ -13,17 +13,35 @@ What is computed (chapter sections in brackets):
   thresholds depend only on (n, xi, alpha/beta, p, q) and are cached per n, so a degraded
   cycle costs one solve once. The record's ``decision`` is the verdict of
   ``[fusion] decide_with``.
-* forces (sec. 4.1, eqs 30, 24-25, 26a, 26b): need the readings X_i, which travel on the bus
-  only in raw mode (TPDO2). In decision mode a node sends only u_i (1 byte), so no force,
-  grip limit or load is computable and the stage is not run. In raw mode the calibrated
-  cells (non-zero slope) that decide "present" give F = (Y - c)/m with Y = X - N_i (eq 4).
+* raw mode (issue 6): the nodes send X_i (TPDO2, REAL32 mV) instead of u_i; the centre
+  decides per taxel with the nodes' own test (eqs 1-4, ``encoding.local_decision``) and fuses
+  those decisions with every rule as in decision mode, and it also runs the centralised
+  raw-data tests of :mod:`fusion_center.centralised` (``rules.centralised_glrt``,
+  ``rules.centralised_known``: statistic, threshold at the scene's ``np_false_alarm``,
+  decision) - the "what you lose by deciding locally" reference. Their parameters are built
+  once (``params_from_scene``); a cycle with readings missing uses the same test on the
+  received taxels (threshold recomputed once per missing-set, cached).
+* forces (sec. 4.1-4.2, 7): need the readings X_i, which travel on the bus only in raw mode.
+  In decision mode a node sends only u_i (1 byte), so no force, grip limit or load is
+  computable and the stage is skipped (``stages_skipped`` says so). In raw mode, with
+  Y = X - N_i (eq 4), over the taxels deciding "present" (a cell deciding "absent" carries
+  no force): tangential cells (non-zero slope) F = (Y - c)/m (eq 30); the total tangential
+  force is eqs 24-25 over the cells, or - when every tangential cell has a gripper ``jaw`` and
+  ``axis`` - eqs 28a/28b/29 per jaw and their mean (``forces.gripper_tangential``);
+  load cells (``grip_factor`` M) give the grip force F_g = Y/M (eq 27b, mean over the jaws);
+  the grip-force limit F_g^cal = TotF_t / mu (eq 26a) and the maximum load W = 2 mu F_g^cal
+  (eq 26b).
 * area (sec. 4.3.2, 6.2.3.3, eq 35): convex hull of the scene coordinates of the taxels
   deciding "present" - computable from u_i alone.
 * contact type (sec. 5.2, eqs 34a/34b, Table 1): t_c = present / n_received and
   fp_c = area / area of the hull of all taxels.
 * slip (sec. 4): :class:`fusion_center.slip.SlipTracker`, motion criterion over the centroid
-  of the present taxels (plus the force criterion when raw-mode forces and a load-cell grip
-  force exist).
+  of the present taxels, plus the force criterion TotF_t > mu F_g when raw-mode forces give
+  both a total tangential force and a load-cell grip force.
+
+Every record says what did not run and why: ``stages_skipped`` (stage -> reason) and
+``rules_skipped`` (fusion rule or centralised test -> reason), computed once per scene by
+:func:`fusion_center.stages.plan_stages` and copied into each record.
 """
 
 from __future__ import annotations
@@ -33,7 +51,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from .. import baselines, contact, curves, forces, geometry, rules, thresholds
+from .. import baselines, centralised, contact, curves, forces, geometry, rules, thresholds
 from ..encoding import local_decision
 from ..errors import ParameterError
 from ..scene import Scene
@@ -98,12 +116,23 @@ class CyclePipeline:
         self.intercept = np.array([t.intercept if t.intercept is not None else 0.0 for t in taxels],
                                   dtype=float)
         self.tangential = self.slope != 0.0
+        self.grip_factor = np.array([t.grip_factor if t.grip_factor else 0.0 for t in taxels], dtype=float)
+        self.load_cells = self.grip_factor != 0.0
+        self.jaws = self._jaw_layout(taxels)
         self.raw_mode = scene.bus.mode == "raw"
+        self.mode = scene.bus.mode
+        self.stages_skipped = dict(self.plan.skipped)
+        self.rules_skipped = self.plan.all_rules_skipped
+        # centralised raw-data tests: parameters and thresholds once per scene (raw mode only)
+        self.central: dict[str, centralised.CentralisedParams] = {}
+        for name in self.plan.central_run:
+            self.central[name] = centralised.params_from_scene(scene, name.removeprefix("centralised_"))
+        self._central_subsets: dict[tuple[str, bytes], object] = {}
         self.hold = scene.bus.transmission_type != 1
         has_xy = all(t.x is not None and t.y is not None for t in taxels)
         self.xy = np.array([[t.x, t.y] for t in taxels], dtype=float) if has_xy else None
         self.total_area = geometry.contact_area(self.xy) if has_xy and self.n >= 3 else 0.0
-        self.want_forces = "forces" in self.plan.run and self.raw_mode and bool(self.tangential.any())
+        self.want_forces = "forces" in self.plan.run and self.raw_mode
         self.want_area = "area" in self.plan.run and self.xy is not None
         self.want_contact = "contact_type" in self.plan.run
         self.slip = None
@@ -122,6 +151,19 @@ class CyclePipeline:
             self.llr_flip = (c10 - c00) < 0
         self._np_rules: dict[bytes, object] = {}
         self._areas: dict[bytes, float] = {}
+
+    @staticmethod
+    def _jaw_layout(taxels):
+        """Gripper layout (sec. 3.2, 7.2) when every tangential cell has a jaw and an axis:
+        {jaw: (indexes of its y-axis cells, indexes of its x-axis cells)}, else None."""
+        cells = [(i, t) for i, t in enumerate(taxels) if t.slope is not None and t.slope != 0.0]
+        if not cells or any(t.jaw is None or t.axis is None for _, t in cells):
+            return None
+        layout: dict[str, tuple[list[int], list[int]]] = {}
+        for i, t in cells:
+            ys, xs = layout.setdefault(t.jaw, ([], []))
+            (ys if t.axis == "y" else xs).append(i)
+        return {jaw: (np.array(ys, dtype=np.intp), np.array(xs, dtype=np.intp)) for jaw, (ys, xs) in layout.items()}
 
     def _noise_band(self) -> float:
         """Half the smallest distance between distinct taxel locations: one taxel pitch of
@@ -223,6 +265,91 @@ class CyclePipeline:
                     "decision": rule.decide(u, enc), "p_h1": None}
         raise ParameterError("rule", name, "unknown fusion rule")
 
+    # ------------------------------------------------------------------ raw mode
+    def _central_params(self, name: str, available: np.ndarray):
+        """The test's parameters over the taxels with a reading (the full set, or a subset
+        with its threshold recomputed once and cached; ParameterError if no test exists)."""
+        params = self.central[name]
+        if available.all():
+            return params
+        key = (name, available.tobytes())
+        sub = self._central_subsets.get(key)
+        if sub is None:
+            if len(self._central_subsets) > 64:
+                self._central_subsets.clear()
+            try:
+                part = centralised.make_params(params.noise_mv[available], params.sigma_mv[available],
+                                               params.signal_patterns_mv[:, available],
+                                               params.taxel_signal_mv[available], params.method)
+                tau = centralised.centralised_threshold(part, params.info["false_alarm"])
+                sub = centralised.CentralisedParams(part.noise_mv, part.sigma_mv, part.signal_patterns_mv,
+                                                    part.taxel_signal_mv, part.method, tau, params.info)
+            except ParameterError as exc:
+                sub = exc
+            self._central_subsets[key] = sub
+        if isinstance(sub, ParameterError):
+            raise sub
+        return sub
+
+    def _central(self, name: str, readings: np.ndarray, available: np.ndarray) -> dict:
+        """Centralised raw-data test of one cycle (decide H1 iff statistic > threshold)."""
+        params = self._central_params(name, available)
+        value = centralised.centralised_llr(readings[available], params)
+        result = {"U_G": value, "threshold": params.threshold, "decision": _verdict(value > params.threshold),
+                  "false_alarm": params.info["false_alarm"], "n": int(params.n)}
+        if params.method == "known":
+            # exact log-likelihood ratio of the scene's own H1: posterior with the prior (eq 22)
+            p1 = self.scene.fusion.prior_h1
+            z = value + math.log(p1 / (1.0 - p1))
+            result["p_h1"] = 1.0 / (1.0 + math.exp(-z)) if z > -700 else 0.0
+        else:
+            result["p_h1"] = None
+        return result
+
+    def _forces(self, readings: np.ndarray, present_mask: np.ndarray) -> tuple[dict, float | None, float | None]:
+        """Raw-mode forces of one cycle (module docstring: eqs 30, 24-25 or 28-29, 27b, 26a/b)."""
+        scene = self.scene
+        labels = self.labels
+        mu = scene.forces.mu
+        angle = math.radians(scene.forces.inclusion_angle_deg)
+        valid = present_mask & ~np.isnan(readings)
+        y = readings - self.noise  # Y = X - N (eq 4)
+        out: dict = {"unit": scene.forces.unit}
+        tangential_cells = self.tangential
+        per_cell = np.zeros(self.n)
+        cells = valid & tangential_cells
+        if cells.any():
+            per_cell[cells] = forces.tangential_force(y[cells], self.slope[cells], self.intercept[cells])  # eq 30
+        out["per_taxel"] = {str(labels[i]): _jsonable(per_cell[i]) for i in np.flatnonzero(cells)}
+        total = None
+        if tangential_cells.any():
+            if self.jaws is not None:
+                per_jaw = {}
+                for jaw, (ys, xs) in self.jaws.items():
+                    fy = per_cell[ys] if ys.size else np.zeros(1)
+                    fx = forces.total_tangential(per_cell[xs], 0.0) if xs.size else 0.0
+                    per_jaw[jaw] = forces.jaw_tangential(fy, fx, angle)  # eqs 28a, 28b, 29
+                total = float(np.mean(list(per_jaw.values())))  # sec 7.2: mean over the jaws
+                out["tangential_per_jaw"] = {jaw: _jsonable(v) for jaw, v in per_jaw.items()}
+            else:
+                total = forces.total_tangential(per_cell[cells], angle) if cells.any() else 0.0  # eqs 24-25
+            out["total_tangential"] = _jsonable(total)
+        grip = None
+        if self.load_cells.any():
+            lc = np.flatnonzero(self.load_cells)
+            per_lc = np.zeros(lc.size)
+            live = valid[lc]
+            if live.any():  # eq 27b: F_g = Y / M; a load cell deciding "absent" carries no grip
+                per_lc[live] = forces.load_cell_grip_force(y[lc][live], self.grip_factor[lc][live]).per_jaw
+            grip = float(per_lc.mean())
+            out["grip_force"] = _jsonable(grip)
+            out["grip_force_per_cell"] = {str(labels[i]): _jsonable(f) for i, f in zip(lc, per_lc)}
+        if total is not None:
+            limit = forces.grip_force_limit(total, mu)  # eq 26a
+            out["grip_force_limit"] = _jsonable(limit)
+            out["max_load"] = _jsonable(forces.max_load(limit, mu))  # eq 26b
+        return out, total, grip
+
     # ------------------------------------------------------------------ the record
     def evaluate(self, closed: ClosedCycle) -> dict:
         scene = self.scene
@@ -257,6 +384,8 @@ class CyclePipeline:
             "n_live": int(np.count_nonzero(~closed.missing)),
             "n_received": n_received,
             "present_count": present,
+            "present_nodes": [labels[i] for i in np.flatnonzero(present_mask)],
+            "mode": self.mode,
         }
         stages_run: list[str] = []
         rule_results: dict[str, dict] = {}
@@ -271,6 +400,13 @@ class CyclePipeline:
                               "error": str(exc)}
                 rule_results[name] = {k: (_jsonable(v) if not isinstance(v, list) else [_jsonable(x) for x in v])
                                       for k, v in result.items()}
+            for name in self.central:
+                try:
+                    result = self._central(name, readings, available)
+                except ParameterError as exc:
+                    result = {"U_G": None, "threshold": None, "decision": "undecided", "p_h1": None,
+                              "error": str(exc)}
+                rule_results[name] = {k: _jsonable(v) for k, v in result.items()}
             stages_run.append("fusion")
         main = rule_results.get(self.decide_with)
         record["U_G"] = main["U_G"] if main else None
@@ -287,23 +423,9 @@ class CyclePipeline:
         record["rules"] = rule_results
 
         t_seconds = closed.sync_us * 1e-6
+        total_tangential = grip_force = None
         if self.want_forces and readings is not None:
-            cells = present_mask & self.tangential & ~np.isnan(readings)
-            if cells.any():
-                y = readings[cells] - self.noise[cells]  # Y = X - N (eq 4)
-                report = forces.matrix_force_report(
-                    y, self.slope[cells], self.intercept[cells], scene.forces.mu, unit=scene.forces.unit,
-                    inclusion_angle=math.radians(scene.forces.inclusion_angle_deg))
-                record["forces"] = {
-                    "unit": report.unit,
-                    "per_taxel": {str(labels[i]): _jsonable(f) for i, f in zip(np.flatnonzero(cells), report.per_cell)},
-                    "total_tangential": _jsonable(report.total_tangential),
-                    "grip_force_limit": _jsonable(report.grip_force_limit),
-                    "max_load": _jsonable(report.max_load),
-                }
-            else:
-                record["forces"] = {"unit": scene.forces.unit, "per_taxel": {}, "total_tangential": 0.0,
-                                    "grip_force_limit": 0.0, "max_load": 0.0}
+            record["forces"], total_tangential, grip_force = self._forces(readings, present_mask)
             stages_run.append("forces")
         area = None
         if self.want_area:
@@ -321,11 +443,15 @@ class CyclePipeline:
             stages_run.append("contact_type")
         if self.slip is not None and (self._last_slip_t is None or t_seconds > self._last_slip_t):
             self._last_slip_t = t_seconds
-            state = self.slip.update(t_seconds, self.xy[present_mask])
+            if total_tangential is not None and grip_force is not None:
+                state = self.slip.update(t_seconds, self.xy[present_mask], total_tangential, grip_force)
+            else:
+                state = self.slip.update(t_seconds, self.xy[present_mask])
             record["slip"] = {
                 "contact": state.contact,
                 "slipping": state.slipping,
                 "criterion": state.criterion,
+                "force_ratio": _jsonable(state.force_ratio),
                 "onset_cycle": None if state.onset_index is None else closed.cycle - (state.cycle - state.onset_index),
                 "displacement": _jsonable(state.displacement),
                 "speed": _jsonable(state.speed),
@@ -333,6 +459,8 @@ class CyclePipeline:
             }
             stages_run.append("slip")
         record["stages_run"] = stages_run
+        record["stages_skipped"] = self.stages_skipped
+        record["rules_skipped"] = self.rules_skipped
         if self.with_truth:
             record["truth"] = self.truth(closed.cycle)
         return record
