@@ -59,13 +59,36 @@ readings_mv = [2.0, 0.5, 1.5]
 
 [fusion]
 tuple = "pm1"
+
+[[faults]]
+node_id = 17
+fault = "open_circuit"
+from_cycle = 2
 """
 
 
-def start_node_sim(args, env=None):
-    proc = subprocess.Popen([sys.executable, "-m", "node_sim.cli", *args], cwd=ROOT,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
-    return proc
+def start_on_multicast(tmp_path, group, port):
+    """``node-sim`` on the mp3 scene, on udp_multicast ``group:port`` (loopback: hop limit 0)."""
+    scene = tmp_path / "mp3.toml"
+    scene.write_text(SCENE)
+    return subprocess.Popen([sys.executable, "-m", "node_sim.cli", "--scene", str(scene),
+                             "--interface", "udp_multicast", "--channel", group,
+                             "--bus-option", f"port={port}", "--bus-option", "hop_limit=0"],
+                            cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def heartbeat_states(received: list[can.Message]) -> dict[int, int]:
+    """Latest heartbeat state byte per node-ID."""
+    return {m.arbitration_id - 0x700: m.data[0] for m in list(received)
+            if 0x700 < m.arbitration_id < 0x780 and len(m.data) == 1}
+
+
+def wait_until(pred, describe, timeout: float = 10.0) -> None:
+    deadline = time.monotonic() + timeout
+    while not pred():
+        if time.monotonic() > deadline:
+            raise AssertionError(describe())
+        time.sleep(0.02)
 
 
 def wait_ready(proc, timeout=60.0) -> str:
@@ -92,10 +115,7 @@ def multicast():
 
 def test_node_sim_process_serves_a_canopen_master(tmp_path, multicast):
     group, port = multicast
-    scene = tmp_path / "mp3.toml"
-    scene.write_text(SCENE)
-    proc = start_node_sim(["--scene", str(scene), "--interface", "udp_multicast", "--channel", group,
-                           "--bus-option", f"port={port}", "--bus-option", "hop_limit=0"])
+    proc = start_on_multicast(tmp_path, group, port)
     network = canopen.Network()
     try:
         network.connect(interface="udp_multicast", channel=group, port=port, hop_limit=0)
@@ -111,32 +131,41 @@ def test_node_sim_process_serves_a_canopen_master(tmp_path, multicast):
         assert nodes[9].sdo[0x1000].raw == 0x194
         assert nodes[17].sdo[0x2001][1].raw == pytest.approx(1.5)
         assert nodes[4].sdo[0x1017].raw == 50
+        nodes[9].sdo[0x1800][2].raw = 255        # node 9: event-driven TPDO1
         network.nmt.send_command(0x01)
-        deadline = time.monotonic() + 10
-        while time.monotonic() < deadline:      # heartbeats say operational
-            states = {m.arbitration_id - 0x700: m.data[0] for m in list(received)
-                      if 0x700 < m.arbitration_id < 0x780 and len(m.data) == 1}
-            if all(states.get(n) == 0x05 for n in nodes):
-                break
-            time.sleep(0.02)
-        else:
-            raise AssertionError(f"heartbeat states {states}")
+        wait_until(lambda: all(heartbeat_states(received).get(n) == 0x05 for n in nodes),
+                   lambda: f"heartbeat states {heartbeat_states(received)}")
         for _ in range(3):
             network.sync.transmit()
             time.sleep(0.05)
-        deadline = time.monotonic() + 10
-        expected = {0x184: 1, 0x189: -1, 0x191: 1}   # script readings Y = [2.0, 0.5, 1.5] vs ζ = 1.5
-        while time.monotonic() < deadline:
-            tpdos = [m for m in list(received) if m.arbitration_id in expected]
-            if len(tpdos) >= 9:
-                break
-            time.sleep(0.02)
-        assert len(tpdos) == 9
-        for m in tpdos:
-            assert struct.unpack("<b", bytes(m.data))[0] == expected[m.arbitration_id]
+        # script readings Y = [2.0, 0.5, 1.5] vs ζ = 1.5; node 17 open circuit from cycle 2 (absent);
+        # node 9 event-driven: sent once on entering operational (-1), never changes after
+        expected = {0x184: [1, 1, 1], 0x189: [-1], 0x191: [1, 1, -1]}
+
+        def tpdos():
+            return {cob: [struct.unpack("<b", bytes(m.data))[0] for m in list(received)
+                          if m.arbitration_id == cob] for cob in expected}
+
+        wait_until(lambda: sum(map(len, tpdos().values())) >= 7, lambda: f"TPDOs {tpdos()}")
+        time.sleep(0.2)                          # nothing more may follow
+        assert tpdos() == expected
+        wait_until(lambda: [e.code for e in nodes[17].emcy.active] == [0x5000],
+                   lambda: f"EMCY {nodes[17].emcy.log}")
+        emcy = [bytes(m.data) for m in list(received) if m.arbitration_id == 0x80 + 17]
+        assert len(emcy) == 1 and emcy[0][:4] == bytes([0x00, 0x50, 0x21, 0x02])   # code LE, 0x1001, fault
+        assert nodes[17].sdo[0x1001].raw == 0x21 and nodes[17].sdo[0x1003][1].raw & 0xFFFF == 0x5000
         with pytest.raises(canopen.SdoAbortedError) as info:
             nodes[4].sdo[0x2001][1].raw = -1.0
         assert info.value.code == 0x06090032
+        # reset node 17: a new boot-up, pre-operational, start-up values back
+        t0 = time.time()
+        network.send_message(0x000, bytes([0x81, 17]))
+        wait_until(lambda: [bytes(m.data) for m in list(received)
+                            if m.arbitration_id == 0x711 and m.timestamp > t0][:1] == [b"\x00"],
+                   lambda: "no boot-up of node 17 after reset-node")
+        wait_until(lambda: heartbeat_states(received).get(17) == 0x7F, lambda: "node 17 not pre-operational")
+        assert nodes[17].sdo[0x1001].raw == 0 and nodes[17].sdo[0x1003][0].raw == 0
+        assert heartbeat_states(received).get(4) == 0x05   # addressed: the others stay operational
     finally:
         network.disconnect()
         if proc.poll() is None:
@@ -147,10 +176,7 @@ def test_node_sim_process_serves_a_canopen_master(tmp_path, multicast):
 
 def test_node_sim_sigint_clean_exit(tmp_path, multicast):
     group, port = multicast
-    scene = tmp_path / "mp3.toml"
-    scene.write_text(SCENE)
-    proc = start_node_sim(["--scene", str(scene), "--interface", "udp_multicast", "--channel", group,
-                           "--bus-option", f"port={port}", "--bus-option", "hop_limit=0"])
+    proc = start_on_multicast(tmp_path, group, port)
     wait_ready(proc)
     proc.send_signal(signal.SIGINT)
     assert proc.wait(timeout=30) == 0

@@ -21,6 +21,7 @@ from node_sim.rig import Rig
 
 ROOT = Path(__file__).resolve().parent.parent
 WAIT = 5.0
+MARKER_ID = 0x1ABCDEF  # extended ID: ignored by the node twins
 
 
 def uid(prefix="rig"):
@@ -29,7 +30,7 @@ def uid(prefix="rig"):
 
 class Recorder:
     def __init__(self, channel):
-        self.bus = can.Bus(interface="virtual", channel=channel)
+        self.bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=True)
         self.frames: list[can.Message] = []
         self.lock = threading.Lock()
         self.notifier = can.Notifier(self.bus, [self.on], timeout=0.05)
@@ -52,6 +53,12 @@ class Recorder:
 
     def send(self, can_id, data=b""):
         self.bus.send(can.Message(arbitration_id=can_id, data=data, is_extended_id=False))
+
+    def barrier(self):
+        """Return once every frame sent before the call is recorded (virtual bus queues are FIFO)."""
+        n = len(self.of(MARKER_ID))
+        self.bus.send(can.Message(arbitration_id=MARKER_ID, is_extended_id=True))
+        self.wait_count(MARKER_ID, n + 1)
 
     def close(self):
         self.notifier.stop()
@@ -137,7 +144,7 @@ def test_more_than_127_taxels_use_one_network_per_channel():
             frames = rec_b.wait_count(0x181, 1)
             assert struct.unpack("<b", bytes(frames[0].data))[0] == 1      # 5.0 - 0 >= ζ = 1.0
             assert rig.cycle(0) is None and rig.cycle(1) == 0
-            time.sleep(0.05)
+            rec_a.barrier()
             assert rec_a.of(0x181) == []                        # network a is still pre-operational
             assert rig.node(1, 0).state == 0x7F
     finally:
