@@ -4,10 +4,13 @@ The chapter's program collects the coordinates of the taxels with u_i = +1, find
 points on their convex hull and computes the hull's planar area with the shoelace formula,
 eq 35. Here the hull comes from scipy's Qhull (``scipy.spatial.ConvexHull``) for the
 general case; the degenerate sets Qhull rejects (fewer than three distinct points, all
-points collinear) are handled explicitly, so no ``QhullError`` escapes.
+points collinear or too nearly so for its precision) are handled explicitly (exact
+monotone chain), so no ``QhullError`` escapes.
 """
 
 from __future__ import annotations
+
+from fractions import Fraction
 
 import numpy as np
 from scipy.spatial import ConvexHull
@@ -39,21 +42,30 @@ def as_points(points, name: str = "points") -> np.ndarray:
     return arr
 
 
-def _collinear(pts: np.ndarray) -> bool:
-    centred = pts - pts.mean(axis=0)
-    scale = max(float(np.abs(centred).max()), 1.0)
-    sv = np.linalg.svd(centred / scale, compute_uv=False)
-    return bool(sv[-1] <= 1e-12 * max(sv[0], 1e-300) * len(pts))
+def _exact_hull(unique: np.ndarray) -> np.ndarray:
+    """Hull vertices of lexicographically sorted distinct points, exact (Andrew's monotone chain).
 
+    The orientation test runs on :class:`fractions.Fraction` copies of the floats (every
+    float is an exact rational), so collinear, nearly collinear and offset sets get the
+    true answer: a collinear set gives its two end points, a thin triangle its three
+    corners. Used where Qhull refuses the input as flat.
+    """
+    exact = [(Fraction(x), Fraction(y)) for x, y in unique.tolist()]
 
-def _segment_ends(pts: np.ndarray) -> np.ndarray:
-    """The two extreme points of a collinear set (ordered lexicographically)."""
-    centred = pts - pts.mean(axis=0)
-    _, _, vt = np.linalg.svd(centred, full_matrices=False)
-    proj = centred @ vt[0]
-    ends = pts[[int(np.argmin(proj)), int(np.argmax(proj))]]
-    order = np.lexsort((ends[:, 1], ends[:, 0]))
-    return ends[order]
+    def left_turn(o, a, b) -> bool:
+        return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0]) > 0
+
+    def chain(order) -> list[int]:
+        kept: list[int] = []
+        for k in order:
+            while len(kept) >= 2 and not left_turn(exact[kept[-2]], exact[kept[-1]], exact[k]):
+                kept.pop()
+            kept.append(k)
+        return kept
+
+    n = len(exact)
+    lower, upper = chain(range(n)), chain(range(n - 1, -1, -1))
+    return unique[lower[:-1] + upper[:-1]]
 
 
 def convex_hull(points) -> np.ndarray:
@@ -61,23 +73,27 @@ def convex_hull(points) -> np.ndarray:
 
     Duplicates are merged first (the chapter's own example lists (11, 41.5) twice, sec.
     6.2.3.3). Degenerate sets: 0 points -> (0, 2); one distinct point -> that point;
-    collinear points (including two distinct points) -> the two end points of the segment.
-    Otherwise the hull's vertices only (points on an edge are not vertices), starting at
-    the vertex Qhull reports first, counter-clockwise (positive shoelace area).
+    collinear points (including two distinct points) -> the two end points of the segment,
+    in lexicographic order. Otherwise the hull's vertices only (points on an edge are not
+    vertices), counter-clockwise (positive eq 35 area). Qhull sees the points relative to
+    one of them, so a large common offset (e.g. 1e15) costs no precision; the flat sets
+    Qhull refuses (``QhullError``) go to an exact monotone chain instead.
     """
     pts = as_points(points)
     if len(pts) == 0:
         return pts
-    unique = np.unique(pts, axis=0)
-    if len(unique) == 1:
+    unique = np.unique(pts + 0.0, axis=0)  # + 0.0 turns -0.0 into 0.0
+    if len(unique) <= 2:
         return unique
-    if len(unique) == 2 or _collinear(unique):
-        return _segment_ends(unique)
+    with np.errstate(over="ignore"):
+        local = unique - unique[0]
+    if np.any(~np.isfinite(local)):
+        raise ParameterError("points", [unique.min(axis=0).tolist(), unique.max(axis=0).tolist()],
+                             "coordinate differences must be finite (extent overflows a float)")
     try:
-        hull = ConvexHull(unique)
-    except QhullError:  # nearly collinear beyond our tolerance: Qhull's precision check
-        return _segment_ends(unique)
-    vertices = unique[hull.vertices]  # 2-D: counter-clockwise order (scipy docs)
+        vertices = unique[ConvexHull(local).vertices]  # 2-D: counter-clockwise (scipy docs)
+    except QhullError:  # flat input: collinear, or nearly so beyond Qhull's precision
+        return _exact_hull(unique)
     if signed_polygon_area(vertices) < 0:  # defensive: guarantee the documented orientation
         vertices = vertices[::-1]
     return vertices
@@ -87,11 +103,14 @@ def signed_polygon_area(vertices) -> float:
     """Shoelace sum of eq 35: ``1/2 sum (X_i Y_{i+1} - X_{i+1} Y_i)``, indices mod N.
 
     Positive for counter-clockwise vertices, negative for clockwise; 0 for fewer than 3.
+    The sum is translation invariant, so it runs on the vertices relative to the first one:
+    a large common offset (coordinates ~1e15, extent ~1) does not cancel the area away.
     """
     v = as_points(vertices, "vertices")
     if len(v) < 3:
         return 0.0
-    x, y = v[:, 0], v[:, 1]
+    local = v - v[0]
+    x, y = local[:, 0], local[:, 1]
     x1, y1 = np.roll(x, -1), np.roll(y, -1)
     return 0.5 * float(np.sum(x * y1 - x1 * y))
 

@@ -1,6 +1,6 @@
 """Convex hull and eq 35 shoelace area, including degenerate sets."""
 
-import itertools
+from fractions import Fraction
 
 import numpy as np
 import pytest
@@ -12,25 +12,52 @@ from fusion_center.geometry import (
 )
 
 
-def _monotone_chain(points):
-    """Independent reference hull (Andrew's monotone chain), CCW, no collinear vertices."""
-    pts = sorted(set(map(tuple, points)))
-    if len(pts) <= 2:
-        return pts
+def _brute_force_hull(points):
+    """Independent O(n^3) reference in exact rationals: (vertex set, area).
+
+    a -> b is a counter-clockwise hull edge iff every other point lies strictly left of it
+    or on the closed segment [a, b]; the area is half the sum of a x b over those edges
+    (eq 35 without needing the vertex order).
+    """
+    pts = sorted({(Fraction(x), Fraction(y)) for x, y in points})
 
     def cross(o, a, b):
         return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
 
-    lower, upper = [], []
-    for p in pts:
-        while len(lower) >= 2 and cross(lower[-2], lower[-1], p) <= 0:
-            lower.pop()
-        lower.append(p)
-    for p in reversed(pts):
-        while len(upper) >= 2 and cross(upper[-2], upper[-1], p) <= 0:
-            upper.pop()
-        upper.append(p)
-    return lower[:-1] + upper[:-1]
+    def on_segment(a, b, c):
+        return min(a[0], b[0]) <= c[0] <= max(a[0], b[0]) and min(a[1], b[1]) <= c[1] <= max(a[1], b[1])
+
+    edges = [(a, b) for a in pts for b in pts if a != b and all(
+        cross(a, b, c) > 0 or (cross(a, b, c) == 0 and on_segment(a, b, c)) for c in pts)]
+    vertices = {a for a, _ in edges} if edges else set(pts)
+    area = sum((a[0] * b[1] - b[0] * a[1] for a, b in edges), Fraction(0)) / 2
+    return {(float(x), float(y)) for x, y in vertices}, area
+
+
+def _check_against_brute_force(points, *, exact_vertices=True):
+    ref_vertices, ref_area = _brute_force_hull(points)
+    hull = convex_hull(points)                      # must never raise (QhullError included)
+    assert len(set(map(tuple, hull.tolist()))) == len(hull)
+    assert set(map(tuple, hull.tolist())) <= {(float(x), float(y)) for x, y in points}
+    pts = np.asarray(points, dtype=float).reshape(-1, 2)
+    extent = float(np.ptp(pts, axis=0).max()) if len(pts) else 0.0
+    assert contact_area(points) == pytest.approx(float(ref_area), rel=1e-9, abs=1e-12 * extent ** 2)
+    if exact_vertices:
+        assert set(map(tuple, hull.tolist())) == ref_vertices
+    if len(hull) >= 3:                              # counter-clockwise, checked exactly
+        exact = [(Fraction(x), Fraction(y)) for x, y in hull.tolist()]
+        twice_area = sum(a[0] * b[1] - b[0] * a[1] for a, b in zip(exact, exact[1:] + exact[:1]))
+        assert twice_area > 0
+        if exact_vertices:
+            assert twice_area / 2 == ref_area       # a simple polygon in convex order
+
+
+def test_brute_force_reference_on_hand_cases():
+    # the reference itself, on sets with hand-known hulls
+    assert _brute_force_hull([(0, 0), (2, 0), (1, 0), (0, 2), (1, 1), (2, 2), (0, 2)]) == \
+        ({(0, 0), (2, 0), (0, 2), (2, 2)}, 4)
+    assert _brute_force_hull([(0, 0), (1, 1), (3, 3)]) == ({(0, 0), (3, 3)}, 0)
+    assert _brute_force_hull([(5, 5)]) == ({(5, 5)}, 0)
 
 
 def test_unit_square_with_interior_edge_and_duplicate_points():
@@ -63,11 +90,27 @@ def test_degenerate_sets_do_not_raise(pts, expected):
     assert contact_area(pts) == 0.0
 
 
-def test_nearly_collinear_is_handled():
-    pts = [(0, 0), (1, 1e-17), (2, 0)]
+def test_nearly_collinear_is_a_thin_triangle_not_a_segment():
+    # Qhull refuses this set as flat; the exact fallback still finds the 3 corners
+    pts = [(0, 0), (1, 1e-17), (2, 0), (1, 0)]
     hull = convex_hull(pts)
-    assert len(hull) in (2, 3)
-    assert contact_area(pts) == pytest.approx(0.0, abs=1e-15)
+    assert set(map(tuple, hull.tolist())) == {(0.0, 0.0), (1.0, 1e-17), (2.0, 0.0)}
+    assert contact_area(pts) == pytest.approx(1e-17, rel=1e-12)     # base 2, height 1e-17
+
+
+def test_large_common_offset_keeps_the_area():
+    # 4 x 4 square at 1e15 (exact in floats): the shoelace must not cancel it away
+    base = 1e15
+    square = [(base, base), (base + 4, base), (base, base + 4), (base + 4, base + 4), (base + 2, base + 2)]
+    hull = convex_hull(square)
+    assert len(hull) == 4 and contact_area(square) == 16.0
+    tri = [(base, base), (base + 1, base), (base, base + 1)]
+    assert contact_area(tri) == 0.5
+
+
+def test_extent_overflow_is_a_parameter_error():
+    with pytest.raises(ParameterError, match="points"):
+        convex_hull([(-1e308, 0), (1e308, 0), (0, 1)])
 
 
 def test_bad_points_rejected():
@@ -78,15 +121,40 @@ def test_bad_points_rejected():
 
 
 @settings(max_examples=150, deadline=None)
-@given(st.lists(st.tuples(st.integers(-20, 20), st.integers(-20, 20)), min_size=0, max_size=25))
-def test_hull_matches_independent_monotone_chain(points):
-    ref = _monotone_chain(points)
-    hull = convex_hull(points)
-    assert sorted(map(tuple, hull.tolist())) == sorted((float(x), float(y)) for x, y in ref)
-    ref_area = polygon_area(ref) if len(ref) >= 3 else 0.0
-    assert contact_area(points) == pytest.approx(ref_area, abs=1e-9)
-    if len(hull) >= 3:
-        assert signed_polygon_area(hull) > 0
+@given(st.lists(st.tuples(st.integers(-20, 20), st.integers(-20, 20)), min_size=0, max_size=14))
+def test_hull_matches_brute_force_on_small_grids(points):
+    _check_against_brute_force(points)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(-5, 5), st.integers(-5, 5), st.integers(-3, 3), st.integers(-3, 3),
+       st.lists(st.integers(-30, 30), min_size=1, max_size=12), st.sampled_from([0.0, 1e15, -3e14]))
+def test_collinear_sets_with_repeats_and_offsets(x0, y0, dx, dy, steps, offset):
+    # all points on one line (dx = dy = 0: one repeated point), shifted by a huge offset;
+    # integers below 2**53 and offsets on the float grid keep every coordinate exact
+    points = [(offset + x0 + k * dx, offset + y0 + k * dy) for k in steps + steps[:3]]
+    _check_against_brute_force(points)
+    assert contact_area(points) == 0.0
+    assert len(convex_hull(points)) == (1 if (dx, dy) == (0, 0) or len(set(steps)) == 1 else 2)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.tuples(st.integers(-50, 50), st.integers(-10**6, 10**6)), min_size=3, max_size=12),
+       st.floats(0.5, 2.0), st.sampled_from([1e-12, 1e-15, 1e-17]), st.sampled_from([0.0, 1e15]))
+def test_nearly_collinear_sets(samples, slope, eps, offset):
+    # points within ~eps of the line y = slope x: Qhull may call them flat (exact fallback)
+    # or keep them; the area must match the exact brute-force hull of the very same floats.
+    # Vertices are not compared: where Qhull accepts the set it may pick, between points
+    # ~1e-15 x extent apart, another one than the exact hull does.
+    points = [(offset + float(x), offset + slope * x + eps * (w / 10**6)) for x, w in samples]
+    _check_against_brute_force(points, exact_vertices=False)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.tuples(st.integers(-20, 20), st.integers(-20, 20)), min_size=1, max_size=10),
+       st.sampled_from([1e15, 2.0**52]))
+def test_grid_sets_at_huge_offsets(points, offset):
+    _check_against_brute_force([(offset + x, offset + y) for x, y in points])
 
 
 def test_centroid_counts_a_shared_location_once():
