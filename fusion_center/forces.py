@@ -46,16 +46,37 @@ def _as_float_array(value, name: str) -> np.ndarray:
     return arr
 
 
-def _check_slopes(slope: np.ndarray, name: str = "slope") -> None:
-    bad = (slope == 0) | ~np.isfinite(slope)
+def _raise_at_first(bad: np.ndarray, values: np.ndarray, name: str, allowed: str, axis: int = -1) -> None:
+    """ParameterError ``name[cell]`` for the first True of ``bad``; the cell is its index on ``axis``."""
     if np.any(bad):
         idx = tuple(int(i) for i in np.argwhere(bad)[0])
-        cell = idx[-1] if idx else 0
-        raise ParameterError(
-            f"{name}[{cell}]", float(slope[idx] if idx else slope),
-            "calibration slope m must be finite and non-zero (slope 0 = cell without "
-            "tangential calibration, eq 30 cannot invert it)",
-        )
+        cell = idx[axis] if idx else 0
+        raise ParameterError(f"{name}[{cell}]", float(values[idx]), allowed)
+
+
+def _check_finite(values: np.ndarray, name: str, allowed: str, axis: int = -1) -> None:
+    _raise_at_first(~np.isfinite(values), values, name, allowed, axis)
+
+
+def _check_slopes(slope: np.ndarray, name: str = "slope") -> None:
+    _raise_at_first((slope == 0) | ~np.isfinite(slope), slope, name,
+                    "calibration slope m must be finite and non-zero (slope 0 = cell without "
+                    "tangential calibration, eq 30 cannot invert it)")
+
+
+def _check_per_cell(arr: np.ndarray, name: str, n_cells: int, what: str) -> None:
+    """``arr`` must be a scalar or hold one value per cell; a mismatch names the first cell
+    that has a reading but no value (or a value but no reading)."""
+    if arr.ndim == 0 or (arr.ndim == 1 and arr.shape[0] == n_cells):
+        return
+    if arr.ndim > 1:
+        raise ParameterError(name, arr.tolist(), f"must be a scalar or a 1-D array, one per {what}")
+    cell = min(arr.shape[0], n_cells)
+    value = float(arr[cell]) if cell < arr.shape[0] else "missing"
+    side = f"{what} {cell} has no {name}" if cell == arr.shape[0] else f"{name}[{cell}] has no {what}"
+    raise ParameterError(f"{name}[{cell}]", value,
+                         f"{arr.shape[0]} values for {n_cells} {what}s ({side}): "
+                         f"give a scalar or one value per {what}")
 
 
 def _check_mu(mu) -> float:
@@ -94,19 +115,11 @@ def tangential_force(readings, slope, intercept) -> np.ndarray:
     if y.ndim == 0:
         y = y.reshape(1)
     n_cells = y.shape[-1]
-    for arr, name in ((m, "slope"), (c, "intercept")):
-        if arr.ndim > 1 or (arr.ndim == 1 and arr.shape[0] != n_cells):
-            raise ParameterError(name, arr.tolist(),
-                                 f"must be a scalar or one value per cell ({n_cells} readings)")
+    _check_per_cell(m, "slope", n_cells, "cell")
+    _check_per_cell(c, "intercept", n_cells, "cell")
     _check_slopes(np.broadcast_to(m, (n_cells,)))
-    c_b = np.broadcast_to(c, (n_cells,))
-    if np.any(~np.isfinite(c_b)):
-        i = int(np.argmax(~np.isfinite(c_b)))
-        raise ParameterError(f"intercept[{i}]", float(c_b[i]), "intercept must be finite (mV)")
-    if np.any(~np.isfinite(y)):
-        idx = np.argwhere(~np.isfinite(y))[0]
-        raise ParameterError(f"readings[{int(idx[-1])}]", float(y[tuple(idx)]),
-                             "reading must be a finite number of mV (NaN = no data)")
+    _check_finite(np.broadcast_to(c, (n_cells,)), "intercept", "intercept must be finite (mV)")
+    _check_finite(y, "readings", "reading must be a finite number of mV (NaN = no data)")
     return (y - c) / m
 
 
@@ -123,10 +136,7 @@ def r_cell_tangential_force(taxel_readings, slope, intercept) -> np.ndarray:
     if y.ndim < 2 or y.shape[-1] != 2:
         raise ParameterError("taxel_readings", y.shape,
                              "must have shape (..., n_struts, 2): two taxels per R-cell")
-    if np.any(~np.isfinite(y)):
-        idx = np.argwhere(~np.isfinite(y))[0]
-        raise ParameterError(f"taxel_readings[{int(idx[-2])}]", float(y[tuple(idx)]),
-                             "reading must be a finite number of mV")
+    _check_finite(y, "taxel_readings", "reading must be a finite number of mV (index = strut)", axis=-2)
     return tangential_force(y.sum(axis=-1), slope, intercept)
 
 
@@ -158,9 +168,7 @@ def total_tangential(forces, inclusion_angle=0.0):
     f = _as_float_array(forces, "forces")
     if f.ndim == 0:
         f = f.reshape(1)
-    if np.any(~np.isfinite(f)):
-        idx = np.argwhere(~np.isfinite(f))[0]
-        raise ParameterError(f"forces[{int(idx[-1])}]", float(f[tuple(idx)]), "force must be finite")
+    _check_finite(f, "forces", "force must be finite")
     m = f.shape[-1]
     alpha = _check_angle(inclusion_angle, max(m - 1, 0))
     if m == 0:
@@ -266,13 +274,9 @@ def load_cell_grip_force(readings, grip_factor) -> LoadCellGrip:
     n = y.shape[-1]
     if n == 0:
         raise ParameterError("readings", [], "need at least one load-cell reading")
-    if factor.ndim > 1 or (factor.ndim == 1 and factor.shape[0] != n):
-        raise ParameterError("grip_factor", factor.tolist(), f"must be a scalar or one per load cell ({n})")
+    _check_per_cell(factor, "grip_factor", n, "load cell")
     _check_slopes(np.broadcast_to(factor, (n,)), "grip_factor")
-    if np.any(~np.isfinite(y)):
-        idx = np.argwhere(~np.isfinite(y))[0]
-        raise ParameterError(f"readings[{int(idx[-1])}]", float(y[tuple(idx)]),
-                             "reading must be a finite number of mV")
+    _check_finite(y, "readings", "reading must be a finite number of mV")
     per_jaw = y / factor
     mean = per_jaw.mean(axis=-1)
     return LoadCellGrip(per_jaw, float(mean) if mean.ndim == 0 else mean)

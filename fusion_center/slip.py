@@ -38,6 +38,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .errors import ParameterError
+from .forces import _check_mu
 from .geometry import active_centroid, as_points
 
 __all__ = ["SlipResult", "SlipState", "detect_slip", "SlipTracker", "line_fit_velocity"]
@@ -45,12 +46,7 @@ __all__ = ["SlipResult", "SlipState", "detect_slip", "SlipTracker", "line_fit_ve
 
 # --------------------------------------------------------------------------- helpers
 def _check_params(mu, noise_band, motion_consecutive, force_consecutive, reference_cycles, fit_window):
-    try:
-        mu_f = float(mu)
-    except (TypeError, ValueError):
-        raise ParameterError("mu", mu, "friction coefficient must be a finite number > 0") from None
-    if not np.isfinite(mu_f) or mu_f <= 0:
-        raise ParameterError("mu", mu, "friction coefficient must be a finite number > 0")
+    mu_f = _check_mu(mu)
     band = float(noise_band)
     if not np.isfinite(band) or band < 0:
         raise ParameterError("noise_band", noise_band, "must be a finite distance >= 0 (coordinate units)")

@@ -30,19 +30,27 @@ def test_eq30_vectorised_over_cycles_and_scalar_calibration():
     np.testing.assert_array_equal(tangential_force(y, 2.0, 1.0), [[0.0, 0.5], [1.0, 2.0]])
 
 
-@pytest.mark.parametrize("bad_slope", [0.0, -0.0, np.nan, np.inf])
+@pytest.mark.parametrize("bad_slope", [0.0, -0.0, np.nan, np.inf, -np.inf])
 def test_eq30_rejects_unusable_slope_naming_cell(bad_slope):
-    with pytest.raises(ParameterError, match=r"slope\[1\]"):
+    with pytest.raises(ParameterError, match=r"^slope\[1\]"):
         tangential_force([1.0, 2.0, 3.0], [1.0, bad_slope, 1.0], [0.0, 0.0, 0.0])
+    with pytest.raises(ValueError, match=r"^slope\[0\]"):           # ParameterError is a ValueError
+        tangential_force([1.0, 2.0], bad_slope, 0.0)
 
 
 def test_eq30_rejects_nan_reading_and_length_mismatch():
     with pytest.raises(ParameterError, match=r"readings\[2\]"):
         tangential_force([1.0, 2.0, np.nan], 1.0, 0.0)
-    with pytest.raises(ParameterError, match="slope"):
+    with pytest.raises(ParameterError, match=r"^readings\[1\]=nan"):   # cycles x cells: the cell
+        tangential_force([[1.0, 2.0], [3.0, np.nan]], 1.0, 0.0)
+    with pytest.raises(ParameterError, match=r"intercept\[0\]"):
+        tangential_force([1.0, 2.0], 1.0, [np.inf, 0.0])
+    # cell 2 has a reading but no slope
+    with pytest.raises(ParameterError, match=r"^slope\[2\]='missing'.*cell 2 has no slope"):
         tangential_force([1.0, 2.0, 3.0], [1.0, 2.0], 0.0)
-    with pytest.raises(ParameterError, match="intercept"):
-        tangential_force([1.0, 2.0], [1.0, 2.0], [0.0, 0.0, 0.0])
+    # intercept[2] has no reading
+    with pytest.raises(ParameterError, match=r"^intercept\[2\]=7\.0.*intercept\[2\] has no cell"):
+        tangential_force([1.0, 2.0], [1.0, 2.0], [0.0, 0.0, 7.0])
     with pytest.raises(ValueError):
         tangential_force(["a"], 1.0, 0.0)
 
@@ -61,6 +69,8 @@ def test_eq24_total_parallel_is_sum_of_magnitudes():
     assert total_tangential([1.95, 3.00, 4.325]) == pytest.approx(9.275, rel=1e-15)
     assert total_tangential([]) == 0.0
     np.testing.assert_allclose(total_tangential([[1.0, 2.0], [3.0, 4.0]]), [3.0, 7.0])
+    with pytest.raises(ParameterError, match=r"forces\[1\]"):
+        total_tangential([1.0, np.nan, 2.0])
 
 
 def test_eq24_fold_with_angle_matches_explicit_vectors():
@@ -103,6 +113,10 @@ def test_eq27b_load_cells():
     assert g.mean == 2.0
     with pytest.raises(ParameterError, match=r"grip_factor\[0\]"):
         load_cell_grip_force([4.0, 6.0], [0.0, 3.0])
+    with pytest.raises(ParameterError, match=r"grip_factor\[1\].*load cell 1 has no grip_factor"):
+        load_cell_grip_force([4.0, 6.0], [2.0])
+    with pytest.raises(ParameterError, match=r"readings\[1\]"):
+        load_cell_grip_force([4.0, np.nan], 2.0)
 
 
 def test_r_cell_sums_its_two_taxels():
@@ -110,6 +124,8 @@ def test_r_cell_sums_its_two_taxels():
                                [1.0, 4.0])
     with pytest.raises(ParameterError, match="taxel_readings"):
         r_cell_tangential_force([1.0, 2.0, 3.0], 1.0, 0.0)
+    with pytest.raises(ParameterError, match=r"taxel_readings\[1\]"):   # index = strut
+        r_cell_tangential_force([[1.0, 2.0], [np.nan, 0.5]], 1.0, 0.0)
 
 
 def test_units_explicit_and_convertible():
