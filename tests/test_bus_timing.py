@@ -80,6 +80,14 @@ HAND_FRAMES = [
         stuffed="000110000101" "00000" "1" "0" "1" "00000" "1" "00" "1" "001010011000110",
         n_stuff=2, total=42 + 2 + 13,
     ),
+    dict(  # heartbeat of node 1 (0x700 + 1), state operational [0x05]
+        can_id=0x701, data=bytes([0x05]),
+        unstuffed="0" + "11100000001" + "000" + "0001" + "00000101" + "100110100001110",
+        crc=0b100110100001110,
+        # 0111 | 7 zeros (S after 5) | 1 | 6 zeros (S after 5) | 1 | 5 zeros (S) | 101 | CRC
+        stuffed="0111" "00000" "1" "00" "1" "00000" "1" "0" "1" "00000" "1" "101" "100110100001110",
+        n_stuff=3, total=42 + 3 + 13,
+    ),
     dict(  # SYNC 0x080 without counter
         can_id=0x080, data=b"",
         unstuffed="0" + "00010000000" + "000" + "0000" + "" + "001110000000101",
