@@ -57,6 +57,10 @@ def test_stage_plan_recorded(gripper_report):
     assert plan["skipped"]["area"] == "not requested in [outputs] stages"
     assert plan["rules_run"] == ["preferential", "k-of-n"]
     assert plan["rules_skipped"]["llr"] == "not requested in [fusion] rules"
+    data = json.loads((gripper_report / "report.json").read_text())
+    assert data["stages_skipped"] == plan["skipped"]
+    assert data["rules_skipped"]["llr"] == "not requested in [fusion] rules"
+    assert not any(name.startswith("centralised") for name in data["rules_skipped"])
 
 
 def test_bad_trials_exit_2(tmp_path, capsys):

@@ -351,6 +351,9 @@ def build_report(scene, out_dir: Path, trials: int, seed: int, bitrate: int | No
         "trials_per_hypothesis": trials,
         "seed": seed,
         "stage_plan": plan.to_dict(),
+        # what did not run and why (the Monte Carlo runs the centralised tests in any bus mode)
+        "stages_skipped": dict(plan.skipped),
+        "rules_skipped": {**plan.rules_skipped, **mc.skipped},
         "prior_h1": mc.prior_h1,
         "rules": {k: v.to_dict() for k, v in mc.rules.items()},
         "thresholds": {k: (None if v is None or not math.isfinite(v) else v) for k, v in setup.thresholds.items()},
