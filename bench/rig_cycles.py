@@ -9,7 +9,7 @@ and from a precomputed array (the node twins' own cost only).
 Physical limit: one cycle needs 1 SYNC (no data) + 57 TPDOs (1 byte) on the wire:
     max cycles/s = bitrate / (bits(SYNC) + sum bits(TPDO_i))
 with the exact frame lengths of fusion_center.bus_timing.frame_bits (actual stuff bits +
-3-bit intermission), and with the worst-case bound 8n + 44 + floor((34 + 8n - 1)/4) + 3.
+3-bit intermission), and with its worst-case bound 8n + 47 + floor((34 + 8n - 1)/4).
 
     .venv/bin/python bench/rig_cycles.py [--cycles 300] [--bitrate 1000000]
 """
@@ -30,32 +30,24 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from fusion_center.bus_timing import frame_bits, worst_case_frame_bits  # noqa: E402
 from fusion_center.scene import load_scene  # noqa: E402
 from node_sim import physics  # noqa: E402
 from node_sim.rig import Rig  # noqa: E402
 
 
-def worst_case_bits(n: int) -> int:
-    return 8 * n + 44 + (34 + 8 * n - 1) // 4 + 3
-
-
 def exact_cycle_bits(node_ids, decisions) -> int:
-    try:
-        from fusion_center.bus_timing import frame_bits
-    except ImportError:
-        return sum(worst_case_bits(1) for _ in node_ids) + worst_case_bits(0)
     return frame_bits(0x80, b"") + sum(frame_bits(0x180 + nid, struct.pack("<b", int(u)))
                                        for nid, u in zip(node_ids, decisions))
 
 
-def run(scene, cycles: int, reading_source=None) -> tuple[float, float, list[int]]:
+def run(scene, cycles: int, reading_source=None) -> tuple[float, float]:
     channel = f"bench-{uuid.uuid4().hex[:8]}"
     scene = replace(scene, bus=replace(scene.bus, channels=(channel,), heartbeat_producer_ms=0,
                                        transmission_type=1))
     n = scene.n
     tpdo_ids = {0x180 + t.node_id for t in scene.taxels}
     master = can.Bus(interface="virtual", channel=channel)
-    last_decisions: dict[int, int] = {}
     try:
         with Rig(scene, reading_source=reading_source) as rig:
             while master.recv(0.2) is not None:     # boot-ups
@@ -76,13 +68,11 @@ def run(scene, cycles: int, reading_source=None) -> tuple[float, float, list[int
                         raise RuntimeError("a TPDO never came")
                     if msg.arbitration_id in tpdo_ids:
                         got += 1
-                        last_decisions[msg.arbitration_id - 0x180] = struct.unpack("<b", bytes(msg.data))[0]
                 frames += 1 + n
             elapsed = time.perf_counter() - t0
     finally:
         master.shutdown()
-    decisions = [last_decisions[t.node_id] for t in scene.taxels]
-    return cycles / elapsed, frames / elapsed, decisions
+    return cycles / elapsed, frames / elapsed
 
 
 def main(argv=None) -> int:
@@ -103,12 +93,12 @@ def main(argv=None) -> int:
 
     all_absent = exact_cycle_bits(node_ids, [-1] * n)
     all_present = exact_cycle_bits(node_ids, [1] * n)
-    worst = worst_case_bits(0) + n * worst_case_bits(1)
+    worst = worst_case_frame_bits(0) + n * worst_case_frame_bits(1)
     limits = {"exact, all u=-1": all_absent, "exact, all u=+1": all_present, "worst-case bound": worst}
     print(f"scene {scene.name}: {n} nodes, {args.cycles} cycles, virtual bus, SYNC -> wait for {n} TPDO1")
     print(f"bits per cycle (1 SYNC + {n} one-byte TPDOs): " +
           ", ".join(f"{k}: {v}" for k, v in limits.items()))
-    for name, (cps, fps, _) in results.items():
+    for name, (cps, fps) in results.items():
         print(f"\n{name}: {cps:9.1f} cycles/s  {fps:10.1f} frames/s")
         for lname, bits in limits.items():
             limit = args.bitrate / bits
