@@ -103,6 +103,16 @@ def test_sec6232_printed_forces_sum_to_printed_total_by_eq24_25():
     assert total_tangential(printed) == pytest.approx(22.475, abs=1e-4)
 
 
+def test_sec6232_total_from_eq30_for_the_seven_taxels():
+    # ours (docs/chapter-notes.md): 15.6/8 + 15/5 + 17.3/4 + 10.6/3 + 0.4/2 + 5.5/4 + 6.8/6
+    rows = _rows("matrix57_taxels.csv")
+    cells = [5, 8, 18, 19, 20, 31, 33]
+    forces = tangential_force([Y_MATRIX[i - 1] for i in cells], [float(rows[i - 1]["slope"]) for i in cells],
+                              [float(rows[i - 1]["intercept"]) for i in cells])
+    hand = 1.95 + 3.0 + 4.325 + 10.6 / 3 + 0.2 + 1.375 + 6.8 / 6     # 15.51667 (printed 22.475)
+    assert total_tangential(forces) == pytest.approx(hand, rel=1e-12)
+
+
 def test_sec6232_taxels_20_31_33_follow_eq30_not_the_print():
     # eq 30 with Y_20 = 4.4 and (2, 4): 0.2; Y_31 = 7.5 and (4, 2): 1.375; Y_33 = 7.8 and (6, 1): 1.1333
     rows = _rows("matrix57_taxels.csv")
@@ -143,12 +153,15 @@ def test_sec71_total_grip_limit_and_load():
     hand = [(0.32 + 0.0155) / 0.1661, (0.642 + 0.0163) / 0.307, (0.61 + 0.0133) / 0.3185]
     np.testing.assert_allclose(per_strut, hand, rtol=1e-14)
     total = total_tangential(per_strut)
-    assert total == pytest.approx(6.121, abs=5e-4)                 # printed 6.121 kgf
+    hand_total = sum(hand)                                         # 6.12115309520756...
+    assert total == pytest.approx(hand_total, rel=1e-14)
+    assert round(total, 3) == 6.121                                # printed 6.121 kgf
     fg = grip_force_limit(total, 0.3)
-    assert fg == pytest.approx(6.12115 / 0.3, abs=1e-3)            # 20.404 (printed 20.41)
-    assert abs(fg - 20.41) < 0.01
+    assert fg == pytest.approx(hand_total / 0.3, rel=1e-14)        # 20.40384...
+    # printed 20.41 does not follow: 6.1212 / 0.3 (and the printed 6.121 / 0.3) round to 20.40
+    assert round(fg, 2) == 20.40 and round(6.121 / 0.3, 2) == 20.40
     w = max_load(fg, 0.3)
-    assert w == pytest.approx(2 * 0.3 * fg, rel=1e-15)
+    assert w == pytest.approx(2 * hand_total, rel=1e-14)           # 2 mu (F_t / mu) = 12.2423
     assert round(w) == 12                                          # "12 kgf (approx.)"
 
 
@@ -161,8 +174,14 @@ def test_sec71_per_taxel_eq30_values_and_sign_conventions():
     # neither sign reproduces the printed per-taxel forces or the printed total per taxel
     printed = np.array([1.6152, 0.4038, 1.7168, 0.4292, 1.5648, 0.3912])
     assert printed.sum() == pytest.approx(6.121, abs=1e-9)
-    assert total_tangential(per_taxel) == pytest.approx(6.3093, abs=1e-4)
-    assert total_tangential(tangential_force(y, m, -c)) == pytest.approx(5.5567, abs=1e-4)
+    # per taxel each reading carries the whole intercept, i.e. 2|c| per strut:
+    hand_neg = 0.351 / 0.1661 + 0.6746 / 0.307 + 0.6366 / 0.3185      # c < 0: (0.320 + 0.031)/0.1661 + ... = 6.3093
+    hand_pos = 0.289 / 0.1661 + 0.6094 / 0.307 + 0.5834 / 0.3185      # c > 0: (0.320 - 0.031)/0.1661 + ... = 5.5567
+    assert total_tangential(per_taxel) == pytest.approx(hand_neg, rel=1e-12)
+    assert total_tangential(tangential_force(y, m, -c)) == pytest.approx(hand_pos, rel=1e-12)
+    assert round(hand_neg, 3) != 6.121 and round(hand_pos, 3) != 6.121
+    # the printed per-taxel forces are 0.8 / 0.2 of strut totals 2.019, 2.146, 1.956
+    np.testing.assert_allclose(printed, np.outer([2.019, 2.146, 1.956], [0.8, 0.2]).ravel(), rtol=0, atol=1e-12)
 
 
 # ----------------------------------------------------------------- sec. 7.2
