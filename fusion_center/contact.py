@@ -41,6 +41,9 @@ class ContactType(str, Enum):
     LARGER_OBJECT = "larger_object"
 
 
+_CLASSES = np.array([ContactType.NO_CONTACT, ContactType.POINT_FORCE, ContactType.SMALL_OBJECT,
+                     ContactType.LARGER_OBJECT], dtype=object)  # by precedence row 0..3
+
 #: Table 1's "Contact Type" column for each class.
 CONTACT_MECHANICS: dict[ContactType, str] = {
     ContactType.NO_CONTACT: "none",
@@ -50,14 +53,12 @@ CONTACT_MECHANICS: dict[ContactType, str] = {
 }
 
 
-def _classify_one(r: float, point_min: float, point_max: float, larger_min: float) -> ContactType:
-    if r < point_min:
-        return ContactType.NO_CONTACT
-    if r <= point_max:
-        return ContactType.POINT_FORCE
-    if r < larger_min:
-        return ContactType.SMALL_OBJECT
-    return ContactType.LARGER_OBJECT
+def _number(value, name: str, array: bool = False):
+    """``value`` as a float (or float array); non-numeric input is a ParameterError."""
+    try:
+        return np.asarray(value, dtype=float) if array else float(value)
+    except (TypeError, ValueError):
+        raise ParameterError(name, value, "must be a number") from None
 
 
 def classify(ratio, *, point_force_min: float = POINT_FORCE_MIN,
@@ -72,20 +73,13 @@ def classify(ratio, *, point_force_min: float = POINT_FORCE_MIN,
         raise ParameterError(
             "limits", (point_force_min, point_force_max, larger_object_min),
             "need 0 <= point_force_min <= point_force_max < larger_object_min <= 1")
-    try:
-        r = np.asarray(ratio, dtype=float)
-    except (TypeError, ValueError):
-        raise ParameterError("ratio", ratio, "must be a number in [0, 1]") from None
+    r = _number(ratio, "ratio", array=True)
     bad = ~np.isfinite(r) | (r < 0) | (r > 1)
     if np.any(bad):
         value = float(r[bad][0]) if r.ndim else float(r)
         raise ParameterError("ratio", value, "t_c / fp_c must be a number in [0, 1]")
-    if r.ndim == 0:
-        return _classify_one(float(r), point_force_min, point_force_max, larger_object_min)
-    out = np.empty(r.shape, dtype=object)
-    for idx, value in np.ndenumerate(r):
-        out[idx] = _classify_one(float(value), point_force_min, point_force_max, larger_object_min)
-    return out
+    rows = np.select([r < point_force_min, r <= point_force_max, r < larger_object_min], [0, 1, 2], 3)
+    return _CLASSES[rows] if r.ndim else _CLASSES[int(rows)]
 
 
 def taxel_count_ratio(n_affected, n_total) -> float:
@@ -109,7 +103,7 @@ def friction_plane_ratio(area, total_area) -> float:
 
     ``total_area`` > 0 is the sensor's planar area; 0 <= ``area`` <= ``total_area``.
     """
-    a, t = float(area), float(total_area)
+    a, t = _number(area, "area"), _number(total_area, "total_area")
     if not np.isfinite(t) or t <= 0:
         raise ParameterError("total_area", total_area, "must be a finite area > 0")
     if not np.isfinite(a) or a < 0 or a > t * (1 + 1e-12):
@@ -123,8 +117,8 @@ def relative_softness_index(hardness_jaw, hardness_object):
     Hardness values on one uniform (Rockwell) scale, finite and > 0. RSI > 0: object softer
     than the jaw; RSI = 0: equal hardness (fig. 15's locked contact); -1 < RSI < 0: jaw softer.
     """
-    hj = np.asarray(hardness_jaw, dtype=float)
-    ho = np.asarray(hardness_object, dtype=float)
+    hj = _number(hardness_jaw, "hardness_jaw", array=True)
+    ho = _number(hardness_object, "hardness_object", array=True)
     for arr, name, raw in ((hj, "hardness_jaw", hardness_jaw), (ho, "hardness_object", hardness_object)):
         if np.any(~np.isfinite(arr)) or np.any(arr <= 0):
             raise ParameterError(name, raw, "hardness must be finite and > 0 (one uniform scale)")

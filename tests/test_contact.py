@@ -24,6 +24,10 @@ def test_table1_precedence(ratio, expected):
 def test_table1_vectorised_and_mechanics_column():
     out = classify(np.array([0.005, 0.015, 0.05, 0.5]))
     assert [c.value for c in out] == ["no_contact", "point_force", "small_object", "larger_object"]
+    grid = classify([[0.01, 0.1], [0.02, 0.0201]])
+    assert grid.shape == (2, 2) and grid.tolist() == [
+        [ContactType.POINT_FORCE, ContactType.LARGER_OBJECT], [ContactType.POINT_FORCE, ContactType.SMALL_OBJECT]]
+    assert isinstance(classify(0.5), ContactType)
     assert CONTACT_MECHANICS[ContactType.POINT_FORCE] == "point contact (without friction)"
     assert CONTACT_MECHANICS[ContactType.LARGER_OBJECT] == "soft finger contact"
 
@@ -55,6 +59,8 @@ def test_eq34b_friction_plane():
         friction_plane_ratio(1.0, 0.0)
     with pytest.raises(ParameterError, match="area"):
         friction_plane_ratio(9.0, 8.0)
+    with pytest.raises(ParameterError, match="^area"):
+        friction_plane_ratio("big", 8.0)
 
 
 def test_eq33_rsi():
@@ -64,6 +70,8 @@ def test_eq33_rsi():
     np.testing.assert_allclose(relative_softness_index([60.0, 90.0], 30.0), [1.0, 2.0])
     with pytest.raises(ParameterError, match="hardness_object"):
         relative_softness_index(60.0, 0.0)
+    with pytest.raises(ParameterError, match="hardness_jaw"):
+        relative_softness_index("HRC 60", 30.0)
 
 
 def test_fig15_zones_with_parameters():
