@@ -22,13 +22,13 @@ log-likelihood term is infinite. Decisions u are given with their tuple ``encodi
 
 from __future__ import annotations
 
-import numbers
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from . import poisson_binomial
-from .encoding import PRESENT, Encoding, validate_decisions
+from .encoding import PRESENT, Encoding, check_integer, check_real, validate_decisions
 from .errors import ParameterError
 
 # heterogeneous taxels: exact enumeration of all 2^n decision vectors up to this n
@@ -40,17 +40,9 @@ LLR_TIE_TOLERANCE = 1e-9
 
 def _open_probabilities(values, name: str, n: int | None = None) -> np.ndarray:
     """1-D float array of probabilities strictly inside (0, 1); a scalar broadcasts to n."""
-    arr = np.asarray(values, dtype=float)
-    if arr.ndim == 0:
-        arr = np.full(1 if n is None else n, float(arr))
-    if arr.ndim != 1:
-        raise ParameterError(name, arr.shape, "must be a scalar or a 1-D sequence of probabilities")
+    arr = poisson_binomial.validate_probabilities(values, name, open_interval=True)
     if arr.size == 0:
         raise ParameterError(name, [], "needs one probability per taxel (n >= 1)")
-    bad = ~np.isfinite(arr) | (arr <= 0.0) | (arr >= 1.0)
-    if bad.any():
-        i = int(np.flatnonzero(bad)[0])
-        raise ParameterError(f"{name}[{i}]", float(arr[i]), "must be a probability in the open interval (0, 1)")
     if n is not None and arr.size != n:
         if arr.size == 1:
             return np.full(n, arr[0])
@@ -68,11 +60,13 @@ def _taxel_probabilities(pd, pf, n: int | None = None) -> tuple[np.ndarray, np.n
     return pd_arr, pf_arr
 
 
+def _probability(name: str, value) -> float:
+    return check_real(name, value, 0.0, 1.0, open_interval=True,
+                      allowed="must be a probability in the open interval (0, 1)")
+
+
 def _prior(prior_h1) -> float:
-    p = float(prior_h1)
-    if not np.isfinite(p) or not 0.0 < p < 1.0:
-        raise ParameterError("prior_h1", prior_h1, "must be a probability in the open interval (0, 1)")
-    return p
+    return _probability("prior_h1", prior_h1)
 
 
 def _log_ratio_terms(pd: np.ndarray, pf: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -115,11 +109,12 @@ def bayes_log_threshold(prior_h1: float, c00: float, c01: float, c10: float, c11
     """ln lambda_0 of eq 22 (see :func:`bayes_threshold` for the validation)."""
     p1 = _prior(prior_h1)
     costs = {"c00": c00, "c01": c01, "c10": c10, "c11": c11}
-    for name, value in costs.items():
-        if not np.isfinite(float(value)):
-            raise ParameterError(name, value, "cost must be a finite number")
-    false_alarm_penalty = float(c10) - float(c00)  # C10 - C00
-    miss_penalty = float(c01) - float(c11)  # C01 - C11
+    c00, c01, c10, c11 = (
+        check_real(name, value, -math.inf, math.inf, allowed="cost must be a finite number")
+        for name, value in costs.items()
+    )
+    false_alarm_penalty = c10 - c00  # C10 - C00
+    miss_penalty = c01 - c11  # C01 - C11
     if miss_penalty == 0.0:
         raise ParameterError(
             "c01", c01, f"must differ from c11={c11!r}: C01 - C11 = 0 is a zero denominator in eq 22"
@@ -167,16 +162,6 @@ class CountRuleRates:
     log_p_miss: float
 
 
-def _count(value, name: str, low: int, high: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
-        if not (isinstance(value, float) and value.is_integer()):
-            raise ParameterError(name, value, f"must be an integer in [{low}, {high}]")
-    value = int(value)
-    if not low <= value <= high:
-        raise ParameterError(name, value, f"must be an integer in [{low}, {high}]")
-    return value
-
-
 def count_rule_error_rates(min_present_count: int, pd, pf) -> CountRuleRates:
     """Exact P_D, P_F (and logs, and ln P_M) of the rule "H1 iff K >= min_present_count".
 
@@ -189,7 +174,7 @@ def count_rule_error_rates(min_present_count: int, pd, pf) -> CountRuleRates:
     """
     pd_arr, pf_arr = _taxel_probabilities(pd, pf)
     n = pd_arr.size
-    m = _count(min_present_count, "min_present_count", 0, n + 1)
+    m = check_integer("min_present_count", min_present_count, 0, n + 1)
     log_pd_tail = poisson_binomial.log_sf(pd_arr, m)
     log_pf_tail = poisson_binomial.log_sf(pf_arr, m)
     log_miss = poisson_binomial.log_cdf(pd_arr, m - 1)
@@ -211,7 +196,7 @@ def k_of_n_error_rates(k: int, pd, pf) -> tuple[float, float]:
     (identical taxels; then the other argument fixes n). Exact Poisson-binomial tails.
     """
     pd_arr, pf_arr = _taxel_probabilities(pd, pf)
-    k = _count(k, "k", 1, pd_arr.size)
+    k = check_integer("k", k, 1, pd_arr.size)
     rates = count_rule_error_rates(k, pd_arr, pf_arr)
     return rates.p_detect, rates.p_false_alarm
 
@@ -347,9 +332,7 @@ def neyman_pearson_fusion(pd, pf, false_alarm: float, method: str = "auto") -> N
       else "count".
     """
     pd_arr, pf_arr = _taxel_probabilities(pd, pf)
-    alpha = float(false_alarm)
-    if not np.isfinite(alpha) or not 0.0 < alpha < 1.0:
-        raise ParameterError("false_alarm", false_alarm, "must be a probability in the open interval (0, 1)")
+    alpha = _probability("false_alarm", false_alarm)
     n = pd_arr.size
     identical = bool(np.all(pd_arr == pd_arr[0]) and np.all(pf_arr == pf_arr[0]))
     if method == "auto":

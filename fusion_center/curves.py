@@ -23,6 +23,7 @@ import math
 
 import numpy as np
 
+from .encoding import as_float_array, check_real
 from .errors import ParameterError
 from .rules import _check_n
 
@@ -45,13 +46,8 @@ check_n = _check_n
 
 def check_open_unit(name: str, value) -> float:
     """A probability strictly inside (0, 1): xi, alpha, beta."""
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise ParameterError(name, value, "must be a real number in the open interval (0, 1)") from None
-    if not (0.0 < v < 1.0):  # also rejects NaN
-        raise ParameterError(name, value, "must be a real number in the open interval (0, 1)")
-    return v
+    return check_real(name, value, 0.0, 1.0, open_interval=True,
+                      allowed="must be a real number in the open interval (0, 1)")
 
 
 def check_xi(xi) -> float:
@@ -59,7 +55,7 @@ def check_xi(xi) -> float:
 
 
 def _array(name: str, values, low: float, high: float, what: str) -> np.ndarray:
-    arr = np.asarray(values, dtype=float)
+    arr = as_float_array(name, values)
     bad = ~np.isfinite(arr) | (arr < low) | (arr > high)
     if bad.any():
         raise ParameterError(name, arr[bad].flat[0].item(), f"must be finite and lie in {what}")
@@ -161,12 +157,7 @@ def p_additive_pm1(U, n, xi):
 
 def p_preferential(U, g, xi):
     """Eq 14, preferential rule: p = ((1 - xi)/g^2) U^2 + xi, U in [-g, g], g = g(n) of eq 15."""
-    try:
-        g = float(g)
-    except (TypeError, ValueError):
-        raise ParameterError("g", g, "must be a finite real > 0 (g(n) of eq 15)") from None
-    if not math.isfinite(g) or g <= 0:
-        raise ParameterError("g", g, "must be a finite real > 0 (g(n) of eq 15)")
+    g = check_real("g", g, 0.0, math.inf, open_interval=True, allowed="must be a finite real > 0 (g(n) of eq 15)")
     xi = check_xi(xi)
     u = _array("U", U, -g, g, f"[-g, g] = [-{g:g}, {g:g}]")
     ratio = u / g

@@ -13,6 +13,9 @@ from __future__ import annotations
 
 from typing import Literal
 
+import math
+import numbers
+
 import numpy as np
 
 from .errors import ParameterError
@@ -22,6 +25,74 @@ ENCODINGS: tuple[str, ...] = ("pm1", "01")
 
 PRESENT = 1
 ABSENT = {"pm1": -1, "01": 0}
+
+
+# ------------------------------------------------ input checks shared by the numerical core
+def _scalar_float(value) -> float:
+    """float(value) for a real scalar; TypeError/ValueError for bools, arrays, complex, text."""
+    if isinstance(value, (bool, np.bool_)) or (isinstance(value, np.ndarray) and value.ndim > 0):
+        raise TypeError(value)
+    return float(value)
+
+
+def check_real(name: str, value, low: float, high: float, *, open_interval: bool = False,
+               allowed: str | None = None) -> float:
+    """``value`` as a finite float in [low, high] (or (low, high) with ``open_interval``).
+
+    Bools, NaN, +-inf, arrays and non-numbers raise ParameterError(name, value, allowed).
+    """
+    if allowed is None:
+        interval = f"({low:g}, {high:g})" if open_interval else f"[{low:g}, {high:g}]"
+        allowed = f"must be a real number in {interval}"
+    try:
+        v = _scalar_float(value)
+    except (TypeError, ValueError):
+        raise ParameterError(name, value, allowed) from None
+    inside = (low < v < high) if open_interval else (low <= v <= high)
+    if not (math.isfinite(v) and inside):
+        raise ParameterError(name, value, allowed)
+    return v
+
+
+def check_integer(name: str, value, low: int | None = None, high: int | None = None, *,
+                  allowed: str | None = None) -> int:
+    """``value`` as an int in [low, high] (None: unbounded). Integral floats (3.0) and numpy
+    integers are accepted; bools, fractions, NaN, inf and non-numbers raise ParameterError."""
+    if allowed is None:
+        if low is not None and high is not None:
+            allowed = f"must be an integer in [{low}, {high}]"
+        elif low is not None:
+            allowed = f"must be an integer >= {low}"
+        else:
+            allowed = "must be an integer"
+    if isinstance(value, (bool, np.bool_)):
+        raise ParameterError(name, value, allowed)
+    if isinstance(value, numbers.Integral):
+        v = int(value)
+    else:
+        try:
+            f = _scalar_float(value)
+        except (TypeError, ValueError):
+            raise ParameterError(name, value, allowed) from None
+        if not (math.isfinite(f) and f.is_integer()):
+            raise ParameterError(name, value, allowed)
+        v = int(f)
+    if (low is not None and v < low) or (high is not None and v > high):
+        raise ParameterError(name, value, allowed)
+    return v
+
+
+def as_float_array(name: str, values) -> np.ndarray:
+    """``values`` as a float64 array; text, None, complex or ragged input raise ParameterError."""
+    try:
+        raw = np.asarray(values)
+        if raw.dtype.kind == "c" or raw.dtype.kind not in "biuf" and raw.dtype != object:
+            raise TypeError(raw.dtype)
+        return raw.astype(float)
+    except (TypeError, ValueError):
+        scalar = isinstance(values, (str, bytes, numbers.Number)) or values is None
+        shown = values if scalar else "a non-numeric or ragged sequence"
+        raise ParameterError(name, shown, "must be real numbers") from None
 
 
 def check_encoding(encoding: str) -> str:
@@ -40,9 +111,9 @@ def local_decision(observation, noise, zeta, encoding: Encoding = "pm1") -> np.n
     Returns int8 decisions.
     """
     check_encoding(encoding)
-    x = np.asarray(observation, dtype=float)
-    n = np.asarray(noise, dtype=float)
-    z = np.asarray(zeta, dtype=float)
+    x = as_float_array("observation", observation)
+    n = as_float_array("noise", noise)
+    z = as_float_array("zeta", zeta)
     if np.any(~np.isfinite(z)) or np.any(z < 0):
         bad = z[~np.isfinite(z) | (z < 0)].flat[0]
         raise ParameterError("zeta", float(bad), "cut-off must be finite and >= 0 mV")
@@ -56,17 +127,18 @@ def validate_decisions(u, encoding: Encoding = "pm1", name: str = "u") -> np.nda
     Raises ParameterError naming the first offending index and value.
     """
     check_encoding(encoding)
-    arr = np.asarray(u)
-    if arr.ndim != 1:
-        raise ParameterError(name, arr.shape, "must be a 1-D sequence of decisions")
-    if arr.size == 0:
-        raise ParameterError(name, [], "needs at least one decision (n >= 1)")
     allowed = (-1, 1) if encoding == "pm1" else (0, 1)
-    as_float = arr.astype(float)
+    as_float = as_float_array(name, u)
+    if as_float.ndim != 1:
+        raise ParameterError(name, as_float.shape, "must be a 1-D sequence of decisions")
+    if as_float.size == 0:
+        raise ParameterError(name, [], "needs at least one decision (n >= 1)")
     ok = np.isin(as_float, allowed)
     if not ok.all():
         i = int(np.flatnonzero(~ok)[0])
-        raise ParameterError(f"{name}[{i}]", arr[i].item(), f"must be one of {allowed} for tuple '{encoding}'")
+        bad = as_float[i].item()
+        raise ParameterError(f"{name}[{i}]", int(bad) if bad.is_integer() else bad,
+                             f"must be one of {allowed} for tuple '{encoding}'")
     return as_float.astype(np.int8)
 
 

@@ -25,38 +25,38 @@ note this differs from scipy's ``sf(k) = P(K > k)``. ``cdf(probs, k) = P(K <= k)
 
 from __future__ import annotations
 
-import numbers
-
 import numpy as np
 from scipy.special import logsumexp
 
+from .encoding import as_float_array, check_integer
 from .errors import ParameterError
 
 
-def validate_probabilities(probs, name: str = "probs") -> np.ndarray:
-    """Return ``probs`` as a 1-D float array with every entry in the closed interval [0, 1].
+def validate_probabilities(probs, name: str = "probs", open_interval: bool = False) -> np.ndarray:
+    """Return ``probs`` as a 1-D float array with every entry in [0, 1] (or (0, 1) with
+    ``open_interval``); a scalar becomes a one-element array.
 
     Raises ParameterError naming the first offending entry, e.g. ``probs[3]=1.2``.
     An empty sequence is allowed (n = 0: K = 0 surely).
     """
-    arr = np.asarray(probs, dtype=float)
+    arr = as_float_array(name, probs)
     if arr.ndim == 0:
         arr = arr.reshape(1)
     if arr.ndim != 1:
         raise ParameterError(name, arr.shape, "must be a 1-D sequence of probabilities")
-    bad = ~np.isfinite(arr) | (arr < 0.0) | (arr > 1.0)
+    if open_interval:
+        bad, allowed = (arr <= 0.0) | (arr >= 1.0), "must be a probability in the open interval (0, 1)"
+    else:
+        bad, allowed = (arr < 0.0) | (arr > 1.0), "must be a probability in [0, 1]"
+    bad |= ~np.isfinite(arr)
     if bad.any():
         i = int(np.flatnonzero(bad)[0])
-        raise ParameterError(f"{name}[{i}]", float(arr[i]), "must be a probability in [0, 1]")
+        raise ParameterError(f"{name}[{i}]", float(arr[i]), allowed)
     return arr
 
 
 def _check_count(k, name: str = "k") -> int:
-    if isinstance(k, bool) or not isinstance(k, numbers.Integral):
-        if isinstance(k, float) and k.is_integer():
-            return int(k)
-        raise ParameterError(name, k, "must be an integer count")
-    return int(k)
+    return check_integer(name, k, allowed="must be an integer count")
 
 
 def pmf(probs) -> np.ndarray:

@@ -23,8 +23,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .encoding import PRESENT, Encoding, validate_decisions
-from .errors import ParameterError
+from .encoding import PRESENT, Encoding, check_integer, check_real, validate_decisions
 
 __all__ = [
     "MultiplicativeValue",
@@ -51,27 +50,17 @@ class MultiplicativeValue(NamedTuple):
     scaled: float
 
 
+# largest taxel count: every count 0..n and every U_G of eqs 5-6 is an exact float64 integer
+MAX_TAXELS = 2**53
+
+
 def check_weight(name: str, value) -> float:
     """p or q of eq 7: a finite real in [0, 2] (the chapter: 0 <= p, q <= 2)."""
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise ParameterError(name, value, "must be a real number in [0, 2]") from None
-    if not math.isfinite(v) or v < 0.0 or v > 2.0:
-        raise ParameterError(name, value, "must be a real number in [0, 2]")
-    return v
+    return check_real(name, value, 0.0, 2.0, allowed="must be a real number in [0, 2]")
 
 
 def _check_n(n) -> int:
-    if isinstance(n, bool):
-        raise ParameterError("n", n, "must be an integer >= 1")
-    try:
-        as_float = float(n)
-    except (TypeError, ValueError):
-        raise ParameterError("n", n, "must be an integer >= 1") from None
-    if not math.isfinite(as_float) or as_float != math.floor(as_float) or as_float < 1:
-        raise ParameterError("n", n, "must be an integer >= 1")
-    return int(as_float)
+    return check_integer("n", n, 1, MAX_TAXELS, allowed="must be an integer >= 1 (and <= 2^53)")
 
 
 def additive(u, encoding: Encoding) -> int:
@@ -141,10 +130,9 @@ def k_of_n(u, k, encoding: Encoding) -> int:
     """
     arr = validate_decisions(u, encoding)
     n = arr.size
-    if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 1 <= int(k) <= n:
-        raise ParameterError("k", k, f"must be an integer in 1..n (n = {n})")
+    k = check_integer("k", k, 1, n, allowed=f"must be an integer in 1..n (n = {n})")
     present = int(np.count_nonzero(arr == PRESENT))
-    return 1 if present >= int(k) else -1
+    return 1 if present >= k else -1
 
 
 def g_of_n(n, p, q) -> float:

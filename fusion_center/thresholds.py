@@ -43,8 +43,7 @@ import math
 from dataclasses import dataclass
 
 from .curves import additive_pm1_constants, check_n, check_open_unit, check_xi
-from .encoding import check_encoding
-from .errors import ParameterError
+from .encoding import check_encoding, check_integer
 from .rules import check_weight, g_of_n
 
 __all__ = [
@@ -130,10 +129,6 @@ def solve_mean_deficit(b: float, rtol: float = DEFAULT_RTOL) -> tuple[float, int
     return z, evals
 
 
-def _check_level(name: str, value) -> float:
-    return check_open_unit(name, value)
-
-
 # ----------------------------------------------------------------------------- multiplicative
 
 
@@ -166,7 +161,7 @@ def multiplicative_threshold(n, xi, beta, *, rtol: float = DEFAULT_RTOL, info: d
     """
     n = check_n(n)
     xi = check_xi(xi)
-    beta = _check_level("beta", beta)
+    beta = check_open_unit("beta", beta)
     l_prime = -math.log(xi) / -math.expm1(-2.0 * n)
     z, evals = solve_mean_deficit(beta, rtol)
     if info is not None:
@@ -278,7 +273,7 @@ def additive_threshold(n, xi, alpha, encoding: str = "pm1", *, rtol: float = DEF
     """
     n = check_n(n)
     xi = check_xi(xi)
-    alpha = _check_level("alpha", alpha)
+    alpha = check_open_unit("alpha", alpha)
     encoding = check_encoding(encoding)
     evals = [0]
     if encoding == "01":
@@ -376,10 +371,9 @@ def max_preferential_value(n, present, p, q, encoding: str = "pm1") -> float:
     p = check_weight("p", p)
     q = check_weight("q", q)
     encoding = check_encoding(encoding)
-    if isinstance(present, bool) or not float(present).is_integer() or not 0 <= present <= n:
-        raise ParameterError("present", present, f"must be an integer in 0..n (n = {n})")
+    present = check_integer("present", present, 0, n, allowed=f"must be an integer in 0..n (n = {n})")
     absent = -1.0 if encoding == "pm1" else 0.0
-    return _max_value(n, int(present), *_factor_tables(p, q), absent)
+    return _max_value(n, present, *_factor_tables(p, q), absent)
 
 
 def _smallest_present(n: int, p: float, q: float, encoding: str, lam: float) -> int | None:
@@ -422,7 +416,7 @@ def preferential_threshold(n, xi, alpha, p, q, encoding: str = "pm1") -> Prefere
     """
     n = check_n(n)
     xi = check_xi(xi)
-    alpha = _check_level("alpha", alpha)
+    alpha = check_open_unit("alpha", alpha)
     p = check_weight("p", p)
     q = check_weight("q", q)
     encoding = check_encoding(encoding)

@@ -32,3 +32,45 @@ def test_encodings_are_explicit_and_convertible():
         validate_decisions([1, 0], "pm1")
     with pytest.raises(ParameterError, match="tuple"):
         validate_decisions([1], "binary")
+
+
+# ------------------------------------------------ shared input checks (every numerical module)
+from fusion_center import baselines, curves, poisson_binomial, rules, thresholds  # noqa: E402
+
+
+@pytest.mark.parametrize("call,field", [
+    (lambda: validate_decisions(["a", 1], "pm1"), "u"),
+    (lambda: validate_decisions([None, 1], "pm1"), "u[0]"),
+    (lambda: validate_decisions([[1], [1, 1]], "pm1"), "u"),
+    (lambda: validate_decisions([1 + 0j, 1], "pm1"), "u"),
+    (lambda: local_decision(["x"], 0.0, 1.0), "observation"),
+    (lambda: local_decision([1.0], 0.0, "x"), "zeta"),
+    (lambda: rules.check_weight("p", True), "p"),
+    (lambda: rules.g_of_n(True, 1, 1), "n"),
+    (lambda: rules.g_of_n(np.array([3, 4]), 1, 1), "n"),
+    (lambda: rules.g_of_n(2**53 + 2, 1, 1), "n"),
+    (lambda: thresholds.additive_threshold(57, np.array([0.003]), 0.03), "xi"),
+    (lambda: thresholds.max_preferential_value(5, "x", 1, 1), "present"),
+    (lambda: curves.p_additive_pm1("x", 5, 0.1), "U"),
+    (lambda: poisson_binomial.pmf(["a"]), "probs"),
+    (lambda: poisson_binomial.log_sf([0.5], True), "k"),
+    (lambda: baselines.np_log_statistic([1], ["x"], 0.1), "pd"),
+    (lambda: baselines.chair_varshney_llr([1], 0.9, 0.1, prior_h1="x"), "prior_h1"),
+    (lambda: baselines.bayes_threshold(0.5, "x", 1, 1, 0), "c00"),
+    (lambda: baselines.bayes_threshold(0.5, 0, True, 1, 0), "c01"),
+    (lambda: baselines.neyman_pearson_fusion(0.9, [0.1] * 3, "x"), "false_alarm"),
+])
+def test_bad_types_raise_parameter_error_naming_the_field(call, field):
+    with pytest.raises(ParameterError) as err:
+        call()
+    assert err.value.name == field
+
+
+def test_numpy_scalars_and_integral_floats_are_accepted():
+    assert rules.k_of_n([1, 1, -1], np.int32(2), "pm1") == 1
+    assert rules.k_of_n([1, 1, -1], 2.0, "pm1") == 1
+    assert rules.g_of_n(np.int64(18), np.float32(1), 1) == 68
+    assert validate_decisions(np.array([True, False]), "01").tolist() == [1, 0]
+    assert poisson_binomial.log_sf([0.5, 0.5], np.float64(1.0)) == pytest.approx(np.log(0.75), rel=1e-15)
+    base = thresholds.additive_threshold(57, 0.003, 0.03)
+    assert thresholds.additive_threshold(np.int64(57), np.float64(0.003), np.float64(0.03)) == base
