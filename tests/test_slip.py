@@ -133,3 +133,41 @@ def test_line_fit_velocity_exact_on_a_line():
     p = np.column_stack([3 + 2 * t, -1 - 0.5 * t])
     np.testing.assert_allclose(line_fit_velocity(t, p), [2.0, -0.5])
     np.testing.assert_array_equal(line_fit_velocity([1.0], [[1.0, 2.0]]), [0.0, 0.0])
+
+
+def test_exact_track_known_onset_speed_and_distance():
+    # noise-free centroid (no taxel grid): still at (5, 5) up to cycle 10, then 0.3 / -0.4 units
+    # per 0.02 s cycle (0.5 per cycle, 25 per s) until cycle 39; contact lost at 40-41, a new
+    # static grasp from 42 on. Forces: 4 during 10-39, else 2, against mu F_g = 0.3 x 10 = 3.
+    dt, n = 0.02, 50
+    k = np.arange(n)
+    times = k * dt
+    steps = np.clip(k - 10, 0, None)[:, None]
+    centroids = np.array([5.0, 5.0]) + steps * np.array([0.3, -0.4])
+    centroids[40:42] = np.nan
+    centroids[42:] = [50.0, 50.0]
+    tangential = np.where((k >= 10) & (k < 40), 4.0, 2.0)
+    grip = np.full(n, 10.0)
+
+    res = detect_slip(times, centroids, tangential, grip, 0.3, noise_band=1.0, motion_consecutive=2)
+    assert (res.onset_index, res.flagged_index, res.criterion) == (10, 10, "force")
+    np.testing.assert_allclose(res.velocity, [15.0, -20.0], rtol=1e-12)
+    np.testing.assert_allclose(res.velocity_per_cycle, [0.3, -0.4], rtol=1e-12)
+    assert res.speed == pytest.approx(25.0, rel=1e-12)
+    assert res.distance == pytest.approx(0.5 * 29, rel=1e-12)        # cycles 10..39 of the episode
+    np.testing.assert_allclose(res.force_ratio[[0, 10, 40]], [2 / 3, 4 / 3, np.nan])
+
+    # motion only: displacement 0.5 (k - 10) first exceeds the 1.0 band at k = 13 (1.5)
+    res = detect_slip(times, centroids, None, None, 0.3, noise_band=1.0, motion_consecutive=2)
+    assert (res.onset_index, res.flagged_index, res.criterion) == (13, 14, "motion")
+    assert res.speed == pytest.approx(25.0, rel=1e-12)
+    assert res.distance == pytest.approx(0.5 * 26, rel=1e-12)        # cycles 13..39
+
+    tracker = SlipTracker(0.3, 1.0, motion_consecutive=2)
+    states = [tracker.update(t, [] if np.isnan(c[0]) else [c], f, g)
+              for t, c, f, g in zip(times, centroids, tangential, grip)]
+    s = states[39]
+    assert (s.onset_index, s.flagged_index, s.criterion) == (10, 10, "force")
+    assert s.distance == pytest.approx(0.5 * 29, rel=1e-12) and s.speed == pytest.approx(25.0, rel=1e-12)
+    assert not states[40].contact and not states[41].slipping
+    assert not states[-1].slipping and states[-1].force_ratio == pytest.approx(2.0 / 3.0)
