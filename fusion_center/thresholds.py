@@ -309,6 +309,9 @@ class PreferentialThreshold:
     arrangement of j present taxels is one contiguous run, see :func:`max_preferential_value`).
     threshold_mean/initial/final and present_count are None when eq 18 has no root in [-g, g]
     (alpha > 3(1 - xi)/4); band_width and g_max do not depend on the root and are always set.
+    mean_roots: every non-trivial root of eq 18 in [-g, g], ascending (empty, one, or two
+    when 2 <= 3 alpha/(1 - xi) < 9/4, the second one in [-g, -g/2]); threshold_mean is the
+    largest.
     """
 
     n: int
@@ -323,6 +326,7 @@ class PreferentialThreshold:
     threshold_initial: float | None
     threshold_final: float | None
     present_count: int | None
+    mean_roots: tuple[float, ...] = ()
 
 
 def _factor_tables(p: float, q: float) -> tuple[dict, dict]:
@@ -412,7 +416,9 @@ def preferential_threshold(n, xi, alpha, p, q, encoding: str = "pm1") -> Prefere
     With y = lambda/g, eq 18 divided by (g - lambda) is y^2 + y - 2 + a = 0, a = 3 alpha/(1-xi),
     roots y = (-1 +- sqrt(9 - 4a))/2. The "+" root lies in [-1/2, 1) and exists iff
     a <= 9/4; it is formed as 1 - 2a/(3 + s) (a < 1) or 2(2 - a)/(1 + s) (a >= 1), s = sqrt(9-4a),
-    without cancellation. ``encoding`` only affects present_count (U_G of eq 7 on that tuple).
+    without cancellation. The "-" root (-1 - s)/2 lies in [-1, -1/2] when a >= 2 (s <= 1) and
+    is then returned in ``mean_roots`` too. ``encoding`` only affects present_count (U_G of
+    eq 7 on that tuple).
     """
     n = check_n(n)
     xi = check_xi(xi)
@@ -433,7 +439,10 @@ def preferential_threshold(n, xi, alpha, p, q, encoding: str = "pm1") -> Prefere
     else:
         y = 2.0 * (2.0 * one_minus_xi - 3.0 * alpha) / (one_minus_xi * (1.0 + s))
     mean = y * g
+    roots = (mean,)
+    if s <= 1.0 and s > 0.0:  # second root (-1 - s)/2 in [-1, -1/2]; s = 0 is the double root
+        roots = (0.5 * (-1.0 - s) * g, mean)
     present = _smallest_present(n, p, q, encoding, mean)
     return PreferentialThreshold(
-        n, xi, alpha, p, q, encoding, g, mean, band, mean - 0.5 * band, mean + 0.5 * band, present
+        n, xi, alpha, p, q, encoding, g, mean, band, mean - 0.5 * band, mean + 0.5 * band, present, roots
     )

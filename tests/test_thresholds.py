@@ -158,6 +158,9 @@ def test_preferential_matches_reference(n, xi, alpha):
     ref, g = ref_preferential(n, xi, alpha, p, q)
     assert _rel(ours.g_max, g) <= 1e-15
     assert ours.band_width == pytest.approx(alpha * g / 4, rel=1e-15)  # eq 20
+    assert len(ours.mean_roots) == len(ref), (ours.mean_roots, ref)
+    for lam, lam_ref in zip(ours.mean_roots, ref):
+        assert _rel(lam, lam_ref) <= REL, (lam, lam_ref)
     if not ref:
         assert ours.threshold_mean is None and ours.present_count is None
         return
@@ -319,6 +322,18 @@ def test_additive_pm1_two_roots_when_xi_above_quarter(n, xi, alpha):
     assert len(ours.thresholds) == len(ref)
     for lam, lam_ref in zip(ours.thresholds, ref):
         assert _rel(lam, lam_ref) <= REL
+
+
+@pytest.mark.parametrize("n,xi,alpha", [(18, 0.003, 0.67), (18, 0.003, 0.74), (1000, 0.5, 0.36),
+                                        (5, 0.999999, 0.7e-6)])
+def test_preferential_second_root_of_eq18(n, xi, alpha):
+    """For 2 <= 3 alpha/(1 - xi) < 9/4 eq 18 has a second non-trivial root in [-g, -g/2]."""
+    ours = preferential_threshold(n, xi, alpha, 1, 1)
+    ref, _ = ref_preferential(n, xi, alpha, 1, 1)
+    assert len(ref) == 2 and len(ours.mean_roots) == 2
+    for lam, lam_ref in zip(ours.mean_roots, ref):
+        assert _rel(lam, lam_ref) <= REL
+    assert ours.threshold_mean == ours.mean_roots[-1]
 
 
 def test_two_roots_do_occur():
