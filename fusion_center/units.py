@@ -30,6 +30,8 @@ def convert_force(value, from_unit: str, to_unit: str):
     check_force_unit(from_unit, "from_unit")
     check_force_unit(to_unit, "to_unit")
     factor = _TO_NEWTON[from_unit] / _TO_NEWTON[to_unit]
-    if np.ndim(value) == 0:
-        return float(value) * factor
-    return np.asarray(value, dtype=float) * factor
+    try:
+        force = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise ParameterError("value", value, "force must be a number or an array of numbers") from None
+    return float(force) * factor if force.ndim == 0 else force * factor

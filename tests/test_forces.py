@@ -139,3 +139,9 @@ def test_units_explicit_and_convertible():
     assert KGF_IN_NEWTON == 9.80665
     with pytest.raises(ParameterError, match="unit"):
         matrix_force_report([1.0], 1.0, 0.0, 0.3, unit="lbf")
+    assert convert_force(2.0, "kgf", "N") == 2 * 9.80665
+    np.testing.assert_allclose(convert_force([9.80665, 19.6133], "N", "kgf"), [1.0, 2.0], rtol=1e-15)
+    with pytest.raises(ParameterError, match="^value"):
+        convert_force("heavy", "kgf", "N")
+    with pytest.raises(ParameterError, match="^to_unit"):
+        convert_force(1.0, "kgf", "lb")
