@@ -253,6 +253,19 @@ def _list(w: _Where, key: str, v, length: int | None = None) -> list:
     return v
 
 
+def _distinct_strings(w: _Where, key: str, raw, choices: tuple[str, ...] | None = None) -> list[str]:
+    """An array of strings (each one of ``choices`` when given), none listed twice."""
+    out: list[str] = []
+    for i, v in enumerate(_list(w, key, raw)):
+        _str(w, f"{key}[{i}]", v, choices)
+        if v == "":
+            w.fail(f"{key}[{i}]", v, "must not be empty")
+        if v in out:
+            w.fail(f"{key}[{i}]", v, "listed twice")
+        out.append(v)
+    return out
+
+
 def _kind_field(w: _Where, key: str, v) -> float:
     """Range of every per-kind field (eqs 1-4, 23, 27)."""
     if key in ("zeta_mv", "noise_mv", "noise_sigma_mv"):
@@ -357,13 +370,7 @@ def load_scene(path) -> Scene:
     forces = _load_forces(sp, top, doc.get("forces", {}))
     ow = _Where(sp, "outputs")
     outs = _table(top, "outputs", doc.get("outputs", {}), _OUTPUTS_KEYS)
-    stages_raw = _list(ow, "stages", outs.get("stages", ["fusion"]))
-    stages = []
-    for i, s in enumerate(stages_raw):
-        _str(ow, f"stages[{i}]", s, STAGES)
-        if s in stages:
-            ow.fail(f"stages[{i}]", s, "listed twice")
-        stages.append(s)
+    stages = _distinct_strings(ow, "stages", outs.get("stages", ["fusion"]), STAGES)
     faults = _load_faults(sp, top, doc.get("faults", []), taxels)
     return Scene(path=sp, name=name, description=description, seed=seed, cycles=cycles, bus=bus,
                  taxels=taxels, object=obj, fusion=fusion, forces=forces, stages=tuple(stages),
@@ -390,17 +397,9 @@ def _load_bus(sp: str, top: _Where, raw) -> BusSpec:
         w.fail("transmission_type", tt, "must be 1..240 (synchronous) or 254/255 (event-driven)")
     inhibit = _int(w, "inhibit_time_100us", b.get("inhibit_time_100us", d.inhibit_time_100us), 0, 0xFFFF)
     ev = _int(w, "event_timer_ms", b.get("event_timer_ms", d.event_timer_ms), 0, 0xFFFF)
-    ch_raw = _list(w, "channels", b.get("channels", list(d.channels)))
-    if not ch_raw:
-        w.fail("channels", ch_raw, "needs at least one channel")
-    channels = []
-    for i, c in enumerate(ch_raw):
-        _str(w, f"channels[{i}]", c)
-        if not c:
-            w.fail(f"channels[{i}]", c, "must not be empty")
-        if c in channels:
-            w.fail(f"channels[{i}]", c, "listed twice")
-        channels.append(c)
+    channels = _distinct_strings(w, "channels", b.get("channels", list(d.channels)))
+    if not channels:
+        w.fail("channels", channels, "needs at least one channel")
     return BusSpec(bitrate=bitrate, sync_period_ms=sync, sync_counter=counter,
                    heartbeat_producer_ms=hb_p, heartbeat_consumer_ms=hb_c, mode=mode,
                    transmission_type=tt, inhibit_time_100us=inhibit, event_timer_ms=ev,
@@ -530,15 +529,9 @@ def _load_fusion(sp: str, top: _Where, raw, taxels: tuple[TaxelSpec, ...]) -> Fu
     if "tuple" not in f:
         w.fail("tuple", None, "missing required field: 'pm1' or '01' (always explicit)")
     enc = _str(w, "tuple", f["tuple"], ("pm1", "01"))
-    rules_raw = _list(w, "rules", f.get("rules", list(d.rules)))
-    if not rules_raw:
-        w.fail("rules", rules_raw, "needs at least one rule")
-    rules = []
-    for i, r in enumerate(rules_raw):
-        _str(w, f"rules[{i}]", r, RULES)
-        if r in rules:
-            w.fail(f"rules[{i}]", r, "listed twice")
-        rules.append(r)
+    rules = _distinct_strings(w, "rules", f.get("rules", list(d.rules)), RULES)
+    if not rules:
+        w.fail("rules", rules, "needs at least one rule")
     decide = _str(w, "decide_with", f.get("decide_with", rules[0]))
     if decide not in rules:
         w.fail("decide_with", decide, f"must be one of fusion.rules ({', '.join(rules)})")

@@ -188,6 +188,13 @@ ERRORS = [
     (('node_id = 2', 'node_id = 0'), "taxels[1].node_id", 0),
     (('node_id = 2', 'node_id = 128'), "taxels[1].node_id", 128),
     (('channel = 1', 'channel = 2'), "taxels[2].channel", 2),
+    (('channels = ["a", "b"]', 'channels = ["a", "a"]'), "bus.channels[1]", "a"),
+    (('channels = ["a", "b"]', 'channels = ["a", ""]'), "bus.channels[1]", ""),
+    (('channels = ["a", "b"]', 'channels = []'), "bus.channels", []),
+    # lists of names
+    (('rules = ["additive", "llr"]', 'rules = []'), "fusion.rules", []),
+    (('rules = ["additive", "llr"]', 'rules = ["additive", "additive"]'), "fusion.rules[1]", "additive"),
+    (('stages = ["fusion", "area"]', 'stages = ["area", "area"]'), "outputs.stages[1]", "area"),
     # missing required fields
     (('name = "t"\n', ''), "scene.name", None),
     (('tuple = "pm1"\n', ''), "fusion.tuple", None),
