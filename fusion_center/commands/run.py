@@ -82,7 +82,7 @@ def execute(service, cycles: int, *, live: bool, boot_timeout: float, before_syn
     if live and stdout_is_tty():
         from ..service.live import LiveView
 
-        view = LiveView(service)
+        view = LiveView(service, cycles=cycles)
         service.on_record.append(view.update)
     if on_start is not None:
         on_start()
@@ -101,13 +101,25 @@ def summarise(service, summary) -> dict:
     decisions = {d: sum(r["decision"] == d for r in records) for d in ("H1", "H0", "undecided")}
     with_truth = [r for r in records if "truth" in r and r["decision"] != "undecided"]
     correct = sum(r["decision"] == r["truth"] for r in with_truth)
+    per_rule: dict[str, str] = {}
+    for name in (records[0].get("rules") or {}) if records else ():
+        decided = [r for r in records if "truth" in r and r["rules"].get(name, {}).get("decision") in ("H1", "H0")]
+        agree = sum(r["rules"][name]["decision"] == r["truth"] for r in decided)
+        per_rule[name] = f"{agree}/{len(decided)}"
     out = {
+        "scene": service.scene.name,
+        "mode": service.scene.bus.mode,
         "cycles": summary.cycles,
         "records": len(service.records),
+        "decide_with": service.scene.fusion.decide_with,
         "decisions": decisions,
         "agree_with_truth": f"{correct}/{len(with_truth)}" if with_truth else None,
+        "rules_agree_with_truth": per_rule,
         "degraded_cycles": sum(bool(r.get("degraded")) for r in records),
         "missing_at_boot": summary.missing_at_boot,
+        "stages_run": records[-1]["stages_run"] if records else [],
+        "stages_skipped": service.pipeline.stages_skipped,
+        "rules_skipped": service.pipeline.rules_skipped,
         "counters": {k: v for k, v in summary.counters.items() if v},
         "sdo": {"writes": summary.sdo_writes, "aborts": summary.sdo_aborts, "timeouts": summary.sdo_timeouts},
         "sync_overruns": summary.sync_overruns,
@@ -123,9 +135,43 @@ def _round(x):
     return None if x is None else round(x, 3)
 
 
+def format_summary(summary: dict) -> list[str]:
+    """The run summary as aligned ``label: value`` lines (one fact per line, grep-able)."""
+    d = summary["decisions"]
+    lines = [
+        ("scene", f"{summary['scene']} ({summary['mode']} mode)"),
+        ("cycles", f"{summary['cycles']} SYNC, {summary['records']} records"),
+        ("decisions", f"H1 {d['H1']}, H0 {d['H0']}, undecided {d['undecided']} ({summary['decide_with']})"),
+        ("agree_with_truth", summary["agree_with_truth"] or "-"),
+        ("rules_agree_with_truth", ", ".join(f"{k} {v}" for k, v in summary["rules_agree_with_truth"].items()) or "-"),
+        ("degraded_cycles", str(summary["degraded_cycles"])),
+        ("missing_at_boot", ", ".join(map(str, summary["missing_at_boot"])) or "none"),
+        ("stages_run", ", ".join(summary["stages_run"]) or "-"),
+    ]
+    for skipped in (summary["stages_skipped"], summary["rules_skipped"]):
+        lines += [(f"skipped {name}", why.removeprefix(f"{name}: ")) for name, why in skipped.items()
+                  if not why.startswith("not requested")]
+    lines += [
+        ("counters", ", ".join(f"{k} {v}" for k, v in summary["counters"].items())),
+        ("sdo", f"{summary['sdo']['writes']} writes, {summary['sdo']['aborts']} aborts, "
+                f"{summary['sdo']['timeouts']} timeouts"),
+        ("sync_overruns", str(summary["sync_overruns"])),
+        ("latency_ms", f"SYNC -> record p50 {_fmt_ms(summary['latency_ms_p50'])}, "
+                       f"p99 {_fmt_ms(summary['latency_ms_p99'])}"),
+    ]
+    if "own_echoes_dropped" in summary:
+        lines.append(("own_echoes_dropped", str(summary["own_echoes_dropped"])))
+    width = max(len(k) for k, _ in lines)
+    return [f"{k + ':':<{width + 1}} {v}" for k, v in lines]
+
+
+def _fmt_ms(x):
+    return "-" if x is None else f"{x:.2f} ms"
+
+
 def print_summary(summary: dict) -> None:
-    for key, value in summary.items():
-        print(f"{key}: {value}")
+    for line in format_summary(summary):
+        print(line)
 
 
 def run(args) -> int:

@@ -267,29 +267,64 @@ class CyclePipeline:
 
     # ------------------------------------------------------------------ raw mode
     def _central_params(self, name: str, available: np.ndarray):
-        """The test's parameters over the taxels with a reading (the full set, or a subset
-        with its threshold recomputed once and cached; ParameterError if no test exists)."""
+        """The test's parameters over the taxels with a reading.
+
+        Full set: the scene's parameters (threshold at P_F = ``np_false_alarm``). With readings
+        missing (a silent or missing node), no Monte Carlo in the worker - it would stall the
+        live cycle - but a threshold that still guarantees P_F <= alpha, cached per missing-set:
+
+        * ``glrt``: the received taxels' sum of max(0, LLR_i) is <= the full sum, so the full
+          threshold keeps P_F <= alpha (a missing taxel adds no evidence);
+        * ``known``: per footprint c the received LLR is Gaussian under H0,
+          L_c ~ N(-d_c^2/2, d_c^2) (d_c^2 = sum over received S_i^2/sigma_i^2), and
+          logmeanexp_c L_c <= max_c L_c, so tau with sum_c Q((tau + d_c^2/2)/d_c) = alpha
+          (exact for one footprint, a union bound otherwise) gives P_F <= alpha.
+        """
         params = self.central[name]
         if available.all():
             return params
         key = (name, available.tobytes())
         sub = self._central_subsets.get(key)
         if sub is None:
-            if len(self._central_subsets) > 64:
+            if len(self._central_subsets) > 256:
                 self._central_subsets.clear()
             try:
-                part = centralised.make_params(params.noise_mv[available], params.sigma_mv[available],
-                                               params.signal_patterns_mv[:, available],
-                                               params.taxel_signal_mv[available], params.method)
-                tau = centralised.centralised_threshold(part, params.info["false_alarm"])
-                sub = centralised.CentralisedParams(part.noise_mv, part.sigma_mv, part.signal_patterns_mv,
-                                                    part.taxel_signal_mv, part.method, tau, params.info)
+                sub = self._subset_params(params, available)
             except ParameterError as exc:
                 sub = exc
             self._central_subsets[key] = sub
         if isinstance(sub, ParameterError):
             raise sub
         return sub
+
+    @staticmethod
+    def _subset_params(params, available: np.ndarray):
+        from scipy.optimize import brentq
+        from scipy.special import log_ndtr, ndtri
+
+        part = centralised.make_params(params.noise_mv[available], params.sigma_mv[available],
+                                       params.signal_patterns_mv[:, available], params.taxel_signal_mv[available],
+                                       params.method)
+        alpha = params.info["false_alarm"]
+        if params.method == "glrt":
+            tau = params.threshold
+        else:
+            d = np.sqrt(np.sum(part.signal_patterns_mv**2 / part.sigma_mv**2, axis=1))
+            d = d[d > 0]
+            if d.size == 0:
+                raise ParameterError("readings_mv", "received taxels", "no received taxel carries signal: no test")
+            if d.size == 1:  # exact: L ~ N(-d^2/2, d^2) under H0
+                tau = -0.5 * float(d[0]) ** 2 + float(d[0]) * float(ndtri(1.0 - alpha))
+            else:
+                def excess(t):  # ln(sum_c Q((t + d_c^2/2)/d_c)) - ln(alpha)
+                    z = -(t + 0.5 * d * d) / d
+                    return float(np.logaddexp.reduce(log_ndtr(z))) - np.log(alpha)
+
+                lo, hi = -0.5 * float(d.max()) ** 2 - 50.0 * float(d.max()), 50.0 * float(d.max()) + 50.0
+                tau = brentq(excess, lo, hi, xtol=1e-12)
+        return centralised.CentralisedParams(part.noise_mv, part.sigma_mv, part.signal_patterns_mv,
+                                             part.taxel_signal_mv, part.method, float(tau),
+                                             dict(params.info))
 
     def _central(self, name: str, readings: np.ndarray, available: np.ndarray) -> dict:
         """Centralised raw-data test of one cycle (decide H1 iff statistic > threshold)."""
