@@ -38,6 +38,18 @@ NP_ENUMERATION_MAX_TAXELS = 20
 LLR_TIE_TOLERANCE = 1e-9
 
 
+def compare_log_ratio(value: float, log_threshold: float) -> int:
+    """+1, -1 or 0 (a tie) for ln Lambda against a log threshold (eqs 31-32).
+
+    Values within LLR_TIE_TOLERANCE (relative, min absolute 1e-9) are a tie: a likelihood ratio
+    of exactly 1, e.g. (0.9/0.1) (0.1/0.9), sums its logarithms to about 1e-16, not to 0.
+    """
+    diff = value - log_threshold
+    if abs(diff) <= LLR_TIE_TOLERANCE * max(1.0, abs(log_threshold)):
+        return 0
+    return 1 if diff > 0 else -1
+
+
 def _open_probabilities(values, name: str, n: int | None = None) -> np.ndarray:
     """1-D float array of probabilities strictly inside (0, 1); a scalar broadcasts to n."""
     arr = poisson_binomial.validate_probabilities(values, name, open_interval=True)
@@ -248,9 +260,7 @@ class NPFusionRule:
         """
         value = self.statistic_value(u, encoding)
         if self.statistic == "llr":
-            tol = LLR_TIE_TOLERANCE * max(1.0, abs(self.log_threshold))
-            diff = value - self.log_threshold
-            position = 0 if abs(diff) <= tol else (1 if diff > 0 else -1)
+            position = compare_log_ratio(value, self.log_threshold)
         else:
             diff = value - self.count_threshold
             if not self.count_increasing:

@@ -137,6 +137,14 @@ def test_table_output(capsys):
         (["--rule", "llr", "--u", "1,-1", "--pd", "0.9"], "pf=None"),
         (["--rule", "llr", "--u", "1,-1", "--pd", "0.9,1.0", "--pf", "0.1"], "pd[1]="),
         (["--rule", "np", "--u", "1,-1", "--pd", "0.9", "--pf", "0.1", "--false-alarm", "1"], "false_alarm='1'"),
+        (["--rule", "additive", "--u", "1,-1", "--xi", "inf"], "xi='inf'"),
+        (["--rule", "additive", "--u", "1,-1", "--xi", "1e-400"], "xi='1e-400'"),
+        (["--rule", "additive", "--u", "1,inf"], "u[1]='inf'"),
+        (["--rule", "additive", "--u", "1,-1", "--tuple", "foo"], "tuple='foo'"),
+        (["--rule", "preferential", "--u", "1,-1", "--p", "nan"], "p='nan'"),
+        (["--rule", "k-of-n", "--u", "1,-1", "--k", "1.5"], "k='1.5'"),
+        (["--rule", "llr", "--u", "1,-1", "--pd", "0.9", "--pf", "0.1", "--prior-h1", "nan"], "prior_h1='nan'"),
+        (["--rule", "np", "--u", "1,-1", "--pd", "0.9,0.8,0.7", "--pf", "0.1"], "pd='3 values'"),
     ],
 )
 def test_bad_input_exits_2_with_one_line(capsys, argv, fragment):
@@ -222,17 +230,79 @@ def test_preferential_band_decisions(capsys):
 
 
 def test_preferential_undecided_inside_band(capsys):
-    # a vector whose U_G falls inside the band: search the 01 vectors of n = 6 by hand-rule
-    import itertools
-
-    from fusion_center import rules, thresholds
-
-    band = thresholds.preferential_threshold(6, 0.003, 0.48, 1, 1, encoding="01")
-    for bits in itertools.product((0, 1), repeat=6):
-        if sum(bits) and band.threshold_initial <= rules.preferential(bits, 1, 1, "01") < band.threshold_final:
-            break
-    else:
-        pytest.skip("no 6-taxel vector inside the band")
-    rec = fuse_json(capsys, "--rule", "preferential", "--u", ",".join(map(str, bits)), "--tuple", "01",
+    # n = 6, {0,1}, p = q = 1: [1,1,1,0,0,0] gives U_G = 2 + 4 + 2 = 8 by eq 7 (hand-worked);
+    # g = 4*6 - 4 = 20, eq 18: y^2 + y - 2 + 3*0.48/0.997 = 0 -> mean = 20 y = 7.952,
+    # band (eq 20) 0.48*20/4 = 2.4 -> [6.752, 9.152): 8 lies inside
+    y = (-1 + math.sqrt(9 - 4 * 3 * 0.48 / 0.997)) / 2
+    low, high = 20 * y - 1.2, 20 * y + 1.2
+    assert low < 8 < high
+    rec = fuse_json(capsys, "--rule", "preferential", "--u", "1,1,1,0,0,0", "--tuple", "01",
                     "--xi", "0.003", "--alpha", "0.48")
-    assert rec["decision"] == "undecided"
+    assert rec["U_G"] == 8 and rec["decision"] == "undecided"
+    assert rec["threshold_initial"] == pytest.approx(low, rel=1e-12)
+    assert rec["threshold_final"] == pytest.approx(high, rel=1e-12)
+
+
+def test_no_root_is_a_result_not_an_error(capsys):
+    # alpha = 0.999 exceeds every mean deficit of eq 13 on [-3, 3]: no threshold, no decision
+    rec = fuse_json(capsys, "--rule", "additive", "--u", "1,1,-1", "--xi", "0.1", "--alpha", "0.999")
+    assert rec["threshold"] is None and rec["decision"] is None and "eq 17" in rec["no_root"]
+    assert rec["U_G"] == 1 and rec["p_h1"] is not None
+    rec = fuse_json(capsys, "--rule", "preferential", "--u", "1,1,-1", "--xi", "0.1", "--alpha", "0.99")
+    assert rec["threshold"] is None and "eq 18" in rec["no_root"]  # 3*0.99/0.9 > 9/4
+    rec = fuse_json(capsys, "--rule", "multiplicative", "--u", "1,1,-1", "--xi", "0.999", "--beta", "0.9")
+    assert rec["threshold"] is None and "eq 16" in rec["no_root"]
+
+
+def test_likelihood_ratio_of_one_is_undecided(capsys):
+    # (0.9/0.1)^1 (0.1/0.9)^1 = 1 exactly: the chapter's undefined case (sec. 6.2), although
+    # the two logarithms sum to -4.4e-16 in floating point
+    for rule in ("np", "llr"):
+        rec = fuse_json(capsys, "--rule", rule, "--u", "1,-1", "--pd", "0.9", "--pf", "0.1")
+        assert abs(rec["U_G"]) < 1e-15 and rec["decision"] == "undecided"
+    rec = fuse_json(capsys, "--rule", "llr", "--u", "1,1", "--pd", "0.9", "--pf", "0.1")
+    assert rec["U_G"] == pytest.approx(2 * math.log(9), rel=1e-14) and rec["decision"] == "H1"
+
+
+def _binomial_tail(n, p, m):
+    p = mpmath.mpf(p)
+    return mpmath.fsum(mpmath.binomial(n, j) * p**j * (1 - p) ** (n - j) for j in range(m, n + 1))
+
+
+def test_hebtem_threshold_in_count_form_with_exact_error_rates(capsys):
+    # additive, pm1, n = 57: lambda = 50.18 (eq 17, alpha = 0.03) -> 2K - 57 >= 50.18 <=> K >= 54
+    rec = fuse_json(capsys, "--rule", "additive", "--u", U_57, "--xi", "0.003", "--alpha", "0.03",
+                    "--root", "positive", "--pd", "0.995", "--pf", "0.003")
+    assert 50.0 < rec["threshold"] < 50.3 and rec["min_present_count"] == 54
+    assert rec["p_false_alarm"] == pytest.approx(float(_binomial_tail(57, "0.003", 54)), rel=1e-11)
+    assert rec["p_detect"] == pytest.approx(float(_binomial_tail(57, "0.995", 54)), rel=1e-12)
+    assert rec["log_p_false_alarm"] == pytest.approx(float(mpmath.log(_binomial_tail(57, "0.003", 54))), rel=1e-12)
+    # multiplicative, beta = 0.5: ln lambda = 56.68 -> 2K - 57 >= 56.68 <=> K >= 57
+    rec = fuse_json(capsys, "--rule", "multiplicative", "--u", U_57, "--xi", "0.003", "--beta", "0.5",
+                    "--pd", "0.995", "--pf", "0.003")
+    assert 56.5 < rec["ln_threshold"] < 57 and rec["min_present_count"] == 57
+    assert rec["p_false_alarm"] == pytest.approx(0.003**57, rel=1e-11)  # all 57 false alarms
+
+
+def test_multiplicative_01_tuple_reports_the_compared_value(capsys):
+    # {0,1}: U_G = e^(n-k) = e^4; the curve and eq 16 use the {-1,+1} value e^(2K - n) = e^3
+    rec = fuse_json(capsys, "--rule", "multiplicative", "--u", "1,1,1,1,0", "--tuple", "01",
+                    "--xi", "0.003", "--beta", "0.3")
+    assert rec["ln_U_G"] == 4 and rec["ln_U_G_pm1"] == 3
+    assert rec["decision"] == ("H1" if 3 >= rec["ln_threshold"] else "H0")
+
+
+@pytest.mark.parametrize("argv, flag", [
+    (["--rule", "additive", "--u", "1,-1", "--k", "1"], "--k"),
+    (["--rule", "additive", "--u", "1,-1", "--p", "1"], "--p"),
+    (["--rule", "multiplicative", "--u", "1,-1", "--xi", "0.1", "--alpha", "0.2"], "--alpha"),
+    (["--rule", "additive", "--u", "1,-1", "--xi", "0.1", "--beta", "0.2"], "--beta"),
+    (["--rule", "preferential", "--u", "1,-1", "--pd", "0.9"], "--pd"),
+    (["--rule", "k-of-n", "--u", "1,-1", "--k", "1", "--xi", "0.1"], "--xi"),
+    (["--rule", "llr", "--u", "1,-1", "--pd", "0.9", "--pf", "0.1", "--false-alarm", "0.1"], "--false-alarm"),
+    (["--rule", "np", "--u", "1,-1", "--pd", "0.9", "--pf", "0.1", "--prior-h1", "0.1"], "--prior-h1"),
+    (["--rule", "additive", "--u", "1,-1", "--pd", "0.9", "--pf", "0.1"], "--pd/--pf"),
+])
+def test_options_of_other_rules_are_rejected(capsys, argv, flag):
+    line = fuse_error(capsys, *argv)
+    assert flag in line

@@ -53,6 +53,16 @@ def test_preferential_json_chapter_case(capsys):
     assert {"p", "q", "present_count"} <= set(res)
 
 
+def test_preferential_second_root_in_json_and_table(capsys):
+    # a = 3 alpha/(1 - xi) = 2.16: eq 18 has roots y = (-1 +- sqrt(9 - 4a))/2 = (-1 +- 0.6)/2, g = 68
+    argv = ["--rule", "preferential", "--n", "18", "--xi", "0.3", "--alpha", "0.504"]
+    res = _json(capsys, *argv)
+    assert res["threshold_means"] == pytest.approx([-0.8 * 68, -0.2 * 68], rel=1e-12)
+    assert res["threshold_mean"] == res["threshold_means"][-1]
+    assert main(["threshold", *argv]) == 0
+    assert "threshold_means" in capsys.readouterr().out
+
+
 def test_table_output(capsys):
     assert main(["threshold", "--rule", "preferential", "--n", "18", "--xi", "0.003", "--alpha", "0.48"]) == 0
     out = capsys.readouterr().out
@@ -69,14 +79,25 @@ def test_table_output(capsys):
     (["--rule", "additive", "--n", "57", "--xi", "0.003", "--alpha", "0.1", "--p", "1"], ["--p"]),
     (["--rule", "additive", "--n", "0", "--xi", "0.003", "--alpha", "0.1"], ["n=", ">= 1"]),
     (["--rule", "additive", "--n", "abc", "--xi", "0.003", "--alpha", "0.1"], ["n=", "'abc'"]),
-    (["--rule", "additive", "--n", "57", "--xi", "1.5", "--alpha", "0.1"], ["xi=1.5", "(0, 1)"]),
+    (["--rule", "additive", "--n", "57", "--xi", "1.5", "--alpha", "0.1"], ["xi='1.5'", "(0, 1)"]),
     (["--rule", "additive", "--n", "57", "--xi", "nan", "--alpha", "0.1"], ["xi=", "(0, 1)"]),
-    (["--rule", "additive", "--n", "57", "--xi", "0.1", "--alpha", "1"], ["alpha=1", "(0, 1)"]),
-    (["--rule", "multiplicative", "--n", "57", "--xi", "0.1", "--beta", "-2"], ["beta=-2", "(0, 1)"]),
-    (["--rule", "preferential", "--n", "18", "--xi", "0.1", "--alpha", "0.3", "--p", "3"], ["p=3", "[0, 2]"]),
+    (["--rule", "additive", "--n", "57", "--xi", "0.1", "--alpha", "1"], ["alpha='1'", "(0, 1)"]),
+    (["--rule", "multiplicative", "--n", "57", "--xi", "0.1", "--beta", "-2"], ["beta='-2'", "(0, 1)"]),
+    (["--rule", "preferential", "--n", "18", "--xi", "0.1", "--alpha", "0.3", "--p", "3"], ["p='3'", "[0, 2]"]),
     (["--rule", "preferential", "--n", "18", "--xi", "0.1", "--alpha", "0.3", "--q", "inf"], ["q=", "[0, 2]"]),
     (["--rule", "additive", "--n", "57", "--xi", "0.1", "--alpha", "0.1", "--beta", "0.1"], ["not allowed"]),
     (["--rule", "bogus", "--n", "57", "--xi", "0.1", "--alpha", "0.1"], ["--rule"]),
+    # the value is quoted as typed, not as parsed (1e-400 parses to 0.0, 1_0 to 10.0)
+    (["--rule", "additive", "--n", "57", "--xi", "0.1", "--alpha", "1e-400"], ["alpha='1e-400'", "(0, 1)"]),
+    (["--rule", "additive", "--n", "57", "--xi", "0.1", "--alpha", "1_0"], ["alpha='1_0'", "(0, 1)"]),
+    (["--rule", "additive", "--n", "57", "--xi", "inf", "--alpha", "0.1"], ["xi='inf'", "(0, 1)"]),
+    (["--rule", "additive", "--n", "57.5", "--xi", "0.1", "--alpha", "0.1"], ["n='57.5'", "integer"]),
+    (["--rule", "additive", "--n", "1e400", "--xi", "0.1", "--alpha", "0.1"], ["n='1e400'", "integer"]),
+    (["--rule", "additive", "--n", "", "--xi", "0.1", "--alpha", "0.1"], ["n=''", "integer"]),
+    (["--rule", "preferential", "--n", "18", "--xi", "0.1", "--alpha", "0.3", "--p", "nan"], ["p='nan'", "[0, 2]"]),
+    (["--rule", "preferential", "--n", "18", "--xi", "0.1", "--alpha", "0.3", "--p", "2.5"], ["p='2.5'", "[0, 2]"]),
+    (["--rule", "preferential", "--n", "18", "--xi", "0.1", "--alpha", "0.3", "--tuple", "foo"], ["--tuple", "foo"]),
+    (["--rule", "preferential", "--n", "18", "--xi", "0.1", "--alpha", "0.3", "--alpha", "x"], ["alpha='x'"]),
 ])
 def test_bad_input_one_line_exit_2(capsys, argv, words):
     try:

@@ -30,8 +30,12 @@ import sys
 import numpy as np
 
 from .. import baselines
-from ..encoding import check_encoding, present_count, validate_decisions
+from ..cli import UsageError
+from ..curves import check_open_unit
+from ..encoding import check_encoding, check_integer, present_count, validate_decisions
 from ..errors import ParameterError
+from ..rules import check_weight
+from .threshold import parse_option
 
 HELP = "fuse one vector of local decisions u_i with a fusion rule (HEBTEM or a baseline) and decide H0/H1"
 
@@ -45,40 +49,45 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--rule", required=True, choices=RULES, help="fusion rule")
     parser.add_argument("--u", required=True, help="local decisions, comma separated (e.g. 1,-1,1)")
     parser.add_argument("--tuple", default="pm1", dest="tuple", help="decision tuple: pm1 ({-1,+1}, default) or 01")
-    parser.add_argument("--p", default="1", help="preferential: weight of the succeeding taxel, [0, 2] (default 1)")
-    parser.add_argument("--q", default="1", help="preferential: weight of the preceding taxel, [0, 2] (default 1)")
+    parser.add_argument("--p", help="preferential: weight of the succeeding taxel, [0, 2] (default 1)")
+    parser.add_argument("--q", help="preferential: weight of the preceding taxel, [0, 2] (default 1)")
     parser.add_argument("--k", help="k-of-n: H1 iff at least k taxels report present (1..n)")
     parser.add_argument("--xi", help="P(H1) with every taxel absent, (0, 1): enables P(H1) and the HEBTEM threshold")
     parser.add_argument("--alpha", help="Type I error level, (0, 1): additive and preferential thresholds")
     parser.add_argument("--beta", help="Type II error level, (0, 1): multiplicative threshold")
     parser.add_argument(
-        "--root", default="auto", choices=("auto", "positive", "negative"),
+        "--root", choices=("auto", "positive", "negative"),
         help="additive {-1,+1}: which root of eq 17 (auto: the side of U_G's sign, sec. 6.3.1)",
     )
-    parser.add_argument("--pd", help="llr/np/k-of-n: detection probability 1 - P_M per taxel (list) or one value")
-    parser.add_argument("--pf", help="llr/np/k-of-n: false-alarm probability P_F per taxel (list) or one value")
-    parser.add_argument("--prior-h1", default="0.5", help="llr: prior P(H1) in (0, 1) (default 0.5)")
+    parser.add_argument("--pd", help="llr/np/k-of-n (and additive/multiplicative with a threshold: exact system"
+                        " P_D, P_F of the rule in count form): detection probability 1 - P_M per taxel (list) or one value")
+    parser.add_argument("--pf", help="llr/np/k-of-n/additive/multiplicative: false-alarm probability P_F per taxel"
+                        " (list) or one value")
+    parser.add_argument("--prior-h1", help="llr: prior P(H1) in (0, 1) (default 0.5)")
     parser.add_argument("--false-alarm", help="np: system false-alarm rate in (0, 1) of the randomised N-P rule")
     parser.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
 
 
 # ------------------------------------------------------------------ parsing helpers
-def _number(name: str, text, allowed: str, low=None, high=None, open_interval=False) -> float:
-    try:
-        value = float(text)
-    except (TypeError, ValueError):
-        raise ParameterError(name, text, allowed) from None
-    if not math.isfinite(value):
-        raise ParameterError(name, text, allowed)
-    if low is not None and (value < low or (open_interval and value == low)):
-        raise ParameterError(name, text, allowed)
-    if high is not None and (value > high or (open_interval and value == high)):
-        raise ParameterError(name, text, allowed)
-    return value
-
-
 def _open_unit(name: str, text) -> float:
-    return _number(name, text, "must be a number in the open interval (0, 1)", 0.0, 1.0, open_interval=True)
+    return parse_option(name, text, lambda v: check_open_unit(name, v))
+
+
+# options that only some rules use (argparse dest -> rules); anything else is a usage error
+_RULE_OPTIONS = {
+    "p": ("preferential",), "q": ("preferential",), "k": ("k-of-n",),
+    "xi": ("additive", "multiplicative", "preferential"), "alpha": ("additive", "preferential"),
+    "beta": ("multiplicative",), "pd": ("k-of-n", "llr", "np", "additive", "multiplicative"),
+    "pf": ("k-of-n", "llr", "np", "additive", "multiplicative"), "prior_h1": ("llr",),
+    "false_alarm": ("np",), "root": ("additive",),
+}
+
+
+def _check_options(args) -> None:
+    for dest, users in _RULE_OPTIONS.items():
+        if getattr(args, dest) is not None and args.rule not in users:
+            flag = "--" + dest.replace("_", "-")
+            raise UsageError(f"{flag} does not apply to --rule {args.rule} (only to: {', '.join(users)})")
 
 
 def _number_list(name: str, text: str, allowed: str) -> np.ndarray:
@@ -135,6 +144,20 @@ def _side_root(roots, u_g: float, side: str) -> tuple[float, str, str]:
     return mirror, side, "mirror"
 
 
+def _count_form_rates(args, record: dict, min_present: int) -> None:
+    """With --pd/--pf: exact system P_D, P_F of "H1 iff K >= min_present" (Poisson-binomial)."""
+    if args.pd is None and args.pf is None:
+        return
+    n = record["n"]
+    min_present = min(max(0, min_present), n + 1)
+    rates = baselines.count_rule_error_rates(min_present, _probabilities("pd", args.pd, n),
+                                             _probabilities("pf", args.pf, n))
+    record["min_present_count"] = min_present
+    record["p_detect"] = rates.p_detect
+    record["p_false_alarm"] = rates.p_false_alarm
+    record["log_p_false_alarm"] = rates.log_p_false_alarm
+
+
 def _hebtem(args, rule: str, u: np.ndarray, encoding: str, record: dict) -> None:
     """P(H1) on the rule's curve and, with --alpha/--beta, the HEBTEM threshold and decision."""
     from .. import curves, rules  # the numerical core of sec. 2.2.3
@@ -143,10 +166,9 @@ def _hebtem(args, rule: str, u: np.ndarray, encoding: str, record: dict) -> None
     xi = _open_unit("xi", args.xi) if args.xi is not None else None
     alpha = _open_unit("alpha", args.alpha) if args.alpha is not None else None
     beta = _open_unit("beta", args.beta) if args.beta is not None else None
-    if rule == "multiplicative" and alpha is not None and beta is None:
-        raise ParameterError("beta", None, "the multiplicative threshold (eq 16) needs --beta in (0, 1), not --alpha")
-    if rule in ("additive", "preferential") and beta is not None and alpha is None:
-        raise ParameterError("alpha", None, f"the {rule} threshold (eq 17/18) needs --alpha in (0, 1), not --beta")
+    if (args.pd is not None or args.pf is not None) and alpha is None and beta is None:
+        raise UsageError(f"--pd/--pf with --rule {rule} give the error rates of its HEBTEM threshold: "
+                         f"add --xi and --{'beta' if rule == 'multiplicative' else 'alpha'}")
     if xi is None:
         if alpha is not None or beta is not None:
             raise ParameterError("xi", None, "required with --alpha/--beta: a number in the open interval (0, 1)")
@@ -162,29 +184,35 @@ def _hebtem(args, rule: str, u: np.ndarray, encoding: str, record: dict) -> None
         from .. import thresholds
 
         result = thresholds.additive_threshold(n, xi, alpha, encoding=encoding)
-        if not result.thresholds:
+        if not result.thresholds:  # a result, not an error: no threshold, no decision
             domain = "[-n, n]" if encoding == "pm1" else "[0, n]"
-            raise ParameterError("alpha", alpha, f"eq 17 has no root in {domain} for n={n}, xi={xi}: choose another alpha")
+            record["no_root"] = f"eq 17 has no root in {domain} for n={n}, xi={xi}, alpha={alpha}"
+            return
         if encoding == "pm1":
-            lam, side, source = _side_root(result.thresholds, u_g, args.root)
+            lam, side, source = _side_root(result.thresholds, u_g, args.root or "auto")
             record["threshold_side"] = side
             record["threshold_source"] = source
         else:
             lam = float(result.thresholds[-1])
         record["threshold"] = lam
         record["decision"] = "H1" if u_g >= lam else "H0"
+        # U_G = 2K - n (pm1) or K (01) >= lambda  <=>  K >= min_present_count
+        _count_form_rates(args, record, math.ceil((n + lam) / 2) if encoding == "pm1" else math.ceil(lam))
     elif rule == "multiplicative":
         # the curve (eqs 10-11) and eq 16 are written for the {-1,+1} tuple (fig. 2a):
         # with {0,1} decisions we evaluate them at the equivalent ln U_G = 2K - n
         ln_u_g_pm1 = float(2 * record["present_count"] - n)
+        if encoding == "01":
+            record["ln_U_G_pm1"] = ln_u_g_pm1  # what p_h1 and the threshold are evaluated at
         record["p_h1"] = float(curves.p_multiplicative(ln_u_g_pm1, n, xi))
         if beta is None:
             return
         from .. import thresholds
 
         result = thresholds.multiplicative_threshold(n, xi, beta)
-        if not result.scaled_thresholds:
-            raise ParameterError("beta", beta, f"eq 16 has no root in [-e^n, e^n] for n={n}, xi={xi}: choose a smaller beta")
+        if not result.scaled_thresholds:  # a result, not an error: no threshold, no decision
+            record["no_root"] = f"eq 16 has no root in [-e^n, e^n] for n={n}, xi={xi}, beta={beta}"
+            return
         scaled = float(result.scaled_thresholds[-1])
         ln_lam = result.ln_thresholds[-1]
         record["scaled_threshold"] = scaled  # lambda / e^n
@@ -193,13 +221,15 @@ def _hebtem(args, rule: str, u: np.ndarray, encoding: str, record: dict) -> None
             record["ln_threshold"] = ln_lam
             record["threshold"] = math.exp(ln_lam) if ln_lam < 709.0 else None
             record["decision"] = "H1" if ln_u_g_pm1 >= ln_lam else "H0"
+            # e^(2K - n) >= lambda  <=>  K >= (n + ln lambda)/2
+            _count_form_rates(args, record, math.ceil((n + ln_lam) / 2))
         else:  # lambda <= 0: every U_G > 0 accepts H1
             record["ln_threshold"] = None
             record["threshold"] = scaled * math.exp(n) if n < 709 else None
             record["decision"] = "H1"
+            _count_form_rates(args, record, 0)
     elif rule == "preferential":
-        p = rules.check_weight("p", args.p)
-        q = rules.check_weight("q", args.q)
+        p, q = record["p"], record["q"]
         g = float(rules.g_of_n(n, p, q))
         record["g"] = g
         record["p_h1"] = float(curves.p_preferential(record["U_G"], g, xi))
@@ -208,10 +238,9 @@ def _hebtem(args, rule: str, u: np.ndarray, encoding: str, record: dict) -> None
         from .. import thresholds
 
         band = thresholds.preferential_threshold(n, xi, alpha, p, q, encoding=encoding)
-        if band.threshold_mean is None:
-            raise ParameterError(
-                "alpha", alpha, f"eq 18 has no root in [-g, g] for xi={xi}: needs 3 alpha / (1 - xi) <= 9/4"
-            )
+        if band.threshold_mean is None:  # a result, not an error: no threshold, no decision
+            record["no_root"] = f"eq 18 has no root in [-g, g] for xi={xi}, alpha={alpha}: 3 alpha/(1 - xi) > 9/4"
+            return
         low, high = float(band.threshold_initial), float(band.threshold_final)
         record["threshold"] = float(band.threshold_mean)
         record["threshold_initial"] = low
@@ -221,9 +250,14 @@ def _hebtem(args, rule: str, u: np.ndarray, encoding: str, record: dict) -> None
         record["decision"] = "H1" if u_g >= high else ("H0" if u_g < low else "undecided")
 
 
+# eqs 31-32: Lambda = lambda_threshold is the chapter's undefined case (sec. 6.2)
+_DECISION = {1: "H1", 0: "undecided", -1: "H0"}
+
+
 # ------------------------------------------------------------------ the command
 def fuse(args) -> dict:
     """Evaluate the requested rule; returns the record printed by the command."""
+    _check_options(args)
     encoding = check_encoding(args.tuple)
     u = parse_decisions(args.u, encoding)
     n = int(u.size)
@@ -249,16 +283,14 @@ def fuse(args) -> dict:
             record["ln_U_G"] = float(value.ln_U_G)
             record["U_G"] = float(value.U_G)
         elif rule == "preferential":
-            record["p"] = rules.check_weight("p", args.p)
-            record["q"] = rules.check_weight("q", args.q)
+            record["p"] = parse_option("p", args.p or "1", lambda v: check_weight("p", v))
+            record["q"] = parse_option("q", args.q or "1", lambda v: check_weight("q", v))
             record["U_G"] = float(rules.preferential(u, record["p"], record["q"], encoding))
         else:
             if args.k is None:
                 raise ParameterError("k", None, f"required for --rule k-of-n: an integer in 1..n (n = {n})")
-            k_value = _number("k", args.k, f"must be an integer in 1..n (n = {n})", 1, n)
-            if not k_value.is_integer():
-                raise ParameterError("k", args.k, f"must be an integer in 1..n (n = {n})")
-            k = int(k_value)
+            allowed = f"must be an integer in 1..n (n = {n})"
+            k = parse_option("k", args.k, lambda v: check_integer("k", v, 1, n, allowed=allowed))
             record["k"] = k
             record["U_G"] = int(rules.k_of_n(u, k, encoding))
             record["decision"] = "H1" if record["U_G"] == 1 else "H0"
@@ -276,10 +308,10 @@ def fuse(args) -> dict:
     pd = _probabilities("pd", args.pd, n)
     pf = _probabilities("pf", args.pf, n)
     if rule == "llr":
-        prior = _open_unit("prior_h1", args.prior_h1)
+        prior = _open_unit("prior_h1", args.prior_h1 or "0.5")
         llr = baselines.chair_varshney_llr(u, pd, pf, encoding, prior_h1=prior)
         record.update(U_G=llr, statistic="ln P(H1|U)/P(H0|U) (eq 31)", prior_h1=prior, threshold=0.0)
-        record["decision"] = "H1" if llr > 0 else ("undecided" if llr == 0 else "H0")
+        record["decision"] = _DECISION[baselines.compare_log_ratio(llr, 0.0)]
         return record
     # np
     ln_lr = baselines.np_log_statistic(u, pd, pf, encoding)
@@ -287,7 +319,7 @@ def fuse(args) -> dict:
     if args.false_alarm is None:
         # the chapter's comparison: Lambda(U) against lambda_threshold = 1 (ln 1 = 0)
         record["threshold"] = 0.0
-        record["decision"] = "H1" if ln_lr > 0 else ("undecided" if ln_lr == 0 else "H0")
+        record["decision"] = _DECISION[baselines.compare_log_ratio(ln_lr, 0.0)]
         return record
     alpha = _open_unit("false_alarm", args.false_alarm)
     np_rule = baselines.neyman_pearson_fusion(pd, pf, alpha)

@@ -7,7 +7,9 @@ import json
 import math
 
 from ..cli import UsageError
+from ..curves import check_n, check_open_unit, check_xi
 from ..errors import ParameterError
+from ..rules import check_weight
 from ..thresholds import additive_threshold, multiplicative_threshold, preferential_threshold
 
 HELP = "HEBTEM dynamic threshold of a fusion rule (eqs 16-20): additive, multiplicative, preferential"
@@ -29,22 +31,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
 
 
-def _number(name: str, text: str, allowed: str) -> float:
+def parse_option(name: str, text, check):
+    """``check(text)`` with the library's own validator (float(text) inside); a ParameterError
+    quotes the option as typed (``alpha='1e-400'``, not the 0.0 it parses to)."""
     try:
-        value = float(text)
-    except ValueError:
-        raise ParameterError(name, text, allowed) from None
-    if not math.isfinite(value):
-        raise ParameterError(name, text, allowed)
-    return value
-
-
-def _integer(name: str, text: str) -> int:
-    allowed = "must be an integer >= 1"
-    value = _number(name, text, allowed)
-    if value != math.floor(value) or value < 1:
-        raise ParameterError(name, text, allowed)
-    return int(value)
+        return check(text)
+    except ParameterError as exc:
+        raise ParameterError(exc.name, text, exc.allowed) from None
 
 
 def _check_combination(args) -> None:
@@ -67,25 +60,25 @@ def _check_combination(args) -> None:
 
 def _result(args) -> dict:
     _check_combination(args)
-    n = _integer("n", args.n)
-    xi = _number("xi", args.xi, "must be a real number in the open interval (0, 1)")
+    n = parse_option("n", args.n, check_n)
+    xi = parse_option("xi", args.xi, check_xi)
     if args.rule == "multiplicative":
-        beta = _number("beta", args.beta, "must be a real number in the open interval (0, 1)")
+        beta = parse_option("beta", args.beta, lambda v: check_open_unit("beta", v))
         res = multiplicative_threshold(n, xi, beta)
         return {"rule": "multiplicative", "n": n, "xi": xi, "beta": beta, "tuple": "pm1",
                 "scaled_thresholds": list(res.scaled_thresholds),
                 "ln_thresholds": list(res.ln_thresholds),
                 "present_counts": list(res.present_counts)}
-    alpha = _number("alpha", args.alpha, "must be a real number in the open interval (0, 1)")
+    alpha = parse_option("alpha", args.alpha, lambda v: check_open_unit("alpha", v))
     if args.rule == "additive":
         res = additive_threshold(n, xi, alpha, args.encoding)
         return {"rule": "additive", "n": n, "xi": xi, "alpha": alpha, "tuple": args.encoding,
                 "thresholds": list(res.thresholds), "present_counts": list(res.present_counts)}
-    p = _number("p", args.p, "must be a real number in [0, 2]") if args.p is not None else 1.0
-    q = _number("q", args.q, "must be a real number in [0, 2]") if args.q is not None else 1.0
+    p = parse_option("p", args.p, lambda v: check_weight("p", v)) if args.p is not None else 1.0
+    q = parse_option("q", args.q, lambda v: check_weight("q", v)) if args.q is not None else 1.0
     res = preferential_threshold(n, xi, alpha, p, q, args.encoding)
     return {"rule": "preferential", "n": n, "xi": xi, "alpha": alpha, "p": p, "q": q, "tuple": args.encoding,
-            "g_max": res.g_max, "threshold_mean": res.threshold_mean,
+            "g_max": res.g_max, "threshold_mean": res.threshold_mean, "threshold_means": list(res.mean_roots),
             "threshold_initial": res.threshold_initial, "threshold_final": res.threshold_final,
             "band_width": res.band_width, "present_count": res.present_count}
 
@@ -93,6 +86,8 @@ def _result(args) -> dict:
 def _fmt(value) -> str:
     if value is None:
         return "-"
+    if isinstance(value, list):
+        return ", ".join(_fmt(v) for v in value) if value else "-"
     if isinstance(value, float):
         return f"{value:.10g}"
     return str(value)
@@ -119,7 +114,7 @@ def _table(result: dict):
             if ln_lam is None:
                 lam = _fmt(t * math.exp(result["n"])) if result["n"] < 700 else f"{t:.6g}*e^{result['n']}"
             else:
-                lam = _fmt(math.exp(ln_lam)) if ln_lam < 700 else f"e^{ln_lam:.10g}"
+                lam = _fmt(math.exp(ln_lam)) if abs(ln_lam) < 700 else f"e^{ln_lam:.10g}"
             table.add_row(_fmt(t), _fmt(ln_lam), lam, _fmt(count))
         if not result["scaled_thresholds"]:
             table.add_row("no root in [-e^n, e^n]", "-", "-", "-")
@@ -133,7 +128,10 @@ def _table(result: dict):
     else:
         table.add_column("quantity")
         table.add_column("value", justify="right")
-        for key in ("g_max", "threshold_mean", "threshold_initial", "threshold_final", "band_width", "present_count"):
+        keys = ("g_max", "threshold_mean", "threshold_initial", "threshold_final", "band_width", "present_count")
+        if len(result["threshold_means"]) > 1:
+            keys += ("threshold_means",)  # eq 18's second root (sec. 2.2.3.4)
+        for key in keys:
             table.add_row(key, _fmt(result[key]))
     return table
 
