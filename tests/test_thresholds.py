@@ -172,18 +172,21 @@ def test_preferential_matches_reference(n, xi, alpha):
     assert all(max_preferential_value(n, i, p, q) < ours.threshold_mean for i in range(max(0, j - 12), j))
 
 
-def test_reference_antiderivatives_agree_with_quadrature():
-    """The reference's closed-form integrals equal mp.quad of the printed curves."""
-    with mp.workdps(40):
-        n, X = mp.mpf(57), mp.mpf("0.003")
+@pytest.mark.parametrize("n,xi", [(57, 0.003), (1, 1e-300), (1_000_000, 1e-12), (2, 0.999999)])
+def test_reference_antiderivatives_agree_with_quadrature(n, xi):
+    """The reference's closed-form integrals equal mp.quad of the printed curves (linear domain)."""
+    with mp.workdps(_dps(xi)):
+        n, X = mp.mpf(n), mp.mpf(xi)
         for f, F, lo in (_pm1_parts(n, X) + (-n,), _01_parts(n, X) + (mp.mpf(0),)):
-            assert mp.almosteq(mp.quad(f, [lo, n]), F(n) - F(lo), rel_eps=mp.mpf(10) ** -30)
+            for a in (lo, n / 3, n - n / 1000):  # also near the right end, where F(n) - F(a) cancels
+                assert mp.almosteq(mp.quad(f, [a, n]), F(n) - F(a), rel_eps=mp.mpf(10) ** -30)
         E = mp.e**n
         m = E * mp.log(1 / X) / (mp.e ** (2 * n) - 1)
         a = mp.e ** (-(mp.e ** (2 * n) * mp.log(1 / X) / (mp.e ** (2 * n) - 1)))
         f = lambda x: a * mp.e ** (m * x)
-        assert mp.almosteq(mp.quad(f, [-E, E]) / E, (a / m * (mp.e ** (m * E) - mp.e ** (-m * E))) / E,
-                           rel_eps=mp.mpf(10) ** -30)
+        for lam in (-E, E / 2, E - E / 1000):
+            assert mp.almosteq(mp.quad(f, [lam, E]) / E, (a / m * (mp.e ** (m * E) - mp.e ** (m * lam))) / E,
+                               rel_eps=mp.mpf(10) ** -30)
 
 
 def test_chapter_examples_computed_from_the_equations():
