@@ -27,22 +27,49 @@ def _save(fig, path) -> None:
     plt.close(fig)
 
 
-def error_vs_runtime(points: list[dict], floor: float, path) -> None:
-    """Total error (with 95 % CI, exact value as a hollow marker) vs bus time per cycle and vs
-    CPU time per decision, one marker per rule / test."""
+_BITRATE_MARKERS = "os^Dv<>p"
+
+
+def error_vs_runtime(points: list[dict], floor: float, path, bitrates=None) -> None:
+    """Total error (with 95 % CI, exact value as a hollow diamond) vs bus time per cycle (one
+    marker shape per bit rate, the same rule joined by a dotted line) and vs CPU time per
+    decision, one colour per rule / test."""
+    from matplotlib.lines import Line2D
+
+    bitrates = [str(b) for b in (bitrates or [])]
     fig, axes = plt.subplots(1, 2, figsize=(12, 5), sharey=True)
-    for key, ax, label in (("bus_time_per_cycle_ms", axes[0], "bus time per cycle [ms]"),
-                           ("cpu_time_per_decision_us", axes[1], "CPU time per decision [µs]")):
-        for p in points:
-            err = p["total_error"]
-            est = max(err["estimate"], floor)
-            lo, hi = max(err["ci95"][0], floor), max(err["ci95"][1], floor)
-            c = _COLOURS.get(p["rule"], "tab:cyan")
-            ax.errorbar([p[key]], [est], yerr=[[est - lo], [hi - est]], fmt="o", color=c, capsize=3,
-                        label=f"{p['rule']} ({p['mode']})")
+    ax = axes[0]
+    for p in points:
+        err = p["total_error"]
+        est = max(err["estimate"], floor)
+        lo, hi = max(err["ci95"][0], floor), max(err["ci95"][1], floor)
+        c = _COLOURS.get(p["rule"], "tab:cyan")
+        by = p.get("bus_time_per_cycle_ms_by_bitrate") or {}
+        xs = [by[b] for b in bitrates if b in by] or [p["bus_time_per_cycle_ms"]]
+        if len(xs) > 1:
+            ax.plot(xs, [est] * len(xs), ":", color=c, lw=0.8)
+        for j, x in enumerate(xs):
+            ax.errorbar([x], [est], yerr=[[est - lo], [hi - est]], fmt=_BITRATE_MARKERS[j % len(_BITRATE_MARKERS)],
+                        color=c, capsize=3)
             if err.get("exact") is not None:
-                ax.plot([p[key]], [max(err["exact"], floor)], marker="D", mfc="none", color=c, ms=10)
-        ax.set_xlabel(label)
+                ax.plot([x], [max(err["exact"], floor)], marker="D", mfc="none", color=c, ms=10)
+    if len(bitrates) > 1:
+        handles = [Line2D([], [], marker=_BITRATE_MARKERS[j % len(_BITRATE_MARKERS)], ls="none", color="k",
+                          label=f"{int(b) // 1000} kbit/s") for j, b in enumerate(bitrates)]
+        ax.legend(handles=handles, fontsize=8, loc="best", title="bit rate")
+    ax.set_xlabel("bus time per SYNC cycle [ms]" + (" (decision_sync / raw)" if bitrates else ""))
+    ax = axes[1]
+    for p in points:
+        err = p["total_error"]
+        est = max(err["estimate"], floor)
+        lo, hi = max(err["ci95"][0], floor), max(err["ci95"][1], floor)
+        c = _COLOURS.get(p["rule"], "tab:cyan")
+        ax.errorbar([p["cpu_time_per_decision_us"]], [est], yerr=[[est - lo], [hi - est]], fmt="o", color=c,
+                    capsize=3, label=f"{p['rule']} ({p['mode']})")
+        if err.get("exact") is not None:
+            ax.plot([p["cpu_time_per_decision_us"]], [max(err["exact"], floor)], marker="D", mfc="none", color=c, ms=10)
+    ax.set_xlabel("CPU time per decision [µs]")
+    for ax in axes:
         ax.set_xscale("log")
         ax.set_yscale("log")
         ax.grid(True, which="both", alpha=0.3)

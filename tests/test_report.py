@@ -17,7 +17,7 @@ PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 def gripper_report(tmp_path_factory):
     out = tmp_path_factory.mktemp("report")
     assert cli.main(["report", "--scene", "scenes/gripper18.toml", "--out", str(out), "--trials", "2000",
-                     "--seed", "3"]) == 0
+                     "--seed", "3", "--bitrate", "500k,1000000"]) == 0
     return out
 
 
@@ -61,6 +61,29 @@ def test_stage_plan_recorded(gripper_report):
     assert data["stages_skipped"] == plan["skipped"]
     assert data["rules_skipped"]["llr"] == "not requested in [fusion] rules"
     assert not any(name.startswith("centralised") for name in data["rules_skipped"])
+
+
+def test_several_bitrates(gripper_report):
+    data = json.loads((gripper_report / "report.json").read_text())
+    assert list(data["bandwidth_by_bitrate"]) == ["500000", "1000000"]
+    assert data["bandwidth"]["bitrate"] == 500000
+    for p in data["error_vs_runtime"]:
+        by = p["bus_time_per_cycle_ms_by_bitrate"]
+        # the same bits on the wire: bus time is inversely proportional to the bit rate
+        assert by["500000"] == pytest.approx(2 * by["1000000"], rel=1e-12)
+        assert by["500000"] == p["bus_time_per_cycle_ms"]
+
+
+@pytest.mark.parametrize("text,expected", [("125000,500k,1M", [125000, 500000, 1000000]), ("250k", [250000])])
+def test_parse_bitrates(text, expected):
+    assert report.parse_bitrates(text) == expected
+
+
+def test_bad_bitrate_exits_2(tmp_path, capsys):
+    with pytest.raises(SystemExit) as exc:
+        cli.main(["report", "--scene", "scenes/gripper18.toml", "--out", str(tmp_path), "--bitrate", "2M"])
+    assert exc.value.code == 2
+    assert "2M" in capsys.readouterr().err
 
 
 def test_bad_trials_exit_2(tmp_path, capsys):

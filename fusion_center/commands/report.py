@@ -50,7 +50,26 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--trials", type=int, default=DEFAULT_TRIALS,
                         help=f"Monte Carlo trials per hypothesis (default {DEFAULT_TRIALS})")
     parser.add_argument("--seed", type=int, default=None, help="RNG seed (default: the scene's seed)")
-    parser.add_argument("--bitrate", type=int, default=None, help="bit/s for the bus figures (default: the scene's)")
+    parser.add_argument("--bitrate", type=parse_bitrates, default=None, metavar="B[,B...]",
+                        help="bit/s for the bus figures, one or several comma-separated "
+                             "(e.g. 125000,500000,1000000; default: the scene's)")
+
+
+def parse_bitrates(text: str) -> list[int]:
+    """``"125000,500000,1000000"`` -> [125000, 500000, 1000000] (argparse type)."""
+    out = []
+    for given in text.split(","):
+        item = given.strip().lower().replace("_", "")
+        scale = 1000 if item.endswith("k") else 1_000_000 if item.endswith("m") else 1
+        try:
+            value = float(item.rstrip("km")) * scale
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{given!r} is not a bit rate (e.g. 500000 or 500k)") from None
+        if value != int(value) or not 1 <= value <= 1_000_000:
+            raise argparse.ArgumentTypeError(f"{given!r}: bit rate must be a whole number in 1..1000000 bit/s "
+                                             "(classic CAN)")
+        out.append(int(value))
+    return out
 
 
 # --------------------------------------------------------------------------- CPU time
@@ -276,9 +295,13 @@ def probability_curve_data(n: int, xi: float, alpha: float, beta: float, pref_al
 
 
 # --------------------------------------------------------------------------- main
-def build_report(scene, out_dir: Path, trials: int, seed: int, bitrate: int | None = None,
+def build_report(scene, out_dir: Path, trials: int, seed: int, bitrate=None,
                  progress=None) -> dict:
-    """Compute everything, write report.json and the PNGs into ``out_dir``; return the JSON."""
+    """Compute everything, write report.json and the PNGs into ``out_dir``; return the JSON.
+
+    ``bitrate``: None (the scene's), one bit rate or a list of them; the first one is the
+    report's ``bandwidth``, all of them are in ``bandwidth_by_bitrate`` and on the
+    error-vs-bus-time plot."""
     from .. import report_plots
 
     if isinstance(trials, bool) or not isinstance(trials, int) or trials < 100:
@@ -291,7 +314,17 @@ def build_report(scene, out_dir: Path, trials: int, seed: int, bitrate: int | No
     step("stage plan, rule thresholds")
     setup = montecarlo.setup_rules(scene, central=True, rng=np.random.default_rng([seed, 1]))
     step("bandwidth")
-    bw = bandwidth.bandwidth_figures(scene, bitrate)
+    if bitrate is None:
+        bitrates = [scene.bus.bitrate]
+    elif isinstance(bitrate, (list, tuple)):
+        bitrates = list(dict.fromkeys(bitrate))
+    else:
+        bitrates = [bitrate]
+    if not bitrates:
+        raise ParameterError("bitrate", bitrate, "at least one bit rate")
+    inputs = bandwidth.simulate_bus_inputs(scene, scene.cycles)
+    bw_by = {b: bandwidth.bandwidth_figures(scene, b, inputs=inputs) for b in bitrates}
+    bw = bw_by[bitrates[0]]
     step("Monte Carlo", 0.0)
     mc = montecarlo.simulate(scene, trials, rng, setup=setup,
                              progress=lambda d, t: step("Monte Carlo", d / t))
@@ -305,6 +338,8 @@ def build_report(scene, out_dir: Path, trials: int, seed: int, bitrate: int | No
             "rule": name, "mode": mode,
             "bus_time_per_cycle_ms": bw["modes"][mode]["bus_time_per_cycle_ms"],
             "bus_load": bw["modes"][mode]["bus_load"],
+            "bus_time_per_cycle_ms_by_bitrate": {str(b): f["modes"][mode]["bus_time_per_cycle_ms"]
+                                                 for b, f in bw_by.items()},
             "cpu_time_per_decision_us": 1e6 * cpu[name],
             "total_error": res.total_error,
             "pd": None if res.pd is None else res.pd.to_dict(),
@@ -359,6 +394,7 @@ def build_report(scene, out_dir: Path, trials: int, seed: int, bitrate: int | No
         "thresholds": {k: (None if v is None or not math.isfinite(v) else v) for k, v in setup.thresholds.items()},
         "skipped": mc.skipped,
         "bandwidth": bw,
+        "bandwidth_by_bitrate": {str(b): f for b, f in bw_by.items()},
         "cpu_time_per_decision_s": cpu,
         "error_vs_runtime": points,
         "roc": roc,
@@ -371,7 +407,7 @@ def build_report(scene, out_dir: Path, trials: int, seed: int, bitrate: int | No
         "files": ["report.json", *PNG_FILES],
     }
     step("plots")
-    report_plots.error_vs_runtime(points, floor, out_dir / "error_vs_runtime.png")
+    report_plots.error_vs_runtime(points, floor, out_dir / "error_vs_runtime.png", bitrates)
     report_plots.roc_curves(roc, {k: (v.pf.estimate, None if v.pd is None else v.pd.estimate) for k, v in mc.rules.items()},
                             out_dir / "roc.png")
     report_plots.achieved_vs_requested(achieved, out_dir / "achieved_alpha.png")
