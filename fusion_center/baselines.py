@@ -174,6 +174,12 @@ class CountRuleRates:
     log_p_miss: float
 
 
+def _probability_from_logs(log_tail: float, log_head: float) -> float:
+    """P = e^log_tail, or 1 - e^log_head when P > 1/2 (then the head is the small, exact side:
+    1 - 1e-110 rounds to 1.0, where exp(logsumexp(tail)) gives 1 - 4e-16)."""
+    return float(np.exp(log_tail)) if log_tail < -np.log(2.0) else float(-np.expm1(log_head))
+
+
 def count_rule_error_rates(min_present_count: int, pd, pf) -> CountRuleRates:
     """Exact P_D, P_F (and logs, and ln P_M) of the rule "H1 iff K >= min_present_count".
 
@@ -190,10 +196,11 @@ def count_rule_error_rates(min_present_count: int, pd, pf) -> CountRuleRates:
     log_pd_tail = poisson_binomial.log_sf(pd_arr, m)
     log_pf_tail = poisson_binomial.log_sf(pf_arr, m)
     log_miss = poisson_binomial.log_cdf(pd_arr, m - 1)
+    log_pf_head = poisson_binomial.log_cdf(pf_arr, m - 1)
     return CountRuleRates(
         min_present_count=m,
-        p_detect=float(np.exp(log_pd_tail)),
-        p_false_alarm=float(np.exp(log_pf_tail)),
+        p_detect=_probability_from_logs(log_pd_tail, log_miss),
+        p_false_alarm=_probability_from_logs(log_pf_tail, log_pf_head),
         log_p_detect=log_pd_tail,
         log_p_false_alarm=log_pf_tail,
         log_p_miss=log_miss,

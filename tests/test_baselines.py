@@ -215,6 +215,23 @@ def test_count_rule_rates_in_log_domain():
     assert never.p_detect == 0.0 and never.p_false_alarm == 0.0 and never.log_p_miss == 0.0
 
 
+def test_rates_near_one_are_correctly_rounded():
+    # P_D = 1 - P(K <= 6) with P(K <= 6) ~ 1e-110 (57 taxels, pd = 0.995): exactly 1.0 in
+    # double precision; P_F of "at least 1 present" = 1 - 0.997^57, by hand
+    rates = bl.count_rule_error_rates(7, np.full(57, 0.995), 0.003)
+    miss = 1 - _tail_mpmath(57, "0.995", 7)
+    assert miss < mpmath.mpf("1e-100") and rates.p_detect == 1.0
+    rates = bl.count_rule_error_rates(1, np.full(57, 0.995), np.full(57, 0.003))
+    assert rates.p_false_alarm == pytest.approx(float(1 - mpmath.mpf("0.997") ** 57), rel=1e-15)
+    rates = bl.count_rule_error_rates(56, np.full(57, 0.999), np.full(57, 0.5))
+    assert rates.p_detect == pytest.approx(float(_tail_mpmath(57, "0.999", 56)), rel=1e-15)
+
+
+def _tail_mpmath(n, p, m):
+    p = mpmath.mpf(p)
+    return mpmath.fsum(mpmath.binomial(n, j) * p**j * (1 - p) ** (n - j) for j in range(m, n + 1))
+
+
 @pytest.mark.parametrize("k", [0, 4, 2.5, True])
 def test_k_out_of_range(k):
     with pytest.raises(ParameterError) as err:
