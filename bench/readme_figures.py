@@ -28,7 +28,7 @@ sys.path.insert(0, str(ROOT))
 MODES = ("decision_sync", "decision_event", "raw")
 
 
-def _g(x, digits: int = 2) -> str:
+def _g(x, digits: int = 3) -> str:
     if x is None:
         return "-"
     if x == 0:
