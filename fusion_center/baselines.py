@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import poisson_binomial
+from .curves import check_open_unit
 from .encoding import PRESENT, Encoding, check_integer, check_real, validate_decisions
 from .errors import ParameterError
 
@@ -72,13 +73,8 @@ def _taxel_probabilities(pd, pf, n: int | None = None) -> tuple[np.ndarray, np.n
     return pd_arr, pf_arr
 
 
-def _probability(name: str, value) -> float:
-    return check_real(name, value, 0.0, 1.0, open_interval=True,
-                      allowed="must be a probability in the open interval (0, 1)")
-
-
 def _prior(prior_h1) -> float:
-    return _probability("prior_h1", prior_h1)
+    return check_open_unit("prior_h1", prior_h1)
 
 
 def _log_ratio_terms(pd: np.ndarray, pf: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -349,7 +345,7 @@ def neyman_pearson_fusion(pd, pf, false_alarm: float, method: str = "auto") -> N
       else "count".
     """
     pd_arr, pf_arr = _taxel_probabilities(pd, pf)
-    alpha = _probability("false_alarm", false_alarm)
+    alpha = check_open_unit("false_alarm", false_alarm)
     n = pd_arr.size
     identical = bool(np.all(pd_arr == pd_arr[0]) and np.all(pf_arr == pf_arr[0]))
     if method == "auto":
