@@ -61,6 +61,8 @@ def test_raw_demo_records_match_the_physics(matrix_raw, raw_demo):
     records, _, _, summary = raw_demo
     assert [r["cycle"] for r in records] == list(range(50))
     assert summary["counters"]["tpdo2"] > 0
+    # raw mode: the nodes send the reading *instead of* the decision (TPDO1 left invalid)
+    assert summary["counters"].get("tpdo1", 0) == 0
     taxels = matrix_raw.taxels
     noise = np.array([t.noise_mv for t in taxels])
     zeta = np.array([t.zeta_mv for t in taxels])

@@ -16,7 +16,8 @@ index     sub  value
 0x6127    1    calibration intercept c (eq 23), only when the scene gives one
 0x1017    0    heartbeat producer time (ms)
 0x1800    1-5  TPDO1: COB-ID invalid -> transmission type, inhibit time, event timer
-                -> COB-ID 0x180+id valid (CiA 301: sub 3 only while the PDO is invalid)
+                -> COB-ID 0x180+id valid (CiA 301: sub 3 only while the PDO is invalid);
+                left invalid in raw mode: the node sends its reading *instead of* u_i
 0x1801    1-5  TPDO2: the same; left invalid unless the scene is in raw mode
 ========  ===  =====================================================================
 
@@ -74,7 +75,7 @@ def node_configuration(scene: Scene, index: int) -> list[tuple[int, int, object]
     if t.intercept is not None:
         writes.append((AI_SCALING_OFFSET, 1, float(t.intercept)))
     writes.append((HEARTBEAT_PRODUCER, 0, int(bus.heartbeat_producer_ms)))
-    for comm, base, enabled in ((TPDO_COMM[0], BASE_TPDO1, True),
+    for comm, base, enabled in ((TPDO_COMM[0], BASE_TPDO1, bus.mode != "raw"),
                                 (TPDO_COMM[1], BASE_TPDO2, bus.mode == "raw")):
         cob = base + t.node_id
         writes.append((comm, 1, cob | COB_INVALID))
