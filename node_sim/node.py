@@ -198,8 +198,10 @@ class NodeLink:
     left: :meth:`mark_sent` records it at once outside a burst, at the end of the burst inside.
     """
 
-    def __init__(self, send: Callable[[int, bytes], None], scheduler: Scheduler):
+    def __init__(self, send: Callable[[int, bytes], None], scheduler: Scheduler,
+                 send_many: Callable[[list[tuple[int, bytes]]], None] | None = None):
         self._send_now = send
+        self._send_many = send_many   # optional: a whole burst in one call, same order
         self.scheduler = scheduler
         self._held: list[tuple[int, bytes]] | None = None
         self._held_tx: list[_TpdoRuntime] = []
@@ -225,9 +227,12 @@ class NodeLink:
         held, self._held = self._held, None
         if not held:
             return
-        send = self._send_now
-        for can_id, data in held:
-            send(can_id, data)
+        if self._send_many is not None:
+            self._send_many(held)
+        else:
+            send = self._send_now
+            for can_id, data in held:
+                send(can_id, data)
         if self._held_tx:
             now = time.monotonic()
             for rt in self._held_tx:
