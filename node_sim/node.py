@@ -584,8 +584,11 @@ class TaxelNode:
         self.last_cycle = cycle
         self._sample(float(reading))
         if self.state == OPERATIONAL:
+            cfgs = self._tpdo_cfg
             for pdo in (0, 1):
-                self._tpdo_on_sync(pdo, counter)
+                cfg = cfgs[pdo] or self._tpdo(pdo)
+                if cfg.valid and cfg.mapping:
+                    self._tpdo_on_sync(pdo, counter, cfg)
 
     def _sample(self, reading: float) -> None:
         zeta, noise, full_scale, stuck_after = self._app_config()
@@ -685,16 +688,16 @@ class TaxelNode:
 
     def _transmit(self, pdo: int, cfg: _TpdoConfig, payload: bytes) -> None:
         rt = self._tpdo_rt[pdo]
-        self._send(cfg.can_id, payload)
+        if not self.silent:  # _send, inlined (hot path)
+            self.link.send(cfg.can_id, payload)
+            self.frames_sent += 1
         rt.last_sent = payload
         self.link.mark_sent(rt)  # last_tx_time: now, or when the SYNC burst is sent
         if cfg.transmission_type >= 254:
             self._arm_event_timer(pdo, cfg)
 
-    def _tpdo_on_sync(self, pdo: int, counter: int | None) -> None:
-        cfg = self._tpdo(pdo)
-        if not cfg.valid or not cfg.mapping:
-            return
+    def _tpdo_on_sync(self, pdo: int, counter: int | None, cfg: _TpdoConfig) -> None:
+        """A SYNC for a valid, mapped TPDO (``cfg`` = its current configuration)."""
         rt = self._tpdo_rt[pdo]
         tt = cfg.transmission_type
         if tt >= 254:

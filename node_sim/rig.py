@@ -185,14 +185,18 @@ class _Channel(can.Listener):
         self.lost_syncs += step - 1
         self.sync_count = cycle + 1
         readings = self.rig._readings(cycle).tolist()  # Python floats, scene order
-        apply_silence = self.rig._apply_silence
+        rig = self.rig
+        apply_silence = rig._apply_silence if rig._dropped or rig._silent_faults else None
         # the frames of this SYNC (EMCYs, TPDOs) go out back to back once every node has
         # sampled, in the order the nodes produced them (one burst, as on a real bus after
         # a SYNC): fewer thread switches between this notifier and the receivers' ones
         self.link.hold()
         try:
             for node, index in nodes:
-                apply_silence(self.index, node, cycle)
+                if apply_silence is not None:
+                    apply_silence(self.index, node, cycle)
+                elif node.silent:  # what _apply_silence does with no drop and no silent fault
+                    node.silent = False
                 node.on_sync(cycle, readings[index], counter)
         finally:
             self.link.release()
