@@ -392,8 +392,13 @@ class Rig:
 
         try:
             with self._reading_lock:
+                # SYNCs may have come meanwhile: start at the next cycle no channel has seen yet
+                # (sync_count is read without the channel locks: a stale value only costs one
+                # cycle computed on the SYNC path instead of here)
+                counts = [ch.sync_count for ch in self._channels] or [first]
+                first = max(first, max(counts))
                 cache = self._reading_cache
-                for old in [c for c in cache if c < first - 1]:
+                for old in [c for c in cache if c < min(counts) - 1]:
                     del cache[old]
                 wanted = np.array([c for c in range(first, first + PREFETCH_CYCLES) if c not in cache])
                 if wanted.size:
