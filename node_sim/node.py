@@ -14,7 +14,8 @@ after an NMT reset: canopen issues #145, #520, #558, #47), so this module adds a
 * heartbeat producer per 0x1017 (state byte 0x7F pre-op, 0x05 operational, 0x04 stopped).
 * the application, on every SYNC (any state but INITIALISING): take X_i for that cycle,
   check it for sensor faults, run the local detector of the chapter (eqs 1-4, via
-  :func:`fusion_center.encoding.local_decision`: u = +1 iff X − N ≥ ζ) and write u_i to
+  :func:`local_decision_pm1`, the scalar form of :func:`fusion_center.encoding.local_decision`:
+  u = +1 iff X − N ≥ ζ) and write u_i to
   0x2000 (INTEGER8 +1/−1), X_i to 0x6130:1 (REAL32 mV) and the AI status to 0x6150:1.
 * TPDO1/TPDO2 per 0x1800/0x1801 + 0x1A00/0x1A01, in operational only: synchronous
   (transmission type 1..240: every n-th SYNC, honouring the SYNC start value 0x180x:6 when
@@ -58,7 +59,6 @@ import canopen
 from canopen.objectdictionary import ODVariable, datatypes
 from canopen.sdo import SdoAbortedError
 
-from fusion_center.encoding import local_decision
 from fusion_center.scene import KIND_NAMES
 
 from . import emcy as em

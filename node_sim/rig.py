@@ -27,8 +27,13 @@ the scene's stuck / open-circuit faults. Those are a pure function of (scene, cy
 rig computes them ahead, off the SYNC path: half a SYNC period after a SYNC, the channel's
 timer thread fills a cache with the next :data:`PREFETCH_CYCLES` cycles in one
 ``sample_readings_batch`` call (identical values, tested). An injected ``reading_source`` is
-called only when its cycle's SYNC arrives (it may depend on state set just before). "silent" faults (scene) and :meth:`Rig.drop_node`
-make a node dead (no frame out, none processed) until the fault ends / :meth:`Rig.restore_node`.
+called only when its cycle's SYNC arrives (it may depend on state set just before).
+"silent" faults (scene) and :meth:`Rig.drop_node` make a node dead (no frame out, none
+processed) until the fault ends / :meth:`Rig.restore_node`.
+
+SYNC hot path: the frames of one SYNC leave as one burst after every node has sampled
+(``NodeLink.hold``/``release``; inhibit times start when the burst is sent), on a ``virtual``
+bus without python-can's per-receiver deep copy (:func:`_virtual_burst_sender`).
 """
 
 from __future__ import annotations
