@@ -356,8 +356,11 @@ class Rig:
             values[(comm, 2)] = int(bus.transmission_type)
             values[(comm, 3)] = int(bus.inhibit_time_100us)
             values[(comm, 5)] = int(bus.event_timer_ms)
-        tpdo2_cob = 0x280 + t.node_id
-        values[(odx.TPDO_COMM[1], 1)] = tpdo2_cob if bus.mode == "raw" else tpdo2_cob | COB_INVALID
+        # raw mode: the node sends its reading (TPDO2) *instead of* its decision (TPDO1)
+        raw = bus.mode == "raw"
+        tpdo1_cob, tpdo2_cob = 0x180 + t.node_id, 0x280 + t.node_id
+        values[(odx.TPDO_COMM[0], 1)] = tpdo1_cob | COB_INVALID if raw else tpdo1_cob
+        values[(odx.TPDO_COMM[1], 1)] = tpdo2_cob if raw else tpdo2_cob | COB_INVALID
         return values
 
     # ------------------------------------------------------------------ readings and faults

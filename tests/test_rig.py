@@ -98,7 +98,8 @@ def test_startup_configuration_written_from_scene():
                 assert rn.sdo[comm][2].raw == 255
                 assert rn.sdo[comm][3].raw == 30
                 assert rn.sdo[comm][5].raw == 500
-            assert rn.sdo[0x1801][1].raw == 0x283        # raw mode: TPDO2 valid
+            assert rn.sdo[0x1801][1].raw == 0x283        # raw mode: TPDO2 valid ...
+            assert rn.sdo[0x1800][1].raw == 0x183 | 0x80000000   # ... instead of TPDO1
             assert rn.sdo[0x2002][2].raw == 20           # noisy taxel: stuck detector on (EDS default)
         finally:
             net.disconnect()
