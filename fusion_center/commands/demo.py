@@ -6,7 +6,7 @@ import argparse
 import uuid
 from pathlib import Path
 
-from .run import add_common_outputs, apply_mode, execute, print_summary, setup_logging
+from .run import add_common_outputs, execute, load_run_scene, print_summary, setup_logging
 
 HELP = ("demo: node twins of a scene (default the 57-taxel matrix) and the fusion centre on an embedded "
         "virtual bus; --mode raw|decision to compare both")
@@ -69,15 +69,8 @@ def run_demo(scene, cycles: int, *, drops: dict[int, list[int]] | None = None, j
 
 
 def run(args) -> int:
-    from ..cli import UsageError
-    from ..scene import load_scene
-
     setup_logging()
-    # --mode: the node twins' Rig and the fusion centre get the same (overridden) scene
-    scene = apply_mode(load_scene(args.scene), args.mode)
-    cycles = args.cycles if args.cycles is not None else scene.cycles
-    if cycles < 1:
-        raise UsageError(f"--cycles {cycles}: must be >= 1")
+    scene, cycles = load_run_scene(args)
     drops = parse_drops(args.drop_node, scene)
     _, summary = run_demo(scene, cycles, drops=drops, json_lines=args.json_lines, trace=args.log,
                           live=not args.no_live, boot_timeout=args.boot_timeout)

@@ -169,21 +169,29 @@ def _fmt_ms(x):
     return "-" if x is None else f"{x:.2f} ms"
 
 
+def load_run_scene(args):
+    """The scene of ``--scene`` with ``--mode`` applied, and the cycle count (``--cycles`` or the
+    scene's). The node twins and the fusion centre get this same (overridden) scene."""
+    from ..cli import UsageError
+    from ..scene import load_scene
+
+    scene = apply_mode(load_scene(args.scene), args.mode)
+    cycles = args.cycles if args.cycles is not None else scene.cycles
+    if cycles < 1:
+        raise UsageError(f"--cycles {cycles}: must be >= 1")
+    return scene, cycles
+
+
 def print_summary(summary: dict) -> None:
     for line in format_summary(summary):
         print(line)
 
 
 def run(args) -> int:
-    from ..cli import UsageError
-    from ..scene import load_scene
     from ..service import FusionService
 
     setup_logging()
-    scene = apply_mode(load_scene(args.scene), args.mode)
-    cycles = args.cycles if args.cycles is not None else scene.cycles
-    if cycles < 1:
-        raise UsageError(f"--cycles {cycles}: must be >= 1")
+    scene, cycles = load_run_scene(args)
     channels = args.channel.split(",") if args.channel else None
     service = FusionService(scene, interface=args.interface, channels=channels, bitrate=args.bitrate,
                             bus_kwargs=parse_bus_options(args.bus_option), json_lines=args.json_lines,
