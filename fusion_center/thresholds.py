@@ -44,7 +44,7 @@ from dataclasses import dataclass
 
 from .curves import additive_pm1_constants, check_n, check_open_unit, check_xi
 from .encoding import check_encoding, check_integer
-from .rules import check_weight, g_of_n
+from .rules import check_weight
 
 __all__ = [
     "MultiplicativeThreshold",
@@ -329,82 +329,120 @@ class PreferentialThreshold:
     mean_roots: tuple[float, ...] = ()
 
 
-def _factor_tables(p: float, q: float) -> tuple[dict, dict]:
-    """(1 + v)^p and (1 + v)^q for v in {-1, 0, +1} (0**0 = 1)."""
-    return ({v: (1.0 + v) ** p for v in (-1.0, 0.0, 1.0)}, {v: (1.0 + v) ** q for v in (-1.0, 0.0, 1.0)})
+def _weights(p: float, q: float) -> tuple[float, float, float, float, float]:
+    """(P, Q, PQ, zp, zq) of eq 7: P = 2^p, Q = 2^q, PQ = P Q, zp = 0^p, zq = 0^q (0**0 = 1).
 
-
-def _run_value(n: int, left: int, run: int, fp: dict, fq: dict, absent: float) -> float:
-    """Eq 7 for `left` absent taxels, a run of `run` present ones, then absent ones, in O(1).
-
-    A segment of >= 3 equal decisions only adds "bulk" terms for its inner taxels (both
-    neighbours equal), so each segment is shortened to <= 3 taxels and the bulk terms are added.
+    P, Q are the factors (1 + u)^p, (1 + u)^q of a present neighbour, zp, zq those of an absent
+    one on the {-1,+1} tuple, 1 those of the boundary u_0 = u_{n+1} = 0 (and of an absent one
+    on the {0,1} tuple).
     """
-    right = n - left - run
-    short = [0.0]
-    extra = 0.0
-    for value, length in ((absent, left), (1.0, run), (absent, right)):
-        if length > 3:
-            extra += (length - 3) * value * fp[value] * fq[value]
-            length = 3
-        short.extend([value] * length)
-    short.append(0.0)
-    total = 0.0
-    for i in range(1, len(short) - 1):
-        v = short[i]
-        if v != 0.0:
-            total += v * fp[short[i + 1]] * fq[short[i - 1]]
-    return total + extra
+    big_p, big_q = 2.0**p, 2.0**q
+    return big_p, big_q, big_p * big_q, (1.0 if p == 0.0 else 0.0), (1.0 if q == 0.0 else 0.0)
 
 
-def _max_value(n: int, present: int, fp: dict, fq: dict, absent: float) -> float:
+def _best_run_value(n: int, present: int, weights: tuple, encoding: str) -> float:
+    """M(present) = max of U_G (eq 7) over vectors with `present` present taxels, closed form, O(1).
+
+    {0,1} tuple: absent taxels add 0 and look like the boundary to their neighbours, so every
+    vector with all present taxels in one run gives U_G = g(present) (eq 15 with g(0) = 0,
+    g(1) = 1), and splitting the run only loses 2^(p+q) - 2^p or the like: M(m) = g(m).
+
+    {-1,+1} tuple: `a` absent taxels, a run of m present ones, `b` absent ones (a + b = F =
+    n - m). The run gives P eL + Q eR + (m - 2) PQ (m >= 2) with eL = 1 if a = 0 else zq,
+    eR = 1 if b = 0 else zp; the left absent segment S_L(0) = 0, S_L(1) = -P,
+    S_L(a >= 2) = -zp - P zq - (a - 2) zp zq, the right one S_R likewise with P <-> Q,
+    zp <-> zq. Grouping, U = (m - 2) PQ + L(a) + R(b) with L(0) = P, L(1) = P (zq - 1),
+    L(a >= 2) = -zp - (a - 2) zp zq (R mirrored). L(0) = P >= 1 beats every other L and R(0)
+    every other R, and two inner segments (a, b >= 1) never beat a run at an array end, so
+    for 2 <= m <= n
+
+        M(m) = (m - 2) PQ + E(F),  E(0) = P + Q,  E(1) = max(P - Q + Q zp, Q - P + P zq),
+        E(F >= 2) = max(P - zq, Q - zp) - (F - 2) zp zq.
+
+    m = 0: -1 (n = 1), -zp - zq - (n - 2) zp zq. m = 1 (n >= 2), by cases: p = q = 0: 2 - n
+    (U_G = sum u_i); p = 0 < q: max(1 - Q, -1); q = 0 < p: max(1 - P, -1); p, q > 0: 0
+    (n >= 3; the lone taxel at an end, two absent ones beside it), -min(P, Q) (n = 2).
+    Checked against every vector for n <= 10 and against rules.preferential on run vectors up
+    to n = 10^4 (tests/test_thresholds.py).
+
+    Monotonicity in m (used by :func:`_smallest_present`): on 2..n, M(m + 1) - M(m) is
+    PQ + zp zq > 0 (F >= 3), PQ + E(1) - E(2) in {PQ - min(P, Q), PQ, 2} > 0 (F = 2; p, q > 0
+    gives P, Q > 1) and PQ + P + Q - E(1) >= PQ + min(P, Q) > 0 (F = 1): strictly increasing
+    (in floating point only nondecreasing where 2^p or 2^q rounds to 1, p or q < 2^-53).
+    M(1) >= M(0) and M(2) >= M(1) hold for n >= 3 (case by case above), and M(1) < M(0) = 0
+    only for n = 2 with p, q > 0.
+    """
+    big_p, big_q, pq, zp, zq = weights
+    if encoding == "01":
+        if present <= 1:
+            return float(present)
+        return big_p + big_q + (present - 2) * pq
+    if present == 0:
+        return -1.0 if n == 1 else -zp - zq - (n - 2) * zp * zq
+    if present == 1:
+        if n == 1:
+            return 1.0
+        if zp and zq:
+            return 2.0 - n
+        if zp:
+            return max(1.0 - big_q, -1.0)
+        if zq:
+            return max(1.0 - big_p, -1.0)
+        return -min(big_p, big_q) if n == 2 else 0.0
     free = n - present
-    lefts = {a for a in (0, 1, 2, 3, free, free - 1, free - 2, free - 3) if 0 <= a <= free}
-    return max(_run_value(n, a, present, fp, fq, absent) for a in lefts)
+    if free == 0:
+        edge = big_p + big_q
+    elif free == 1:
+        edge = max(big_p - big_q + big_q * zp, big_q - big_p + big_p * zq)
+    else:
+        edge = max(big_p - zq, big_q - zp) - (free - 2) * zp * zq
+    return (present - 2) * pq + edge
 
 
 def max_preferential_value(n, present, p, q, encoding: str = "pm1") -> float:
     """max of U_G (eq 7) over all decision vectors with exactly `present` present taxels.
 
     The maximum is reached by one contiguous run of present taxels (checked exhaustively against
-    every vector for n <= 12 in tests/test_thresholds.py); the run's best position is found among
-    the O(1) distinct placements (touching the left end, the right end, one or two taxels away,
-    or in the bulk). O(1) in n.
+    every vector for n <= 10 in tests/test_thresholds.py), touching an end of the array for
+    present >= 2; its value is the closed form of :func:`_best_run_value`. O(1) in n.
     """
     n = check_n(n)
     p = check_weight("p", p)
     q = check_weight("q", q)
     encoding = check_encoding(encoding)
     present = check_integer("present", present, 0, n, allowed=f"must be an integer in 0..n (n = {n})")
-    absent = -1.0 if encoding == "pm1" else 0.0
-    return _max_value(n, present, *_factor_tables(p, q), absent)
+    return _best_run_value(n, present, _weights(p, q), encoding)
 
 
-def _smallest_present(n: int, p: float, q: float, encoding: str, lam: float) -> int | None:
-    fp, fq = _factor_tables(p, q)
-    absent = -1.0 if encoding == "pm1" else 0.0
-    low_end = min(n, 3)
-    # each present taxel adds at most 2^(p+q), absent ones add <= 0: M(j) <= j 2^(p+q)
-    if lam <= low_end * 2.0 ** (p + q):
-        for j in range(0, low_end + 1):
-            if _max_value(n, j, fp, fq, absent) >= lam:
-                return j
-    hi_start = max(low_end + 1, n - 7)
-    if hi_start > low_end + 1:
-        # 3 <= j <= n - 7: every placement has a run >= 3 and an absent segment >= 4, so
-        # M(j + 1) - M(j) = bulk(present) - bulk(absent) > 0 (linear, increasing)
-        slope = fp[1.0] * fq[1.0] - absent * fp[absent] * fq[absent]
-        m0 = _max_value(n, low_end, fp, fq, absent)
-        j = low_end + max(1, math.ceil((lam - m0) / slope))
-        if j < hi_start:
-            # guard against rounding at an exact integer boundary
-            while j > low_end + 1 and m0 + (j - 1 - low_end) * slope >= lam:
-                j -= 1
-            return j
-    for j in range(hi_start, n + 1):
-        if _max_value(n, j, fp, fq, absent) >= lam:
-            return j
-    return None
+def _smallest_present(n: int, weights: tuple, encoding: str, lam: float) -> int | None:
+    """Smallest m in 0..n with M(m) >= lam (M of :func:`_best_run_value`), None if there is none.
+
+    m = 0 and 1 are checked in order (only when lam <= 1: M(0) <= 0 and M(1) <= 1), since
+    M(1) < M(0) can happen (n = 2). On 2..n M is strictly increasing and affine on 2..last
+    (last = n - 2 on {-1,+1}, n on {0,1}) with slope PQ + zp zq (resp. PQ), so the answer is
+    2 + ceil((lam - M(2))/slope), then stepped by at most a few places to the exact float
+    comparison (rounding at an integer boundary, or m beyond `last`).
+    """
+    best = _best_run_value
+    if lam <= 1.0:
+        if best(n, 0, weights, encoding) >= lam:
+            return 0
+        if best(n, 1, weights, encoding) >= lam:
+            return 1
+    if n < 2:
+        return None
+    _, _, pq, zp, zq = weights
+    if encoding == "01":
+        slope, last = pq, n
+    else:
+        slope, last = pq + zp * zq, n - 2
+    m = 2 + max(0, math.ceil((lam - best(n, 2, weights, encoding)) / slope))
+    m = max(2, min(m, last))
+    while m > 2 and best(n, m - 1, weights, encoding) >= lam:
+        m -= 1
+    while m <= n and best(n, m, weights, encoding) < lam:
+        m += 1
+    return m if m <= n else None
 
 
 def preferential_threshold(n, xi, alpha, p, q, encoding: str = "pm1") -> PreferentialThreshold:
@@ -426,7 +464,9 @@ def preferential_threshold(n, xi, alpha, p, q, encoding: str = "pm1") -> Prefere
     p = check_weight("p", p)
     q = check_weight("q", q)
     encoding = check_encoding(encoding)
-    g = g_of_n(n, p, q)
+    weights = _weights(p, q)
+    # g(n) of eq 15, the expression of rules.g_of_n (tested equal) without re-checking n, p, q
+    g = 1.0 if n == 1 else (weights[0] + weights[1]) + (n - 2) * 2.0 ** (p + q)
     one_minus_xi = 1.0 - xi
     a = 3.0 * alpha / one_minus_xi
     disc = 9.0 - 4.0 * a
@@ -442,7 +482,7 @@ def preferential_threshold(n, xi, alpha, p, q, encoding: str = "pm1") -> Prefere
     roots = (mean,)
     if s <= 1.0 and s > 0.0:  # second root (-1 - s)/2 in [-1, -1/2]; s = 0 is the double root
         roots = (0.5 * (-1.0 - s) * g, mean)
-    present = _smallest_present(n, p, q, encoding, mean)
+    present = _smallest_present(n, weights, encoding, mean)
     return PreferentialThreshold(
         n, xi, alpha, p, q, encoding, g, mean, band, mean - 0.5 * band, mean + 0.5 * band, present, roots
     )

@@ -20,7 +20,7 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from fusion_center.errors import ParameterError
-from fusion_center.rules import preferential
+from fusion_center.rules import g_of_n, preferential
 from fusion_center.thresholds import (
     additive_threshold,
     max_preferential_value,
@@ -225,6 +225,66 @@ def test_max_preferential_value_is_the_exhaustive_maximum(n, p, q, encoding):
         best[j] = max(best.get(j, -math.inf), preferential(list(u), p, q, encoding))
     for j in range(n + 1):
         assert max_preferential_value(n, j, p, q, encoding) == pytest.approx(best[j], abs=1e-12)
+    # monotone in the present count (what present_count's search relies on): strictly from 2 on;
+    # 0 -> 1 may drop only for n = 2 on {-1,+1} with p, q > 0 ((-1,-1) gives 0, (1,-1) gives -2^q)
+    for j in range(2, n):
+        assert best[j + 1] > best[j]
+    if n >= 2:
+        assert best[2] >= best[1]
+        if n == 2 and encoding == "pm1" and p > 0 and q > 0:
+            assert best[1] < best[0] == 0
+        else:
+            assert best[1] >= best[0]
+
+
+def _run_vector(n, left, run, encoding):
+    absent = -1 if encoding == "pm1" else 0
+    return [absent] * left + [1] * run + [absent] * (n - left - run)
+
+
+def _best_run_by_eq7(n, run, p, q, encoding, middle):
+    """max of rules.preferential (eq 7, numpy) over one-run placements: 0, 1, 2 taxels from either
+    end and one placement `middle` in between (all placements with >= 2 absent taxels on both
+    sides have the same value: moving the run only moves bulk absent terms)."""
+    free = n - run
+    lefts = {a for a in (0, 1, 2, middle, free - 2, free - 1, free) if 0 <= a <= free}
+    return max(preferential(_run_vector(n, a, run, encoding), p, q, encoding) for a in lefts)
+
+
+weights_with_ends = st.one_of(st.sampled_from([0.0, 1.0, 2.0, 5e-324]), st.floats(0, 2))
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.integers(1, 10_000), st.data(), weights_with_ends, weights_with_ends, st.sampled_from(["pm1", "01"]))
+def test_max_preferential_value_closed_form_against_eq7_run_vectors(n, data, p, q, encoding):
+    """The closed form of max_preferential_value against eq 7 evaluated on the run vectors."""
+    run = data.draw(st.integers(0, n))
+    middle = data.draw(st.integers(0, n - run))
+    value = _best_run_by_eq7(n, run, p, q, encoding, middle)
+    tol = 1e-12 * max(1.0, g_of_n(n, p, q))
+    assert max_preferential_value(n, run, p, q, encoding) == pytest.approx(value, rel=1e-12, abs=tol)
+    if 2 <= run < n:  # increasing in the present count from 2 on (strictly unless 2^p or 2^q rounds to 1)
+        assert _best_run_by_eq7(n, run + 1, p, q, encoding, middle) >= value
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.integers(1, 10_000), st.floats(1e-6, 0.74), weights_with_ends, weights_with_ends,
+       st.sampled_from(["pm1", "01"]), st.data())
+def test_preferential_present_count_against_eq7(n, alpha, p, q, encoding, data):
+    """present_count j: some vector with j present taxels reaches lambda_mean (eq 7 on a run
+    vector), no vector with j - 1 does (M increasing from 2 on; 0 and 1 checked directly)."""
+    res = preferential_threshold(n, 0.003, alpha, p, q, encoding)
+    assert res.g_max == g_of_n(n, p, q)
+    lam, j = res.threshold_mean, res.present_count
+    tol = 1e-12 * max(1.0, res.g_max)
+    middle = data.draw(st.integers(0, n))
+    best = lambda m: _best_run_by_eq7(n, m, p, q, encoding, min(middle, n - m))
+    if j is None:
+        assert best(n) < lam + tol
+        return
+    assert best(j) >= lam - tol
+    for below in {0, 1, j - 1} & set(range(j)):
+        assert best(below) < lam + tol
 
 
 @pytest.mark.parametrize("p,q", [(1, 1), (0, 2), (0.5, 0), (0, 0), (2, 2)])
