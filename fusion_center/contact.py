@@ -22,7 +22,7 @@ import numpy as np
 from .errors import ParameterError
 
 __all__ = [
-    "ContactType", "CONTACT_MECHANICS", "classify", "taxel_count_ratio",
+    "ContactType", "CONTACT_MECHANICS", "classify", "classify_ratio", "taxel_count_ratio",
     "friction_plane_ratio", "relative_softness_index", "ContactZone", "contact_zone",
     "POINT_FORCE_MIN", "POINT_FORCE_MAX", "LARGER_OBJECT_MIN",
 ]
@@ -41,8 +41,23 @@ class ContactType(str, Enum):
     LARGER_OBJECT = "larger_object"
 
 
-_CLASSES = np.array([ContactType.NO_CONTACT, ContactType.POINT_FORCE, ContactType.SMALL_OBJECT,
-                     ContactType.LARGER_OBJECT], dtype=object)  # by precedence row 0..3
+_CLASS_LIST = (ContactType.NO_CONTACT, ContactType.POINT_FORCE, ContactType.SMALL_OBJECT,
+               ContactType.LARGER_OBJECT)  # by precedence row 0..3
+_CLASSES = np.array(_CLASS_LIST, dtype=object)
+
+
+def _row(r, point_force_min, point_force_max, larger_object_min):
+    """Precedence row 0..3 of a ratio (module docstring): the number of Table 1 boundaries it
+    has reached. The one definition of the boundaries, for a float or a float array alike
+    (0 <= point_force_min <= point_force_max < larger_object_min <= 1 assumed)."""
+    return 1 * (r >= point_force_min) + 1 * (r > point_force_max) + 1 * (r >= larger_object_min)
+
+
+def _check_limits(point_force_min, point_force_max, larger_object_min) -> None:
+    if not (0 <= point_force_min <= point_force_max < larger_object_min <= 1):
+        raise ParameterError(
+            "limits", (point_force_min, point_force_max, larger_object_min),
+            "need 0 <= point_force_min <= point_force_max < larger_object_min <= 1")
 
 #: Table 1's "Contact Type" column for each class.
 CONTACT_MECHANICS: dict[ContactType, str] = {
@@ -69,17 +84,26 @@ def classify(ratio, *, point_force_min: float = POINT_FORCE_MIN,
     ``ratio`` must lie in [0, 1] (NaN refused). A scalar gives a :class:`ContactType`; an
     array gives an object array of them with the same shape.
     """
-    if not (0 <= point_force_min <= point_force_max < larger_object_min <= 1):
-        raise ParameterError(
-            "limits", (point_force_min, point_force_max, larger_object_min),
-            "need 0 <= point_force_min <= point_force_max < larger_object_min <= 1")
+    _check_limits(point_force_min, point_force_max, larger_object_min)
     r = _number(ratio, "ratio", array=True)
     bad = ~np.isfinite(r) | (r < 0) | (r > 1)
     if np.any(bad):
         value = float(r[bad][0]) if r.ndim else float(r)
         raise ParameterError("ratio", value, "t_c / fp_c must be a number in [0, 1]")
-    rows = np.select([r < point_force_min, r <= point_force_max, r < larger_object_min], [0, 1, 2], 3)
+    rows = _row(r, point_force_min, point_force_max, larger_object_min)
     return _CLASSES[rows] if r.ndim else _CLASSES[int(rows)]
+
+
+def classify_ratio(ratio: float, *, point_force_min: float = POINT_FORCE_MIN,
+                   point_force_max: float = POINT_FORCE_MAX,
+                   larger_object_min: float = LARGER_OBJECT_MIN) -> ContactType:
+    """:func:`classify` for one ratio (t_c of eq 34a or fp_c of eq 34b) without numpy: the
+    same Table 1 boundaries (``_row``) and checks, for the live pipeline's per-cycle record."""
+    _check_limits(point_force_min, point_force_max, larger_object_min)
+    r = _number(ratio, "ratio")
+    if not 0.0 <= r <= 1.0:  # NaN fails too
+        raise ParameterError("ratio", r, "t_c / fp_c must be a number in [0, 1]")
+    return _CLASS_LIST[_row(r, point_force_min, point_force_max, larger_object_min)]
 
 
 def taxel_count_ratio(n_affected, n_total) -> float:

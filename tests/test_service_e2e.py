@@ -163,3 +163,59 @@ def test_bad_input_exits_2_with_one_line(args, needle):
 def test_missing_eds_is_a_usage_error(matrix, tmp_path):
     with pytest.raises(UsageError, match="EDS"):
         FusionService(matrix, channels=[f"x-{uuid.uuid4().hex}"], eds_path=tmp_path / "none.eds").open()
+
+
+def test_trace_is_written_in_stream_order_after_each_closed_cycle(matrix):
+    """The stream queues trace messages under its lock and writes them after a closed cycle
+    (or every TRACE_BATCH events): same frames, same order, same µs timestamps as fed."""
+    from fusion_center.service.core import TRACE_BATCH, EventStream
+    from fusion_center.service.cycles import CycleAssembler
+
+    written = []
+
+    class Collect(can.Listener):
+        def on_message_received(self, msg):
+            written.append((msg.arbitration_id, bytes(msg.data), round(msg.timestamp * 1e6)))
+
+        def stop(self):
+            written.append("stopped")
+
+    closed = []
+    stream = EventStream(CycleAssembler(matrix), trace=Collect(), on_closed=closed.append)
+    fed = []
+    t = [1_700_000_000.0]
+
+    def feed(can_id, data):
+        t[0] += 1e-4
+        fed.append((can_id, data, round(t[0] * 1e6)))
+        stream.receive(can.Message(timestamp=t[0], arbitration_id=can_id, data=data, is_extended_id=False), 0)
+
+    for taxel in matrix.taxels:
+        feed(0x700 + taxel.node_id, b"\x00")  # boot-up
+    feed(0x000, bytes([0x01, 0]))  # NMT start all
+    assert written == []  # no cycle closed, fewer than TRACE_BATCH events: still queued
+    feed(0x080, b"")
+    for taxel in matrix.taxels[:-1]:
+        feed(0x180 + taxel.node_id, b"\xff")
+    assert written == [] and not closed
+    feed(0x180 + matrix.taxels[-1].node_id, b"\x01")  # the last TPDO closes the cycle
+    assert len(closed) == 1 and closed[0].closed_by == "complete"
+    assert written == fed  # everything up to the closing frame, in order
+    for _ in range(TRACE_BATCH):
+        feed(0x700 + matrix.taxels[0].node_id, b"\x05")  # heartbeats: no cycle closes
+    assert written == fed  # written once TRACE_BATCH events were queued
+    feed(0x700 + matrix.taxels[1].node_id, b"\x05")
+    assert written == fed[:-1]
+    stream.close_trace()
+    assert written == fed + ["stopped"]
+
+
+def test_records_are_evaluated_in_cycle_order_by_the_closing_threads(matrix):
+    """Cycles closed by a TPDO (Notifier thread) and by the next SYNC (SYNC producer: a node
+    dropped, so its cycle waits for the SYNC) come out in order, each once."""
+    service, summary = run_demo(matrix, 30, drops={10: [5]})
+    records = service.records
+    assert [r["cycle"] for r in records] == list(range(30))
+    closed_by = [r["closed_by"] for r in records]
+    assert closed_by[:10].count("complete") >= 8 and "sync" in closed_by[10:]
+    assert all(5 in r["silent_nodes"] or 5 in r["missing_nodes"] for r in records[11:])

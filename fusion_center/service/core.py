@@ -2,28 +2,40 @@
 
 Threads of a live run:
 
-* one python-can ``Notifier`` thread per bus: canopen's listener (SDO client) and ours,
-  :class:`_StreamListener`, which feeds :meth:`EventStream.receive` - guarded: an exception
-  is counted as ``internal_error`` and never escapes (a raising listener stops python-can's
-  Notifier for good);
-* the SYNC producer (:class:`~fusion_center.service.master.Master`), monotonic clock;
-* the worker: evaluates closed cycles in order (:class:`CyclePipeline`) and appends one JSON
-  line per cycle (flushed), then calls the ``on_record`` callbacks (live view, demo hooks).
+* one python-can ``Notifier`` thread per bus with one listener, :class:`_StreamListener`: it
+  feeds :meth:`EventStream.receive`, then hands canopen (SDO client, heartbeat and EMCY
+  consumers of ``canopen.Network``) only the frames canopen has subscribed to - guarded: an
+  exception is counted as ``internal_error`` and never escapes (a raising listener stops
+  python-can's Notifier for good);
+* the SYNC producer (:class:`~fusion_center.service.master.Master`), monotonic clock.
+
+No worker thread: the thread whose event closed a cycle - the Notifier thread when the
+cycle's last PDO arrives (``closed_by: complete``, the usual case), the SYNC producer when the
+next SYNC or the final NMT closes it - evaluates it right away, after releasing the stream
+lock (:meth:`FusionService._process_pending`): closed cycles are queued in stream order under
+the stream lock and evaluated in that order under a separate evaluation lock (a thread that
+finds it taken leaves its cycle to the holder), appended to the decision log (one JSON line,
+flushed) and passed to the ``on_record`` callbacks, which must be quick and never wait for bus
+traffic (they run on a receive thread). This saves the hand-off to a worker thread (a
+wake-up on a loaded machine) on the SYNC -> record path.
 
 :class:`EventStream` is the single point where events are ordered: under one lock each
-event is time-stamped (integer µs, clamped to be monotonic), written to the trace
-(``can.Logger``), and fed to the :class:`CycleAssembler`. ``replay`` feeds a trace through the
-same class, so it reproduces the live records exactly.
+event is time-stamped (integer µs, clamped to be monotonic), queued for the trace and fed to
+the :class:`CycleAssembler`. The trace (``can.Logger``) is written outside the stream lock,
+in stream order, after every closed cycle has been evaluated (and every
+:data:`TRACE_BATCH` events between cycles), so a killed process loses at most the trace of
+the cycle in flight (plus what the logger's file buffer holds). ``replay`` feeds a trace
+through the same class, so it reproduces the live records exactly.
 """
 
 from __future__ import annotations
 
 import logging
 import math
-import queue
 import sys
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Iterable, Sequence
@@ -49,6 +61,7 @@ from .records import RecordWriter
 logger = logging.getLogger("fusion_center.service")
 
 DEFAULT_EDS = Path(__file__).resolve().parent.parent.parent / "eds" / "taxel_node.eds"
+TRACE_BATCH = 256  # events queued for the trace before it is written even if no cycle closed
 TRACE_SUFFIXES = (".log", ".asc", ".blf", ".csv", ".trc", ".mf4", ".txt", ".db")
 
 
@@ -88,22 +101,36 @@ def message_flags(msg: can.Message) -> int:
 
 
 class EventStream:
-    """Serialises events: time-stamp (µs, monotonic), trace, assembler - under one lock."""
+    """Serialises events: time-stamp (µs, monotonic), trace, assembler - under one lock.
+
+    ``on_closed(closed)`` is called under the lock for every cycle an event closes (keep it
+    short: the service queues the cycle); ``after_closed()`` is called after the lock is
+    released by :meth:`receive` / :meth:`transmit_all` when their event(s) closed a cycle
+    (the service evaluates the queued cycles there). Trace messages are queued under the lock
+    and written by :meth:`flush_trace` (in stream order), which the stream calls after
+    ``after_closed`` and whenever :data:`TRACE_BATCH` messages are queued.
+    """
 
     def __init__(self, assembler: CycleAssembler, *, trace: can.Listener | None = None,
                  on_closed: Callable[[ClosedCycle], None] | None = None,
+                 after_closed: Callable[[], None] | None = None,
                  buses: Sequence[can.BusABC] = ()):
         self.assembler = assembler
         self.trace = trace
         self.on_closed = on_closed
+        self.after_closed = after_closed
         self.buses = list(buses)
         self.lock = threading.Lock()
         self.fed = 0
         self.last_us: int | None = None
         self.tx_errors = 0
+        self.trace_errors = 0
         self.rate_log = RateLimitedLog(logger)
+        self._trace_queue: list[can.Message] = []
+        self._trace_lock = threading.Lock()  # taken before ``lock``, never while holding it
 
-    def _feed_locked(self, msg: can.Message, channel: int) -> None:
+    def _feed_locked(self, msg: can.Message, channel: int) -> bool:
+        """Feed one event (stream lock held); True when it closed a cycle."""
         self.fed += 1
         try:
             us = quantise_timestamp(msg.timestamp)
@@ -114,20 +141,36 @@ class EventStream:
             if self.trace is not None:
                 msg.timestamp = us / 1e6
                 msg.channel = channel
-                self.trace.on_message_received(msg)
-            flags = message_flags(msg)
+                self._trace_queue.append(msg)
+            flags = 0
+            if msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id:
+                flags = message_flags(msg)
             closed = self.assembler.feed(us, channel, msg.arbitration_id, msg.data, flags)
             if closed is not None and self.on_closed is not None:
                 self.on_closed(closed)
+                return True
         except Exception as exc:  # noqa: BLE001 - the receive path never raises
             if self.assembler.events < self.fed:
                 self.assembler.count_internal_error()
             self.rate_log.warning("internal_error", "receive path: %s: %s", type(exc).__name__, exc)
+        return False
+
+    def _after_feed(self, closed: bool) -> None:
+        """Outside the stream lock: evaluate what closed, then write the queued trace."""
+        if closed and self.after_closed is not None:
+            try:
+                self.after_closed()
+            except Exception as exc:  # noqa: BLE001 - the receive path never raises
+                self.rate_log.warning("after_closed", "after a closed cycle: %s: %s", type(exc).__name__, exc)
+        if closed or len(self._trace_queue) >= TRACE_BATCH:
+            self.flush_trace()
 
     def receive(self, msg: can.Message, channel: int) -> None:
         """A frame from the bus (or from a trace, in replay)."""
         with self.lock:
-            self._feed_locked(msg, channel)
+            closed = self._feed_locked(msg, channel)
+        if closed or len(self._trace_queue) >= TRACE_BATCH:
+            self._after_feed(closed)
 
     def transmit(self, channel: int, can_id: int, data: bytes, remote: bool = False) -> None:
         """Send a frame of the master on ``channel`` and feed it as an event (same order)."""
@@ -135,6 +178,7 @@ class EventStream:
 
     def transmit_all(self, frames: Iterable[tuple[int, int, bytes]], remote: bool = False) -> None:
         """Send several frames back to back (e.g. SYNC on every channel) as one atomic step."""
+        closed = False
         with self.lock:
             for channel, can_id, data in frames:
                 msg = can.Message(arbitration_id=can_id, data=data, is_extended_id=False,
@@ -146,7 +190,39 @@ class EventStream:
                     self.rate_log.warning("tx_error", "transmit 0x%03X on channel %d failed: %s", can_id, channel, exc)
                     continue
                 msg.timestamp = time.time()
-                self._feed_locked(msg, channel)
+                closed |= self._feed_locked(msg, channel)
+        if closed or len(self._trace_queue) >= TRACE_BATCH:
+            self._after_feed(closed)
+
+    def flush_trace(self) -> None:
+        """Write the queued trace messages, in stream order (any thread, outside the stream lock)."""
+        with self._trace_lock:
+            with self.lock:
+                batch = self._trace_queue
+                if not batch:
+                    return
+                self._trace_queue = []
+                trace = self.trace
+            if trace is None:
+                return
+            for msg in batch:
+                try:
+                    trace.on_message_received(msg)
+                except Exception as exc:  # noqa: BLE001 - e.g. disk full: count, log, go on
+                    self.trace_errors += 1
+                    self.rate_log.warning("trace", "trace write failed: %s: %s", type(exc).__name__, exc)
+
+    def close_trace(self) -> None:
+        """Write what is queued, then stop the trace writer (``can.Logger``) and detach it."""
+        self.flush_trace()
+        with self._trace_lock:
+            with self.lock:
+                trace, self.trace = self.trace, None
+                batch, self._trace_queue = self._trace_queue, []
+            if trace is not None:
+                for msg in batch:
+                    trace.on_message_received(msg)
+                trace.stop()
 
     def cycle_open(self) -> bool:
         with self.lock:
@@ -158,14 +234,25 @@ class EventStream:
 
 
 class _StreamListener(can.Listener):
-    """python-can listener of one channel: hands every frame to the stream, never raises."""
+    """python-can listener of one channel: hands every frame to the stream, then to canopen
+    (``canopen.network.MessageListener``) when canopen has subscribed to its COB-ID (SDO
+    responses, heartbeats, EMCY, NMT: not the TPDOs, which are most of the traffic); never raises.
 
-    def __init__(self, service: "FusionService", channel: int):
+    canopen's ``Network.scanner`` therefore sees only those frames (every node's heartbeat
+    among them); nothing here uses it."""
+
+    def __init__(self, service: "FusionService", channel: int, network=None):
         self.service = service
         self.channel = channel
         self.stream = service.stream
         self.drop_echo = service.drop_own_echo
         self.own_ids = service.master_cob_ids
+        self.network = network
+        if network is not None:
+            from canopen.network import MessageListener
+
+            self.canopen = MessageListener(network)
+            self.subscribers = network.subscribers  # COB-ID -> callbacks, updated by canopen
 
     def on_message_received(self, msg: can.Message) -> None:
         try:
@@ -180,6 +267,8 @@ class _StreamListener(can.Listener):
                     bootups.clear()
                 for index in drained:
                     self.service.on_bootup(index)
+            if self.network is not None and msg.arbitration_id in self.subscribers:
+                self.canopen.on_message_received(msg)
         except Exception as exc:  # noqa: BLE001 - never let the Notifier thread die
             with self.stream.lock:
                 self.stream.assembler.count_internal_error()
@@ -256,12 +345,12 @@ class FusionService:
         self.notifiers: list[can.Notifier] = []
         self.networks = []
         self.master = None
-        self.stream = EventStream(self.assembler, on_closed=self._enqueue)
+        self._pending: deque[ClosedCycle] = deque()  # closed, not yet evaluated (stream order)
+        self._eval_lock = threading.Lock()  # one evaluation at a time, in cycle order
+        self.stream = EventStream(self.assembler, on_closed=self._pending.append,
+                                  after_closed=self._process_pending)
         self.writer: RecordWriter | None = None
         self._trace_logger = None
-        self._queue: queue.SimpleQueue = queue.SimpleQueue()
-        self._worker: threading.Thread | None = None
-        self._records_done = threading.Condition()
         self._opened = False
         self.missing_at_boot: list[int] = []
         self._malformed_seen = {name: 0 for name in MALFORMED}
@@ -296,16 +385,11 @@ class FusionService:
                 self.stream.trace = self._trace_logger
             if self.json_lines is not None:
                 self.writer = RecordWriter(self.json_lines)
-            self._worker = threading.Thread(target=self._work, name="fusion-worker", daemon=True)
-            self._worker.start()
-            from canopen.network import MessageListener
-
             for index, bus in enumerate(self.buses):
                 network = canopen.Network(bus)
                 network.send_message = self._sender(index)
                 self.networks.append(network)
-                listeners = [_StreamListener(self, index), MessageListener(network)]
-                self.notifiers.append(can.Notifier(bus, listeners, timeout=0.05))
+                self.notifiers.append(can.Notifier(bus, [_StreamListener(self, index, network)], timeout=0.05))
                 network.notifier = self.notifiers[-1]
             from .master import Master
 
@@ -342,24 +426,19 @@ class FusionService:
             except Exception:  # noqa: BLE001
                 logger.exception("notifier stop failed")
         self.notifiers = []
-        if self._worker is not None and self._worker.is_alive():
-            self._queue.put(None)
-            self._worker.join(10)
-        self._worker = None
+        self.drain(timeout=10.0)
         for bus in self.buses:
             try:
                 bus.shutdown()
             except Exception:  # noqa: BLE001
                 logger.exception("bus shutdown failed")
         self.buses = []
-        with self.stream.lock:
-            if self._trace_logger is not None:
-                try:
-                    self._trace_logger.stop()
-                except Exception:  # noqa: BLE001
-                    logger.exception("trace close failed")
-                self._trace_logger = None
-                self.stream.trace = None
+        if self._trace_logger is not None:
+            try:
+                self.stream.close_trace()
+            except Exception:  # noqa: BLE001
+                logger.exception("trace close failed")
+            self._trace_logger = None
         if self.writer is not None:
             self.writer.close()
             self.writer = None
@@ -401,10 +480,15 @@ class FusionService:
         return self.summary()
 
     def drain(self, timeout: float = 5.0) -> None:
-        """Wait until the worker has handled every closed cycle queued so far."""
-        done = threading.Event()
-        self._queue.put(done)
-        done.wait(timeout)
+        """Wait for the evaluation in progress, then evaluate every closed cycle still queued."""
+        if not self._eval_lock.acquire(timeout=timeout):
+            logger.warning("drain: an evaluation is still running after %.1f s", timeout)
+            return
+        try:
+            while self._pending:
+                self._handle(self._pending.popleft())
+        finally:
+            self._eval_lock.release()
 
     def summary(self) -> RunSummary:
         m = self.master
@@ -422,44 +506,49 @@ class FusionService:
             latency_ms=list(self.latency_ms),
         )
 
-    # ------------------------------------------------------------------ worker
-    def _enqueue(self, closed: ClosedCycle) -> None:
-        self._queue.put(closed)
-
-    def _work(self) -> None:
-        while True:
-            item = self._queue.get()
-            if item is None:
+    # ------------------------------------------------------------------ evaluation
+    def _process_pending(self) -> None:
+        """Evaluate the queued closed cycles in stream order, in the calling thread (after the
+        stream lock is released). If another thread is evaluating, it takes them: it checks the
+        queue again after releasing the evaluation lock, so no cycle is left behind."""
+        pending = self._pending
+        while pending:
+            if not self._eval_lock.acquire(blocking=False):
                 return
-            if isinstance(item, threading.Event):
-                item.set()
-                continue
             try:
-                record = self.evaluate(item)
-            except Exception as exc:  # noqa: BLE001
-                self.pipeline_errors += 1
-                logger.exception("cycle %d: evaluation failed", item.cycle)
-                record = {"cycle": item.cycle, "t": round(item.sync_us * 1e-6, 6), "error": str(exc)}
-            sent = self.master.sync_sent_at.get(item.cycle) if self.master else None
-            if sent is not None:
-                self.latency_ms.append((time.perf_counter() - sent) * 1e3)
-                t0 = self.assembler.t0_us
-                if t0 is not None:
-                    self.centre_latency_ms.append((time.time() - (t0 + item.close_us) * 1e-6) * 1e3)
-            if self.writer is not None:
-                try:
-                    self.writer.write(record)
-                except (OSError, ValueError) as exc:
-                    self._rate_log.warning("writer", "decision log write failed: %s", exc)
-            if self.keep_records:
-                self.records.append(record)
-            for callback in self.on_record:
-                try:
-                    callback(record)
-                except Exception:  # noqa: BLE001
-                    logger.exception("on_record callback failed")
-            if item.bad_frames:
-                self._log_malformed()
+                while pending:
+                    self._handle(pending.popleft())
+            finally:
+                self._eval_lock.release()
+
+    def _handle(self, item: ClosedCycle) -> None:
+        """Evaluate one closed cycle, log the record (flushed), call ``on_record`` (eval lock held)."""
+        try:
+            record = self.evaluate(item)
+        except Exception as exc:  # noqa: BLE001
+            self.pipeline_errors += 1
+            logger.exception("cycle %d: evaluation failed", item.cycle)
+            record = {"cycle": item.cycle, "t": round(item.sync_us * 1e-6, 6), "error": str(exc)}
+        sent = self.master.sync_sent_at.get(item.cycle) if self.master else None
+        if sent is not None:
+            self.latency_ms.append((time.perf_counter() - sent) * 1e3)
+            t0 = self.assembler.t0_us
+            if t0 is not None:
+                self.centre_latency_ms.append((time.time() - (t0 + item.close_us) * 1e-6) * 1e3)
+        if self.writer is not None:
+            try:
+                self.writer.write(record)
+            except (OSError, ValueError) as exc:
+                self._rate_log.warning("writer", "decision log write failed: %s", exc)
+        if self.keep_records:
+            self.records.append(record)
+        for callback in self.on_record:
+            try:
+                callback(record)
+            except Exception:  # noqa: BLE001
+                logger.exception("on_record callback failed")
+        if item.bad_frames:
+            self._log_malformed()
 
     def evaluate(self, closed: ClosedCycle) -> dict:
         return self.pipeline.evaluate(closed)

@@ -42,6 +42,25 @@ What is computed (chapter sections in brackets):
 Every record says what did not run and why: ``stages_skipped`` (stage -> reason) and
 ``rules_skipped`` (fusion rule or centralised test -> reason), computed once per scene by
 :func:`fusion_center.stages.plan_stages` and copied into each record.
+
+Live fast path (same values as the library functions, tested equal in
+``tests/test_pipeline_fastpath.py``): the decisions of a cycle come from the assembler, which
+accepts only u_i = +-1 on the wire, so they are checked once per cycle (``_cycle_decisions``)
+and the rules are evaluated without re-validating them in every rule:
+
+* additive (eq 6), multiplicative (eq 5) and k-of-n (sec. 2.2.1) depend on the decisions only
+  through the received count n and the present count j: sum u_i = 2j - n ({-1,+1} tuple) or
+  j ({0,1} tuple). Their whole result (U_G, threshold, decision, p_h1 of eqs 10-13) is computed
+  from (n, j) by ``_count_rule`` and cached per (rule, n, j); the full-set entries
+  (n = scene n, every j) are computed when the pipeline starts, so cycle 0 costs no solve;
+* Chair-Varshney (eq 31) and Neyman-Pearson (eq 32): the per-taxel log-likelihood terms
+  ln(pd/pf) and ln((1-pd)/(1-pf)) are computed once per received set (the same numpy
+  expressions as :mod:`fusion_center.baselines`, so the sums are bit-identical) and summed over
+  the cycle's present/absent taxels;
+* the preferential rule (eq 7) calls :func:`fusion_center.rules.preferential` (it needs the
+  order of the decisions);
+* contact type: :func:`fusion_center.contact.classify_ratio` (scalar, same class boundaries as
+  :func:`~fusion_center.contact.classify`); ground truth precomputed for the scene's cycles.
 """
 
 from __future__ import annotations
@@ -51,7 +70,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from .. import baselines, centralised, contact, curves, forces, geometry, rules, thresholds
+from .. import baselines, centralised, contact, curves, forces, geometry, poisson_binomial, rules, thresholds
 from ..encoding import local_decision
 from ..errors import ParameterError
 from ..scene import Scene
@@ -91,6 +110,45 @@ def _jsonable(value):
 
 def _verdict(condition: bool) -> str:
     return "H1" if condition else "H0"
+
+
+def _json_result(result: dict) -> dict:
+    """A rule's result with JSON-able values (lists element-wise)."""
+    return {k: (_jsonable(v) if not isinstance(v, list) else [_jsonable(x) for x in v]) for k, v in result.items()}
+
+
+def _rule_error(exc: ParameterError) -> dict:
+    return {"U_G": None, "threshold": None, "decision": "undecided", "p_h1": None, "error": str(exc)}
+
+
+def log_ratio_terms(pd: np.ndarray, pf: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per-taxel log-likelihood terms of eqs 31-32: (present: ln(pd/pf), absent:
+    ln((1-pd)/(1-pf))), the same numpy expressions as :mod:`fusion_center.baselines`, so sums
+    over them equal ``baselines.np_log_statistic`` bit for bit."""
+    return np.log(pd) - np.log(pf), np.log1p(-pd) - np.log1p(-pf)
+
+
+def np_decide(rule: baselines.NPFusionRule, value: float) -> str:
+    """``rule.decide`` for a statistic value already computed (no coin: ``rng=None``)."""
+    if rule.statistic == "llr":
+        position = baselines.compare_log_ratio(value, rule.log_threshold)
+    else:
+        diff = value - rule.count_threshold
+        if not rule.count_increasing:
+            diff = -diff
+        position = (diff > 0) - (diff < 0)
+    if position > 0:
+        return "H1"
+    if position < 0:
+        return "H0"
+    if rule.gamma <= 0.0:
+        return "H0"
+    if rule.gamma >= 1.0:
+        return "H1"
+    return "undecided"
+
+
+_COUNT_RULES = frozenset(("additive", "multiplicative", "k-of-n"))
 
 
 class CyclePipeline:
@@ -151,6 +209,37 @@ class CyclePipeline:
             self.llr_flip = (c10 - c00) < 0
         self._np_rules: dict[bytes, object] = {}
         self._areas: dict[bytes, float] = {}
+        self._count_results: dict[tuple[str, int, int], dict] = {}
+        self._llr_subsets: dict[bytes, object] = {}
+        if "llr" in self.rules and self.pf is not None:
+            p1 = fusion.prior_h1  # checked in (0, 1) by bayes_log_threshold above
+            self._llr_prior = float(np.log(p1) - np.log1p(-p1))  # eq 31's ln(P1/P0), as baselines
+        self._truth: list[str] = []
+        if truth:
+            from node_sim.physics import truth_batch
+
+            self._truth = ["H1" if present else "H0" for present in truth_batch(scene, np.arange(scene.cycles))]
+        self._warm_up()
+
+    def _warm_up(self) -> None:
+        """Compute what the first cycles would otherwise compute on the live path: the count
+        rules' results for the full set (n = scene n, every present count, thresholds solved
+        once), the N-P rule and the log-likelihood terms of the full set."""
+        everyone = np.ones(self.n, dtype=bool)
+        for name in self.rules:
+            if name in _COUNT_RULES:
+                for present in range(self.n + 1):
+                    self._count_result(name, self.n, present)
+            elif name == "llr" and self.pf is not None:
+                self._llr_terms(everyone)
+            elif name == "np" and self.pf is not None:
+                self._np_entry(everyone)
+            elif name == "preferential":
+                f = self.scene.fusion
+                try:
+                    preferential_threshold_cached(self.n, f.xi, f.alpha, f.p, f.q, self.encoding)
+                except ParameterError:
+                    pass  # reported by every cycle's result
 
     @staticmethod
     def _jaw_layout(taxels):
@@ -186,22 +275,70 @@ class CyclePipeline:
         return area
 
     # ------------------------------------------------------------------ rules
-    def _np_rule(self, received: np.ndarray):
+    def _np_entry(self, received: np.ndarray):
+        """(N-P rule of the received taxels, its log-likelihood terms), cached per received set
+        (a ParameterError is cached and raised again)."""
         key = received.tobytes()
-        rule = self._np_rules.get(key)
-        if rule is None:
+        entry = self._np_rules.get(key)
+        if entry is None:
             if len(self._np_rules) > 256:
                 self._np_rules.clear()
-            rule = baselines.neyman_pearson_fusion(self.pd[received], self.pf[received],
-                                                   self.scene.fusion.np_false_alarm)
-            self._np_rules[key] = rule
-        return rule
+            try:
+                rule = baselines.neyman_pearson_fusion(self.pd[received], self.pf[received],
+                                                       self.scene.fusion.np_false_alarm)
+                entry = (rule, *log_ratio_terms(rule.pd, rule.pf))
+            except ParameterError as exc:
+                entry = exc
+            self._np_rules[key] = entry
+        if isinstance(entry, ParameterError):
+            raise entry
+        return entry
 
-    def _rule(self, name: str, u: np.ndarray, n: int, present: int, received: np.ndarray) -> dict:
+    def _llr_terms(self, received: np.ndarray):
+        """Log-likelihood terms of eq 31 over the received taxels, cached per received set
+        (pd, pf checked once in (0, 1) as :func:`baselines.chair_varshney_llr` does)."""
+        key = received.tobytes()
+        entry = self._llr_subsets.get(key)
+        if entry is None:
+            if len(self._llr_subsets) > 256:
+                self._llr_subsets.clear()
+            try:
+                pd = poisson_binomial.validate_probabilities(self.pd[received], "pd", open_interval=True)
+                pf = poisson_binomial.validate_probabilities(self.pf[received], "pf", open_interval=True)
+                entry = log_ratio_terms(pd, pf)
+            except ParameterError as exc:
+                entry = exc
+            self._llr_subsets[key] = entry
+        if isinstance(entry, ParameterError):
+            raise entry
+        return entry
+
+    def _count_result(self, name: str, n: int, present: int) -> dict:
+        """JSON-able result of a count rule for (n received, present), cached (module docstring)."""
+        key = (name, n, present)
+        result = self._count_results.get(key)
+        if result is None:
+            if len(self._count_results) > 4096:
+                self._count_results.clear()
+            try:
+                result = _json_result(self._count_rule(name, n, present))
+            except ParameterError as exc:
+                result = _json_result(_rule_error(exc))
+            self._count_results[key] = result
+        return result
+
+    def _count_rule(self, name: str, n: int, present: int) -> dict:
+        """Additive (eq 6), multiplicative (eq 5) or k-of-n (sec. 2.2.1) from the counts alone.
+
+        With j = ``present`` of the n received decisions deciding "present" (k = n - j absent),
+        sum u_i = n - 2k = 2j - n on the {-1,+1} tuple and n - k = j on the {0,1} tuple: eq 6's
+        U_G, eq 5's ln U_G, and the k-of-n rule's sum.
+        """
         f = self.scene.fusion
         enc = self.encoding
+        total = 2 * present - n if enc == "pm1" else present  # sum of u_i in the scene's tuple
         if name == "additive":
-            value = rules.additive(u, enc)
+            value = total
             th = additive_threshold_cached(n, f.xi, f.alpha, enc)
             if not th.thresholds:
                 lam, decision = None, "undecided"
@@ -212,7 +349,11 @@ class CyclePipeline:
                  else curves.p_additive_01(value, n, f.xi))
             return {"U_G": value, "threshold": lam, "decision": decision, "p_h1": p}
         if name == "multiplicative":
-            mv = rules.multiplicative(u, enc)
+            ln_u_g = float(total)
+            try:
+                u_g = math.exp(ln_u_g)
+            except OverflowError:
+                u_g = math.inf
             th = multiplicative_threshold_cached(n, f.xi, f.beta)
             if not th.present_counts or th.present_counts[0] is None:
                 lam = ln_lam = None
@@ -224,8 +365,24 @@ class CyclePipeline:
                 decision = _verdict(present >= th.present_counts[0])
             # eqs 10-11 are fitted on the {-1,+1} tuple (fig 2a): ln U_G = 2j - n
             p = curves.p_multiplicative(2 * present - n, n, f.xi) if enc == "pm1" else None
-            return {"U_G": mv.U_G, "ln_U_G": mv.ln_U_G, "threshold": lam, "ln_threshold": ln_lam,
+            return {"U_G": u_g, "ln_U_G": ln_u_g, "threshold": lam, "ln_threshold": ln_lam,
                     "decision": decision, "p_h1": p}
+        if name == "k-of-n":
+            k = f.k
+            if not 1 <= k <= n:
+                return {"U_G": present, "threshold": None, "decision": "undecided", "p_h1": None}
+            lam = 2 * k - n if enc == "pm1" else k  # sec 2.2.1: sum u_i >= 2k - n
+            return {"U_G": total, "threshold": lam, "decision": _verdict(present >= k), "p_h1": None}
+        raise ParameterError("rule", name, "not a count rule")
+
+    def _rule(self, name: str, n: int, present: int, received: np.ndarray, present_sub: np.ndarray,
+              u: np.ndarray) -> dict:
+        """One rule's result for the cycle; ``present_sub`` (bool) and ``u`` (the decisions in
+        the scene's tuple) are over the received taxels, already checked (``_cycle_decisions``)."""
+        if name in _COUNT_RULES:
+            return dict(self._count_result(name, n, present))
+        f = self.scene.fusion
+        enc = self.encoding
         if name == "preferential":
             value = rules.preferential(u, f.p, f.q, enc)
             th = preferential_threshold_cached(n, f.xi, f.alpha, f.p, f.q, enc)
@@ -240,16 +397,12 @@ class CyclePipeline:
             p = curves.p_preferential(value, th.g_max, f.xi)
             return {"U_G": value, "threshold": th.threshold_mean, "band": [th.threshold_initial, th.threshold_final],
                     "g_max": th.g_max, "decision": decision, "p_h1": p}
-        if name == "k-of-n":
-            k = f.k
-            if not 1 <= k <= n:
-                return {"U_G": present, "threshold": None, "decision": "undecided", "p_h1": None}
-            verdict = rules.k_of_n(u, k, enc)
-            value = int(u.sum(dtype=np.int64))
-            lam = 2 * k - n if enc == "pm1" else k  # sec 2.2.1: sum u_i >= 2k - n
-            return {"U_G": value, "threshold": lam, "decision": _verdict(verdict == 1), "p_h1": None}
         if name == "llr":
-            value = baselines.chair_varshney_llr(u, self.pd[received], self.pf[received], enc, f.prior_h1)
+            if self.pf is None:
+                raise ParameterError("pf", None, "the llr rule needs pf and pm for every taxel")
+            present_terms, absent_terms = self._llr_terms(received)
+            # eq 31 = ln(P1/P0) + sum_S+ ln(pd/pf) + sum_S- ln((1-pd)/(1-pf))
+            value = self._llr_prior + float(np.sum(np.where(present_sub, present_terms, absent_terms)))
             if value == self.llr_threshold:
                 decision = "undecided"
             else:
@@ -258,11 +411,16 @@ class CyclePipeline:
             p = 1.0 / (1.0 + math.exp(-value)) if value > -700 else 0.0
             return {"U_G": value, "threshold": self.llr_threshold, "decision": decision, "p_h1": p}
         if name == "np":
-            rule = self._np_rule(received)
-            value = rule.statistic_value(u, enc)
+            if self.pf is None:
+                raise ParameterError("pf", None, "the np rule needs pf and pm for every taxel")
+            rule, present_terms, absent_terms = self._np_entry(received)
+            if rule.statistic == "llr":  # eq 32's ln Lambda
+                value = float(np.sum(np.where(present_sub, present_terms, absent_terms)))
+            else:
+                value = float(present)
             lam = rule.log_threshold if rule.statistic == "llr" else rule.count_threshold
             return {"U_G": value, "threshold": lam, "statistic": rule.statistic,
-                    "decision": rule.decide(u, enc), "p_h1": None}
+                    "decision": np_decide(rule, value), "p_h1": None}
         raise ParameterError("rule", name, "unknown fusion rule")
 
     # ------------------------------------------------------------------ raw mode
@@ -404,10 +562,7 @@ class CyclePipeline:
                 wire = np.where((wire == 0) & ~closed.missing, closed.held_decisions, wire).astype(np.int8)
             available = wire != 0
             readings = None
-        received = available
-        n_received = int(np.count_nonzero(received))
-        present_mask = received & (wire == 1)
-        present = int(np.count_nonzero(present_mask))
+        received, present_mask, n_received, present = self._cycle_decisions(wire, available)
         silent = closed.expected & ~closed.received
 
         record: dict = {
@@ -426,15 +581,16 @@ class CyclePipeline:
         rule_results: dict[str, dict] = {}
         if n_received > 0:
             u_pm1 = wire[received]
-            u = u_pm1 if self.encoding == "pm1" else ((u_pm1 + 1) // 2).astype(np.int8)
+            present_sub = u_pm1 == 1
+            u = u_pm1 if self.encoding == "pm1" else present_sub.astype(np.int8)
             for name in self.rules:
                 try:
-                    result = self._rule(name, u, n_received, present, received)
+                    rule_results[name] = self._rule(name, n_received, present, received, present_sub, u)
                 except ParameterError as exc:
-                    result = {"U_G": None, "threshold": None, "decision": "undecided", "p_h1": None,
-                              "error": str(exc)}
-                rule_results[name] = {k: (_jsonable(v) if not isinstance(v, list) else [_jsonable(x) for x in v])
-                                      for k, v in result.items()}
+                    rule_results[name] = _rule_error(exc)
+                else:
+                    if name not in _COUNT_RULES:
+                        rule_results[name] = _json_result(rule_results[name])
             for name in self.central:
                 try:
                     result = self._central(name, readings, available)
@@ -470,11 +626,11 @@ class CyclePipeline:
         if self.want_contact and n_received > 0:
             t_c = contact.taxel_count_ratio(present, n_received)
             record["t_c"] = _jsonable(t_c)
-            record["contact_type"] = contact.classify(t_c).value
+            record["contact_type"] = contact.classify_ratio(t_c).value
             if area is not None and self.total_area > 0:
                 fp_c = contact.friction_plane_ratio(min(area, self.total_area), self.total_area)
                 record["fp_c"] = _jsonable(fp_c)
-                record["contact_type_fp"] = contact.classify(fp_c).value
+                record["contact_type_fp"] = contact.classify_ratio(fp_c).value
             stages_run.append("contact_type")
         if self.slip is not None and (self._last_slip_t is None or t_seconds > self._last_slip_t):
             self._last_slip_t = t_seconds
@@ -501,6 +657,20 @@ class CyclePipeline:
         return record
 
     def truth(self, cycle: int) -> str:
+        if 0 <= cycle < len(self._truth):
+            return self._truth[cycle]  # precomputed with node_sim.physics.truth_batch
         from node_sim.physics import object_present
 
         return "H1" if object_present(self.scene, cycle) else "H0"
+
+    def _cycle_decisions(self, wire: np.ndarray, available: np.ndarray):
+        """(received mask, present mask, n received, present count) of a cycle's {-1,0,+1}
+        decisions - the one check of the decisions per cycle: every received u_i must be +-1
+        (the assembler accepts nothing else from the wire; local_decision gives +-1)."""
+        present_mask = wire == 1
+        present = int(np.count_nonzero(present_mask))
+        n_received = int(np.count_nonzero(available))
+        if n_received != present + int(np.count_nonzero(wire == -1)):
+            i = int(np.flatnonzero(available & (wire != 1) & (wire != -1))[0])
+            raise ParameterError(f"u[{i}]", int(wire[i]), "a received decision must be -1 or +1")
+        return available, present_mask, n_received, present
