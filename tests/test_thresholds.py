@@ -16,7 +16,7 @@ import math
 
 import mpmath as mp
 import pytest
-from hypothesis import assume, given, settings
+from hypothesis import assume, example, given, settings
 from hypothesis import strategies as st
 
 from fusion_center.errors import ParameterError
@@ -401,3 +401,40 @@ def test_preferential_second_root_of_eq18(n, xi, alpha):
 
 def test_two_roots_do_occur():
     assert len(additive_threshold(57, 0.999999, 0.38).thresholds) == 2
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.floats(0.2501, 0.999999), st.floats(0.2, 0.45), st.sampled_from([1, 57, 1_000_000]))
+@example(0.999999, 0.36, 57)
+@example(0.9554284882838996, 0.4039508811908412, 57)
+def test_additive_pm1_xi_above_quarter_reference_and_iteration_count(xi, alpha, n):
+    """Two roots, one, or none near the tangent case (sec. 2.2.3.2) against the mpmath reference,
+    and the solver's Newton iterations end at the rounding floor instead of flipping between two
+    neighbouring floats up to the iteration limit (100; e.g. xi = 0.999999, alpha = 0.36 took 112)."""
+    info = {}
+    ours = additive_threshold(n, xi, alpha, "pm1", info=info)
+    ref = ref_additive(n, xi, alpha, "pm1")
+    assert len(ours.thresholds) == len(ref), (ours.thresholds, ref)
+    for lam, lam_ref in zip(ours.thresholds, ref):
+        assert abs(lam - lam_ref) <= REL * max(abs(lam_ref), 1e-3 * n)
+    assert info["evaluations"] <= 40
+
+
+def test_d_series_and_closed_forms_against_mpmath():
+    """D(z) = 1 - (1 - e^-z)/z and its first two derivatives (thresholds module doc): the written-out
+    Taylor series (z <= 1/2) and the expm1 forms (z > 1/2) against mpmath, and the fused
+    evaluations equal the single ones."""
+    from fusion_center import thresholds as th
+
+    zs = [1e-300, 1e-30, 1e-8, 0.01, 0.1, 0.25, 0.4999, 0.5, math.nextafter(0.5, 1), 0.51, 0.75, 1.3, 2.6, 30.0]
+    for z in zs:
+        with mp.workdps(60 + 3 * max(0, int(-math.log10(z)))):
+            x = mp.mpf(z)
+            em1 = mp.expm1(-x)
+            ref = ((x + em1) / x, -(em1 + x * mp.e ** -x) / x**2,
+                   mp.e ** -x / x + 2 * mp.e ** -x / x**2 + 2 * em1 / x**3)
+            # D'' cancels a factor ~40 just above 1/2 (it only steers the search for Q's maximum)
+            for ours, exact, ulps in zip((th._d(z), th._dprime(z), th._dsecond(z)), ref, (4, 4, 64)):
+                assert abs(ours - exact) <= ulps * 2.0**-52 * abs(exact), (z, ours, exact)
+        assert th._d_and_dprime(z) == (th._d(z), th._dprime(z))
+        assert th._dprime_and_dsecond(z) == (th._dprime(z), th._dsecond(z))
