@@ -196,6 +196,7 @@ class CycleAssembler:
         self.readings = np.full(n, np.nan)
         self.got1 = np.zeros(n, dtype=bool)
         self.got2 = np.zeros(n, dtype=bool)
+        self.got2_any = False  # a TPDO2 was accepted since the last SYNC
         self.held_decisions = np.zeros(n, dtype=np.int8)
         self.held_readings = np.full(n, np.nan)
         self.expected = np.zeros(n, dtype=bool)
@@ -311,6 +312,7 @@ class CycleAssembler:
                 self.late_since += 1
                 return None
             self.got2[idx] = True
+            self.got2_any = True
             self.readings[idx] = reading
             counts[C_TPDO2] += 1
             if self.primary == K_TPDO2:
@@ -370,21 +372,20 @@ class CycleAssembler:
             return None  # one cycle per SYNC instant: channel 0's SYNC opens it (the master
             # sends the SYNCs of all channels back to back under the stream lock)
         closed = self._close("sync", t) if self.is_open else None
-        # open the next cycle: liveness from the stream (heartbeat consumer semantics)
-        heard = self.last_heard >= 0
-        if self.consumer_us > 0:
-            live = heard & ((t - self.last_heard) <= self.consumer_us)
-        else:
-            live = heard
-        self.missing = ~live
+        # open the next cycle: liveness from the stream (heartbeat consumer semantics): heard
+        # (last_heard >= 0) and t - last_heard <= consumer time, i.e. last_heard >= max(0, t - consumer)
+        live = self.last_heard >= (max(0, t - self.consumer_us) if self.consumer_us > 0 else 0)
+        self.missing = ~live  # new arrays at every SYNC (never changed in place: _close hands them over)
         self.expected = live & (self.state == STATE_OPERATIONAL)
         self.pending = int(np.count_nonzero(self.expected)) if self.synchronous_every_sync else -1
         if self.pending == 0:
             self.pending = -1  # nothing to wait for: close at the next SYNC only
-        self.decisions[:] = 0
-        self.readings[:] = np.nan
-        self.got1[:] = False
-        self.got2[:] = False
+        self.decisions.fill(0)
+        self.got1.fill(False)
+        if self.got2_any:  # only TPDO2s (raw mode, or stray frames) touch these
+            self.readings.fill(np.nan)
+            self.got2.fill(False)
+            self.got2_any = False
         self.cycle += 1
         self.sync_us = t
         self.sync_counter = counter
@@ -427,8 +428,8 @@ class CycleAssembler:
             decisions=self.decisions.copy(),
             readings=self.readings.copy(),
             received=primary_got.copy(),
-            expected=self.expected.copy(),
-            missing=self.missing.copy(),
+            expected=self.expected,  # replaced, not modified, at the next SYNC: no copy needed
+            missing=self.missing,
             held_decisions=self.held_decisions.copy(),
             held_readings=self.held_readings.copy(),
             late_frames=self.late_since,

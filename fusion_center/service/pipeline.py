@@ -60,13 +60,19 @@ and the rules are evaluated without re-validating them in every rule:
 * the preferential rule (eq 7) calls :func:`fusion_center.rules.preferential` (it needs the
   order of the decisions);
 * contact type: :func:`fusion_center.contact.classify_ratio` (scalar, same class boundaries as
-  :func:`~fusion_center.contact.classify`); ground truth precomputed for the scene's cycles.
+  :func:`~fusion_center.contact.classify`); ground truth precomputed for the scene's cycles;
+* everything that depends only on the decision vector (received and present sets, fusion
+  rules, area, t_c/fp_c and contact types) is cached per vector (``_pattern``): a sensor at
+  rest or under a steady contact repeats its vector, so most cycles only copy it; a new vector
+  costs the computation above (the tail of the SYNC -> record latency: a new contact pattern
+  needs a convex hull, eq 35, and a new received set its thresholds).
 """
 
 from __future__ import annotations
 
 import math
 from functools import lru_cache
+from typing import NamedTuple
 
 import numpy as np
 
@@ -151,6 +157,19 @@ def np_decide(rule: baselines.NPFusionRule, value: float) -> str:
 _COUNT_RULES = frozenset(("additive", "multiplicative", "k-of-n"))
 
 
+class _Pattern(NamedTuple):
+    """Everything of a record that depends only on the cycle's decision vector (cached per vector)."""
+
+    received: np.ndarray        # bool per taxel
+    present_mask: np.ndarray    # bool per taxel
+    n_received: int
+    present: int
+    present_nodes: tuple
+    rules: dict                 # fusion rule -> JSON-able result (copied into each record)
+    area: float | None          # eq 35 (None: stage not run)
+    contact: tuple              # (key, value) pairs: t_c, contact_type, fp_c, contact_type_fp
+
+
 class CyclePipeline:
     """Evaluate closed cycles of one scene (stateful only through the slip tracker)."""
 
@@ -210,6 +229,7 @@ class CyclePipeline:
         self._np_rules: dict[bytes, object] = {}
         self._areas: dict[bytes, float] = {}
         self._count_results: dict[tuple[str, int, int], dict] = {}
+        self._patterns: dict[bytes, _Pattern] = {}
         self._llr_subsets: dict[bytes, object] = {}
         if "llr" in self.rules and self.pf is not None:
             p1 = fusion.prior_h1  # checked in (0, 1) by bayes_log_threshold above
@@ -560,9 +580,11 @@ class CyclePipeline:
             wire = closed.decisions
             if self.hold:
                 wire = np.where((wire == 0) & ~closed.missing, closed.held_decisions, wire).astype(np.int8)
-            available = wire != 0
+            available = None  # wire != 0, computed on a pattern-cache miss
             readings = None
-        received, present_mask, n_received, present = self._cycle_decisions(wire, available)
+        pattern = self._pattern(wire, available)
+        present_mask, n_received = pattern.present_mask, pattern.n_received
+        missing = closed.missing
         silent = closed.expected & ~closed.received
 
         record: dict = {
@@ -571,26 +593,19 @@ class CyclePipeline:
             "sync_counter": closed.sync_counter,
             "closed_by": closed.closed_by,
             "n_expected": self.n,
-            "n_live": int(np.count_nonzero(~closed.missing)),
+            "n_live": self.n - int(np.count_nonzero(missing)),
             "n_received": n_received,
-            "present_count": present,
-            "present_nodes": [labels[i] for i in np.flatnonzero(present_mask)],
+            "present_count": pattern.present,
+            "present_nodes": list(pattern.present_nodes),
             "mode": self.mode,
         }
         stages_run: list[str] = []
         rule_results: dict[str, dict] = {}
+        for name, result in pattern.rules.items():
+            rule_results[name] = copied = dict(result)
+            if "band" in copied:
+                copied["band"] = list(copied["band"])
         if n_received > 0:
-            u_pm1 = wire[received]
-            present_sub = u_pm1 == 1
-            u = u_pm1 if self.encoding == "pm1" else present_sub.astype(np.int8)
-            for name in self.rules:
-                try:
-                    rule_results[name] = self._rule(name, n_received, present, received, present_sub, u)
-                except ParameterError as exc:
-                    rule_results[name] = _rule_error(exc)
-                else:
-                    if name not in _COUNT_RULES:
-                        rule_results[name] = _json_result(rule_results[name])
             for name in self.central:
                 try:
                     result = self._central(name, readings, available)
@@ -606,8 +621,8 @@ class CyclePipeline:
         record["p_h1"] = main["p_h1"] if main else None
         record["decide_with"] = self.decide_with
         record["degraded"] = n_received < self.n
-        record["missing_nodes"] = [labels[i] for i in np.flatnonzero(closed.missing)]
-        record["silent_nodes"] = [labels[i] for i in np.flatnonzero(silent)]
+        record["missing_nodes"] = [labels[i] for i in np.flatnonzero(missing)] if missing.any() else []
+        record["silent_nodes"] = [labels[i] for i in np.flatnonzero(silent)] if silent.any() else []
         record["late_frames"] = closed.late_frames
         record["bad_frames"] = closed.bad_frames
         record["emcy"] = [e.as_record() for e in closed.emcy]
@@ -618,19 +633,11 @@ class CyclePipeline:
         if self.want_forces and readings is not None:
             record["forces"], total_tangential, grip_force = self._forces(readings, present_mask)
             stages_run.append("forces")
-        area = None
         if self.want_area:
-            area = self._area(present_mask) if present else 0.0
-            record["area"] = _jsonable(area)
+            record["area"] = _jsonable(pattern.area)
             stages_run.append("area")
         if self.want_contact and n_received > 0:
-            t_c = contact.taxel_count_ratio(present, n_received)
-            record["t_c"] = _jsonable(t_c)
-            record["contact_type"] = contact.classify_ratio(t_c).value
-            if area is not None and self.total_area > 0:
-                fp_c = contact.friction_plane_ratio(min(area, self.total_area), self.total_area)
-                record["fp_c"] = _jsonable(fp_c)
-                record["contact_type_fp"] = contact.classify_ratio(fp_c).value
+            record.update(pattern.contact)
             stages_run.append("contact_type")
         if self.slip is not None and (self._last_slip_t is None or t_seconds > self._last_slip_t):
             self._last_slip_t = t_seconds
@@ -662,6 +669,45 @@ class CyclePipeline:
         from node_sim.physics import object_present
 
         return "H1" if object_present(self.scene, cycle) else "H0"
+
+    def _pattern(self, wire: np.ndarray, available: np.ndarray | None) -> _Pattern:
+        """The decision-vector part of the record, cached per vector (``wire``: {-1,0,+1} per
+        taxel, 0 = not received; rules, area and contact type are functions of it alone)."""
+        key = wire.tobytes()
+        pattern = self._patterns.get(key)
+        if pattern is None:
+            if len(self._patterns) > 1024:
+                self._patterns.clear()
+            pattern = self._patterns[key] = self._new_pattern(wire, wire != 0 if available is None else available)
+        return pattern
+
+    def _new_pattern(self, wire: np.ndarray, available: np.ndarray) -> _Pattern:
+        received, present_mask, n_received, present = self._cycle_decisions(wire, available)
+        rule_results: dict[str, dict] = {}
+        if n_received > 0:
+            u_pm1 = wire[received]
+            present_sub = u_pm1 == 1
+            u = u_pm1 if self.encoding == "pm1" else present_sub.astype(np.int8)
+            for name in self.rules:
+                try:
+                    result = self._rule(name, n_received, present, received, present_sub, u)
+                except ParameterError as exc:
+                    result = _rule_error(exc)
+                rule_results[name] = result if name in _COUNT_RULES else _json_result(result)
+        area = None
+        if self.want_area:
+            area = self._area(present_mask) if present else 0.0
+        contact_fields: list[tuple[str, object]] = []
+        if self.want_contact and n_received > 0:
+            t_c = contact.taxel_count_ratio(present, n_received)
+            contact_fields += [("t_c", _jsonable(t_c)), ("contact_type", contact.classify_ratio(t_c).value)]
+            if area is not None and self.total_area > 0:
+                fp_c = contact.friction_plane_ratio(min(area, self.total_area), self.total_area)
+                contact_fields += [("fp_c", _jsonable(fp_c)), ("contact_type_fp", contact.classify_ratio(fp_c).value)]
+        labels = self.labels
+        return _Pattern(received, present_mask, n_received, present,
+                        tuple(labels[i] for i in np.flatnonzero(present_mask)), rule_results, area,
+                        tuple(contact_fields))
 
     def _cycle_decisions(self, wire: np.ndarray, available: np.ndarray):
         """(received mask, present mask, n received, present count) of a cycle's {-1,0,+1}
