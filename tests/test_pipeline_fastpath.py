@@ -259,3 +259,19 @@ def test_scene_tuple_01_is_the_same_record_as_pm1_but_for_the_tuple_values():
     # eq 5: ln U_G = n - 2k and n - k
     assert a["rules"]["multiplicative"]["ln_U_G"] == -1.0 and b["rules"]["multiplicative"]["ln_U_G"] == 4.0
     assert a["rules"]["llr"] == b["rules"]["llr"]  # "present" is u_i = +1 in both tuples
+
+
+def test_area_of_fewer_than_three_present_taxels_is_zero_as_in_geometry():
+    from fusion_center import geometry
+
+    scene = load_scene("scenes/matrix57.toml")
+    pipe = CyclePipeline(scene, truth=False)
+    xy = np.array([[t.x, t.y] for t in scene.taxels])
+    rng = np.random.default_rng(35)
+    for present in (0, 1, 2, 3, 6):
+        for _ in range(5):
+            wire = -np.ones(scene.n, dtype=np.int8)
+            wire[rng.choice(scene.n, present, replace=False)] = 1
+            record = pipe.evaluate(closed_cycle(wire))
+            expected = geometry.contact_area(xy[wire == 1]) if present else 0.0
+            assert record["area"] == expected

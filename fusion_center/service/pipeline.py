@@ -696,7 +696,8 @@ class CyclePipeline:
                 rule_results[name] = result if name in _COUNT_RULES else _json_result(result)
         area = None
         if self.want_area:
-            area = self._area(present_mask) if present else 0.0
+            # eq 35 of fewer than 3 points is 0 (geometry.contact_area: no polygon), no hull needed
+            area = self._area(present_mask) if present >= 3 else 0.0
         contact_fields: list[tuple[str, object]] = []
         if self.want_contact and n_received > 0:
             t_c = contact.taxel_count_ratio(present, n_received)
