@@ -211,7 +211,10 @@ def test_raw_mode_tpdo2_payload_is_the_real32_reading(harness):
         h.sync()
     h.barrier()
     assert h.of(0x281) == [real32(x) for x in xs]
-    assert h.of(0x181) == [int8(1), int8(-1), int8(-1), int8(1)]
+    # raw mode: the reading is sent *instead of* the decision (TPDO1 invalid at start-up);
+    # the node still decides locally and keeps u_i in 0x2000 (last X = 123.456: present)
+    assert h.of(0x181) == []
+    assert h.remote[1].sdo[0x2000].raw == 1
 
 
 # --------------------------------------------------------------------------- cached parameters
