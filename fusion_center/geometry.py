@@ -3,14 +3,16 @@
 The chapter's program collects the coordinates of the taxels with u_i = +1, finds the
 points on their convex hull and computes the hull's planar area with the shoelace formula,
 eq 35. Here the hull comes from scipy's Qhull (``scipy.spatial.ConvexHull``) for the
-general case; the degenerate sets Qhull rejects (fewer than three distinct points, all
-points collinear or too nearly so for its precision) are handled explicitly (exact
-monotone chain), so no ``QhullError`` escapes.
+large sets; small sets (up to ``SMALL_SET_MAX`` points, every contact pattern of a 57-taxel
+matrix) and the degenerate sets Qhull rejects (fewer than three distinct points, all points
+collinear or too nearly so for its precision) go through an exact monotone chain on integer
+coordinates, so no ``QhullError`` escapes and small hulls cost tens of microseconds, not
+Qhull's ~0.15-0.4 ms.
 """
 
 from __future__ import annotations
 
-from fractions import Fraction
+import math
 
 import numpy as np
 from scipy.spatial import ConvexHull
@@ -36,52 +38,83 @@ def as_points(points, name: str = "points") -> np.ndarray:
         return np.zeros((0, 2))
     if arr.ndim != 2 or arr.shape[1] != 2:
         raise ParameterError(name, arr.shape, "must have shape (n, 2): one (x, y) per point")
-    if np.any(~np.isfinite(arr)):
+    if not np.isfinite(arr).all():
         i = int(np.argwhere(~np.isfinite(arr))[0][0])
         raise ParameterError(f"{name}[{i}]", arr[i].tolist(), "coordinates must be finite")
     return arr
 
 
-def _exact_hull(unique: np.ndarray) -> np.ndarray:
-    """Hull vertices of lexicographically sorted distinct points, exact (Andrew's monotone chain).
+#: Largest input (rows, duplicates included) that takes the exact monotone chain in
+#: ``convex_hull(method="auto")``; above it Qhull is faster. Crossover measured with
+#: ``bench/hull.py`` on 2 shared cores: random float sets ~250-300 points hot and ~500 cold
+#: (after a 10 ms idle gap), integer grids ~300-500; below ~60 points the chain is 3-10x faster.
+SMALL_SET_MAX = 128
 
-    The orientation test runs on :class:`fractions.Fraction` copies of the floats (every
-    float is an exact rational), so collinear, nearly collinear and offset sets get the
-    true answer: a collinear set gives its two end points, a thin triangle its three
-    corners. Used where Qhull refuses the input as flat.
+_METHODS = ("auto", "exact", "qhull")
+
+
+def _sorted_unique_rows(pts: np.ndarray) -> list[tuple[float, float]]:
+    """Distinct rows of a validated (n, 2) array in lexicographic (x, then y) order, the order
+    of ``np.unique(pts, axis=0)``; -0.0 is read as 0.0."""
+    return sorted(set(map(tuple, (pts + 0.0).tolist())))
+
+
+def _check_extent(unique: list[tuple[float, float]]) -> None:
+    """ParameterError when a coordinate minus the first (lexicographically smallest) point
+    overflows a float, as ``unique - unique[0]`` would (float subtraction rounds
+    monotonically, so the extreme coordinates decide)."""
+    x0, y0 = unique[0]
+    xs = [p[0] for p in unique]
+    ys = [p[1] for p in unique]
+    if not all(math.isfinite(d) for d in (max(xs) - x0, max(ys) - y0, min(ys) - y0)):
+        raise ParameterError("points", [[min(xs), min(ys)], [max(xs), max(ys)]],
+                             "coordinate differences must be finite (extent overflows a float)")
+
+
+def _half_chain(points: list[tuple[int, int, int]]) -> list[tuple[int, int, int]]:
+    """One half of Andrew's monotone chain: keeps only strict left turns (exact ints)."""
+    kept: list[tuple[int, int, int]] = []
+    for p in points:
+        px, py, _ = p
+        while len(kept) >= 2:
+            ax, ay, _ = kept[-2]
+            bx, by, _ = kept[-1]
+            if (bx - ax) * (py - ay) > (by - ay) * (px - ax):  # cross(a, b, p) > 0: left turn
+                break
+            kept.pop()
+        kept.append(p)
+    return kept
+
+
+def _exact_chain(unique: list[tuple[float, float]]) -> tuple[list[tuple[float, float]], int, int]:
+    """Hull of >= 3 sorted distinct finite points by Andrew's monotone chain, exactly.
+
+    Every finite float is ``num / 2**k`` exactly (``float.as_integer_ratio``), so with the
+    common denominator ``D`` (the largest ``2**k``) each coordinate times ``D`` is an exact
+    Python int; the first point is subtracted (in ints, so without rounding) and the
+    orientation tests are exact integer cross products: no tolerance, no rounding. Collinear,
+    nearly collinear (1e-17 off a line) and 1e15-offset sets get the true hull: strict left
+    turns only, so points on an edge are not vertices and a collinear set gives its two end
+    points. Returns (vertices counter-clockwise from the lexicographically smallest point,
+    twice the hull's area in units of ``1/D**2`` (eq 35 in exact integers), ``D``).
     """
-    exact = [(Fraction(x), Fraction(y)) for x, y in unique.tolist()]
-
-    def left_turn(o, a, b) -> bool:
-        return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0]) > 0
-
-    def chain(order) -> list[int]:
-        kept: list[int] = []
-        for k in order:
-            while len(kept) >= 2 and not left_turn(exact[kept[-2]], exact[kept[-1]], exact[k]):
-                kept.pop()
-            kept.append(k)
-        return kept
-
-    n = len(exact)
-    lower, upper = chain(range(n)), chain(range(n - 1, -1, -1))
-    return unique[lower[:-1] + upper[:-1]]
+    rx = [x.as_integer_ratio() for x, _ in unique]
+    ry = [y.as_integer_ratio() for _, y in unique]
+    den = max(max(d for _, d in rx), max(d for _, d in ry))  # powers of two: the lcm is the max
+    x0 = rx[0][0] * (den // rx[0][1])
+    y0 = ry[0][0] * (den // ry[0][1])
+    scaled = [(a * (den // b) - x0, c * (den // d) - y0, k)
+              for k, ((a, b), (c, d)) in enumerate(zip(rx, ry))]
+    lower = _half_chain(scaled)
+    scaled.reverse()
+    upper = _half_chain(scaled)
+    ring = lower[:-1] + upper[:-1]
+    twice_area = sum(a[0] * b[1] - b[0] * a[1] for a, b in zip(ring, ring[1:] + ring[:1]))
+    return [unique[p[2]] for p in ring], twice_area, den
 
 
-def convex_hull(points) -> np.ndarray:
-    """Vertices of the convex hull of ``points``, counter-clockwise, as a (k, 2) array.
-
-    Duplicates are merged first (the chapter's own example lists (11, 41.5) twice, sec.
-    6.2.3.3). Degenerate sets: 0 points -> (0, 2); one distinct point -> that point;
-    collinear points (including two distinct points) -> the two end points of the segment,
-    in lexicographic order. Otherwise the hull's vertices only (points on an edge are not
-    vertices), counter-clockwise (positive eq 35 area). Qhull sees the points relative to
-    one of them, so a large common offset (e.g. 1e15) costs no precision; the flat sets
-    Qhull refuses (``QhullError``) go to an exact monotone chain instead.
-    """
-    pts = as_points(points)
-    if len(pts) == 0:
-        return pts
+def _qhull(pts: np.ndarray) -> np.ndarray:
+    """Qhull on the distinct points relative to the first one; exact chain for flat sets."""
     unique = np.unique(pts + 0.0, axis=0)  # + 0.0 turns -0.0 into 0.0
     if len(unique) <= 2:
         return unique
@@ -93,10 +126,47 @@ def convex_hull(points) -> np.ndarray:
     try:
         vertices = unique[ConvexHull(local).vertices]  # 2-D: counter-clockwise (scipy docs)
     except QhullError:  # flat input: collinear, or nearly so beyond Qhull's precision
-        return _exact_hull(unique)
+        return np.array(_exact_chain([tuple(row) for row in unique.tolist()])[0], dtype=float)
     if signed_polygon_area(vertices) < 0:  # defensive: guarantee the documented orientation
         vertices = vertices[::-1]
-    return vertices
+    first = int(np.lexsort((vertices[:, 1], vertices[:, 0]))[0])  # start as the chain does
+    return np.roll(vertices, -first, axis=0)
+
+
+def convex_hull(points, method: str = "auto") -> np.ndarray:
+    """Vertices of the convex hull of ``points`` (sec. 4.3.2, for eq 35), counter-clockwise,
+    as a float (k, 2) array starting at the lexicographically smallest vertex (least x,
+    then least y).
+
+    Duplicates are merged first (the chapter's own example lists (11, 41.5) twice, sec.
+    6.2.3.3). Degenerate sets: 0 points -> (0, 2); one distinct point -> that point;
+    collinear points (including two distinct points) -> the two end points of the segment,
+    in lexicographic order. Otherwise the hull's vertices only (points on an edge are not
+    vertices), counter-clockwise (positive eq 35 area).
+
+    ``method``: ``"exact"`` is Andrew's monotone chain with exact integer cross products
+    (every float is an exact dyadic rational, see ``_exact_chain``); ``"qhull"`` is scipy's
+    Qhull on the points relative to one of them (a large common offset such as 1e15 costs
+    no precision), with the exact chain for the flat sets Qhull refuses, so no
+    ``QhullError`` escapes; ``"auto"`` (default) takes the exact chain up to
+    ``SMALL_SET_MAX`` input rows and Qhull above. Both give the same vertices wherever
+    Qhull's floating-point answer is right; on sets nearly collinear to ~1e-15 of their
+    extent Qhull may keep a slightly different vertex, the exact chain never does.
+    ParameterError for a bad shape, non-finite coordinates, a coordinate extent that
+    overflows a float, or an unknown ``method``.
+    """
+    if method not in _METHODS:
+        raise ParameterError("method", method, f"one of {', '.join(_METHODS)}")
+    pts = as_points(points)
+    if len(pts) == 0:
+        return pts
+    if method == "qhull" or (method == "auto" and len(pts) > SMALL_SET_MAX):
+        return _qhull(pts)
+    unique = _sorted_unique_rows(pts)
+    if len(unique) <= 2:
+        return np.array(unique, dtype=float)
+    _check_extent(unique)
+    return np.array(_exact_chain(unique)[0], dtype=float)
 
 
 def signed_polygon_area(vertices) -> float:
@@ -121,8 +191,27 @@ def polygon_area(vertices) -> float:
 
 
 def contact_area(points) -> float:
-    """Area of the friction plane: eq 35 applied to the convex hull of the excited taxels."""
-    return polygon_area(convex_hull(points))
+    """Area of the friction plane: eq 35 applied to the convex hull of the excited taxels.
+
+    Up to ``SMALL_SET_MAX`` points the shoelace sum runs in the exact integers of the hull
+    (``_exact_chain``) and one correctly rounded division gives the area: the float nearest
+    the true area of the hull of the given floats (``polygon_area(convex_hull(points))``
+    sums in floats and may differ from it in the last bits). Above, it is exactly
+    ``polygon_area(convex_hull(points))``. 0.0 for fewer than 3 distinct or collinear points;
+    ``inf`` when the true area exceeds the largest float (extent ~1e155 and more).
+    """
+    pts = as_points(points)
+    if len(pts) > SMALL_SET_MAX:
+        return polygon_area(convex_hull(pts))
+    unique = _sorted_unique_rows(pts) if len(pts) else []
+    if len(unique) <= 2:
+        return 0.0
+    _check_extent(unique)
+    _, twice_area, den = _exact_chain(unique)
+    try:
+        return twice_area / (2 * den * den)  # int / int: correctly rounded (0 for a segment)
+    except OverflowError:  # true area beyond the largest float: rounds to inf
+        return math.inf
 
 
 def active_centroid(points) -> np.ndarray:

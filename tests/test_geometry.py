@@ -7,8 +7,9 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from fusion_center.errors import ParameterError
+from fusion_center import geometry
 from fusion_center.geometry import (
-    active_centroid, contact_area, convex_hull, polygon_area, signed_polygon_area,
+    SMALL_SET_MAX, active_centroid, contact_area, convex_hull, polygon_area, signed_polygon_area,
 )
 
 
@@ -155,6 +156,151 @@ def test_nearly_collinear_sets(samples, slope, eps, offset):
        st.sampled_from([1e15, 2.0**52]))
 def test_grid_sets_at_huge_offsets(points, offset):
     _check_against_brute_force([(offset + x, offset + y) for x, y in points])
+
+
+# --------------------------------------------------------------------------------------------
+# The two hull paths: exact monotone chain (method="exact", the default up to SMALL_SET_MAX
+# points) and Qhull (method="qhull"). Both are checked against the brute-force reference and
+# against each other, forcing each path.
+
+def _lexmin_first_ccw(hull):
+    """The documented form: first vertex the lexicographically smallest, counter-clockwise."""
+    rows = [tuple(r) for r in hull.tolist()]
+    assert rows[0] == min(rows)
+    if len(rows) >= 3:
+        exact = [(Fraction(x), Fraction(y)) for x, y in rows]
+        assert sum(a[0] * b[1] - b[0] * a[1] for a, b in zip(exact, exact[1:] + exact[:1])) > 0
+
+
+def _both_paths_exact(points):
+    """Both paths give the brute-force hull, in the same form (identical arrays); the default
+    contact_area is the brute-force area rounded once (float(Fraction) rounds correctly)."""
+    ref_vertices, ref_area = _brute_force_hull(points)
+    exact, qhull = convex_hull(points, "exact"), convex_hull(points, "qhull")
+    assert exact.dtype == qhull.dtype == np.float64 and exact.ndim == qhull.ndim == 2
+    assert set(map(tuple, exact.tolist())) == ref_vertices
+    np.testing.assert_array_equal(exact, qhull)
+    _lexmin_first_ccw(exact)
+    if len(points) <= SMALL_SET_MAX:
+        assert contact_area(points) == float(ref_area)
+        np.testing.assert_array_equal(convex_hull(points), exact)
+
+
+@settings(max_examples=80, deadline=None)
+@given(st.lists(st.tuples(st.integers(-12, 12), st.integers(-12, 12)), min_size=1, max_size=14),
+       st.sampled_from([0.0, 1e15, 2.0**52, -2.0**52]), st.sampled_from([1.0, 0.25, 3.0]))
+def test_paths_agree_on_grids_with_duplicates_and_huge_offsets(points, offset, scale):
+    # offsets on the float grid and integer multiples of scale keep every coordinate exact
+    # (2**52 + 0.25 k would not be, so quarter steps go with offsets up to 1e15 only)
+    if scale == 0.25 and abs(offset) >= 2.0**52:
+        scale = 1.0
+    pts = [(offset + scale * x, offset + scale * y) for x, y in points + points[:2]]
+    _both_paths_exact(pts)
+
+
+def test_paths_agree_on_random_float_sets():
+    rng = np.random.default_rng(7)
+    for trial in range(60):
+        n = int(rng.integers(3, 13))
+        pts = rng.random((n, 2)) * 10 ** rng.uniform(-3, 3)
+        if trial % 3 == 1:
+            pts = pts + 1e15 * rng.choice([-1, 1])
+        pts = [(float(x), float(y)) for x, y in pts]
+        _both_paths_exact(pts + pts[:1])
+
+
+@pytest.mark.parametrize("pts", [
+    [(0, 0), (0, 0), (0, 0)],
+    [(1e15, 1e15)] * 3 + [(1e15 + 2, 1e15 + 2)] * 2,
+    [(-0.0, 1.0), (0.0, 1.0), (0.0, -0.0), (1.0, 0.0)],
+    [(2.0**52, 0), (2.0**52 + 1, 0), (2.0**52 + 2, 0), (2.0**52 + 1, 0)],
+    [(0, 0), (1, 0), (2, 0), (2, 1), (2, 2), (1, 1), (0, 2), (0, 1)],  # points on every edge
+    [(3, 1), (1, 3), (2, 2), (0, 4), (4, 0)],                          # collinear, unsorted
+])
+def test_paths_agree_on_degenerate_sets(pts):
+    _both_paths_exact(pts)
+    if len(_brute_force_hull(pts)[0]) <= 2:
+        assert contact_area(pts) == 0.0
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.tuples(st.integers(-50, 50), st.integers(-10**6, 10**6)), min_size=3, max_size=12),
+       st.floats(0.5, 2.0), st.sampled_from([1e-12, 1e-15, 1e-17]), st.sampled_from([0.0, 1e15, 2.0**52]))
+def test_exact_path_on_nearly_collinear_sets(samples, slope, eps, offset):
+    # the exact chain gets the very vertices and the correctly rounded area of the brute-force
+    # hull of the same floats; Qhull (forced) at least the area (its vertices may differ by
+    # points ~1e-15 x extent apart, see test_nearly_collinear_sets)
+    points = [(offset + float(x), offset + slope * x + eps * (w / 10**6)) for x, w in samples]
+    ref_vertices, ref_area = _brute_force_hull(points)
+    exact = convex_hull(points, "exact")
+    assert set(map(tuple, exact.tolist())) == ref_vertices
+    _lexmin_first_ccw(exact)
+    assert contact_area(points) == float(ref_area)
+    extent = float(np.ptp(np.asarray(points), axis=0).max())
+    assert polygon_area(convex_hull(points, "qhull")) == pytest.approx(float(ref_area), rel=1e-9,
+                                                                       abs=1e-12 * extent ** 2)
+    _lexmin_first_ccw(convex_hull(points, "qhull"))
+
+
+def test_thin_triangle_at_2_pow_52_both_paths():
+    # 2**52 + 1 is exact; the middle point is 1 unit (its float spacing) above the base line
+    o = 2.0**52
+    pts = [(o, o), (o + 4, o), (o + 2, o + 1), (o + 2, o), (o + 1, o)]
+    expected = np.array([[o, o], [o + 4, o], [o + 2, o + 1]])
+    np.testing.assert_array_equal(convex_hull(pts, "exact"), expected)
+    np.testing.assert_array_equal(convex_hull(pts, "qhull"), expected)
+    assert contact_area(pts) == 2.0                                  # base 4, height 1
+
+
+def test_auto_switches_to_qhull_above_small_set_max(monkeypatch):
+    calls = []
+    real = geometry.ConvexHull
+    monkeypatch.setattr(geometry, "ConvexHull", lambda pts: calls.append(len(pts)) or real(pts))
+    rng = np.random.default_rng(3)
+    small = rng.integers(0, 30, (SMALL_SET_MAX, 2)).astype(float)
+    large = rng.integers(0, 30, (SMALL_SET_MAX + 1, 2)).astype(float)
+    hull_small = convex_hull(small)
+    contact_area(small)
+    assert calls == []
+    hull_large = convex_hull(large)
+    area_large = contact_area(large)
+    assert len(calls) == 2
+    np.testing.assert_array_equal(hull_small, convex_hull(small, "qhull"))
+    np.testing.assert_array_equal(hull_large, convex_hull(large, "exact"))
+    assert area_large == polygon_area(hull_large)
+    assert area_large == pytest.approx(float(_brute_force_hull(hull_large.tolist())[1]), rel=1e-15)
+
+
+@pytest.mark.parametrize("method", ["exact", "qhull"])
+def test_errors_are_the_same_on_both_paths(method):
+    with pytest.raises(ParameterError, match="points") as overflow:
+        convex_hull([(-1e308, 0), (1e308, 0), (0, 1)], method)
+    assert "[[-1e+308, 0.0], [1e+308, 1.0]]" in str(overflow.value)
+    with pytest.raises(ParameterError, match="points"):   # y extent from the first point
+        convex_hull([(0, 1e308), (1, -1e308), (2, 0)], method)
+    # no overflow relative to the lexicographically first point: a valid thin hull
+    hull = convex_hull([(0, 0), (1, 1e308), (1, -1e308)], method)
+    assert set(map(tuple, hull.tolist())) == {(0.0, 0.0), (1.0, 1e308), (1.0, -1e308)}
+    # fewer than 3 distinct points: no extent check, as before
+    np.testing.assert_array_equal(convex_hull([(-1e308, 0), (1e308, 0)], method), [[-1e308, 0], [1e308, 0]])
+    with pytest.raises(ParameterError, match="points"):
+        convex_hull([(0, 0, 0)], method)
+    with pytest.raises(ParameterError, match=r"points\[2\]"):
+        convex_hull([(0, 0), (1, 1), (np.inf, 1)], method)
+    with pytest.raises(ParameterError, match="points"):
+        convex_hull("not points", method)
+
+
+def test_unknown_method_is_a_parameter_error():
+    with pytest.raises(ParameterError, match="method"):
+        convex_hull([(0, 0), (1, 0), (0, 1)], "quickhull")
+
+
+def test_contact_area_beyond_the_float_range_is_inf():
+    # true area 0.5e400 > max float: the correctly rounded value is inf (no OverflowError)
+    assert contact_area([(0, 0), (1e200, 0), (0, 1e200)]) == np.inf
+    # and an area below the smallest subnormal rounds to 0
+    assert contact_area([(0, 0), (1e-300, 0), (0, 1e-300)]) == 0.0
 
 
 def test_centroid_counts_a_shared_location_once():
