@@ -45,9 +45,10 @@ def as_points(points, name: str = "points") -> np.ndarray:
 
 
 #: Largest input (rows, duplicates included) that takes the exact monotone chain in
-#: ``convex_hull(method="auto")``; above it Qhull is faster. Crossover measured with
-#: ``bench/hull.py`` on 2 shared cores: random float sets ~250-300 points hot and ~500 cold
-#: (after a 10 ms idle gap), integer grids ~300-500; below ~60 points the chain is 3-10x faster.
+#: ``convex_hull(method="auto")`` and ``contact_area``; above it Qhull is faster. Crossover
+#: measured with ``bench/hull.py`` on 2 shared cores: random float sets ~100 points back to
+#: back and ~190 after a 10 ms idle gap (the centre's case), integer grids ~100-190 and
+#: >= 256; contact patterns of 3..57 taxels: the chain is 3-12x faster hot, 2.3-4.8x cold.
 SMALL_SET_MAX = 128
 
 _METHODS = ("auto", "exact", "qhull")
