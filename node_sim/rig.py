@@ -47,6 +47,7 @@ from typing import Callable, Mapping, Sequence
 import can
 import numpy as np
 
+from fusion_center.canmsg import TxMessage
 from fusion_center.errors import ParameterError
 from fusion_center.scene import TAXEL_KINDS, Scene
 
@@ -58,27 +59,6 @@ logger = logging.getLogger(__name__)
 ReadingSource = Callable[[int], np.ndarray]
 
 PREFETCH_CYCLES = 16  # physics readings computed ahead per batch (~0.5 ms for 57 taxels)
-
-
-class _TxFrame(can.Message):
-    """A frame the rig sends: a plain ``can.Message`` whose deep copy is cheap.
-
-    python-can's ``virtual`` interface deep-copies every sent frame once per receiving bus;
-    ``Message.__deepcopy__`` goes through ``copy.deepcopy`` of the channel and the data
-    bytearray (~5 µs, most of the rig's cost per frame). This copy builds the same
-    ``can.Message`` directly (the data copied into a new bytearray; the channel is a str,
-    int or None, immutable). Every other field is copied as python-can does.
-    """
-
-    __slots__ = ()
-
-    def __deepcopy__(self, memo) -> can.Message:
-        return can.Message(
-            timestamp=self.timestamp, arbitration_id=self.arbitration_id,
-            is_extended_id=self.is_extended_id, is_remote_frame=self.is_remote_frame,
-            is_error_frame=self.is_error_frame, channel=self.channel, dlc=self.dlc,
-            data=bytearray(self.data), is_fd=self.is_fd, is_rx=self.is_rx,
-            bitrate_switch=self.bitrate_switch, error_state_indicator=self.error_state_indicator)
 
 
 def _virtual_burst_sender(bus: can.BusABC) -> Callable[[list[tuple[int, bytes]]], None] | None:
@@ -220,7 +200,7 @@ class _Channel(can.Listener):
                 logger.warning("node-sim channel %s: sending %d frames failed: %s", self.name, len(frames), exc)
 
     def send(self, can_id: int, data: bytes) -> None:
-        msg = _TxFrame(arbitration_id=can_id, data=data, is_extended_id=False)
+        msg = TxMessage(arbitration_id=can_id, data=data, is_extended_id=False)
         with self.send_lock:
             try:
                 self.bus.send(msg)

@@ -32,7 +32,8 @@ from fusion_center.scene import BusSpec, Scene, TaxelSpec
 from node_sim import physics
 from node_sim.node import NodeLink, Scheduler, _TpdoRuntime, local_decision_pm1
 from node_sim.od import EDS_PATH
-from node_sim.rig import Rig, _TxFrame
+from fusion_center.canmsg import TxMessage
+from node_sim.rig import Rig
 
 WAIT = 5.0
 
@@ -293,7 +294,7 @@ def test_burst_keeps_order_and_starts_inhibit_time_when_sent():
          error_state_indicator=True, is_extended_id=False),
 ])
 def test_tx_frame_deepcopy_is_pythoncan_deepcopy(fields):
-    frame = _TxFrame(**fields)
+    frame = TxMessage(**fields)
     mine = copy.deepcopy(frame)
     theirs = copy.deepcopy(can.Message(**fields))
     assert type(mine) is can.Message

@@ -222,26 +222,26 @@ def test_records_are_evaluated_in_cycle_order_by_the_closing_threads(matrix):
 
 
 def test_master_frames_reach_a_virtual_bus_as_python_can_would_copy_them():
-    """The master's frames (``_TxMessage``: cheap deep copy) arrive on another virtual bus
+    """The master's frames (``TxMessage``: cheap deep copy) arrive on another virtual bus
     equal to what ``VirtualBus.send`` makes of a plain ``can.Message``: same fields, own data."""
     import copy
 
-    from fusion_center.service.core import _TxMessage
+    from fusion_center.canmsg import TxMessage
 
     kwargs = dict(arbitration_id=0x080, data=b"\x07", is_extended_id=False, is_remote_frame=False, channel=0)
-    fast, plain = copy.deepcopy(_TxMessage(**kwargs)), copy.deepcopy(can.Message(**kwargs))
+    fast, plain = copy.deepcopy(TxMessage(**kwargs)), copy.deepcopy(can.Message(**kwargs))
     assert type(fast) is can.Message
     for name in ("timestamp", "arbitration_id", "is_extended_id", "is_remote_frame", "is_error_frame", "channel",
                  "dlc", "data", "is_fd", "is_rx", "bitrate_switch", "error_state_indicator"):
         assert getattr(fast, name) == getattr(plain, name), name
-    original = _TxMessage(**kwargs)
+    original = TxMessage(**kwargs)
     copied = copy.deepcopy(original)
     copied.data[0] = 0x55
     assert original.data[0] == 0x07  # the data is copied, not shared
     channel = f"tx-{uuid.uuid4().hex}"
     tx, rx = can.Bus(interface="virtual", channel=channel), can.Bus(interface="virtual", channel=channel)
     try:
-        tx.send(_TxMessage(**kwargs))
+        tx.send(TxMessage(**kwargs))
         got = rx.recv(1.0)
         assert got is not None and got.arbitration_id == 0x080 and bytes(got.data) == b"\x07" and got.is_rx
     finally:

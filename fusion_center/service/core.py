@@ -42,6 +42,7 @@ from typing import Callable, Iterable, Sequence
 
 import can
 
+from ..canmsg import TxMessage
 from ..cli import UsageError
 from ..scene import Scene
 from .cycles import (
@@ -98,27 +99,6 @@ def message_flags(msg: can.Message) -> int:
     if msg.is_extended_id:
         flags |= FLAG_EXTENDED
     return flags
-
-
-class _TxMessage(can.Message):
-    """A frame the master sends: a plain ``can.Message`` whose deep copy is cheap.
-
-    python-can's ``virtual`` interface deep-copies a sent frame once per receiving bus, and
-    ``Message.__deepcopy__`` deep-copies the channel and the data bytearray through
-    ``copy.deepcopy`` (several µs, on the SYNC's path to the nodes). This copy builds the same
-    ``can.Message`` directly (data copied into a new bytearray; the channel is an int or a str,
-    immutable); every other field is copied as python-can does. Other interfaces never copy.
-    """
-
-    __slots__ = ()
-
-    def __deepcopy__(self, memo) -> can.Message:
-        return can.Message(
-            timestamp=self.timestamp, arbitration_id=self.arbitration_id,
-            is_extended_id=self.is_extended_id, is_remote_frame=self.is_remote_frame,
-            is_error_frame=self.is_error_frame, channel=self.channel, dlc=self.dlc,
-            data=bytearray(self.data), is_fd=self.is_fd, is_rx=self.is_rx,
-            bitrate_switch=self.bitrate_switch, error_state_indicator=self.error_state_indicator)
 
 
 class EventStream:
@@ -202,7 +182,7 @@ class EventStream:
         closed = False
         with self.lock:
             for channel, can_id, data in frames:
-                msg = _TxMessage(arbitration_id=can_id, data=data, is_extended_id=False,
+                msg = TxMessage(arbitration_id=can_id, data=data, is_extended_id=False,
                                  is_remote_frame=remote, channel=channel)
                 try:
                     self.buses[channel].send(msg)
