@@ -261,14 +261,17 @@ class NPFusionRule:
         numpy Generator) it returns "H1" with probability ``gamma``; without ``rng`` it
         returns "undecided" -- unless gamma is 0 ("H0") or 1 ("H1"), when no coin is needed.
         """
-        value = self.statistic_value(u, encoding)
+        return self.decide_value(self.statistic_value(u, encoding), rng)
+
+    def decide_value(self, value: float, rng: np.random.Generator | None = None) -> str:
+        """:meth:`decide` for a statistic value already computed (ln Lambda or K)."""
         if self.statistic == "llr":
             position = compare_log_ratio(value, self.log_threshold)
         else:
             diff = value - self.count_threshold
             if not self.count_increasing:
                 diff = -diff
-            position = int(np.sign(diff))
+            position = (diff > 0) - (diff < 0)
         if position > 0:
             return "H1"
         if position < 0:

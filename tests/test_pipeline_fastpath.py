@@ -14,7 +14,7 @@ from fusion_center.errors import ParameterError
 from fusion_center.scene import BusSpec, FusionSpec, Scene, TaxelSpec, load_scene
 from fusion_center.service import pipeline as pipeline_module
 from fusion_center.service.cycles import ClosedCycle
-from fusion_center.service.pipeline import CyclePipeline, np_decide
+from fusion_center.service.pipeline import CyclePipeline
 
 ALL_RULES = ("additive", "multiplicative", "preferential", "k-of-n", "llr", "np")
 
@@ -155,7 +155,7 @@ def test_k_outside_1_to_n_is_undecided_as_before():
     assert result == {"U_G": 2, "threshold": None, "decision": "undecided", "p_h1": None}
 
 
-def test_np_decide_equals_rule_decide_at_ties():
+def test_np_decide_value_at_ties_matches_decide():
     # identical taxels: ln Lambda monotone in the count; the boundary count is a tie (randomised)
     pd, pf = np.full(9, 0.98), np.full(9, 0.01)
     rule = baselines.neyman_pearson_fusion(pd, pf, 0.01)
@@ -163,8 +163,8 @@ def test_np_decide_equals_rule_decide_at_ties():
     decisions = set()
     for present in range(10):
         u = np.array([1] * present + [-1] * (9 - present))
-        decisions.add(np_decide(rule, rule.statistic_value(u, "pm1")))
-        assert np_decide(rule, rule.statistic_value(u, "pm1")) == rule.decide(u, "pm1")
+        decisions.add(rule.decide_value(rule.statistic_value(u, "pm1")))
+        assert rule.decide_value(rule.statistic_value(u, "pm1")) == rule.decide(u, "pm1")
     assert decisions == {"H0", "undecided", "H1"}
     # heterogeneous, n > 20: the count statistic, boundary count randomised
     rng = np.random.default_rng(25)
@@ -173,15 +173,15 @@ def test_np_decide_equals_rule_decide_at_ties():
     assert rule.statistic == "present_count" and 0.0 < rule.gamma < 1.0
     for present in range(26):
         u = np.array([1] * present + [-1] * (25 - present))
-        assert np_decide(rule, float(present)) == rule.decide(u, "pm1")
-    assert np_decide(rule, float(rule.count_threshold)) == "undecided"
+        assert rule.decide_value(float(present)) == rule.decide(u, "pm1")
+    assert rule.decide_value(float(rule.count_threshold)) == "undecided"
     # heterogeneous, n <= 20: ln Lambda by enumeration, every decision vector of 8 taxels
     pd, pf = rng.uniform(0.9, 0.99, 8), rng.uniform(0.001, 0.05, 8)
     rule = baselines.neyman_pearson_fusion(pd, pf, 0.02)
     assert rule.statistic == "llr"
     for bits in range(256):
         u = np.array([1 if bits >> i & 1 else -1 for i in range(8)])
-        assert np_decide(rule, rule.statistic_value(u, "pm1")) == rule.decide(u, "pm1")
+        assert rule.decide_value(rule.statistic_value(u, "pm1")) == rule.decide(u, "pm1")
 
 
 def test_a_wire_value_other_than_plus_minus_one_is_refused():

@@ -134,26 +134,6 @@ def log_ratio_terms(pd: np.ndarray, pf: np.ndarray) -> tuple[np.ndarray, np.ndar
     return np.log(pd) - np.log(pf), np.log1p(-pd) - np.log1p(-pf)
 
 
-def np_decide(rule: baselines.NPFusionRule, value: float) -> str:
-    """``rule.decide`` for a statistic value already computed (no coin: ``rng=None``)."""
-    if rule.statistic == "llr":
-        position = baselines.compare_log_ratio(value, rule.log_threshold)
-    else:
-        diff = value - rule.count_threshold
-        if not rule.count_increasing:
-            diff = -diff
-        position = (diff > 0) - (diff < 0)
-    if position > 0:
-        return "H1"
-    if position < 0:
-        return "H0"
-    if rule.gamma <= 0.0:
-        return "H0"
-    if rule.gamma >= 1.0:
-        return "H1"
-    return "undecided"
-
-
 _COUNT_RULES = frozenset(("additive", "multiplicative", "k-of-n"))
 
 
@@ -440,7 +420,7 @@ class CyclePipeline:
                 value = float(present)
             lam = rule.log_threshold if rule.statistic == "llr" else rule.count_threshold
             return {"U_G": value, "threshold": lam, "statistic": rule.statistic,
-                    "decision": np_decide(rule, value), "p_h1": None}
+                    "decision": rule.decide_value(value), "p_h1": None}
         raise ParameterError("rule", name, "unknown fusion rule")
 
     # ------------------------------------------------------------------ raw mode
