@@ -134,6 +134,23 @@ def log_ratio_terms(pd: np.ndarray, pf: np.ndarray) -> tuple[np.ndarray, np.ndar
     return np.log(pd) - np.log(pf), np.log1p(-pd) - np.log1p(-pf)
 
 
+def _memo(cache: dict, key, limit: int, compute):
+    """Bounded memo of the pipeline's per-cycle caches: ``compute()`` once per key (the cache is
+    emptied past ``limit`` entries); a ParameterError is cached as the result and raised again."""
+    entry = cache.get(key)
+    if entry is None:
+        if len(cache) > limit:
+            cache.clear()
+        try:
+            entry = compute()
+        except ParameterError as exc:
+            entry = exc
+        cache[key] = entry
+    if isinstance(entry, ParameterError):
+        raise entry
+    return entry
+
+
 _COUNT_RULES = frozenset(("additive", "multiplicative", "k-of-n"))
 
 
@@ -278,54 +295,32 @@ class CyclePipeline:
     def _np_entry(self, received: np.ndarray):
         """(N-P rule of the received taxels, its log-likelihood terms), cached per received set
         (a ParameterError is cached and raised again)."""
-        key = received.tobytes()
-        entry = self._np_rules.get(key)
-        if entry is None:
-            if len(self._np_rules) > 256:
-                self._np_rules.clear()
-            try:
-                rule = baselines.neyman_pearson_fusion(self.pd[received], self.pf[received],
-                                                       self.scene.fusion.np_false_alarm)
-                entry = (rule, *log_ratio_terms(rule.pd, rule.pf))
-            except ParameterError as exc:
-                entry = exc
-            self._np_rules[key] = entry
-        if isinstance(entry, ParameterError):
-            raise entry
-        return entry
+        def compute():
+            rule = baselines.neyman_pearson_fusion(self.pd[received], self.pf[received],
+                                                   self.scene.fusion.np_false_alarm)
+            return (rule, *log_ratio_terms(rule.pd, rule.pf))
+
+        return _memo(self._np_rules, received.tobytes(), 256, compute)
 
     def _llr_terms(self, received: np.ndarray):
         """Log-likelihood terms of eq 31 over the received taxels, cached per received set
         (pd, pf checked once in (0, 1) as :func:`baselines.chair_varshney_llr` does)."""
-        key = received.tobytes()
-        entry = self._llr_subsets.get(key)
-        if entry is None:
-            if len(self._llr_subsets) > 256:
-                self._llr_subsets.clear()
-            try:
-                pd = poisson_binomial.validate_probabilities(self.pd[received], "pd", open_interval=True)
-                pf = poisson_binomial.validate_probabilities(self.pf[received], "pf", open_interval=True)
-                entry = log_ratio_terms(pd, pf)
-            except ParameterError as exc:
-                entry = exc
-            self._llr_subsets[key] = entry
-        if isinstance(entry, ParameterError):
-            raise entry
-        return entry
+        def compute():
+            pd = poisson_binomial.validate_probabilities(self.pd[received], "pd", open_interval=True)
+            pf = poisson_binomial.validate_probabilities(self.pf[received], "pf", open_interval=True)
+            return log_ratio_terms(pd, pf)
+
+        return _memo(self._llr_subsets, received.tobytes(), 256, compute)
 
     def _count_result(self, name: str, n: int, present: int) -> dict:
         """JSON-able result of a count rule for (n received, present), cached (module docstring)."""
-        key = (name, n, present)
-        result = self._count_results.get(key)
-        if result is None:
-            if len(self._count_results) > 4096:
-                self._count_results.clear()
+        def compute():
             try:
-                result = _json_result(self._count_rule(name, n, present))
+                return _json_result(self._count_rule(name, n, present))
             except ParameterError as exc:
-                result = _json_result(_rule_error(exc))
-            self._count_results[key] = result
-        return result
+                return _json_result(_rule_error(exc))
+
+        return _memo(self._count_results, (name, n, present), 4096, compute)
 
     def _count_rule(self, name: str, n: int, present: int) -> dict:
         """Additive (eq 6), multiplicative (eq 5) or k-of-n (sec. 2.2.1) from the counts alone.
