@@ -19,52 +19,15 @@ import time
 import warnings
 from pathlib import Path
 
-import mpmath as mp
-import numpy as np
 from scipy.optimize import brentq
 
+from fusion_center.reference import ref_additive, ref_multiplicative, ref_preferential
 from fusion_center.thresholds import additive_threshold, multiplicative_threshold, preferential_threshold
 
 TARGET_US = 20.0
 FLOOR = 1e-17  # errors of exactly 0 are drawn here on the log axis
 RTOLS = [1e-2, 1e-4, 1e-6, 1e-8, 1e-11, 1e-14, 4 * 2.0**-52]
 XTOLS = [1e-2, 1e-4, 1e-6, 1e-8, 1e-11, 1e-14, 2e-12 * 0 + 1e-300]
-
-
-# ------------------------------------------------------------------ mpmath reference (80 digits)
-
-
-def ref_multiplicative(n, xi, beta, guess_t):
-    with mp.workdps(80 + int(-math.log10(xi))):
-        N, X, B = mp.mpf(n), mp.mpf(xi), mp.mpf(beta)
-        E, e2n = mp.e**N, mp.e ** (2 * N)
-        m = E * mp.log(1 / X) / (e2n - 1)
-        a = mp.e ** (-(e2n * mp.log(1 / X) / (e2n - 1)))
-        F = lambda x: a / m * mp.e ** (m * x)
-        H = lambda w: (F(E) - F(E - E * w)) / (E * w) - (1 - B)
-        w = mp.findroot(H, mp.mpf(1) - mp.mpf(guess_t))
-        return [float(1 - w)]
-
-
-def ref_additive(n, xi, alpha, guesses, encoding="pm1"):
-    with mp.workdps(80 + int(-math.log10(xi))):
-        N, X, A = mp.mpf(n), mp.mpf(xi), mp.mpf(alpha)
-        if encoding == "pm1":
-            r = (X + 1) + mp.sqrt(X * (X + 2))
-            F = lambda U: n * r ** (U / N) / (2 * mp.log(r)) + (1 - r / 2) * U**2 / (2 * N)
-        else:
-            L = mp.log(1 / X)
-            F = lambda U: X * N / L * mp.e ** (L * U / N)
-        H = lambda d: (F(N) - F(N - d)) / d - (1 - A)
-        return sorted(float(N - mp.findroot(H, N - mp.mpf(g))) for g in guesses)
-
-
-def ref_preferential(n, xi, alpha, g, guess):
-    with mp.workdps(80):
-        X, A, G = mp.mpf(xi), mp.mpf(alpha), mp.mpf(g)
-        F = lambda x: (1 - X) * x**3 / (3 * G**2) + X * x
-        H = lambda d: (F(G) - F(G - d)) / d - (1 - A)
-        return [float(G - mp.findroot(H, G - mp.mpf(guess)))]
 
 
 # ----------------------------------------------------------------------- naive brentq baselines

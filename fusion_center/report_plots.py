@@ -41,8 +41,7 @@ def error_vs_runtime(points: list[dict], floor: float, path, bitrates=None) -> N
     ax = axes[0]
     for p in points:
         err = p["total_error"]
-        est = max(err["estimate"], floor)
-        lo, hi = max(err["ci95"][0], floor), max(err["ci95"][1], floor)
+        est, lo, hi = (max(v, floor) for v in (err["estimate"], *err["ci95"]))
         c = _COLOURS.get(p["rule"], "tab:cyan")
         by = p.get("bus_time_per_cycle_ms_by_bitrate") or {}
         xs = [by[b] for b in bitrates if b in by] or [p["bus_time_per_cycle_ms"]]
@@ -61,8 +60,7 @@ def error_vs_runtime(points: list[dict], floor: float, path, bitrates=None) -> N
     ax = axes[1]
     for p in points:
         err = p["total_error"]
-        est = max(err["estimate"], floor)
-        lo, hi = max(err["ci95"][0], floor), max(err["ci95"][1], floor)
+        est, lo, hi = (max(v, floor) for v in (err["estimate"], *err["ci95"]))
         c = _COLOURS.get(p["rule"], "tab:cyan")
         ax.errorbar([p["cpu_time_per_decision_us"]], [est], yerr=[[est - lo], [hi - est]], fmt="o", color=c,
                     capsize=3, label=f"{p['rule']} ({p['mode']})")
@@ -151,7 +149,7 @@ def work_precision(rows: list[dict], path) -> None:
     ax.set_xscale("log")
     ax.set_yscale("log")
     ax.set_xlabel("time per solve [µs]")
-    ax.set_ylabel("relative error vs mpmath (50 digits); 1e-18 = exact")
+    ax.set_ylabel("relative error vs mpmath (80 digits); 1e-18 = exact")
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
     ax.set_title("threshold solvers: work-precision")

@@ -186,67 +186,34 @@ def achieved_levels(scene, mc: montecarlo.MonteCarloResult, rng) -> dict:
 
 
 # --------------------------------------------------------------------------- work-precision
-def _mp_reference(kind: str, n: int, xi: float, level: float, mp):
-    """Threshold from the area equations (eqs 16-18) solved directly in mpmath (50 digits)."""
-    mp.mp.dps = 50
-    xi_m, lv = mp.mpf(xi), mp.mpf(level)
-    if kind == "additive_pm1":
-        r = (xi_m + 1) + mp.sqrt(xi_m * (xi_m + 2))
-        f = lambda x: mp.mpf("0.5") * mp.e ** (mp.log(r) / n * x) + (1 - mp.mpf("0.5") * r) / n * x  # eq 13
-        right = mp.mpf(n)
-        eq = lambda lam: mp.quad(f, [lam, right]) - (1 - lv) * (right - lam)  # eq 17
-    elif kind == "multiplicative":
-        big = mp.e ** n
-        m = big * mp.log(1 / xi_m) / (big**2 - 1)                  # eq 11a
-        ln_a = -(big**2) * mp.log(1 / xi_m) / (big**2 - 1)         # eq 11b
-        # eq 16 in t = lambda / e^n: mean of p over [t, 1] = 1 - beta, p = a e^(m e^n t)
-        F = lambda t: mp.e ** (ln_a + m * big * t) / (m * big)
-        eq = lambda t: (F(1) - F(t)) - (1 - lv) * (1 - t)
-        right = mp.mpf(1)
-    else:  # preferential, eq 14 / 18 with g = g(n) (p = q = 1)
-        g = mp.mpf(rules.g_of_n(n, 1.0, 1.0))
-        f = lambda x: (1 - xi_m) / g**2 * x**2 + xi_m
-        right = g
-        eq = lambda lam: mp.quad(f, [lam, right]) - (1 - lv) * (right - lam)
-    return eq, right
-
-
 def work_precision_rows(sizes=(10, 57, 200)) -> list[dict]:
-    """Time per solve and relative error of the threshold solvers against mpmath (50 digits).
-
-    Uses ``bench.threshold_precision.work_precision()`` when that module exposes it; otherwise
-    solves eqs 16, 17 (pm1) and 18 directly (mpmath quad + findroot started at our solution).
-    """
-    try:  # pragma: no cover - depends on another helper's bench script
-        from bench import threshold_precision  # type: ignore
-
-        fn = getattr(threshold_precision, "work_precision", None)
-        if callable(fn):
-            return list(fn())
-    except Exception:
-        pass
-    import mpmath as mp
+    """Time per solve and relative error of the threshold solvers (eqs 16, 17 pm1, 18 with
+    p = q = 1) against the mpmath references of :mod:`fusion_center.reference`, started at our
+    solution."""
+    from .. import reference
 
     rows_out = []
     xi = 0.003
     for n in sizes:
-        for kind, level, solve, extract in (
-            ("additive_pm1", 0.03, lambda n_: thresholds.additive_threshold(n_, xi, 0.03, "pm1"),
-             lambda r: r.thresholds[0] if r.thresholds else None),
-            ("multiplicative", 0.83, lambda n_: thresholds.multiplicative_threshold(n_, xi, 0.83),
-             lambda r: r.scaled_thresholds[0] if r.scaled_thresholds else None),
-            ("preferential", 0.48, lambda n_: thresholds.preferential_threshold(n_, xi, 0.48, 1.0, 1.0),
-             lambda r: r.threshold_mean),
+        for kind, solve, extract, ref_of in (
+            ("additive_pm1", lambda n_: thresholds.additive_threshold(n_, xi, 0.03, "pm1"),
+             lambda r: r.thresholds[0] if r.thresholds else None,
+             lambda v: reference.ref_additive(n, xi, 0.03, [v], "pm1")[0]),
+            ("multiplicative", lambda n_: thresholds.multiplicative_threshold(n_, xi, 0.83),
+             lambda r: r.scaled_thresholds[0] if r.scaled_thresholds else None,
+             lambda v: reference.ref_multiplicative(n, xi, 0.83, v)[0]),
+            ("preferential", lambda n_: thresholds.preferential_threshold(n_, xi, 0.48, 1.0, 1.0),
+             lambda r: r.threshold_mean,
+             lambda v: reference.ref_preferential(n, xi, 0.48, rules.g_of_n(n, 1.0, 1.0), v)[0]),
         ):
             value = extract(solve(n))
             if value is None:
                 continue
             t = _time_per_call(solve, [(n,)], min_calls=200)
-            eq, _ = _mp_reference(kind, n, xi, level, mp)
-            ref = mp.findroot(eq, mp.mpf(value))
-            rel = float(abs((mp.mpf(value) - ref) / ref)) if ref != 0 else float(abs(mp.mpf(value)))
+            ref = ref_of(value)
+            rel = abs((value - ref) / ref) if ref != 0 else abs(value)
             rows_out.append({"solver": kind, "n": n, "time_us": 1e6 * t, "relative_error": rel,
-                             "value": value, "reference": float(ref)})
+                             "value": value, "reference": ref})
     return rows_out
 
 
@@ -357,7 +324,7 @@ def build_report(scene, out_dir: Path, trials: int, seed: int, bitrate=None,
         r["auc"] = montecarlo.area_under_roc(r["pf"], r["pd"])
     achieved = achieved_levels(scene, mc, np.random.default_rng([seed, 3]))
 
-    step("solver work-precision (mpmath reference)")
+    step("solver work-precision (mpmath reference, 80 digits)")
     wp = work_precision_rows()
     step("P(H1) curves, taxel map")
     f = scene.fusion
