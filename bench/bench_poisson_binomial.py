@@ -11,7 +11,7 @@ import time
 import numpy as np
 from scipy import stats
 
-from fusion_center import poisson_binomial as pb
+from fusion_center.core import poisson_binomial as pb
 
 
 def best_of(fn, repeat=3):

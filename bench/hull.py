@@ -26,8 +26,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from fusion_center.geometry import SMALL_SET_MAX, convex_hull  # noqa: E402
-from fusion_center.scene import load_scene  # noqa: E402
+from fusion_center.core.geometry import SMALL_SET_MAX, convex_hull  # noqa: E402
+from taxel_net.scene import load_scene  # noqa: E402
 
 METHODS = ("qhull", "exact", "auto")
 

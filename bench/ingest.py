@@ -39,8 +39,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from fusion_center.bus_timing import best_case_frame_bits, frame_bits  # noqa: E402
-from fusion_center.scene import load_scene  # noqa: E402
+from fusion_center.core.bus_timing import best_case_frame_bits, frame_bits  # noqa: E402
+from taxel_net.scene import load_scene  # noqa: E402
 from fusion_center.service.core import EventStream, open_trace_writer  # noqa: E402
 from fusion_center.service.cycles import CycleAssembler  # noqa: E402
 

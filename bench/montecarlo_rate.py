@@ -1,4 +1,4 @@
-"""Monte Carlo throughput: taxel decisions per second of fusion_center.montecarlo.simulate.
+"""Monte Carlo throughput: taxel decisions per second of fusion_center.core.montecarlo.simulate.
 
 One "taxel decision" is one simulated local decision u_i (eqs 1-4) of one trial; every trial
 also evaluates every configured rule (count rules, preferential, LLR, N-P) and the three
@@ -14,8 +14,8 @@ import time
 
 import numpy as np
 
-from fusion_center import montecarlo
-from fusion_center.scene import load_scene
+from fusion_center.core import montecarlo
+from taxel_net.scene import load_scene
 
 TARGET = 2e7
 

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fusion_center.scene import load_scene
+from taxel_net.scene import load_scene
 from node_sim import physics
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -110,7 +110,7 @@ def main(argv=None) -> int:
         data = json.loads((out / "report.json").read_text())
     else:
         from fusion_center.commands.report import build_report, parse_bitrates
-        from fusion_center.scene import load_scene
+        from taxel_net.scene import load_scene
 
         scene = load_scene(args.scene)
         data = build_report(scene, out, args.trials, scene.seed, parse_bitrates(args.bitrates))

@@ -8,7 +8,7 @@ and from a precomputed array (the node twins' own cost only).
 
 Physical limit: one cycle needs 1 SYNC (no data) + 57 TPDOs (1 byte) on the wire:
     max cycles/s = bitrate / (bits(SYNC) + sum bits(TPDO_i))
-with the exact frame lengths of fusion_center.bus_timing.frame_bits (actual stuff bits +
+with the exact frame lengths of fusion_center.core.bus_timing.frame_bits (actual stuff bits +
 3-bit intermission), and with its worst-case bound 8n + 47 + floor((34 + 8n - 1)/4).
 
     .venv/bin/python bench/rig_cycles.py [--cycles 300] [--bitrate 1000000]
@@ -30,8 +30,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from fusion_center.bus_timing import frame_bits, worst_case_frame_bits  # noqa: E402
-from fusion_center.scene import load_scene  # noqa: E402
+from fusion_center.core.bus_timing import frame_bits, worst_case_frame_bits  # noqa: E402
+from taxel_net.scene import load_scene  # noqa: E402
 from node_sim import physics  # noqa: E402
 from node_sim.rig import Rig  # noqa: E402
 

@@ -1,4 +1,4 @@
-"""Monte Carlo of slip-onset detection delay (fusion_center.slip) on synthetic traces.
+"""Monte Carlo of slip-onset detection delay (fusion_center.core.slip) on synthetic traces.
 
 Each trace: an object footprint (radius R) on a taxel grid (pitch p) with random taxel
 dropouts; static until a random onset cycle, then moving at a random speed and direction.
@@ -20,8 +20,8 @@ import time
 
 import numpy as np
 
-from fusion_center.geometry import active_centroid
-from fusion_center.slip import detect_slip
+from fusion_center.core.geometry import active_centroid
+from fusion_center.core.slip import detect_slip
 
 PERIOD = 0.01
 MU = 0.3

@@ -22,7 +22,7 @@ from pathlib import Path
 from scipy.optimize import brentq
 
 from fusion_center.reference import ref_additive, ref_multiplicative, ref_preferential
-from fusion_center.thresholds import additive_threshold, multiplicative_threshold, preferential_threshold
+from fusion_center.core.thresholds import additive_threshold, multiplicative_threshold, preferential_threshold
 
 TARGET_US = 20.0
 FLOOR = 1e-17  # errors of exactly 0 are drawn here on the log axis

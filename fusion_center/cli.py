@@ -11,7 +11,7 @@ import argparse
 import importlib
 import sys
 
-from .errors import ParameterError, SceneError
+from taxel_net.errors import ParameterError, SceneError
 
 # sub-command name -> module under fusion_center.commands (imported lazily: start-up stays fast)
 COMMANDS: dict[str, str] = {

@@ -23,7 +23,7 @@ u_i (TPDO1, one byte), so nothing that needs the readings X_i can run - ``forces
 with that reason and ``slip`` runs on its motion criterion alone (centroid of the present
 taxels). In ``raw`` mode (TPDO2, X_i as REAL32 mV) forces run when calibrated, slip gets its
 force criterion when both a tangential and a grip force exist, and the centralised raw-data
-tests (:mod:`fusion_center.centralised`, ``CENTRAL_TESTS``) run when every taxel has a noise
+tests (:mod:`fusion_center.core.centralised`, ``CENTRAL_TESTS``) run when every taxel has a noise
 std > 0.
 
 Rules:
@@ -40,10 +40,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from .errors import ParameterError
-from .scene import BUS_MODES, RULES, STAGES, Scene
+from taxel_net.errors import ParameterError
+from taxel_net.scene import BUS_MODES, RULES, STAGES, Scene
 
-# centralised raw-data tests of the live service (fusion_center.centralised methods)
+# centralised raw-data tests of the live service (fusion_center.core.centralised methods)
 CENTRAL_TESTS = ("centralised_glrt", "centralised_known")
 DECISION_MODE_FORCES = ("decision mode carries only u_i (TPDO1); needs raw mode (TPDO2 X_i) "
                         "and a force calibration")
@@ -172,7 +172,7 @@ def _mode(scene: Scene, mode: str | None) -> str:
 
 def central_support(scene: Scene, test: str, mode: str | None = None) -> str | None:
     """None when the centralised raw-data test ``test`` can run, else the reason."""
-    from .centralised import centralised_support
+    from .core.centralised import centralised_support
 
     if test not in CENTRAL_TESTS:
         return f"unknown centralised test {test!r}"

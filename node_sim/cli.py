@@ -21,7 +21,7 @@ import threading
 
 import can
 
-from fusion_center.errors import ParameterError, SceneError
+from taxel_net.errors import ParameterError, SceneError
 
 from . import od as odx
 
@@ -71,7 +71,7 @@ def main(argv: list[str] | None = None) -> int:
         stop.set()
 
     try:
-        from fusion_center.scene import load_scene
+        from taxel_net.scene import load_scene
 
         from .rig import Rig
 

@@ -14,7 +14,7 @@ after an NMT reset: canopen issues #145, #520, #558, #47), so this module adds a
 * heartbeat producer per 0x1017 (state byte 0x7F pre-op, 0x05 operational, 0x04 stopped).
 * the application, on every SYNC (any state but INITIALISING): take X_i for that cycle,
   check it for sensor faults, run the local detector of the chapter (eqs 1-4, via
-  :func:`local_decision_pm1`, the scalar form of :func:`fusion_center.encoding.local_decision`:
+  :func:`local_decision_pm1`, the scalar form of :func:`fusion_center.core.encoding.local_decision`:
   u = +1 iff X − N ≥ ζ) and write u_i to
   0x2000 (INTEGER8 +1/−1), X_i to 0x6130:1 (REAL32 mV) and the AI status to 0x6150:1.
 * TPDO1/TPDO2 per 0x1800/0x1801 + 0x1A00/0x1A01, in operational only: synchronous
@@ -59,7 +59,7 @@ import canopen
 from canopen.objectdictionary import ODVariable, datatypes
 from canopen.sdo import SdoAbortedError
 
-from fusion_center.scene import KIND_NAMES
+from taxel_net.scene import KIND_NAMES
 
 from . import emcy as em
 from . import od as odx
@@ -117,7 +117,7 @@ def local_decision_pm1(observation: float, noise: float, zeta: float) -> int:
 
     Y = X - N (eq 4); u = +1 iff Y >= ζ (eqs 2-3), else -1; a NaN observation compares False
     and decides absent. The same IEEE-754 double comparison as
-    :func:`fusion_center.encoding.local_decision` (``(x - n) >= z``), without its array
+    :func:`fusion_center.core.encoding.local_decision` (``(x - n) >= z``), without its array
     conversions: for a node it costs ~0.1 µs instead of ~10 µs. It does not check ζ: the node's
     OD refuses a negative or non-finite ζ (SDO abort 0x06090032 / 0x06090030), which is the
     domain ``local_decision`` accepts; ``tests/test_node_fastpath.py`` checks both agree.
@@ -336,7 +336,7 @@ class TaxelNode:
         """Write start-up values (the node's stored parameters) into the OD, each checked by
         the same rules as an SDO download; a refused value raises ParameterError. Then they
         become the values NMT reset-node / reset-communication restore."""
-        from fusion_center.errors import ParameterError
+        from taxel_net.errors import ParameterError
 
         for (index, subindex), value in values.items():
             var = odx.variable(self.od, index, subindex)

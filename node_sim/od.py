@@ -25,7 +25,7 @@ from pathlib import Path
 import canopen
 from canopen.objectdictionary import ObjectDictionary, datatypes
 
-from fusion_center.errors import ParameterError
+from taxel_net.errors import ParameterError
 
 EDS_PATH = Path(__file__).resolve().parent.parent / "eds" / "taxel_node.eds"
 

@@ -43,8 +43,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from fusion_center.errors import ParameterError
-from fusion_center.scene import Scene, taxel_index
+from taxel_net.errors import ParameterError
+from taxel_net.scene import Scene, taxel_index
 
 OPEN_CIRCUIT_MV = float("nan")   # reading of an open-circuit input
 _TIE_TOL = 1e-9                  # "point": taxels within this of the minimum distance all count

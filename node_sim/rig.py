@@ -47,9 +47,9 @@ from typing import Callable, Mapping, Sequence
 import can
 import numpy as np
 
-from fusion_center.canmsg import TxMessage
-from fusion_center.errors import ParameterError
-from fusion_center.scene import TAXEL_KINDS, Scene
+from taxel_net.canmsg import TxMessage
+from taxel_net.errors import ParameterError
+from taxel_net.scene import TAXEL_KINDS, Scene
 
 from . import od as odx
 from .node import COB_INVALID, NodeLink, Scheduler, TaxelNode
@@ -222,7 +222,7 @@ class Rig:
                  bitrate: int | None = None, reading_source: ReadingSource | None = None,
                  seed: int | None = None, eds_path=odx.EDS_PATH, bus_kwargs: Mapping | None = None):
         if not isinstance(scene, Scene):
-            raise ParameterError("scene", type(scene).__name__, "must be a fusion_center.scene.Scene")
+            raise ParameterError("scene", type(scene).__name__, "must be a taxel_net.scene.Scene")
         if scene.n == 0:
             raise ParameterError("scene.taxels", (), "a rig needs at least one taxel")
         self.scene = scene if seed is None else dataclasses.replace(scene, seed=int(seed))

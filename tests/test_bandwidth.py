@@ -1,7 +1,7 @@
 """fusion-center bandwidth: hand-computed figures for a two-taxel scene.
 
 Frame lengths come from an independent bit-level CAN 2.0A encoder written here (CRC-15 by
-polynomial long division, not the shift register of fusion_center.bus_timing), and the
+polynomial long division, not the shift register of fusion_center.core.bus_timing), and the
 per-cycle sums, loads, rates and latencies are worked by hand in each test.
 """
 
@@ -15,7 +15,7 @@ import pytest
 
 from fusion_center import cli
 from fusion_center.commands import bandwidth
-from fusion_center.scene import load_scene
+from taxel_net.scene import load_scene
 
 TINY = """
 [scene]

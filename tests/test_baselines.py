@@ -17,8 +17,8 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from fusion_center import baselines as bl
-from fusion_center.errors import ParameterError
+from fusion_center.core import baselines as bl
+from taxel_net.errors import ParameterError
 
 mpmath.mp.dps = 50
 

@@ -6,7 +6,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from fusion_center.bus_timing import (
+from fusion_center.core.bus_timing import (
     best_case_frame_bits,
     bus_load,
     crc15,
@@ -18,7 +18,7 @@ from fusion_center.bus_timing import (
     stuff_bits,
     worst_case_frame_bits,
 )
-from fusion_center.errors import ParameterError
+from taxel_net.errors import ParameterError
 
 GENERATOR = 0xC599  # x^15 + x^14 + x^10 + x^8 + x^7 + x^4 + x^3 + 1, with the x^15 term
 
@@ -221,7 +221,7 @@ def test_bad_input_names_parameter(call, name):
 
 
 def test_fd_estimate_total_agrees_with_linux_can_length_h():
-    from fusion_center.bus_timing import FD_LENGTHS, fd_frame_bits_estimate, fd_frame_time_s
+    from fusion_center.core.bus_timing import FD_LENGTHS, fd_frame_bits_estimate, fd_frame_time_s
 
     # include/linux/can/length.h: FD header 22 (SFF) / 41 (EFF) bits stuffed as L + (L-1)//4,
     # CRC field 28 (CRC-17) / 33 (CRC-21) incl. stuff count, delimiter and fixed stuff bits,

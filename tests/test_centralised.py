@@ -1,5 +1,5 @@
 """Centralised raw-data test: statistics against scipy / brute force / mpmath, thresholds
-against their closed forms (tests of fusion_center.centralised)."""
+against their closed forms (tests of fusion_center.core.centralised)."""
 
 from __future__ import annotations
 
@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 from scipy.stats import norm
 
-from fusion_center import centralised
-from fusion_center.encoding import local_decision
-from fusion_center.errors import ParameterError
-from fusion_center.scene import load_scene
+from fusion_center.core import centralised
+from fusion_center.core.encoding import local_decision
+from taxel_net.errors import ParameterError
+from taxel_net.scene import load_scene
 
 
 def test_per_taxel_decisions_same_as_the_nodes():

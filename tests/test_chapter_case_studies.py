@@ -13,12 +13,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fusion_center.contact import ContactType, classify, taxel_count_ratio
-from fusion_center.forces import (
+from fusion_center.core.contact import ContactType, classify, taxel_count_ratio
+from fusion_center.core.forces import (
     grip_force_limit, gripper_tangential, load_cell_grip_force, max_load,
     r_cell_tangential_force, tangential_force, total_tangential,
 )
-from fusion_center.geometry import contact_area, convex_hull, polygon_area
+from fusion_center.core.geometry import contact_area, convex_hull, polygon_area
 
 DATA = Path(__file__).resolve().parents[1] / "scenes" / "data"
 

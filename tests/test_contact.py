@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 
-from fusion_center.contact import (
+from fusion_center.core.contact import (
     CONTACT_MECHANICS, ContactType, ContactZone, classify, contact_zone, friction_plane_ratio,
     relative_softness_index, taxel_count_ratio,
 )
-from fusion_center.errors import ParameterError
+from taxel_net.errors import ParameterError
 
 
 @pytest.mark.parametrize("ratio, expected", [

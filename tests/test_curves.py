@@ -6,7 +6,7 @@ import mpmath as mp
 import numpy as np
 import pytest
 
-from fusion_center.curves import (
+from fusion_center.core.curves import (
     p_additive_01,
     p_additive_pm1,
     p_exponential,
@@ -15,7 +15,7 @@ from fusion_center.curves import (
     p_multiplicative_scaled,
     p_preferential,
 )
-from fusion_center.errors import ParameterError
+from taxel_net.errors import ParameterError
 
 NS = [1, 2, 18, 57, 354, 355, 1000, 100_000, 1_000_000]
 XIS = [1e-300, 1e-12, 0.003, 0.5, 0.999999]

@@ -4,7 +4,7 @@ expectations (no bus, no clock)."""
 import numpy as np
 import pytest
 
-from fusion_center.scene import BusSpec, FusionSpec, Scene, TaxelSpec
+from taxel_net.scene import BusSpec, FusionSpec, Scene, TaxelSpec
 from fusion_center.service.cycles import COUNTER_NAMES, FLAG_ERROR, FLAG_EXTENDED, FLAG_REMOTE, CycleAssembler
 
 MS = 1000  # µs

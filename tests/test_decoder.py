@@ -5,7 +5,7 @@ import struct
 
 import pytest
 
-from fusion_center.scene import BusSpec, Scene, TaxelSpec
+from taxel_net.scene import BusSpec, Scene, TaxelSpec
 from fusion_center.service import decoder as d
 
 

@@ -12,7 +12,7 @@ import canopen
 import pytest
 from canopen.objectdictionary import ODArray, ODRecord, ODVariable, datatypes
 
-from fusion_center.errors import ParameterError
+from taxel_net.errors import ParameterError
 from node_sim import od as odx
 
 EDS = str(odx.EDS_PATH)

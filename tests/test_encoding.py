@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
-from fusion_center.encoding import local_decision, present_count, to_01, to_pm1, validate_decisions
-from fusion_center.errors import ParameterError
+from fusion_center.core.encoding import local_decision, present_count, to_01, to_pm1, validate_decisions
+from taxel_net.errors import ParameterError
 
 
 def test_local_decision_eqs_1_to_4_threshold_is_inclusive():
@@ -35,7 +35,8 @@ def test_encodings_are_explicit_and_convertible():
 
 
 # ------------------------------------------------ shared input checks (every numerical module)
-from fusion_center import baselines, curves, poisson_binomial, rules, thresholds  # noqa: E402
+from fusion_center.core import baselines, curves, poisson_binomial, rules
+from fusion_center.core import thresholds  # noqa: E402
 
 
 @pytest.mark.parametrize("call,field", [

@@ -6,13 +6,13 @@ import mpmath
 import numpy as np
 import pytest
 
-from fusion_center.errors import ParameterError
-from fusion_center.forces import (
+from taxel_net.errors import ParameterError
+from fusion_center.core.forces import (
     ForceReport, compose_pair, grip_force_limit, gripper_tangential, jaw_tangential,
     load_cell_grip_force, matrix_force_report, max_load, r_cell_tangential_force,
     tangential_force, total_tangential,
 )
-from fusion_center.units import KGF_IN_NEWTON, convert_force
+from fusion_center.core.units import KGF_IN_NEWTON, convert_force
 
 
 def test_eq30_inverts_calibration_line():

@@ -4,7 +4,7 @@ frame is accounted for (the disposition counters sum to the frames fed)."""
 import numpy as np
 import can
 
-from fusion_center.scene import load_scene
+from taxel_net.scene import load_scene
 from fusion_center.service.core import EventStream
 from fusion_center.service.cycles import CycleAssembler
 from fusion_center.service.pipeline import CyclePipeline

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from fusion_center.errors import ParameterError
-from fusion_center import geometry
-from fusion_center.geometry import (
+from taxel_net.errors import ParameterError
+from fusion_center.core import geometry
+from fusion_center.core.geometry import (
     SMALL_SET_MAX, active_centroid, contact_area, convex_hull, polygon_area, signed_polygon_area,
 )
 

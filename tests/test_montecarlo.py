@@ -1,5 +1,5 @@
 """Monte Carlo: the vectorised rule evaluators against the per-cycle functions of
-fusion_center.rules / baselines on random inputs, exact taxel rates against mpmath, the Wilson
+fusion_center.core.rules / baselines on random inputs, exact taxel rates against mpmath, the Wilson
 interval by hand, and simulated rates against the exact Poisson-binomial values."""
 
 from __future__ import annotations
@@ -11,9 +11,9 @@ import mpmath as mp
 import numpy as np
 import pytest
 
-from fusion_center import baselines, montecarlo, rules
-from fusion_center.encoding import ABSENT
-from fusion_center.scene import load_scene
+from fusion_center.core import baselines, montecarlo, rules
+from fusion_center.core.encoding import ABSENT
+from taxel_net.scene import load_scene
 
 
 def _random_u(rng, t, n, enc):

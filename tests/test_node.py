@@ -20,7 +20,7 @@ import canopen
 import numpy as np
 import pytest
 
-from fusion_center.scene import TAXEL_KINDS, BusSpec, FaultSpec, Scene, TaxelSpec
+from taxel_net.scene import TAXEL_KINDS, BusSpec, FaultSpec, Scene, TaxelSpec
 from node_sim import emcy as em
 from node_sim.od import EDS_PATH
 from node_sim.rig import Rig

@@ -1,6 +1,6 @@
 """The node twins' SYNC hot path gives the same protocol behaviour as the slow path it replaced.
 
-* ``local_decision_pm1`` (scalar eqs 1-4) equals ``fusion_center.encoding.local_decision`` on
+* ``local_decision_pm1`` (scalar eqs 1-4) equals ``fusion_center.core.encoding.local_decision`` on
   random and boundary inputs (NaN, ±inf, X - N == ζ exactly, one ulp either side);
 * the values a SYNC writes into the OD are the CiA 301 encodings (INTEGER8, REAL32,
   UNSIGNED8 - packed here with ``struct``, independently of canopen and of the node), and a
@@ -27,12 +27,12 @@ import canopen
 import numpy as np
 import pytest
 
-from fusion_center.encoding import local_decision
-from fusion_center.scene import BusSpec, Scene, TaxelSpec
+from fusion_center.core.encoding import local_decision
+from taxel_net.scene import BusSpec, Scene, TaxelSpec
 from node_sim import physics
 from node_sim.node import NodeLink, Scheduler, _TpdoRuntime, local_decision_pm1
 from node_sim.od import EDS_PATH
-from fusion_center.canmsg import TxMessage
+from taxel_net.canmsg import TxMessage
 from node_sim.rig import Rig
 
 WAIT = 5.0

@@ -211,7 +211,7 @@ def test_socketcan_by_name():
     if not Path("/sys/class/net/vcan0").exists():
         pytest.skip("no SocketCAN interface vcan0 on this machine (create one with "
                     "`ip link add dev vcan0 type vcan && ip link set up vcan0`)")
-    from fusion_center.scene import BusSpec, Scene, TaxelSpec
+    from taxel_net.scene import BusSpec, Scene, TaxelSpec
     from node_sim.rig import Rig
 
     scene = Scene(path="<t>", name="sc", taxels=(TaxelSpec(node_id=1, kind="R"),),

@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fusion_center.errors import ParameterError
-from fusion_center.scene import load_scene
+from taxel_net.errors import ParameterError
+from taxel_net.scene import load_scene
 from node_sim import physics
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -126,7 +126,7 @@ def test_readings_follow_the_documented_canonical_stream(tmp_path):
 
 
 def test_another_process_gets_the_same_readings():
-    code = ("import sys; from fusion_center.scene import load_scene; from node_sim import physics;"
+    code = ("import sys; from taxel_net.scene import load_scene; from node_sim import physics;"
             "s = load_scene(sys.argv[1]); print(repr(physics.taxel_reading(s, 42, 17)))")
     path = str(ROOT / "scenes" / "matrix57.toml")
     out = subprocess.run([sys.executable, "-c", code, path], capture_output=True, text=True, check=True)

@@ -9,9 +9,9 @@ import math
 import numpy as np
 import pytest
 
-from fusion_center import baselines, contact, curves, rules, thresholds
-from fusion_center.errors import ParameterError
-from fusion_center.scene import BusSpec, FusionSpec, Scene, TaxelSpec, load_scene
+from fusion_center.core import baselines, contact, curves, rules, thresholds
+from taxel_net.errors import ParameterError
+from taxel_net.scene import BusSpec, FusionSpec, Scene, TaxelSpec, load_scene
 from fusion_center.service import pipeline as pipeline_module
 from fusion_center.service.cycles import ClosedCycle
 from fusion_center.service.pipeline import CyclePipeline
@@ -262,7 +262,7 @@ def test_scene_tuple_01_is_the_same_record_as_pm1_but_for_the_tuple_values():
 
 
 def test_area_of_fewer_than_three_present_taxels_is_zero_as_in_geometry():
-    from fusion_center import geometry
+    from fusion_center.core import geometry
 
     scene = load_scene("scenes/matrix57.toml")
     pipe = CyclePipeline(scene, truth=False)

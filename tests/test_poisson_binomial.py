@@ -11,8 +11,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import stats
 
-from fusion_center import poisson_binomial as pb
-from fusion_center.errors import ParameterError
+from fusion_center.core import poisson_binomial as pb
+from taxel_net.errors import ParameterError
 
 mpmath.mp.dps = 50
 

@@ -17,7 +17,7 @@ from scipy.stats import norm
 
 from fusion_center.commands.demo import run_demo
 from fusion_center.commands.run import apply_mode
-from fusion_center.scene import load_scene
+from taxel_net.scene import load_scene
 from fusion_center.service import ClosedCycle, CyclePipeline, replay_trace
 from node_sim import physics
 

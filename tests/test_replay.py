@@ -8,7 +8,7 @@ import can
 import pytest
 
 from fusion_center.commands.demo import run_demo
-from fusion_center.scene import load_scene
+from taxel_net.scene import load_scene
 from fusion_center.service import replay_trace
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -14,8 +14,8 @@ import canopen
 import numpy as np
 import pytest
 
-from fusion_center.errors import ParameterError
-from fusion_center.scene import TAXEL_KINDS, BusSpec, Scene, TaxelSpec, load_scene
+from taxel_net.errors import ParameterError
+from taxel_net.scene import TAXEL_KINDS, BusSpec, Scene, TaxelSpec, load_scene
 from node_sim.od import EDS_PATH
 from node_sim.rig import Rig
 

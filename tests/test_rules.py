@@ -8,8 +8,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from fusion_center.errors import ParameterError
-from fusion_center.rules import (
+from taxel_net.errors import ParameterError
+from fusion_center.core.rules import (
     additive,
     g_of_n,
     k_of_n,

@@ -6,9 +6,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fusion_center.encoding import local_decision
-from fusion_center.errors import SceneError
-from fusion_center.scene import FaultSpec, load_scene, scene_to_dict
+from fusion_center.core.encoding import local_decision
+from taxel_net.errors import SceneError
+from taxel_net.scene import FaultSpec, load_scene, scene_to_dict
 from node_sim import physics
 
 SCENES = Path(__file__).resolve().parent.parent / "scenes"

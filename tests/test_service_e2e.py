@@ -16,8 +16,8 @@ import pytest
 
 from fusion_center.cli import UsageError
 from fusion_center.commands.demo import run_demo
-from fusion_center.encoding import local_decision
-from fusion_center.scene import load_scene
+from fusion_center.core.encoding import local_decision
+from taxel_net.scene import load_scene
 from fusion_center.service import FusionService
 from node_sim import physics
 from node_sim.rig import Rig
@@ -226,7 +226,7 @@ def test_master_frames_reach_a_virtual_bus_as_python_can_would_copy_them():
     equal to what ``VirtualBus.send`` makes of a plain ``can.Message``: same fields, own data."""
     import copy
 
-    from fusion_center.canmsg import TxMessage
+    from taxel_net.canmsg import TxMessage
 
     kwargs = dict(arbitration_id=0x080, data=b"\x07", is_extended_id=False, is_remote_frame=False, channel=0)
     fast, plain = copy.deepcopy(TxMessage(**kwargs)), copy.deepcopy(can.Message(**kwargs))

@@ -10,7 +10,7 @@ from pathlib import Path
 import can
 import pytest
 
-from fusion_center.scene import load_scene
+from taxel_net.scene import load_scene
 from fusion_center.service import FusionService
 
 pytestmark = pytest.mark.multiprocess

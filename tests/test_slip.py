@@ -1,11 +1,11 @@
-"""Slip model (fusion_center.slip) on synthetic traces with known onset, speed and distance."""
+"""Slip model (fusion_center.core.slip) on synthetic traces with known onset, speed and distance."""
 
 import numpy as np
 import pytest
 
-from fusion_center.errors import ParameterError
-from fusion_center.geometry import active_centroid
-from fusion_center.slip import SlipTracker, detect_slip, line_fit_velocity
+from taxel_net.errors import ParameterError
+from fusion_center.core.geometry import active_centroid
+from fusion_center.core.slip import SlipTracker, detect_slip, line_fit_velocity
 
 PERIOD = 0.01  # s per SYNC cycle
 

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fusion_center.scene import load_scene
+from taxel_net.scene import load_scene
 from fusion_center.stages import plan_stages
 
 SCENES = sorted(Path("scenes").glob("*.toml"))
@@ -45,7 +45,7 @@ def test_matrix57_plan():
 
 
 def test_bad_mode_is_a_parameter_error():
-    from fusion_center.errors import ParameterError
+    from taxel_net.errors import ParameterError
 
     with pytest.raises(ParameterError, match="mode"):
         plan_stages(load_scene("scenes/matrix57.toml"), "streaming")

@@ -19,9 +19,9 @@ import pytest
 from hypothesis import assume, example, given, settings
 from hypothesis import strategies as st
 
-from fusion_center.errors import ParameterError
-from fusion_center.rules import g_of_n, preferential
-from fusion_center.thresholds import (
+from taxel_net.errors import ParameterError
+from fusion_center.core.rules import g_of_n, preferential
+from fusion_center.core.thresholds import (
     additive_threshold,
     max_preferential_value,
     multiplicative_threshold,
@@ -424,7 +424,7 @@ def test_d_series_and_closed_forms_against_mpmath():
     """D(z) = 1 - (1 - e^-z)/z and its first two derivatives (thresholds module doc): the written-out
     Taylor series (z <= 1/2) and the expm1 forms (z > 1/2) against mpmath, and the fused
     evaluations equal the single ones."""
-    from fusion_center import thresholds as th
+    from fusion_center.core import thresholds as th
 
     zs = [1e-300, 1e-30, 1e-8, 0.01, 0.1, 0.25, 0.4999, 0.5, math.nextafter(0.5, 1), 0.51, 0.75, 1.3, 2.6, 30.0]
     for z in zs:

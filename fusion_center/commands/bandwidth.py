@@ -21,7 +21,7 @@ Every cycle also carries the SYNC frame (COB-ID 0x080, no data, or one counter b
 0x05 = operational) every ``heartbeat_producer_ms`` is counted pro rata per cycle.
 
 Figures per mode, per channel (each channel is its own bus at ``--bitrate``) and for the
-busiest channel: exact bits per cycle (``fusion_center.bus_timing.frame_bits``: stuff bits,
+busiest channel: exact bits per cycle (``fusion_center.core.bus_timing.frame_bits``: stuff bits,
 CRC, ACK, EOF and the 3-bit intermission), bus load at the scene's SYNC period, the highest
 SYNC rate the traffic fits (worst-case cycle: (bitrate - heartbeat bit/s) / bits of the
 cycle's frames) and the latency from the start of the SYNC frame to the end of the cycle's
@@ -39,10 +39,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..bus_timing import frame_bits
-from ..encoding import local_decision
-from ..errors import ParameterError
-from ..scene import load_scene
+from ..core.bus_timing import frame_bits
+from ..core.encoding import local_decision
+from taxel_net.errors import ParameterError
+from taxel_net.scene import load_scene
 
 HELP = "bus cost per cycle of raw-data vs decision streaming (exact CAN bits, load, max rate, latency)"
 

@@ -29,12 +29,12 @@ import sys
 
 import numpy as np
 
-from .. import baselines
+from ..core import baselines
 from ..cli import UsageError
-from ..curves import check_open_unit
-from ..encoding import check_encoding, check_integer, present_count, validate_decisions
-from ..errors import ParameterError
-from ..rules import check_weight
+from ..core.curves import check_open_unit
+from ..core.encoding import check_encoding, check_integer, present_count, validate_decisions
+from taxel_net.errors import ParameterError
+from ..core.rules import check_weight
 from .threshold import parse_option
 
 HELP = "fuse one vector of local decisions u_i with a fusion rule (HEBTEM or a baseline) and decide H0/H1"
@@ -160,7 +160,7 @@ def _count_form_rates(args, record: dict, min_present: int) -> None:
 
 def _hebtem(args, rule: str, u: np.ndarray, encoding: str, record: dict) -> None:
     """P(H1) on the rule's curve and, with --alpha/--beta, the HEBTEM threshold and decision."""
-    from .. import curves, rules  # the numerical core of sec. 2.2.3
+    from ..core import curves, rules  # the numerical core of sec. 2.2.3
 
     n = u.size
     xi = _open_unit("xi", args.xi) if args.xi is not None else None
@@ -181,7 +181,7 @@ def _hebtem(args, rule: str, u: np.ndarray, encoding: str, record: dict) -> None
         )
         if alpha is None:
             return
-        from .. import thresholds
+        from ..core import thresholds
 
         result = thresholds.additive_threshold(n, xi, alpha, encoding=encoding)
         if not result.thresholds:  # a result, not an error: no threshold, no decision
@@ -207,7 +207,7 @@ def _hebtem(args, rule: str, u: np.ndarray, encoding: str, record: dict) -> None
         record["p_h1"] = float(curves.p_multiplicative(ln_u_g_pm1, n, xi))
         if beta is None:
             return
-        from .. import thresholds
+        from ..core import thresholds
 
         result = thresholds.multiplicative_threshold(n, xi, beta)
         if not result.scaled_thresholds:  # a result, not an error: no threshold, no decision
@@ -235,7 +235,7 @@ def _hebtem(args, rule: str, u: np.ndarray, encoding: str, record: dict) -> None
         record["p_h1"] = float(curves.p_preferential(record["U_G"], g, xi))
         if alpha is None:
             return
-        from .. import thresholds
+        from ..core import thresholds
 
         band = thresholds.preferential_threshold(n, xi, alpha, p, q, encoding=encoding)
         if band.threshold_mean is None:  # a result, not an error: no threshold, no decision
@@ -274,7 +274,7 @@ def fuse(args) -> dict:
     }
     rule = args.rule
     if rule in ("additive", "multiplicative", "preferential", "k-of-n"):
-        from .. import rules
+        from ..core import rules
 
         if rule == "additive":
             record["U_G"] = int(rules.additive(u, encoding))

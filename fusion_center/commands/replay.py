@@ -19,7 +19,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args) -> int:
-    from ..scene import load_scene
+    from taxel_net.scene import load_scene
     from ..service import replay_trace
     from ..service.records import dumps
     from .run import apply_mode, setup_logging

@@ -9,7 +9,7 @@ this sensor at this bit rate, and what error does it cost?". Writes to ``--out``
   value for count rules) of every rule in decision mode and of the centralised raw-data tests,
   against bus time per cycle (decision_sync resp. raw mode, ``fusion-center bandwidth``) and
   against the measured CPU time per fused decision (the per-cycle functions of
-  ``fusion_center.rules`` / ``baselines`` / ``centralised``);
+  ``fusion_center.core.rules`` / ``baselines`` / ``centralised``);
 * ``roc.png`` - ROC curves and the rules' operating points;
 * ``achieved_alpha.png`` - achieved P_F vs requested alpha (HEBTEM additive eq 17, preferential
   eq 18, N-P, centralised) and achieved P_M vs requested beta (multiplicative eq 16);
@@ -28,10 +28,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import baselines, centralised, curves, montecarlo, rules, thresholds
-from ..encoding import local_decision
-from ..errors import ParameterError
-from ..scene import load_scene
+from ..core import baselines, centralised, curves, montecarlo, rules, thresholds
+from ..core.encoding import local_decision
+from taxel_net.errors import ParameterError
+from taxel_net.scene import load_scene
 from ..stages import plan_stages
 from . import bandwidth
 
@@ -341,7 +341,7 @@ def build_report(scene, out_dir: Path, trials: int, seed: int, bitrate=None,
     hull = None
     has_xy = bool(np.all(np.isfinite(xy)))
     if has_xy and active.any():
-        from ..geometry import convex_hull
+        from ..core.geometry import convex_hull
 
         hull = convex_hull(xy[active])
     floor = 0.5 / trials

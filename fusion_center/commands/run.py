@@ -173,7 +173,7 @@ def load_run_scene(args):
     """The scene of ``--scene`` with ``--mode`` applied, and the cycle count (``--cycles`` or the
     scene's). The node twins and the fusion centre get this same (overridden) scene."""
     from ..cli import UsageError
-    from ..scene import load_scene
+    from taxel_net.scene import load_scene
 
     scene = apply_mode(load_scene(args.scene), args.mode)
     cycles = args.cycles if args.cycles is not None else scene.cycles

@@ -7,10 +7,10 @@ import json
 import math
 
 from ..cli import UsageError
-from ..curves import check_n, check_open_unit, check_xi
-from ..errors import ParameterError
-from ..rules import check_weight
-from ..thresholds import additive_threshold, multiplicative_threshold, preferential_threshold
+from ..core.curves import check_n, check_open_unit, check_xi
+from taxel_net.errors import ParameterError
+from ..core.rules import check_weight
+from ..core.thresholds import additive_threshold, multiplicative_threshold, preferential_threshold
 
 HELP = "HEBTEM dynamic threshold of a fusion rule (eqs 16-20): additive, multiplicative, preferential"
 

@@ -42,9 +42,9 @@ from typing import Callable, Iterable, Sequence
 
 import can
 
-from ..canmsg import TxMessage
+from taxel_net.canmsg import TxMessage
 from ..cli import UsageError
-from ..scene import Scene
+from taxel_net.scene import Scene
 from .cycles import (
     COUNTER_NAMES,
     FLAG_ERROR,

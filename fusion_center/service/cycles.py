@@ -49,7 +49,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..scene import Scene
+from taxel_net.scene import Scene
 from .decoder import (
     HEARTBEAT_STATES,
     K_EMCY,

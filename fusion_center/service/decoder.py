@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import struct
 
-from ..scene import Scene
+from taxel_net.scene import Scene
 
 # frame kinds (small ints: compared on the hot path)
 K_TPDO1 = 1

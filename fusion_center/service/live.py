@@ -18,7 +18,7 @@ from rich.panel import Panel
 from rich.table import Table
 from rich.text import Text
 
-from ..bus_timing import worst_case_frame_bits
+from ..core.bus_timing import worst_case_frame_bits
 
 # data bytes per counted event (classic CAN 2.0A); bus load uses the worst-case frame length
 _DATA_BYTES = {"sync": 0, "tpdo1": 1, "tpdo2": 4, "late": 1, "heartbeat": 1, "bootup": 1, "emcy": 8,

@@ -35,7 +35,7 @@ from typing import Callable
 
 import canopen
 
-from ..scene import TAXEL_KINDS, Scene
+from taxel_net.scene import TAXEL_KINDS, Scene
 from .decoder import (
     BASE_TPDO1,
     BASE_TPDO2,

@@ -16,7 +16,7 @@ What is computed (chapter sections in brackets):
 * raw mode (issue 6): the nodes send X_i (TPDO2, REAL32 mV) instead of u_i; the centre
   decides per taxel with the nodes' own test (eqs 1-4, ``encoding.local_decision``) and fuses
   those decisions with every rule as in decision mode, and it also runs the centralised
-  raw-data tests of :mod:`fusion_center.centralised` (``rules.centralised_glrt``,
+  raw-data tests of :mod:`fusion_center.core.centralised` (``rules.centralised_glrt``,
   ``rules.centralised_known``: statistic, threshold at the scene's ``np_false_alarm``,
   decision) - the "what you lose by deciding locally" reference. Their parameters are built
   once (``params_from_scene``); a cycle with readings missing uses the same test on the
@@ -35,7 +35,7 @@ What is computed (chapter sections in brackets):
   deciding "present" - computable from u_i alone.
 * contact type (sec. 5.2, eqs 34a/34b, Table 1): t_c = present / n_received and
   fp_c = area / area of the hull of all taxels.
-* slip (sec. 4): :class:`fusion_center.slip.SlipTracker`, motion criterion over the centroid
+* slip (sec. 4): :class:`fusion_center.core.slip.SlipTracker`, motion criterion over the centroid
   of the present taxels, plus the force criterion TotF_t > mu F_g when raw-mode forces give
   both a total tangential force and a load-cell grip force.
 
@@ -55,12 +55,12 @@ and the rules are evaluated without re-validating them in every rule:
   (n = scene n, every j) are computed when the pipeline starts, so cycle 0 costs no solve;
 * Chair-Varshney (eq 31) and Neyman-Pearson (eq 32): the per-taxel log-likelihood terms
   ln(pd/pf) and ln((1-pd)/(1-pf)) are computed once per received set (the same numpy
-  expressions as :mod:`fusion_center.baselines`, so the sums are bit-identical) and summed over
+  expressions as :mod:`fusion_center.core.baselines`, so the sums are bit-identical) and summed over
   the cycle's present/absent taxels;
-* the preferential rule (eq 7) calls :func:`fusion_center.rules.preferential` (it needs the
+* the preferential rule (eq 7) calls :func:`fusion_center.core.rules.preferential` (it needs the
   order of the decisions);
-* contact type: :func:`fusion_center.contact.classify_ratio` (scalar, same class boundaries as
-  :func:`~fusion_center.contact.classify`); ground truth precomputed for the scene's cycles;
+* contact type: :func:`fusion_center.core.contact.classify_ratio` (scalar, same class boundaries as
+  :func:`~fusion_center.core.contact.classify`); ground truth precomputed for the scene's cycles;
 * everything that depends only on the decision vector (received and present sets, fusion
   rules, area, t_c/fp_c and contact types) is cached per vector (``_pattern``): a sensor at
   rest or under a steady contact repeats its vector, so most cycles only copy it; a new vector
@@ -76,10 +76,10 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .. import baselines, centralised, contact, curves, forces, geometry, poisson_binomial, rules, thresholds
-from ..encoding import local_decision
-from ..errors import ParameterError
-from ..scene import Scene
+from ..core import baselines, centralised, contact, curves, forces, geometry, poisson_binomial, rules, thresholds
+from ..core.encoding import local_decision
+from taxel_net.errors import ParameterError
+from taxel_net.scene import Scene
 from ..stages import plan_stages
 from .cycles import ClosedCycle
 
@@ -129,7 +129,7 @@ def _rule_error(exc: ParameterError) -> dict:
 
 def log_ratio_terms(pd: np.ndarray, pf: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Per-taxel log-likelihood terms of eqs 31-32: (present: ln(pd/pf), absent:
-    ln((1-pd)/(1-pf))), the same numpy expressions as :mod:`fusion_center.baselines`, so sums
+    ln((1-pd)/(1-pf))), the same numpy expressions as :mod:`fusion_center.core.baselines`, so sums
     over them equal ``baselines.np_log_statistic`` bit for bit."""
     return np.log(pd) - np.log(pf), np.log1p(-pd) - np.log1p(-pf)
 
@@ -211,7 +211,7 @@ class CyclePipeline:
         self.want_contact = "contact_type" in self.plan.run
         self.slip = None
         if "slip" in self.plan.run and self.xy is not None:
-            from ..slip import SlipTracker
+            from ..core.slip import SlipTracker
 
             self.slip = SlipTracker(scene.forces.mu, noise_band=self._noise_band(),
                                     period=scene.bus.sync_period_ms * 1e-3)

@@ -41,7 +41,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
 
-from .errors import ParameterError
+from taxel_net.errors import ParameterError
 
 CRC15_POLY = 0x4599                 # x^15 + x^14 + x^10 + x^8 + x^7 + x^4 + x^3 + 1 (x^15 implicit)
 STUFF_RUN = 5                       # a stuff bit after 5 equal consecutive bits

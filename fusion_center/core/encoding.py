@@ -18,7 +18,7 @@ import numbers
 
 import numpy as np
 
-from .errors import ParameterError
+from taxel_net.errors import ParameterError
 
 Encoding = Literal["pm1", "01"]
 ENCODINGS: tuple[str, ...] = ("pm1", "01")

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .errors import ParameterError
+from taxel_net.errors import ParameterError
 
 KGF_IN_NEWTON = 9.80665
 FORCE_UNITS: tuple[str, ...] = ("N", "kgf")

@@ -29,7 +29,7 @@ import numpy as np
 from scipy.special import logsumexp
 
 from .encoding import as_float_array, check_integer
-from .errors import ParameterError
+from taxel_net.errors import ParameterError
 
 
 def validate_probabilities(probs, name: str = "probs", open_interval: bool = False) -> np.ndarray:

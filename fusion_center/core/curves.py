@@ -24,7 +24,7 @@ import math
 import numpy as np
 
 from .encoding import as_float_array, check_real
-from .errors import ParameterError
+from taxel_net.errors import ParameterError
 from .rules import _check_n
 
 __all__ = [

@@ -37,7 +37,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .errors import ParameterError
+from taxel_net.errors import ParameterError
 from .forces import _check_mu
 from .geometry import active_centroid, as_points
 

@@ -2,7 +2,7 @@
 
 The format is specified in ``docs/scene-format.md``. This module holds the typed,
 validated form (frozen dataclasses) and ``load_scene``; every field error raises
-:class:`fusion_center.errors.SceneError` naming the file, the field and the value.
+:class:`taxel_net.errors.SceneError` naming the file, the field and the value.
 This is I/O (it reads files), so it is *not* part of the numerical core.
 """
 
@@ -14,7 +14,7 @@ import tomllib
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-from .errors import SceneError
+from taxel_net.errors import SceneError
 
 # 0x2001:3 taxel kind codes (UNSIGNED8); 0 is "unset" and refused by the node.
 TAXEL_KINDS: dict[str, int] = {"R": 1, "C": 2, "P": 3, "LC": 4, "TBS": 5, "IR": 6}

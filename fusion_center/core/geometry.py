@@ -22,7 +22,7 @@ try:  # scipy >= 1.11 exposes it here
 except ImportError:  # pragma: no cover - older scipy
     from scipy.spatial.qhull import QhullError  # type: ignore
 
-from .errors import ParameterError
+from taxel_net.errors import ParameterError
 
 __all__ = ["as_points", "convex_hull", "polygon_area", "signed_polygon_area", "contact_area",
            "active_centroid"]

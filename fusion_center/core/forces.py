@@ -18,7 +18,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .errors import ParameterError
+from taxel_net.errors import ParameterError
 from .units import check_force_unit, convert_force
 
 __all__ = [

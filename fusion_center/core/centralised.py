@@ -9,7 +9,7 @@ holds the raw readings and can do two things with them:
 1. :func:`per_taxel_decisions` - apply the nodes' own test centrally: Y_i = X_i - N_i (eq 4),
    u_i = +1 iff Y_i >= zeta_i (eqs 2-3). Given the same X_i, N_i and zeta_i this yields
    *exactly the same* decisions as the nodes (it is the same function,
-   :func:`fusion_center.encoding.local_decision`), so every decision-mode rule fed from raw
+   :func:`fusion_center.core.encoding.local_decision`), so every decision-mode rule fed from raw
    data gives the same verdict as in decision mode; raw mode only costs bus time.
 2. The optimal centralised test on the raw data, under the scene's Gaussian model
    (docs/scene-format.md): X_i = S_i + N_i + sigma_i eps_i, eps_i ~ N(0, 1) i.i.d., where
@@ -51,7 +51,7 @@ import numpy as np
 from scipy.special import logsumexp, ndtri
 
 from .encoding import Encoding, local_decision
-from .errors import ParameterError
+from taxel_net.errors import ParameterError
 
 METHODS = ("known", "glrt")
 
@@ -60,7 +60,7 @@ def per_taxel_decisions(readings_mv, noise_mv, zeta_mv, encoding: Encoding = "pm
     """The nodes' local test (eqs 1-4) applied centrally to raw readings X_i.
 
     Identical to the decisions the nodes would send in decision mode for the same X_i, N_i
-    and zeta_i (it is :func:`fusion_center.encoding.local_decision`). Broadcasts over a batch.
+    and zeta_i (it is :func:`fusion_center.core.encoding.local_decision`). Broadcasts over a batch.
     """
     return local_decision(readings_mv, noise_mv, zeta_mv, encoding)
 

@@ -13,13 +13,13 @@ Local decisions u_i = +1 iff Y_i >= zeta_i (eqs 2-3). Then, per trial, in decisi
 
 * count rules - additive (eq 6, HEBTEM threshold eq 17), multiplicative (eq 5, threshold
   eq 16), k-of-n (sec. 2.2.1): each is "H1 iff present count K >= m" for its own m (U_G is
-  monotone in K); ``fusion_center.thresholds`` gives m as ``present_counts``.
+  monotone in K); ``fusion_center.core.thresholds`` gives m as ``present_counts``.
 * preferential (eq 7) against lambda_Th-mean (eqs 14, 18): :func:`preferential_batch`.
 * llr, Chair-Varshney (eq 31) against ln lambda_0 (eq 22): :func:`chair_varshney_batch`.
 * np, Neyman-Pearson fusion of the decisions (eq 32) at the scene's ``np_false_alarm``,
-  randomised at the boundary (``fusion_center.baselines.neyman_pearson_fusion``).
+  randomised at the boundary (``fusion_center.core.baselines.neyman_pearson_fusion``).
 * the centralised raw-data tests ``centralised_known`` and ``centralised_glrt``
-  (``fusion_center.centralised``) at the same false-alarm rate, and ``centralised_bayes``:
+  (``fusion_center.core.centralised``) at the same false-alarm rate, and ``centralised_bayes``:
   the known-footprint likelihood ratio against the Bayes threshold ln lambda_0 (eq 22) - the
   smallest Bayes risk any detector can reach on the scene (with 0-1 costs and P1 = 1/2:
   the smallest total error).
@@ -29,7 +29,7 @@ the chapter's P_fi.txt / P_mi.txt); the simulation measures what the decisions *
 The exact per-taxel rates of the Gaussian model are pf_i = Q(zeta_i / sigma_i) and
 pd_i(c) = Q((zeta_i - S_i(c)) / sigma_i) (:func:`taxel_rates`, via scipy.special.ndtr), and
 for count rules the exact system rates follow from the Poisson-binomial law of K
-(``fusion_center.poisson_binomial``) - reported beside the Monte Carlo estimates.
+(``fusion_center.core.poisson_binomial``) - reported beside the Monte Carlo estimates.
 
 Estimates carry Wilson score intervals. Total error vs ground truth is
 pi1 (1 - P_D) + pi0 P_F with pi1 the scene's share of present cycles; its interval combines the
@@ -48,8 +48,8 @@ from scipy.special import ndtr, ndtri
 
 from . import baselines, centralised, poisson_binomial
 from .encoding import check_encoding
-from .errors import ParameterError
-from .stages import plan_stages
+from taxel_net.errors import ParameterError
+from ..stages import plan_stages
 
 COUNT_RULES = ("additive", "multiplicative", "k-of-n")
 DECISION_RULES = ("additive", "multiplicative", "preferential", "k-of-n", "llr", "np")
@@ -143,7 +143,7 @@ def multiplicative_ln_batch(present, encoding: str) -> np.ndarray:
 def preferential_batch(present, p: float, q: float, encoding: str) -> np.ndarray:
     """Eq 7 over a batch: U_G = sum_i u_i (1 + u_{i+1})^p (1 + u_{i-1})^q, u_0 = u_{n+1} = 0.
 
-    Applied literally to the values of ``encoding`` (as ``fusion_center.rules.preferential``).
+    Applied literally to the values of ``encoding`` (as ``fusion_center.core.rules.preferential``).
     Each factor takes one of three values - 2^w for a present neighbour, (1 + absent)^w for an
     absent one (0^w, with 0^0 = 1, for pm1; 1 for 01) and 1 at the ends - so the batch is a few
     table look-ups, no power per element.

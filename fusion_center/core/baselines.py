@@ -30,7 +30,7 @@ import numpy as np
 from . import poisson_binomial
 from .curves import check_open_unit
 from .encoding import PRESENT, Encoding, check_integer, check_real, validate_decisions
-from .errors import ParameterError
+from taxel_net.errors import ParameterError
 
 # heterogeneous taxels: exact enumeration of all 2^n decision vectors up to this n
 NP_ENUMERATION_MAX_TAXELS = 20

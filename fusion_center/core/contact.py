@@ -19,7 +19,7 @@ from enum import Enum
 
 import numpy as np
 
-from .errors import ParameterError
+from taxel_net.errors import ParameterError
 
 __all__ = [
     "ContactType", "CONTACT_MECHANICS", "classify", "classify_ratio", "taxel_count_ratio",
