@@ -11,7 +11,7 @@ import argparse
 import importlib
 import sys
 
-from taxel_net.errors import ParameterError, SceneError
+from taxel_net.errors import ParameterError, SceneError, UsageError
 
 # sub-command name -> module under fusion_center.commands (imported lazily: start-up stays fast)
 COMMANDS: dict[str, str] = {
@@ -23,10 +23,6 @@ COMMANDS: dict[str, str] = {
     "bandwidth": "bandwidth",
     "report": "report",
 }
-
-
-class UsageError(Exception):
-    """A bad input at the CLI level (unknown interface, unreadable file...): exit 2."""
 
 
 class _Parser(argparse.ArgumentParser):

@@ -1,4 +1,6 @@
-"""Errors shared by the numerical core, the scene loader and the CLI."""
+"""Errors shared by the numerical core, the scene loader, the service and the CLIs.
+
+Each is a bad input the user can fix: the CLIs print it as one line and exit 2."""
 
 from __future__ import annotations
 
@@ -27,3 +29,7 @@ class SceneError(ValueError):
         self.value = value
         self.problem = problem
         super().__init__(f"{path}: {field}={value!r}: {problem}")
+
+
+class UsageError(Exception):
+    """A bad input at the command or service level (unknown interface, unreadable file...): exit 2."""

@@ -14,7 +14,7 @@ import can
 import numpy as np
 import pytest
 
-from fusion_center.cli import UsageError
+from taxel_net.errors import UsageError
 from fusion_center.commands.demo import run_demo
 from fusion_center.core.encoding import local_decision
 from taxel_net.scene import load_scene

@@ -23,7 +23,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def parse_drops(items: list[str], scene) -> dict[int, list[int]]:
-    from ..cli import UsageError
+    from taxel_net.errors import UsageError
 
     node_ids = {t.node_id for t in scene.taxels if t.channel == 0}
     drops: dict[int, list[int]] = {}

@@ -30,7 +30,7 @@ import sys
 import numpy as np
 
 from ..core import baselines
-from ..cli import UsageError
+from taxel_net.errors import UsageError
 from ..core.curves import check_open_unit
 from ..core.encoding import check_encoding, check_integer, present_count, validate_decisions
 from taxel_net.errors import ParameterError

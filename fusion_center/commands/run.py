@@ -51,7 +51,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def parse_bus_options(options: list[str]) -> dict:
-    from ..cli import UsageError
+    from taxel_net.errors import UsageError
 
     out: dict = {}
     for option in options:
@@ -172,7 +172,7 @@ def _fmt_ms(x):
 def load_run_scene(args):
     """The scene of ``--scene`` with ``--mode`` applied, and the cycle count (``--cycles`` or the
     scene's). The node twins and the fusion centre get this same (overridden) scene."""
-    from ..cli import UsageError
+    from taxel_net.errors import UsageError
     from taxel_net.scene import load_scene
 
     scene = apply_mode(load_scene(args.scene), args.mode)

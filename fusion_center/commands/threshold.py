@@ -6,7 +6,7 @@ import argparse
 import json
 import math
 
-from ..cli import UsageError
+from taxel_net.errors import UsageError
 from ..core.curves import check_n, check_open_unit, check_xi
 from taxel_net.errors import ParameterError
 from ..core.rules import check_weight

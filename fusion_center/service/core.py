@@ -43,7 +43,7 @@ from typing import Callable, Iterable, Sequence
 import can
 
 from taxel_net.canmsg import TxMessage
-from ..cli import UsageError
+from taxel_net.errors import UsageError
 from taxel_net.scene import Scene
 from .cycles import (
     COUNTER_NAMES,

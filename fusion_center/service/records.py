@@ -12,7 +12,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from ..cli import UsageError
+from taxel_net.errors import UsageError
 
 
 def dumps(record: dict) -> str:
