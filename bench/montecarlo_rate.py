@@ -1,4 +1,4 @@
-"""Monte Carlo throughput: taxel decisions per second of fusion_center.core.montecarlo.simulate.
+"""Monte Carlo throughput: taxel decisions per second of fusion_center.evaluation.simulate.
 
 One "taxel decision" is one simulated local decision u_i (eqs 1-4) of one trial; every trial
 also evaluates every configured rule (count rules, preferential, LLR, N-P) and the three
@@ -14,6 +14,7 @@ import time
 
 import numpy as np
 
+from fusion_center import evaluation
 from fusion_center.core import montecarlo
 from taxel_net.scene import load_scene
 
@@ -29,13 +30,13 @@ def main(argv=None) -> int:
     scene = load_scene(args.scene)
     rules_all = list(montecarlo.DECISION_RULES) + list(montecarlo.CENTRAL_TESTS)
     for label, rules in (("all rules + centralised tests", rules_all), ("count rules only", ["k-of-n"])):
-        setup = montecarlo.setup_rules(scene, [r for r in rules if r not in montecarlo.CENTRAL_TESTS],
+        setup = evaluation.setup_rules(scene, [r for r in rules if r not in montecarlo.CENTRAL_TESTS],
                                        central=any(r in montecarlo.CENTRAL_TESTS for r in rules))
         best = float("inf")
         for rep in range(args.repeat):
             rng = np.random.default_rng(rep)
             t0 = time.perf_counter()
-            res = montecarlo.simulate(scene, args.trials, rng, setup=setup)
+            res = evaluation.simulate(scene, args.trials, rng, setup=setup)
             best = min(best, time.perf_counter() - t0)
         rate = res.taxel_decisions / best
         print(f"{scene.name} ({scene.n} taxels), {label}: {res.taxel_decisions:.3g} taxel decisions in "

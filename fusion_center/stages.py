@@ -170,10 +170,17 @@ def _mode(scene: Scene, mode: str | None) -> str:
     return mode
 
 
+def centralised_support(scene: Scene) -> str | None:
+    """None when the centralised raw-data statistic can be formed on ``scene`` (every sigma_i > 0), else the reason."""
+    bad = [t for t in scene.taxels if not (t.noise_sigma_mv and t.noise_sigma_mv > 0)]
+    if bad:
+        ids = ", ".join(str(t.node_id) for t in bad[:12]) + (" ..." if len(bad) > 12 else "")
+        return f"centralised: taxels {ids} have noise_sigma_mv = 0 (the raw-data LLR needs sigma > 0)"
+    return None
+
+
 def central_support(scene: Scene, test: str, mode: str | None = None) -> str | None:
     """None when the centralised raw-data test ``test`` can run, else the reason."""
-    from .core.centralised import centralised_support
-
     if test not in CENTRAL_TESTS:
         return f"unknown centralised test {test!r}"
     if _mode(scene, mode) == "decision":

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from scipy.stats import norm
 
+from fusion_center import evaluation, stages
 from fusion_center.core import centralised
 from fusion_center.core.encoding import local_decision
 from taxel_net.errors import ParameterError
@@ -101,9 +102,9 @@ def test_bad_inputs():
 
 def test_params_from_scene_and_support():
     scene = load_scene("scenes/matrix57.toml")
-    assert centralised.centralised_support(scene) is None
-    params = centralised.params_from_scene(scene, "known")
+    assert stages.centralised_support(scene) is None
+    params = evaluation.params_from_scene(scene, "known")
     assert params.signal_patterns_mv.shape == (1, 57)
     assert np.count_nonzero(params.signal_patterns_mv) == 6  # the 6 contacted taxels
     chapter = load_scene("scenes/matrix57_chapter.toml")  # sigma = 0: no raw LLR
-    assert "noise_sigma_mv = 0" in centralised.centralised_support(chapter)
+    assert "noise_sigma_mv = 0" in stages.centralised_support(chapter)

@@ -11,6 +11,7 @@ import mpmath as mp
 import numpy as np
 import pytest
 
+from fusion_center import evaluation
 from fusion_center.core import baselines, montecarlo, rules
 from fusion_center.core.encoding import ABSENT
 from taxel_net.scene import load_scene
@@ -100,7 +101,7 @@ def _noisy_small_scene():
 def test_simulated_count_rules_match_exact_poisson_binomial():
     scene = _noisy_small_scene()
     n_trials = 40_000
-    res = montecarlo.simulate(scene, n_trials, np.random.default_rng(15), rules=["k-of-n"], central=False)
+    res = evaluation.simulate(scene, n_trials, np.random.default_rng(15), rules=["k-of-n"], central=False)
     r = res.rules["k-of-n"]
     for rate in (r.pf, r.pd):
         sd = math.sqrt(rate.exact * (1 - rate.exact) / n_trials)
@@ -118,7 +119,7 @@ def test_simulated_count_rules_match_exact_poisson_binomial():
 def test_simulated_centralised_false_alarm_and_total_error():
     scene = _noisy_small_scene()
     n_trials = 40_000
-    res = montecarlo.simulate(scene, n_trials, np.random.default_rng(16), rules=["k-of-n", "centralised_known"])
+    res = evaluation.simulate(scene, n_trials, np.random.default_rng(16), rules=["k-of-n", "centralised_known"])
     a = scene.fusion.np_false_alarm
     pf = res.rules["centralised_known"].pf
     assert abs(pf.estimate - a) < 5 * math.sqrt(a * (1 - a) / n_trials)

@@ -28,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import evaluation
 from ..core import baselines, centralised, curves, montecarlo, rules, thresholds
 from ..core.encoding import local_decision
 from taxel_net.errors import ParameterError
@@ -129,7 +130,7 @@ def achieved_levels(scene, mc: montecarlo.MonteCarloResult, rng) -> dict:
         req, ach = [], []
         for a in ALPHA_GRID:
             try:
-                m, _ = montecarlo.count_threshold_for("additive", scene, alpha=a)
+                m, _ = evaluation.count_threshold_for("additive", scene, alpha=a)
             except ParameterError:
                 continue
             req.append(a)
@@ -139,7 +140,7 @@ def achieved_levels(scene, mc: montecarlo.MonteCarloResult, rng) -> dict:
         req, ach = [], []
         for b in BETA_GRID:
             try:
-                m, _ = montecarlo.count_threshold_for("multiplicative", scene, beta=b)
+                m, _ = evaluation.count_threshold_for("multiplicative", scene, beta=b)
             except ParameterError:
                 continue
             pd, _ = montecarlo.exact_count_rates(m, mc.taxel_pf, mc.taxel_pd_patterns, mc.pattern_weights)
@@ -151,14 +152,14 @@ def achieved_levels(scene, mc: montecarlo.MonteCarloResult, rng) -> dict:
         stat = mc.statistics_h0["preferential"]
         for a in ALPHA_GRID:
             try:
-                tm = montecarlo.preferential_threshold_mean(scene, alpha=a)
+                tm = evaluation.preferential_threshold_mean(scene, alpha=a)
             except ParameterError:
                 continue
             req.append(a)
             ach.append(float(np.mean(stat >= tm)))
         out["preferential"] = {"requested": req, "achieved": ach, "source": f"MC, {n0} H0 trials"}
     if setup.np_rule is not None:
-        pd_dec, pf_dec = montecarlo.declared_pd_pf(scene)
+        pd_dec, pf_dec = evaluation.declared_pd_pf(scene)
         req, ach = [], []
         for a in ALPHA_GRID:
             r = baselines.neyman_pearson_fusion(pd_dec, pf_dec, a)
@@ -279,7 +280,7 @@ def build_report(scene, out_dir: Path, trials: int, seed: int, bitrate=None,
 
     plan = plan_stages(scene)
     step("stage plan, rule thresholds")
-    setup = montecarlo.setup_rules(scene, central=True, rng=np.random.default_rng([seed, 1]))
+    setup = evaluation.setup_rules(scene, central=True, rng=np.random.default_rng([seed, 1]))
     step("bandwidth")
     if bitrate is None:
         bitrates = [scene.bus.bitrate]
@@ -293,7 +294,7 @@ def build_report(scene, out_dir: Path, trials: int, seed: int, bitrate=None,
     bw_by = {b: bandwidth.bandwidth_figures(scene, b, inputs=inputs) for b in bitrates}
     bw = bw_by[bitrates[0]]
     step("Monte Carlo", 0.0)
-    mc = montecarlo.simulate(scene, trials, rng, setup=setup,
+    mc = evaluation.simulate(scene, trials, rng, setup=setup,
                              progress=lambda d, t: step("Monte Carlo", d / t))
     step("CPU time per decision")
     cpu = cpu_time_per_decision(scene, setup, np.random.default_rng([seed, 2]))

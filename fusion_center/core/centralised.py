@@ -154,14 +154,15 @@ def statistic_from_offsets(offsets_mv, params: CentralisedParams, method: str | 
     return float(out) if np.ndim(out) == 0 else out
 
 
-def centralised_llr(readings_mv, scene_or_params, method: str | None = None):
+def centralised_llr(readings_mv, params: CentralisedParams, method: str | None = None):
     """Centralised raw-data statistic of one cycle (readings X_i, mV, fusion order) -> float.
 
-    ``scene_or_params`` is a :class:`CentralisedParams` or a ``Scene`` (converted with
-    :func:`params_from_scene`; pass params when calling per cycle - it is cheaper).
-    A batch (..., n) of readings gives an array. Decide H1 iff the value > params.threshold.
+    ``params``: a :class:`CentralisedParams` (``fusion_center.evaluation.params_from_scene``
+    builds it from a scene). A batch (..., n) of readings gives an array. Decide H1 iff the
+    value > params.threshold.
     """
-    params = scene_or_params if isinstance(scene_or_params, CentralisedParams) else params_from_scene(scene_or_params)
+    if not isinstance(params, CentralisedParams):
+        raise ParameterError("params", type(params).__name__, "must be a CentralisedParams (see make_params)")
     x = _finite(readings_mv, "readings_mv")
     return statistic_from_offsets(x - params.noise_mv, params, method)
 
@@ -220,49 +221,3 @@ def centralised_threshold(params: CentralisedParams, false_alarm: float, method:
     rng = np.random.default_rng(0) if rng is None else rng
     sample = sample_h0_statistic(params, n_samples, rng, method)
     return float(np.quantile(sample, 1.0 - alpha, method="higher"))
-
-
-def nominal_signal_mv(taxel, obj) -> float:
-    """S_i of a contacted taxel per docs/scene-format.md: m F + c for a tangential-calibrated
-    taxel when the object applies a tangential force (eq 23), else the taxel's signal_mv."""
-    if taxel.slope is not None and taxel.slope != 0.0 and obj.tangential_force:
-        return float(taxel.slope * obj.tangential_force + (taxel.intercept or 0.0))
-    return float(taxel.signal_mv)
-
-
-def scene_signal_patterns(scene) -> np.ndarray:
-    """Distinct H1 signal vectors S^(c) over the scene's present cycles (node_sim.physics)."""
-    from node_sim import physics  # the one signal model shared with the node twins
-
-    rows = []
-    for cycle in range(scene.cycles):
-        if physics.object_present(scene, cycle):
-            rows.append(np.asarray(physics.signal_mv(scene, cycle), dtype=float))
-    if not rows:
-        return np.zeros((0, scene.n))
-    return np.unique(np.vstack(rows), axis=0)
-
-
-def params_from_scene(scene, method: str = "glrt", false_alarm: float | None = None,
-                      rng: np.random.Generator | None = None, n_samples: int = 200_000) -> CentralisedParams:
-    """:class:`CentralisedParams` of a scene, threshold at ``false_alarm`` (default: the
-    scene's ``np_false_alarm``, the same system P_F the N-P fusion rule is given)."""
-    patterns = scene_signal_patterns(scene)
-    nominal = np.array([nominal_signal_mv(t, scene.object) for t in scene.taxels])
-    if patterns.shape[0] == 0:
-        patterns = nominal[None, :]
-    params = make_params([t.noise_mv for t in scene.taxels], [t.noise_sigma_mv for t in scene.taxels],
-                         patterns, nominal, method)
-    alpha = scene.fusion.np_false_alarm if false_alarm is None else false_alarm
-    tau = centralised_threshold(params, alpha, method, rng=rng, n_samples=n_samples)
-    return CentralisedParams(params.noise_mv, params.sigma_mv, params.signal_patterns_mv, params.taxel_signal_mv,
-                             method, tau, {"false_alarm": float(alpha)})
-
-
-def centralised_support(scene) -> str | None:
-    """None when the centralised raw-data test can run on ``scene``, else the reason."""
-    bad = [t for t in scene.taxels if not (t.noise_sigma_mv and t.noise_sigma_mv > 0)]
-    if bad:
-        ids = ", ".join(str(t.node_id) for t in bad[:12]) + (" ..." if len(bad) > 12 else "")
-        return f"centralised: taxels {ids} have noise_sigma_mv = 0 (the raw-data LLR needs sigma > 0)"
-    return None

@@ -49,7 +49,6 @@ from scipy.special import ndtr, ndtri
 from . import baselines, centralised, poisson_binomial
 from .encoding import check_encoding
 from taxel_net.errors import ParameterError
-from ..stages import plan_stages
 
 COUNT_RULES = ("additive", "multiplicative", "k-of-n")
 DECISION_RULES = ("additive", "multiplicative", "preferential", "k-of-n", "llr", "np")
@@ -205,7 +204,7 @@ def np_decide_batch(rule: baselines.NPFusionRule, present, rng: np.random.Genera
 # --------------------------------------------------------------------------- configuration
 @dataclass
 class RuleSetup:
-    """Decision parameters of every rule for one scene (built by :func:`setup_rules`)."""
+    """Decision parameters of every rule (``fusion_center.evaluation.setup_rules`` builds them from a scene)."""
 
     encoding: str
     n: int
@@ -216,137 +215,6 @@ class RuleSetup:
     central: dict[str, centralised.CentralisedParams] = field(default_factory=dict)
     thresholds: dict[str, float] = field(default_factory=dict)  # the rule's own threshold value
     skipped: dict[str, str] = field(default_factory=dict)
-
-
-def count_threshold_for(rule: str, scene, **overrides) -> tuple[int, float]:
-    """(min present count m, threshold in the rule's own units) of a count rule: H1 iff K >= m.
-
-    additive: eq 17 root chosen by ``additive_root`` (U_G units); multiplicative: eq 16 (ln of
-    its threshold, U_G = e^(sum u)); k-of-n: m = k (sec. 2.2.1). ``overrides`` replace fusion
-    fields (alpha, beta, xi, k, additive_root). m = n + 1 ("never H1") when no count reaches
-    the threshold; ParameterError when the threshold equation has no root.
-    """
-    from . import thresholds
-
-    f = scene.fusion
-    n = scene.n
-    xi = overrides.get("xi", f.xi)
-    if rule == "k-of-n":
-        k = int(overrides.get("k", f.k))
-        return k, float(k)
-    if rule == "additive":
-        alpha = overrides.get("alpha", f.alpha)
-        res = thresholds.additive_threshold(n, xi, alpha, f.tuple)
-        values, counts = res.thresholds, res.present_counts
-        what = f"eq 17 has no root for n={n}, xi={xi}, alpha={alpha}"
-    elif rule == "multiplicative":
-        beta = overrides.get("beta", f.beta)
-        res = thresholds.multiplicative_threshold(n, xi, beta)
-        values, counts = res.scaled_thresholds, res.present_counts
-        what = f"eq 16 has no root for n={n}, xi={xi}, beta={beta}"
-    else:
-        raise ParameterError("rule", rule, f"must be one of {COUNT_RULES}")
-    if len(values) == 0:
-        raise ParameterError(rule, "threshold", what)
-    idx = _root_index(values, overrides.get("additive_root", f.additive_root))
-    m = counts[idx]
-    if rule == "multiplicative":
-        ln_thr = res.ln_thresholds[idx]
-        value = float(ln_thr) if ln_thr is not None else float("-inf")
-    else:
-        value = float(values[idx])
-    return (n + 1 if m is None else int(m)), value
-
-
-def _root_index(values, which: str) -> int:
-    arr = np.atleast_1d(np.asarray(values, dtype=float))
-    if arr.size == 1:
-        return 0
-    order = np.argsort(arr)
-    return int(order[0] if which == "lower" else order[-1])
-
-
-def preferential_threshold_mean(scene, alpha: float | None = None) -> float:
-    """lambda_Th-mean of eq 18 (curve eq 14, g(n) of eq 15) for the scene's xi, p, q, tuple."""
-    from . import thresholds
-
-    f = scene.fusion
-    a = f.alpha if alpha is None else alpha
-    res = thresholds.preferential_threshold(scene.n, f.xi, a, f.p, f.q, f.tuple)
-    if res.threshold_mean is None:
-        raise ParameterError("preferential", "threshold", f"eq 18 has no root in [-g, g] for alpha={a}")
-    return float(res.threshold_mean)
-
-
-def declared_pd_pf(scene) -> tuple[np.ndarray, np.ndarray]:
-    """The scene's declared per-taxel pd_i = 1 - pm_i and pf_i (LLR / N-P inputs)."""
-    pd = np.array([1.0 - t.pm for t in scene.taxels], dtype=float)
-    pf = np.array([t.pf for t in scene.taxels], dtype=float)
-    return pd, pf
-
-
-def setup_rules(scene, rules=None, central=True, central_samples: int = 200_000,
-                rng: np.random.Generator | None = None) -> RuleSetup:
-    """Decision parameters of the requested and supported rules (``plan_stages``)."""
-    plan = plan_stages(scene)
-    wanted = tuple(plan.rules_run) if rules is None else tuple(rules)
-    setup = RuleSetup(encoding=scene.fusion.tuple, n=scene.n)
-    f = scene.fusion
-    for rule in wanted:
-        if rule in CENTRAL_TESTS:
-            continue
-        if rule not in DECISION_RULES:
-            raise ParameterError("rules", rule, f"must be among {DECISION_RULES + CENTRAL_TESTS}")
-        why = plan.rules_skipped.get(rule) if rule not in plan.rules_run else None
-        if why and not why.startswith("not requested"):
-            setup.skipped[rule] = why
-            continue
-        if rule in COUNT_RULES:
-            try:
-                m, thr = count_threshold_for(rule, scene)
-            except ParameterError as exc:
-                setup.skipped[rule] = f"{rule}: {exc}"
-                continue
-            setup.min_present_count[rule] = m
-            setup.thresholds[rule] = thr
-        elif rule == "preferential":
-            try:
-                tm = preferential_threshold_mean(scene)
-            except ParameterError as exc:
-                setup.skipped[rule] = f"{rule}: {exc}"
-                continue
-            setup.preferential = (f.p, f.q, tm)
-            setup.thresholds[rule] = tm
-        elif rule == "llr":
-            pd, pf = declared_pd_pf(scene)
-            c00, c01, c10, c11 = f.costs
-            ln_l0 = baselines.bayes_log_threshold(f.prior_h1, c00, c01, c10, c11)
-            setup.llr = (pd, pf, f.prior_h1, ln_l0)
-            setup.thresholds[rule] = ln_l0
-        elif rule == "np":
-            pd, pf = declared_pd_pf(scene)
-            setup.np_rule = baselines.neyman_pearson_fusion(pd, pf, f.np_false_alarm)
-            setup.thresholds[rule] = (setup.np_rule.log_threshold if setup.np_rule.log_threshold is not None
-                                      else float(setup.np_rule.count_threshold))
-    if central:
-        why = centralised.centralised_support(scene)
-        for name in CENTRAL_TESTS:
-            if why:
-                setup.skipped[name] = why
-                continue
-            method = name.split("_", 1)[1]
-            if method == "bayes":
-                known = setup.central.get("centralised_known") or centralised.params_from_scene(
-                    scene, "known", rng=rng, n_samples=central_samples)
-                c00, c01, c10, c11 = f.costs
-                tau = baselines.bayes_log_threshold(f.prior_h1, c00, c01, c10, c11)
-                params = centralised.CentralisedParams(known.noise_mv, known.sigma_mv, known.signal_patterns_mv,
-                                                       known.taxel_signal_mv, "known", tau, {"bayes": True})
-            else:
-                params = centralised.params_from_scene(scene, method, rng=rng, n_samples=central_samples)
-            setup.central[name] = params
-            setup.thresholds[name] = params.threshold
-    return setup
 
 
 # --------------------------------------------------------------------------- simulation
@@ -382,22 +250,6 @@ class MonteCarloResult:
         return {"n_trials_per_hypothesis": self.n_trials, "prior_h1": self.prior_h1,
                 "rules": {k: v.to_dict() for k, v in self.rules.items()}, "skipped": dict(self.skipped),
                 "taxel_decisions": self.taxel_decisions}
-
-
-def scene_patterns(scene) -> tuple[np.ndarray, np.ndarray, float]:
-    """Distinct H1 signal vectors S(c) over present cycles, their weights, and pi1."""
-    from node_sim import physics
-
-    rows = []
-    present_cycles = 0
-    for cycle in range(scene.cycles):
-        if physics.object_present(scene, cycle):
-            present_cycles += 1
-            rows.append(np.asarray(physics.signal_mv(scene, cycle), dtype=float))
-    if not rows:
-        return np.zeros((0, scene.n)), np.zeros(0), 0.0
-    patterns, counts = np.unique(np.vstack(rows), axis=0, return_counts=True)
-    return patterns, counts / counts.sum(), present_cycles / scene.cycles
 
 
 def exact_count_rates(m: int, taxel_pf: np.ndarray, pd_patterns: np.ndarray, weights: np.ndarray):
@@ -441,26 +293,28 @@ def _decide(setup: RuleSetup, stats, present, rng) -> dict[str, np.ndarray]:
     return out
 
 
-def simulate(scene, n_trials: int, rng: np.random.Generator, rules=None, *, central: bool = True,
-             chunk: int = 32768, keep: int = 200_000, setup: RuleSetup | None = None,
-             progress=None, dtype=np.float32) -> MonteCarloResult:
-    """Monte Carlo of every rule's decision and the centralised raw test on ``scene``.
+def simulate_model(setup: RuleSetup, zeta_mv, sigma_mv, patterns_mv, weights, prior_h1: float,
+                   n_trials: int, rng: np.random.Generator, *, chunk: int = 32768, keep: int = 200_000,
+                   progress=None, dtype=np.float32) -> MonteCarloResult:
+    """Monte Carlo of every rule in ``setup`` on the Gaussian model of the module docstring.
 
-    ``n_trials`` trials under H0 and as many under H1 (if the scene has present cycles).
-    ``rules``: subset of DECISION_RULES (+ CENTRAL_TESTS), default: those the scene runs
-    (``plan_stages``). ``keep``: per-trial statistics kept (first trials) for ROC curves and the
+    ``zeta_mv``, ``sigma_mv``: per-taxel thresholds zeta_i (eqs 2-3) and noise std sigma_i;
+    ``patterns_mv`` (C, n): the H1 signal vectors S(c) with probabilities ``weights`` (C,);
+    ``prior_h1``: pi1 of the total error. ``n_trials`` trials under H0 and as many under H1
+    (when C > 0). ``keep``: per-trial statistics kept (first trials) for ROC curves and the
     achieved-P_F analysis. ``progress(done, total)`` is called after every chunk.
+    ``fusion_center.evaluation.simulate`` derives all of these from a scene.
     """
     if not isinstance(n_trials, (int, np.integer)) or n_trials < 1:
         raise ParameterError("n_trials", n_trials, "must be an integer >= 1")
-    if setup is None:
-        want_central = central and (rules is None or any(r in CENTRAL_TESTS for r in rules))
-        setup = setup_rules(scene, rules, central=want_central)
-    zeta = np.array([t.zeta_mv for t in scene.taxels], dtype=float)
-    sigma = np.array([t.noise_sigma_mv for t in scene.taxels], dtype=float)
-    patterns, weights, pi1 = scene_patterns(scene)
+    zeta = np.asarray(zeta_mv, dtype=float)
+    sigma = np.asarray(sigma_mv, dtype=float)
+    n = zeta.size
+    patterns = np.asarray(patterns_mv, dtype=float).reshape(-1, n)
+    weights = np.asarray(weights, dtype=float)
+    pi1 = float(prior_h1)
     taxel_pf = taxel_rates(0.0, zeta, sigma)
-    pd_patterns = taxel_rates(patterns, zeta, sigma) if patterns.shape[0] else np.zeros((0, scene.n))
+    pd_patterns = taxel_rates(patterns, zeta, sigma) if patterns.shape[0] else np.zeros((0, n))
 
     zeta_t = zeta.astype(dtype)
     sigma_t = sigma.astype(dtype)
@@ -474,7 +328,7 @@ def simulate(scene, n_trials: int, rng: np.random.Generator, rules=None, *, cent
         left = int(n_trials)
         while left > 0:
             m = min(chunk, left)
-            y = rng.standard_normal((m, scene.n), dtype=dtype)
+            y = rng.standard_normal((m, n), dtype=dtype)
             y *= sigma_t
             if h == 1:
                 if patterns.shape[0] == 1:
@@ -511,7 +365,7 @@ def simulate(scene, n_trials: int, rng: np.random.Generator, rules=None, *, cent
     stats_h0 = {k: np.concatenate(v) for k, v in kept[0].items()}
     stats_h1 = {k: np.concatenate(v) for k, v in kept.get(1, {}).items()}
     return MonteCarloResult(int(n_trials), pi1, results, dict(setup.skipped), stats_h0, stats_h1,
-                            taxel_pf, pd_patterns, weights, int(total * scene.n), setup)
+                            taxel_pf, pd_patterns, weights, int(total * n), setup)
 
 
 def _exact_randomised_count(rule, taxel_pf, pd_patterns, weights):

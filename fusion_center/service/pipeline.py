@@ -76,6 +76,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .. import evaluation
 from ..core import baselines, centralised, contact, curves, forces, geometry, poisson_binomial, rules, thresholds
 from ..core.encoding import local_decision
 from taxel_net.errors import ParameterError
@@ -200,7 +201,7 @@ class CyclePipeline:
         # centralised raw-data tests: parameters and thresholds once per scene (raw mode only)
         self.central: dict[str, centralised.CentralisedParams] = {}
         for name in self.plan.central_run:
-            self.central[name] = centralised.params_from_scene(scene, name.removeprefix("centralised_"))
+            self.central[name] = evaluation.params_from_scene(scene, name.removeprefix("centralised_"))
         self._central_subsets: dict[tuple[str, bytes], object] = {}
         self.hold = scene.bus.transmission_type != 1
         has_xy = all(t.x is not None and t.y is not None for t in taxels)
