@@ -4,7 +4,7 @@ table (issue 6, "Done when").
     .venv/bin/python bench/readme_figures.py [--scene scenes/matrix57.toml] [--out docs/img/report-matrix57]
                                              [--trials 200000] [--bitrates 125000,500000,1000000]
 
-Runs ``fusion-center report`` (``fusion_center.commands.report.build_report``) with the three
+Runs ``fusion-center report`` (``fusion_center.report.build.build_report``) with the three
 bit rates - it writes report.json and the PNGs into ``--out`` - and prints, from that
 report.json, one markdown table: per bus mode (raw, decision_sync, decision_event) the exact
 bits per SYNC cycle (``bus_timing.frame_bits``, mean over the scene's cycles), the bus load at
@@ -109,7 +109,8 @@ def main(argv=None) -> int:
     if args.from_json:
         data = json.loads((out / "report.json").read_text())
     else:
-        from fusion_center.commands.report import build_report, parse_bitrates
+        from fusion_center.commands.report import parse_bitrates
+        from fusion_center.report.build import build_report
         from taxel_net.scene import load_scene
 
         scene = load_scene(args.scene)

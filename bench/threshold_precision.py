@@ -21,7 +21,7 @@ from pathlib import Path
 
 from scipy.optimize import brentq
 
-from fusion_center.reference import ref_additive, ref_multiplicative, ref_preferential
+from fusion_center.report.reference import ref_additive, ref_multiplicative, ref_preferential
 from fusion_center.core.thresholds import additive_threshold, multiplicative_threshold, preferential_threshold
 
 TARGET_US = 20.0

@@ -22,7 +22,7 @@ The node twins on a private virtual bus, the centre fusing 20 SYNC cycles, the c
 
 Layout: :mod:`.core` (pure functions of the method), :mod:`.service` (the CANopen master on
 python-can), :mod:`.commands` (the ``fusion-center`` CLI), :mod:`.evaluation` (the core
-applied to a scene), :mod:`.stages` (what a scene needs and supports), :mod:`.report_plots`.
+applied to a scene), :mod:`.stages` (what a scene needs and supports), :mod:`.report` (bandwidth, report, plots).
 Shared with the node twins: the package ``taxel_net`` (scene, errors, CAN frame helper).
 Names are imported on first use: ``import fusion_center.core.rules`` stays free of CAN.
 """

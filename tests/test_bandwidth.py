@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from fusion_center import cli
-from fusion_center.commands import bandwidth
+from fusion_center.report import bandwidth
 from taxel_net.scene import load_scene
 
 TINY = """

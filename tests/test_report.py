@@ -9,6 +9,7 @@ import pytest
 
 from fusion_center import cli
 from fusion_center.commands import report
+from fusion_center.report.build import PNG_FILES
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
@@ -22,9 +23,9 @@ def gripper_report(tmp_path_factory):
 
 
 def test_every_file_written_and_png_valid(gripper_report):
-    for name in ("report.json", *report.PNG_FILES):
+    for name in ("report.json", *PNG_FILES):
         assert (gripper_report / name).stat().st_size > 0
-    for name in report.PNG_FILES:
+    for name in PNG_FILES:
         head = (gripper_report / name).read_bytes()[:8]
         assert head == PNG_SIGNATURE, name
 

@@ -1,0 +1,177 @@
+"""Exact bus cost of raw-data vs decision streaming for a scene (``fusion-center bandwidth``).
+
+The chapter's sec. 1 trade-off - streaming raw observations to a central detector "requires a
+large bandwidth", deciding locally "suffers from loss of information" - priced in bits on the
+CAN bus for the scene's taxels, at a given bit rate. Three modes:
+
+* ``raw``: TPDO2 (COB-ID 0x280 + node-ID) carries X_i as REAL32 (0x6130:1, 4 bytes, little
+  endian), every SYNC. The data differ from cycle to cycle, and so do the stuff bits: every
+  frame of every simulated cycle is priced with its actual payload.
+* ``decision_sync``: TPDO1 (0x180 + node-ID) carries u_i (0x2000, INTEGER8: +1 = 0x01,
+  -1 = 0xFF, eqs 2-3), every SYNC.
+* ``decision_event``: the same TPDO1, event-driven (transmission type 254/255): a node sends
+  when u_i differs from the value it last sent, no sooner than the inhibit time (0x1800:3,
+  the scene's ``inhibit_time_100us``) after its previous frame, and - with an event timer
+  (0x1800:5) - also when that much time passed without a frame. Every node sends once at
+  cycle 0 (its first value). Changes are counted on the scene's simulated decision sequence
+  (``node_sim.physics``, canonical readings, eqs 1-4), evaluated once per SYNC period.
+
+Every cycle also carries the SYNC frame (COB-ID 0x080, no data, or one counter byte when
+``sync_counter`` > 0) on each channel; every node's heartbeat (0x700 + node-ID, one byte,
+0x05 = operational) every ``heartbeat_producer_ms`` is counted pro rata per cycle.
+
+Figures per mode, per channel (each channel is its own bus at ``--bitrate``) and for the
+busiest channel: exact bits per cycle (``fusion_center.core.bus_timing.frame_bits``: stuff bits,
+CRC, ACK, EOF and the 3-bit intermission), bus load at the scene's SYNC period, the highest
+SYNC rate the traffic fits (worst-case cycle: (bitrate - heartbeat bit/s) / bits of the
+cycle's frames) and the latency from the start of the SYNC frame to the end of the cycle's
+last PDO, assuming the frames go back to back in CAN-ID priority order right after SYNC
+(TPDO IDs 0x18x/0x28x all win arbitration against heartbeats 0x70x, so heartbeats add at most
+one frame of blocking, reported separately as ``blocking_ms``).
+"""
+
+from __future__ import annotations
+
+import struct
+
+import numpy as np
+
+from ..core.bus_timing import frame_bits
+from ..core.encoding import local_decision
+from taxel_net.errors import ParameterError
+
+MODES = ("raw", "decision_sync", "decision_event")
+SYNC_COB_ID = 0x080
+TPDO1_BASE = 0x180
+TPDO2_BASE = 0x280
+HEARTBEAT_BASE = 0x700
+NMT_OPERATIONAL = 0x05
+
+
+def _decision_byte(u: int) -> bytes:
+    return struct.pack("<b", int(u))  # INTEGER8: +1 -> 0x01, -1 -> 0xFF
+
+
+def _raw_bytes(x: float) -> bytes:
+    return struct.pack("<f", float(x))  # REAL32, little endian (CiA 301)
+
+
+def simulate_bus_inputs(scene, cycles: int) -> tuple[np.ndarray, np.ndarray]:
+    """Readings X (cycles, n) - the canonical ones the node twins send - and decisions u (pm1)."""
+    from node_sim import physics
+
+    x = physics.sample_readings_batch(scene, np.arange(cycles))
+    noise = np.array([t.noise_mv for t in scene.taxels])
+    zeta = np.array([t.zeta_mv for t in scene.taxels])
+    return x, local_decision(x, noise, zeta, "pm1")
+
+
+def event_transmissions(u: np.ndarray, sync_period_ms: float, inhibit_time_100us: int,
+                        event_timer_ms: int) -> np.ndarray:
+    """Bool (cycles, n): which node sends its event-driven TPDO1 in which cycle (module doc)."""
+    cycles, n = u.shape
+    period = float(sync_period_ms)
+    inhibit = inhibit_time_100us / 10.0
+    sends = np.zeros((cycles, n), dtype=bool)
+    last_sent = u[0].copy()
+    last_time = np.zeros(n)
+    sends[0] = True
+    for c in range(1, cycles):
+        t = c * period
+        allowed = (t - last_time) >= inhibit - 1e-9
+        due = (u[c] != last_sent)
+        if event_timer_ms > 0:
+            due |= (t - last_time) >= event_timer_ms - 1e-9
+        fire = due & allowed
+        sends[c] = fire
+        last_sent[fire] = u[c][fire]
+        last_time[fire] = t
+    return sends
+
+
+def _channel_figures(frames_per_cycle: list[list[int]], sync_bits: int, heartbeat_bits: list[int],
+                     scene, bitrate: int) -> dict:
+    period_s = scene.bus.sync_period_ms / 1000.0
+    hb_bits_per_s = sum(heartbeat_bits) / (scene.bus.heartbeat_producer_ms / 1000.0) if scene.bus.heartbeat_producer_ms else 0.0
+    hb_per_cycle = hb_bits_per_s * period_s
+    pdo_bits = np.array([sum(f) for f in frames_per_cycle], dtype=float)
+    frames = np.array([len(f) for f in frames_per_cycle], dtype=float)
+    cycle_bits = pdo_bits + sync_bits
+    worst = float(cycle_bits.max())
+    mean_bits = float(cycle_bits.mean() + hb_per_cycle)
+    active = cycle_bits[frames > 0]
+    capacity = bitrate - hb_bits_per_s
+    return {
+        "frames_per_cycle": float(frames.mean() + 1),
+        "pdo_frames_per_cycle": float(frames.mean()),
+        "bits_per_cycle": mean_bits,
+        "bits_per_cycle_worst": worst + hb_per_cycle,
+        "sync_bits": sync_bits,
+        "heartbeat_bits_per_cycle": hb_per_cycle,
+        "bus_time_per_cycle_ms": 1000.0 * mean_bits / bitrate,
+        "bus_load": mean_bits / (period_s * bitrate),
+        "bus_load_worst": (worst + hb_per_cycle) / (period_s * bitrate),
+        "max_cycle_rate_hz": capacity / worst if capacity > 0 else 0.0,
+        "latency_ms": 1000.0 * worst / bitrate,
+        "latency_mean_ms": 1000.0 * float(active.mean()) / bitrate if active.size else 1000.0 * sync_bits / bitrate,
+        "blocking_ms": 1000.0 * (max(heartbeat_bits) if heartbeat_bits else 0) / bitrate,
+    }
+
+
+def bandwidth_figures(scene, bitrate: int | None = None, cycles: int | None = None,
+                      inputs: tuple[np.ndarray, np.ndarray] | None = None) -> dict:
+    """The figures of every mode (module docstring); JSON-ready dict with a ``modes`` key."""
+    bitrate = scene.bus.bitrate if bitrate is None else bitrate
+    if isinstance(bitrate, bool) or not isinstance(bitrate, (int, np.integer)) or not 1 <= bitrate <= 1_000_000:
+        raise ParameterError("bitrate", bitrate, "must be an integer bit/s in 1..1000000 (classic CAN)")
+    cycles = scene.cycles if cycles is None else cycles
+    if isinstance(cycles, bool) or not isinstance(cycles, (int, np.integer)) or cycles < 1:
+        raise ParameterError("cycles", cycles, "must be an integer >= 1")
+    x, u = simulate_bus_inputs(scene, int(cycles)) if inputs is None else inputs
+    bus = scene.bus
+    sync_data = bytes([1]) if bus.sync_counter > 0 else b""
+    sync_bits = frame_bits(SYNC_COB_ID, sync_data)
+    channels = sorted({t.channel for t in scene.taxels})
+    sends = event_transmissions(u, bus.sync_period_ms, bus.inhibit_time_100us, bus.event_timer_ms)
+    by_id = {}
+    for ch in channels:
+        idx = [i for i, t in enumerate(scene.taxels) if t.channel == ch]
+        by_id[ch] = sorted(idx, key=lambda i: scene.taxels[i].node_id)  # CAN-ID priority order
+    dec_bits = {(i, v): frame_bits(TPDO1_BASE + scene.taxels[i].node_id, _decision_byte(v))
+                for i in range(scene.n) for v in (-1, 1)}
+    modes: dict[str, dict] = {}
+    for mode in MODES:
+        per_channel = []
+        for ch in channels:
+            idx = by_id[ch]
+            frames = []
+            for c in range(int(cycles)):
+                if mode == "raw":
+                    frames.append([frame_bits(TPDO2_BASE + scene.taxels[i].node_id, _raw_bytes(x[c, i])) for i in idx])
+                elif mode == "decision_sync":
+                    frames.append([dec_bits[(i, int(u[c, i]))] for i in idx])
+                else:
+                    frames.append([dec_bits[(i, int(u[c, i]))] for i in idx if sends[c, i]])
+            hb = [frame_bits(HEARTBEAT_BASE + scene.taxels[i].node_id, bytes([NMT_OPERATIONAL])) for i in idx]
+            fig = _channel_figures(frames, sync_bits, hb, scene, int(bitrate))
+            fig["channel"] = scene.bus.channels[ch] if ch < len(scene.bus.channels) else str(ch)
+            fig["taxels"] = len(idx)
+            per_channel.append(fig)
+        busiest = max(per_channel, key=lambda f: f["bits_per_cycle_worst"])
+        summary = {k: v for k, v in busiest.items() if k not in ("channel", "taxels")}
+        summary["busiest_channel"] = busiest["channel"]
+        summary["channels"] = per_channel
+        modes[mode] = summary
+    return {
+        "scene": scene.name,
+        "taxels": scene.n,
+        "bitrate": int(bitrate),
+        "sync_period_ms": bus.sync_period_ms,
+        "heartbeat_producer_ms": bus.heartbeat_producer_ms,
+        "inhibit_time_100us": bus.inhibit_time_100us,
+        "event_timer_ms": bus.event_timer_ms,
+        "cycles_simulated": int(cycles),
+        "channels": [scene.bus.channels[c] for c in channels],
+        "modes": modes,
+        "raw_over_decision_sync": modes["raw"]["bits_per_cycle"] / modes["decision_sync"]["bits_per_cycle"],
+    }
