@@ -45,15 +45,9 @@ SYNC. The behaviour on the bus is the same as through canopen's ``get_data``/``e
 from __future__ import annotations
 
 import copy
-import heapq
-import itertools
-import logging
 import math
 import struct
-import threading
 import time
-from dataclasses import dataclass, field
-from typing import Callable
 
 import canopen
 from canopen.objectdictionary import ODVariable, datatypes
@@ -63,202 +57,20 @@ from taxel_net.scene import KIND_NAMES
 
 from . import emcy as em
 from . import od as odx
+from .detector import (AI_STATUS_NEGATIVE_OVERLOAD, AI_STATUS_NOT_VALID, AI_STATUS_POSITIVE_OVERLOAD,
+                       local_decision_pm1)
+from .link import NodeLink, Scheduler
+from .nmt import (INITIALISING, NMT_ENTER_PRE_OPERATIONAL, NMT_RESET_COMMUNICATION, NMT_RESET_NODE, NMT_START,
+                  NMT_STOP, OPERATIONAL, PRE_OPERATIONAL, STATE_NAMES, STOPPED)
+from .od import COB_29BIT, COB_INVALID
+from .pdo import MAX_MAPPED, _TpdoConfig, _TpdoRuntime
+from .sdo import (ABORT_COMMAND_SPECIFIER, ABORT_LENGTH_MISMATCH, ABORT_NOT_MAPPABLE, ABORT_PDO_LENGTH_EXCEEDED,
+                  ABORT_SUBINDEX_NOT_IN_OD, ABORT_UNSUPPORTED_ACCESS, ABORT_VALUE_RANGE, ABORT_VALUE_TOO_HIGH,
+                  ABORT_VALUE_TOO_LOW, SDO_ABORT, SDO_CCS_BLOCK_UPLOAD, SDO_CCS_DOWNLOAD, SDO_CCS_UPLOAD)
+from .sync import SYNC_GENERATE
 
-logger = logging.getLogger(__name__)
-
-# NMT states (heartbeat state byte, CiA 301)
-INITIALISING = 0x00
-STOPPED = 0x04
-OPERATIONAL = 0x05
-PRE_OPERATIONAL = 0x7F
-STATE_NAMES = {INITIALISING: "INITIALISING", STOPPED: "STOPPED", OPERATIONAL: "OPERATIONAL",
-               PRE_OPERATIONAL: "PRE-OPERATIONAL"}
-
-# NMT command specifiers
-NMT_START = 0x01
-NMT_STOP = 0x02
-NMT_ENTER_PRE_OPERATIONAL = 0x80
-NMT_RESET_NODE = 0x81
-NMT_RESET_COMMUNICATION = 0x82
-
-# SDO client command specifiers (CiA 301, bits 5-7 of byte 0) and the server's abort
-SDO_CCS_DOWNLOAD = 0x20
-SDO_CCS_UPLOAD = 0x40
-SDO_CCS_BLOCK_UPLOAD = 0xA0
-SDO_ABORT = 0x80
-
-# SDO abort codes (CiA 301) used by the range checks
-ABORT_COMMAND_SPECIFIER = 0x05040001
-ABORT_UNSUPPORTED_ACCESS = 0x06010000
-ABORT_READ_ONLY = 0x06010002
-ABORT_NOT_IN_OD = 0x06020000
-ABORT_NOT_MAPPABLE = 0x06040041
-ABORT_PDO_LENGTH_EXCEEDED = 0x06040042
-ABORT_LENGTH_MISMATCH = 0x06070010
-ABORT_SUBINDEX_NOT_IN_OD = 0x06090011
-ABORT_VALUE_RANGE = 0x06090030
-ABORT_VALUE_TOO_HIGH = 0x06090031
-ABORT_VALUE_TOO_LOW = 0x06090032
-
-COB_INVALID = 0x80000000      # bit 31: PDO / EMCY not valid
-COB_29BIT = 0x20000000
-SYNC_GENERATE = 0x40000000    # 0x1005 bit 30: this node would produce SYNC (refused)
-MAX_MAPPED = 8
 
 _REAL32 = struct.Struct("<f")
-
-AI_STATUS_NOT_VALID = 0x01
-AI_STATUS_POSITIVE_OVERLOAD = 0x02
-AI_STATUS_NEGATIVE_OVERLOAD = 0x04
-
-
-def local_decision_pm1(observation: float, noise: float, zeta: float) -> int:
-    """Scalar local detector of one taxel, eqs 1-4, in the {-1,+1} tuple (``pm1``).
-
-    Y = X - N (eq 4); u = +1 iff Y >= ζ (eqs 2-3), else -1; a NaN observation compares False
-    and decides absent. The same IEEE-754 double comparison as
-    :func:`fusion_center.core.encoding.local_decision` (``(x - n) >= z``), without its array
-    conversions: for a node it costs ~0.1 µs instead of ~10 µs. It does not check ζ: the node's
-    OD refuses a negative or non-finite ζ (SDO abort 0x06090032 / 0x06090030), which is the
-    domain ``local_decision`` accepts; ``tests/test_node_fastpath.py`` checks both agree.
-    """
-    return 1 if observation - noise >= zeta else -1
-
-
-class Scheduler:
-    """One timer thread for many nodes: ``call_at(monotonic_time, fn)`` runs ``fn`` with
-    ``lock`` held. Returns a handle with ``cancel()``."""
-
-    @dataclass(order=True)
-    class _Entry:
-        when: float
-        seq: int
-        fn: Callable[[], None] = field(compare=False)
-        cancelled: bool = field(default=False, compare=False)
-
-        def cancel(self) -> None:
-            self.cancelled = True
-
-    def __init__(self, lock: threading.RLock, name: str = "node-sim-timers"):
-        self._lock = lock
-        self._heap: list[Scheduler._Entry] = []
-        self._cv = threading.Condition(threading.Lock())
-        self._seq = itertools.count()
-        self._stopped = False
-        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
-        self._thread.start()
-
-    def call_at(self, when: float, fn: Callable[[], None]) -> "Scheduler._Entry":
-        entry = Scheduler._Entry(when, next(self._seq), fn)
-        with self._cv:
-            heapq.heappush(self._heap, entry)
-            self._cv.notify()
-        return entry
-
-    def call_later(self, delay_s: float, fn: Callable[[], None]) -> "Scheduler._Entry":
-        return self.call_at(time.monotonic() + delay_s, fn)
-
-    def stop(self) -> None:
-        with self._cv:
-            self._stopped = True
-            self._cv.notify()
-        if threading.current_thread() is not self._thread:
-            self._thread.join(timeout=5)
-
-    def _run(self) -> None:
-        while True:
-            with self._cv:
-                while not self._stopped:
-                    now = time.monotonic()
-                    while self._heap and self._heap[0].cancelled:
-                        heapq.heappop(self._heap)
-                    if self._heap and self._heap[0].when <= now:
-                        entry = heapq.heappop(self._heap)
-                        break
-                    self._cv.wait(None if not self._heap else self._heap[0].when - now)
-                else:
-                    return
-            if entry.cancelled:
-                continue
-            with self._lock:
-                if entry.cancelled:
-                    continue
-                try:
-                    entry.fn()
-                except Exception:  # a timer must never kill the thread
-                    logger.exception("node-sim timer callback failed")
-
-
-class NodeLink:
-    """What a node needs from its channel: ``send(can_id, data)``, a :class:`Scheduler`.
-
-    Bursts: between :meth:`hold` and :meth:`release` (the channel processing one SYNC for all
-    its nodes, lock held) frames are queued and then sent back to back in the order they were
-    produced. A TPDO's transmission time (the start of its inhibit time) is the time it really
-    left: :meth:`mark_sent` records it at once outside a burst, at the end of the burst inside.
-    """
-
-    def __init__(self, send: Callable[[int, bytes], None], scheduler: Scheduler,
-                 send_many: Callable[[list[tuple[int, bytes]]], None] | None = None):
-        self._send_now = send
-        self._send_many = send_many   # optional: a whole burst in one call, same order
-        self.scheduler = scheduler
-        self._held: list[tuple[int, bytes]] | None = None
-        self._held_tx: list[_TpdoRuntime] = []
-
-    def send(self, can_id: int, data: bytes) -> None:
-        held = self._held
-        if held is not None:
-            held.append((can_id, data))
-        else:
-            self._send_now(can_id, data)
-
-    def mark_sent(self, rt: "_TpdoRuntime") -> None:
-        if self._held is None:
-            rt.last_tx_time = time.monotonic()
-        else:
-            self._held_tx.append(rt)
-
-    def hold(self) -> None:
-        self._held = []
-        self._held_tx = []
-
-    def release(self) -> None:
-        held, self._held = self._held, None
-        if not held:
-            return
-        if self._send_many is not None:
-            self._send_many(held)
-        else:
-            send = self._send_now
-            for can_id, data in held:
-                send(can_id, data)
-        if self._held_tx:
-            now = time.monotonic()
-            for rt in self._held_tx:
-                rt.last_tx_time = now
-            self._held_tx = []
-
-
-@dataclass
-class _TpdoConfig:
-    valid: bool
-    can_id: int
-    transmission_type: int
-    inhibit_s: float
-    event_timer_s: float
-    sync_start: int
-    mapping: list[tuple[int, int, int]]  # (index, subindex, bits)
-
-
-@dataclass
-class _TpdoRuntime:
-    sync_count: int = 0
-    started: bool = False            # SYNC start value reached (or not used)
-    last_sent: bytes | None = None
-    last_tx_time: float = -math.inf  # monotonic
-    pending: object | None = None    # scheduler handle of an inhibited event transmission
-    event_timer: object | None = None
 
 
 class _SdoLink:

@@ -40,6 +40,9 @@ HEARTBEAT_PRODUCER = 0x1017
 IDENTITY = 0x1018
 TPDO_COMM = (0x1800, 0x1801)  # sub 1 COB-ID, 2 transmission type, 3 inhibit (100 µs), 5 event timer (ms), 6 SYNC start
 TPDO_MAP = (0x1A00, 0x1A01)
+# COB-ID entries (0x1005, 0x1014, 0x180x:1): CiA 301 bits
+COB_INVALID = 0x80000000      # bit 31: PDO / EMCY not valid
+COB_29BIT = 0x20000000
 # manufacturer area
 LOCAL_DECISION = 0x2000       # u_i, INTEGER8 +1/-1 (eqs 2-3)
 DETECTOR = 0x2001             # sub 1 ζ mV, 2 N_i mV, 3 kind, 4 x, 5 y
