@@ -41,7 +41,8 @@ sys.path.insert(0, str(ROOT))
 
 from fusion_center.core.bus_timing import best_case_frame_bits, frame_bits  # noqa: E402
 from taxel_net.scene import load_scene  # noqa: E402
-from fusion_center.service.core import EventStream, open_trace_writer  # noqa: E402
+from fusion_center.service.stream import EventStream  # noqa: E402
+from fusion_center.service.traces import open_trace_writer  # noqa: E402
 from fusion_center.service.cycles import CycleAssembler  # noqa: E402
 
 SCENE = ROOT / "scenes" / "matrix57.toml"
@@ -87,7 +88,7 @@ def bench_stream(scene, frames, trace: Path | None) -> float:
 
 def bench_virtual_notifier(scene, frames) -> float:
     """Frames queued on a virtual bus first, then drained by a Notifier into the listener."""
-    from fusion_center.service.core import _StreamListener
+    from fusion_center.service.stream import _StreamListener
 
     channel = f"bench-{uuid.uuid4().hex}"
     rx = can.Bus(interface="virtual", channel=channel)

@@ -5,7 +5,7 @@ import numpy as np
 import can
 
 from taxel_net.scene import load_scene
-from fusion_center.service.core import EventStream
+from fusion_center.service.stream import EventStream
 from fusion_center.service.cycles import CycleAssembler
 from fusion_center.service.pipeline import CyclePipeline
 

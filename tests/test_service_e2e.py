@@ -168,7 +168,7 @@ def test_missing_eds_is_a_usage_error(matrix, tmp_path):
 def test_trace_is_written_in_stream_order_after_each_closed_cycle(matrix):
     """The stream queues trace messages under its lock and writes them after a closed cycle
     (or every TRACE_BATCH events): same frames, same order, same µs timestamps as fed."""
-    from fusion_center.service.core import TRACE_BATCH, EventStream
+    from fusion_center.service.stream import TRACE_BATCH, EventStream
     from fusion_center.service.cycles import CycleAssembler
 
     written = []

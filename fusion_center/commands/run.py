@@ -76,7 +76,7 @@ def setup_logging() -> None:
 
 def execute(service, cycles: int, *, live: bool, boot_timeout: float, before_sync=None, on_start=None) -> dict:
     """Boot, run and summarise one service (shared by ``run`` and ``demo``)."""
-    from ..service.core import stdout_is_tty
+    from ..service.fusion_service import stdout_is_tty
 
     view = None
     if live and stdout_is_tty():

@@ -3,14 +3,18 @@
 Modules: :mod:`.decoder` (COB-ID tables, payload decoding - the hot path),
 :mod:`.cycles` (the deterministic SYNC-cycle assembler and its contract),
 :mod:`.pipeline` (closed cycle -> record), :mod:`.master` (NMT, SDO, SYNC, heartbeat),
-:mod:`.records` (JSON-lines decision log), :mod:`.core` (buses, event stream, worker,
-replay), :mod:`.live` (rich live view).
+:mod:`.records` (JSON-lines decision log), :mod:`.stream` (the serialised event stream,
+its python-can listener), :mod:`.fusion_service` (:class:`FusionService`: buses, evaluation
+of closed cycles, :class:`RunSummary`), :mod:`.traces` (trace writer, offline replay),
+:mod:`.live` (rich live view).
 """
 
-from .core import EventStream, FusionService, RunSummary, open_trace_writer, replay_trace
+from .fusion_service import FusionService, RunSummary
 from .cycles import COUNTER_NAMES, ClosedCycle, CycleAssembler, quantise_timestamp
 from .pipeline import CyclePipeline
 from .records import RecordWriter, read_records
+from .stream import EventStream
+from .traces import open_trace_writer, replay_trace
 
 __all__ = [
     "COUNTER_NAMES",

@@ -88,7 +88,7 @@ def node_configuration(scene: Scene, index: int) -> list[tuple[int, int, object]
 
 
 class Master:
-    """NMT master + SYNC producer over a :class:`~fusion_center.service.core.EventStream`."""
+    """NMT master + SYNC producer over a :class:`~fusion_center.service.stream.EventStream`."""
 
     def __init__(self, service, scene: Scene, networks: list[canopen.Network], od):
         self.service = service

@@ -1,0 +1,267 @@
+"""The serialised event stream: every frame, received or sent, time-stamped and ordered.
+
+Threads of a live run:
+
+* one python-can ``Notifier`` thread per bus with one listener, :class:`_StreamListener`: it
+  feeds :meth:`EventStream.receive`, then hands canopen (SDO client, heartbeat and EMCY
+  consumers of ``canopen.Network``) only the frames canopen has subscribed to - guarded: an
+  exception is counted as ``internal_error`` and never escapes (a raising listener stops
+  python-can's Notifier for good);
+* the SYNC producer (:class:`~fusion_center.service.master.Master`), monotonic clock.
+
+:class:`EventStream` is the single point where events are ordered: under one lock each
+event is time-stamped (integer µs, clamped to be monotonic), queued for the trace and fed to
+the :class:`CycleAssembler`. The trace (``can.Logger``) is written outside the stream lock,
+in stream order, after every closed cycle has been evaluated (and every
+:data:`TRACE_BATCH` events between cycles), so a killed process loses at most the trace of
+the cycle in flight (plus what the logger's file buffer holds). ``replay``
+(:mod:`fusion_center.service.traces`) feeds a trace through the same class, so it
+reproduces the live records exactly.
+
+Also here: :class:`RateLimitedLog` (one log line per cause and interval, shared by the
+stream and the service).
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from typing import TYPE_CHECKING, Callable, Iterable, Sequence
+
+import can
+
+from taxel_net.canmsg import TxMessage
+from .cycles import (
+    FLAG_ERROR,
+    FLAG_EXTENDED,
+    FLAG_REMOTE,
+    ClosedCycle,
+    CycleAssembler,
+    quantise_timestamp,
+)
+
+if TYPE_CHECKING:
+    from .fusion_service import FusionService
+
+logger = logging.getLogger("fusion_center.service")
+
+TRACE_BATCH = 256  # events queued for the trace before it is written even if no cycle closed
+
+
+class RateLimitedLog:
+    """Log a cause at most once per ``interval`` seconds, with the count since the last line."""
+
+    def __init__(self, log: logging.Logger, interval: float = 1.0):
+        self.log = log
+        self.interval = interval
+        self._last: dict[str, float] = {}
+        self._suppressed: dict[str, int] = {}
+        self._lock = threading.Lock()
+
+    def warning(self, cause: str, message: str, *args) -> None:
+        now = time.monotonic()
+        with self._lock:
+            last = self._last.get(cause)
+            if last is not None and now - last < self.interval:
+                self._suppressed[cause] = self._suppressed.get(cause, 0) + 1
+                return
+            self._last[cause] = now
+            suppressed = self._suppressed.pop(cause, 0)
+        if suppressed:
+            message += f" (+{suppressed} similar suppressed)"
+        self.log.warning(message, *args)
+
+
+def message_flags(msg: can.Message) -> int:
+    flags = 0
+    if msg.is_error_frame:
+        flags |= FLAG_ERROR
+    if msg.is_remote_frame:
+        flags |= FLAG_REMOTE
+    if msg.is_extended_id:
+        flags |= FLAG_EXTENDED
+    return flags
+
+
+class EventStream:
+    """Serialises events: time-stamp (µs, monotonic), trace, assembler - under one lock.
+
+    ``on_closed(closed)`` is called under the lock for every cycle an event closes (keep it
+    short: the service queues the cycle); ``after_closed()`` is called after the lock is
+    released by :meth:`receive` / :meth:`transmit_all` when their event(s) closed a cycle
+    (the service evaluates the queued cycles there). Trace messages are queued under the lock
+    and written by :meth:`flush_trace` (in stream order), which the stream calls after
+    ``after_closed`` and whenever :data:`TRACE_BATCH` messages are queued.
+    """
+
+    def __init__(self, assembler: CycleAssembler, *, trace: can.Listener | None = None,
+                 on_closed: Callable[[ClosedCycle], None] | None = None,
+                 after_closed: Callable[[], None] | None = None,
+                 buses: Sequence[can.BusABC] = ()):
+        self.assembler = assembler
+        self.trace = trace
+        self.on_closed = on_closed
+        self.after_closed = after_closed
+        self.buses = list(buses)
+        self.lock = threading.Lock()
+        self.fed = 0
+        self.last_us: int | None = None
+        self.tx_errors = 0
+        self.trace_errors = 0
+        self.rate_log = RateLimitedLog(logger)
+        self._trace_queue: list[can.Message] = []
+        self._trace_lock = threading.Lock()  # taken before ``lock``, never while holding it
+
+    def _feed_locked(self, msg: can.Message, channel: int) -> bool:
+        """Feed one event (stream lock held); True when it closed a cycle."""
+        self.fed += 1
+        try:
+            us = quantise_timestamp(msg.timestamp)
+            last = self.last_us
+            if last is not None and us < last:
+                us = last
+            self.last_us = us
+            if self.trace is not None:
+                msg.timestamp = us / 1e6
+                msg.channel = channel
+                self._trace_queue.append(msg)
+            flags = 0
+            if msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id:
+                flags = message_flags(msg)
+            closed = self.assembler.feed(us, channel, msg.arbitration_id, msg.data, flags)
+            if closed is not None and self.on_closed is not None:
+                self.on_closed(closed)
+                return True
+        except Exception as exc:  # noqa: BLE001 - the receive path never raises
+            if self.assembler.events < self.fed:
+                self.assembler.count_internal_error()
+            self.rate_log.warning("internal_error", "receive path: %s: %s", type(exc).__name__, exc)
+        return False
+
+    def _after_feed(self, closed: bool) -> None:
+        """Outside the stream lock: evaluate what closed, then write the queued trace."""
+        if closed and self.after_closed is not None:
+            try:
+                self.after_closed()
+            except Exception as exc:  # noqa: BLE001 - the receive path never raises
+                self.rate_log.warning("after_closed", "after a closed cycle: %s: %s", type(exc).__name__, exc)
+        if closed or len(self._trace_queue) >= TRACE_BATCH:
+            self.flush_trace()
+
+    def receive(self, msg: can.Message, channel: int) -> None:
+        """A frame from the bus (or from a trace, in replay)."""
+        with self.lock:
+            closed = self._feed_locked(msg, channel)
+        if closed or len(self._trace_queue) >= TRACE_BATCH:
+            self._after_feed(closed)
+
+    def transmit(self, channel: int, can_id: int, data: bytes, remote: bool = False) -> None:
+        """Send a frame of the master on ``channel`` and feed it as an event (same order)."""
+        self.transmit_all([(channel, can_id, data)], remote)
+
+    def transmit_all(self, frames: Iterable[tuple[int, int, bytes]], remote: bool = False) -> None:
+        """Send several frames back to back (e.g. SYNC on every channel) as one atomic step."""
+        closed = False
+        with self.lock:
+            for channel, can_id, data in frames:
+                msg = TxMessage(arbitration_id=can_id, data=data, is_extended_id=False,
+                                 is_remote_frame=remote, channel=channel)
+                try:
+                    self.buses[channel].send(msg)
+                except can.CanError as exc:
+                    self.tx_errors += 1
+                    self.rate_log.warning("tx_error", "transmit 0x%03X on channel %d failed: %s", can_id, channel, exc)
+                    continue
+                msg.timestamp = time.time()
+                closed |= self._feed_locked(msg, channel)
+        if closed or len(self._trace_queue) >= TRACE_BATCH:
+            self._after_feed(closed)
+
+    def flush_trace(self) -> None:
+        """Write the queued trace messages, in stream order (any thread, outside the stream lock)."""
+        with self._trace_lock:
+            with self.lock:
+                batch = self._trace_queue
+                if not batch:
+                    return
+                self._trace_queue = []
+                trace = self.trace
+            if trace is None:
+                return
+            for msg in batch:
+                try:
+                    trace.on_message_received(msg)
+                except Exception as exc:  # noqa: BLE001 - e.g. disk full: count, log, go on
+                    self.trace_errors += 1
+                    self.rate_log.warning("trace", "trace write failed: %s: %s", type(exc).__name__, exc)
+
+    def close_trace(self) -> None:
+        """Write what is queued, then stop the trace writer (``can.Logger``) and detach it."""
+        self.flush_trace()
+        with self._trace_lock:
+            with self.lock:
+                trace, self.trace = self.trace, None
+                batch, self._trace_queue = self._trace_queue, []
+            if trace is not None:
+                for msg in batch:
+                    trace.on_message_received(msg)
+                trace.stop()
+
+    def cycle_open(self) -> bool:
+        with self.lock:
+            return self.assembler.is_open
+
+    def counters(self) -> dict[str, int]:
+        with self.lock:
+            return self.assembler.counters()
+
+
+class _StreamListener(can.Listener):
+    """python-can listener of one channel: hands every frame to the stream, then to canopen
+    (``canopen.network.MessageListener``) when canopen has subscribed to its COB-ID (SDO
+    responses, heartbeats, EMCY, NMT: not the TPDOs, which are most of the traffic); never raises.
+
+    canopen's ``Network.scanner`` therefore sees only those frames (every node's heartbeat
+    among them); nothing here uses it."""
+
+    def __init__(self, service: "FusionService", channel: int, network=None):
+        self.service = service
+        self.channel = channel
+        self.stream = service.stream
+        self.drop_echo = service.drop_own_echo
+        self.own_ids = service.master_cob_ids
+        self.network = network
+        if network is not None:
+            from canopen.network import MessageListener
+
+            self.canopen = MessageListener(network)
+            self.subscribers = network.subscribers  # COB-ID -> callbacks, updated by canopen
+
+    def on_message_received(self, msg: can.Message) -> None:
+        try:
+            if self.drop_echo and msg.arbitration_id in self.own_ids and not msg.is_extended_id:
+                self.service.own_echoes += 1  # our own frame looped back (udp_multicast)
+                return
+            self.stream.receive(msg, self.channel)
+            bootups = self.stream.assembler.bootups
+            if bootups:
+                with self.stream.lock:
+                    drained = list(bootups)
+                    bootups.clear()
+                for index in drained:
+                    self.service.on_bootup(index)
+            if self.network is not None and msg.arbitration_id in self.subscribers:
+                self.canopen.on_message_received(msg)
+        except Exception as exc:  # noqa: BLE001 - never let the Notifier thread die
+            with self.stream.lock:
+                self.stream.assembler.count_internal_error()
+            self.stream.rate_log.warning("listener", "listener: %s: %s", type(exc).__name__, exc)
+
+    def on_error(self, exc: Exception) -> None:
+        self.stream.rate_log.warning("bus_error", "bus error on channel %d: %s", self.channel, exc)
+
+    def stop(self) -> None:
+        pass
+
+
