@@ -12,7 +12,7 @@ import pytest
 from fusion_center.core import baselines, contact, curves, rules, thresholds
 from taxel_net.errors import ParameterError
 from taxel_net.scene import BusSpec, FusionSpec, Scene, TaxelSpec, load_scene
-from fusion_center.service import pipeline as pipeline_module
+from fusion_center.service import decision_fusion
 from fusion_center.service.cycles import ClosedCycle
 from fusion_center.service.pipeline import CyclePipeline
 
@@ -200,7 +200,7 @@ def test_first_cycle_solves_no_threshold(monkeypatch):
         raise AssertionError("threshold solved on the live path")
 
     for name in ("additive_threshold_cached", "multiplicative_threshold_cached", "preferential_threshold_cached"):
-        monkeypatch.setattr(pipeline_module, name, no_solve)
+        monkeypatch.setattr(decision_fusion, name, no_solve)
     monkeypatch.setattr(baselines, "neyman_pearson_fusion", no_solve)
     for present in (0, 6, 57):
         wire = np.array([1] * present + [-1] * (scene.n - present), dtype=np.int8)

@@ -1,12 +1,24 @@
 """The fusion centre as a CANopen master on a python-can bus (run / demo / replay).
 
-Modules: :mod:`.decoder` (COB-ID tables, payload decoding - the hot path),
-:mod:`.cycles` (the deterministic SYNC-cycle assembler and its contract),
-:mod:`.pipeline` (closed cycle -> record), :mod:`.master` (NMT, SDO, SYNC, heartbeat),
-:mod:`.records` (JSON-lines decision log), :mod:`.stream` (the serialised event stream,
-its python-can listener), :mod:`.fusion_service` (:class:`FusionService`: buses, evaluation
-of closed cycles, :class:`RunSummary`), :mod:`.traces` (trace writer, offline replay),
-:mod:`.live` (rich live view).
+One module per job:
+
+* :mod:`.decoder` - COB-ID tables, payload decoding (the hot path);
+* :mod:`.cycles` - the deterministic SYNC-cycle assembler and its contract;
+* :mod:`.stream` - the serialised event stream (time stamps, trace queue, assembler) and its
+  python-can listener;
+* :mod:`.pipeline` - closed cycle -> record, composing:
+
+  * :mod:`.decision_fusion` - the fusion rules over the received decisions, thresholds and
+    rule results cached;
+  * :mod:`.centralised_tests` - raw mode: the centralised raw-data tests of the readings;
+  * :mod:`.physical` - forces, contact area, contact type, slip;
+
+* :mod:`.records` - the JSON-lines decision log (and values made JSON-able);
+* :mod:`.master` - NMT, SDO configuration, SYNC producer, heartbeat;
+* :mod:`.fusion_service` - :class:`FusionService` (buses, evaluation of closed cycles, the
+  decision log) and :class:`RunSummary`;
+* :mod:`.traces` - trace writer, channel of a traced frame, offline replay;
+* :mod:`.live` - the rich live view.
 """
 
 from .fusion_service import FusionService, RunSummary

@@ -4,15 +4,31 @@ Every record is written and flushed as soon as its cycle is evaluated, so a kill
 loses at most the cycle in flight (no ``os.fsync``: the OS keeps what was flushed). Floats are
 written with Python's shortest round-trip repr and NaN/inf are refused (``allow_nan=False``:
 the pipeline turns them into ``null``), so two runs that computed the same values write the
-same bytes.
+same bytes. :func:`jsonable` is that conversion of one value, used by every part of the
+pipeline that puts a number into a record.
 """
 
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
+import numpy as np
+
 from taxel_net.errors import UsageError
+
+
+def jsonable(value):
+    """Plain Python scalars for json; non-finite floats become None (JSON has no NaN)."""
+    if value is None or isinstance(value, (bool, str)):
+        return value
+    if isinstance(value, (np.bool_,)):
+        return bool(value)
+    if isinstance(value, (int, np.integer)):
+        return int(value)
+    value = float(value)
+    return value if math.isfinite(value) else None
 
 
 def dumps(record: dict) -> str:

@@ -1,0 +1,124 @@
+"""Raw mode (issue 6): the centralised raw-data tests of a cycle's readings.
+
+In raw mode the nodes send X_i (TPDO2, REAL32 mV) instead of u_i; the centre decides per taxel
+with the nodes' own test (eqs 1-4, ``encoding.local_decision``, in the pipeline) and fuses
+those decisions with every rule as in decision mode, and it also runs the centralised raw-data
+tests of :mod:`fusion_center.core.centralised` (``rules.centralised_glrt``,
+``rules.centralised_known``: statistic, threshold at the scene's ``np_false_alarm``, decision)
+- the "what you lose by deciding locally" reference. Their parameters are built once
+(``params_from_scene``); a cycle with readings missing uses the same test on the received
+taxels (threshold recomputed once per missing-set, cached).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .. import evaluation
+from ..core import centralised
+from taxel_net.errors import ParameterError
+from taxel_net.scene import Scene
+from .decision_fusion import verdict
+from .records import jsonable
+
+
+class CentralisedTests:
+    """The centralised raw-data tests ``names`` (``centralised_glrt``, ``centralised_known``)
+    of one scene: parameters and thresholds once per scene, per missing-set when readings
+    are missing."""
+
+    def __init__(self, scene: Scene, names):
+        self.scene = scene
+        self.params: dict[str, centralised.CentralisedParams] = {}
+        for name in names:
+            self.params[name] = evaluation.params_from_scene(scene, name.removeprefix("centralised_"))
+        self._subsets: dict[tuple[str, bytes], object] = {}
+
+    def results(self, readings: np.ndarray, available: np.ndarray) -> dict[str, dict]:
+        """Test name -> JSON-able result of the cycle (an error is reported, not raised)."""
+        rule_results: dict[str, dict] = {}
+        for name in self.params:
+            try:
+                result = self.test(name, readings, available)
+            except ParameterError as exc:
+                result = {"U_G": None, "threshold": None, "decision": "undecided", "p_h1": None,
+                          "error": str(exc)}
+            rule_results[name] = {k: jsonable(v) for k, v in result.items()}
+        return rule_results
+
+    def params_for(self, name: str, available: np.ndarray):
+        """The test's parameters over the taxels with a reading.
+
+        Full set: the scene's parameters (threshold at P_F = ``np_false_alarm``). With readings
+        missing (a silent or missing node), no Monte Carlo in the worker - it would stall the
+        live cycle - but a threshold that still guarantees P_F <= alpha, cached per missing-set:
+
+        * ``glrt``: the received taxels' sum of max(0, LLR_i) is <= the full sum, so the full
+          threshold keeps P_F <= alpha (a missing taxel adds no evidence);
+        * ``known``: per footprint c the received LLR is Gaussian under H0,
+          L_c ~ N(-d_c^2/2, d_c^2) (d_c^2 = sum over received S_i^2/sigma_i^2), and
+          logmeanexp_c L_c <= max_c L_c, so tau with sum_c Q((tau + d_c^2/2)/d_c) = alpha
+          (exact for one footprint, a union bound otherwise) gives P_F <= alpha.
+        """
+        params = self.params[name]
+        if available.all():
+            return params
+        key = (name, available.tobytes())
+        sub = self._subsets.get(key)
+        if sub is None:
+            if len(self._subsets) > 256:
+                self._subsets.clear()
+            try:
+                sub = self._subset_params(params, available)
+            except ParameterError as exc:
+                sub = exc
+            self._subsets[key] = sub
+        if isinstance(sub, ParameterError):
+            raise sub
+        return sub
+
+    @staticmethod
+    def _subset_params(params, available: np.ndarray):
+        from scipy.optimize import brentq
+        from scipy.special import log_ndtr, ndtri
+
+        part = centralised.make_params(params.noise_mv[available], params.sigma_mv[available],
+                                       params.signal_patterns_mv[:, available], params.taxel_signal_mv[available],
+                                       params.method)
+        alpha = params.info["false_alarm"]
+        if params.method == "glrt":
+            tau = params.threshold
+        else:
+            d = np.sqrt(np.sum(part.signal_patterns_mv**2 / part.sigma_mv**2, axis=1))
+            d = d[d > 0]
+            if d.size == 0:
+                raise ParameterError("readings_mv", "received taxels", "no received taxel carries signal: no test")
+            if d.size == 1:  # exact: L ~ N(-d^2/2, d^2) under H0
+                tau = -0.5 * float(d[0]) ** 2 + float(d[0]) * float(ndtri(1.0 - alpha))
+            else:
+                def excess(t):  # ln(sum_c Q((t + d_c^2/2)/d_c)) - ln(alpha)
+                    z = -(t + 0.5 * d * d) / d
+                    return float(np.logaddexp.reduce(log_ndtr(z))) - np.log(alpha)
+
+                lo, hi = -0.5 * float(d.max()) ** 2 - 50.0 * float(d.max()), 50.0 * float(d.max()) + 50.0
+                tau = brentq(excess, lo, hi, xtol=1e-12)
+        return centralised.CentralisedParams(part.noise_mv, part.sigma_mv, part.signal_patterns_mv,
+                                             part.taxel_signal_mv, part.method, float(tau),
+                                             dict(params.info))
+
+    def test(self, name: str, readings: np.ndarray, available: np.ndarray) -> dict:
+        """Centralised raw-data test of one cycle (decide H1 iff statistic > threshold)."""
+        params = self.params_for(name, available)
+        value = centralised.centralised_llr(readings[available], params)
+        result = {"U_G": value, "threshold": params.threshold, "decision": verdict(value > params.threshold),
+                  "false_alarm": params.info["false_alarm"], "n": int(params.n)}
+        if params.method == "known":
+            # exact log-likelihood ratio of the scene's own H1: posterior with the prior (eq 22)
+            p1 = self.scene.fusion.prior_h1
+            z = value + math.log(p1 / (1.0 - p1))
+            result["p_h1"] = 1.0 / (1.0 + math.exp(-z)) if z > -700 else 0.0
+        else:
+            result["p_h1"] = None
+        return result
