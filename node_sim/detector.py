@@ -1,10 +1,60 @@
-"""Local detector of the taxel node twin: chapter eqs 1-4 and the CiA 404 analog-input status bits."""
+"""The taxel node's application: the local detector of the chapter, eqs 1-4, with its analog input.
+
+Chapter "Grip Force and Slip Analysis in Robotic Grasp: New Stochastic Paradigm Through
+Sensor Data Fusion": each taxel i decides between H1 (object present) and H0 on its own
+observation X_i and sends one decision u_i in the {-1,+1} tuple (sec. 2.1); eqs 1-4 are
+that local test:
+
+    Y_i = X_i - N_i                      (eq 4, N_i the taxel's noise estimate)
+    u_i = +1  if Y_i >= ζ                (eqs 2-3, ζ the cut-off)
+    u_i = -1  otherwise (a NaN reading compares False: absent)
+
+:func:`local_decision_pm1` is that test for one scalar observation — the same IEEE-754
+comparison as :func:`fusion_center.core.encoding.local_decision` (the vectorised form the
+fusion centre uses; ``tests/test_node_fastpath.py`` checks they agree).
+
+:class:`Detector` is what the node does with it on every SYNC (called by the SYNC consumer,
+:mod:`node_sim.sync`): take X_i (mV) for the cycle, check it for sensor faults, decide, and
+write the OD —
+
+* u_i to 0x2000 (INTEGER8 +1/−1), X_i to 0x6130:1 (CiA 404 AI input PV, REAL32 mV) and the
+  CiA 404 AI status to 0x6150:1 (bit 0 PV not valid, bit 1 positive overload, bit 2 negative
+  overload);
+* parameters: ζ 0x2001:1 and N_i 0x2001:2 (mV), full scale 0x2002:1 and the stuck-sample count
+  M 0x2002:2 (0 = off); kind/x/y 0x2001:3-5 describe the taxel (the kind must be one of the
+  scene's kinds: SDO abort 0x06090030);
+* faults: open circuit (reading not finite or |X| ≥ full scale: status "not valid" plus the
+  overload bit of its sign) and stuck (M consecutive identical REAL32 samples). While a fault
+  is active the decision is "absent" (−1), flagged by 0x6150:1 bit 0 and the EMCY producer
+  (0x1001 ≠ 0, :mod:`node_sim.emcy`), which is told of every fault change.
+
+Hot path: the parameters are cached as Python numbers and re-read from the OD after any write
+to it (:meth:`Detector.invalidate`, called on SDO downloads and start-up values) or a swap of
+the data store (NMT resets); the sampled values go straight into the data store with their
+EDS encodings — no canopen ODVariable call per SYNC.
+"""
 
 from __future__ import annotations
+
+import math
+import struct
+from typing import Callable
+
+from canopen.objectdictionary import datatypes
+from canopen.sdo import SdoAbortedError
+
+from taxel_net.scene import KIND_NAMES
+
+from .emcy import FAULT_NONE, FAULT_OPEN_CIRCUIT, FAULT_STUCK
+from .od import (AI_INPUT_PV, AI_STATUS, FULL_SCALE, LOCAL_DECISION, NOISE_ESTIMATE, STUCK_SAMPLES, TAXEL_KIND,
+                 ZETA, NodeObjects)
+from .sdo import ABORT_VALUE_RANGE
 
 AI_STATUS_NOT_VALID = 0x01
 AI_STATUS_POSITIVE_OVERLOAD = 0x02
 AI_STATUS_NEGATIVE_OVERLOAD = 0x04
+
+_REAL32 = struct.Struct("<f")
 
 
 def local_decision_pm1(observation: float, noise: float, zeta: float) -> int:
@@ -18,3 +68,93 @@ def local_decision_pm1(observation: float, noise: float, zeta: float) -> int:
     domain ``local_decision`` accepts; ``tests/test_node_fastpath.py`` checks both agree.
     """
     return 1 if observation - noise >= zeta else -1
+
+
+class Detector:
+    """One node's application (see module docstring): owns the cached parameters and the
+    fault state. ``on_fault(fault, reading)`` is told of every fault change."""
+
+    def __init__(self, objects: NodeObjects, on_fault: Callable[[int, float], None]):
+        self._objects = objects
+        self._local = objects.local
+        self._on_fault = on_fault
+        # detector parameters as Python numbers (hot path), rebuilt after any OD write
+        self._cfg: tuple[float, float, float, int] | None = None
+        self._cfg_store: dict | None = None
+        # EDS encodings of the values sample() writes (INTEGER8 u_i, REAL32 X_i, U8 status)
+        self._u_bytes = {u: objects.variable(LOCAL_DECISION, 0).encode_raw(u) for u in (1, -1)}
+        self._pv_is_real32 = objects.variable(AI_INPUT_PV, 1).data_type == datatypes.REAL32
+        self._status_bytes: dict[int, bytes] = {}
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the fault state (NMT reset node / reset communication)."""
+        self.fault = FAULT_NONE
+        self._last_raw: bytes | None = None
+        self._same_count = 0
+
+    def invalidate(self, index: int | None = None, subindex: int | None = None) -> None:
+        """The OD was written: re-read the parameters at the next SYNC."""
+        self._cfg = None
+
+    def config(self) -> tuple[float, float, float, int]:
+        """(ζ, N_i, full scale, stuck-sample count) of the OD as Python numbers, cached until
+        the next :meth:`invalidate` or data store swap (NMT resets)."""
+        cfg = self._cfg
+        store = self._local.data_store
+        if cfg is None or self._cfg_store is not store:
+            read = self._objects.read
+            cfg = (float(read(*ZETA)), float(read(*NOISE_ESTIMATE)),
+                   float(read(*FULL_SCALE)), int(read(*STUCK_SAMPLES)))
+            self._cfg = cfg
+            self._cfg_store = store
+        return cfg
+
+    def check_write(self, index: int, subindex: int, value, startup: bool) -> None:
+        """SDO / start-up write to 0x2001 (the detector configuration)."""
+        if (index, subindex) == TAXEL_KIND and value not in KIND_NAMES:
+            raise SdoAbortedError(ABORT_VALUE_RANGE)
+
+    def sample(self, reading: float) -> None:
+        """X_i of one SYNC: fault checks, decision (eqs 1-4), OD update."""
+        store = self._local.data_store
+        cfg = self._cfg
+        if cfg is None or self._cfg_store is not store:
+            cfg = self.config()
+        zeta, noise, full_scale, stuck_after = cfg
+        raw = _REAL32.pack(reading)
+        if raw == self._last_raw:
+            self._same_count += 1
+        else:
+            self._same_count = 1
+        self._last_raw = raw
+        status = 0
+        if not math.isfinite(reading) or abs(reading) >= full_scale:
+            fault = FAULT_OPEN_CIRCUIT
+            status = AI_STATUS_NOT_VALID
+            if reading >= full_scale:
+                status |= AI_STATUS_POSITIVE_OVERLOAD
+            elif reading <= -full_scale:
+                status |= AI_STATUS_NEGATIVE_OVERLOAD
+        elif stuck_after > 0 and self._same_count >= stuck_after:
+            fault = FAULT_STUCK
+            status = AI_STATUS_NOT_VALID
+        else:
+            fault = FAULT_NONE
+        if fault != self.fault:
+            self.fault = fault
+            self._on_fault(fault, reading)
+        if fault == FAULT_NONE:
+            decision = local_decision_pm1(reading, noise, zeta)  # eqs 1-4
+        else:
+            decision = -1  # faulted: "absent", flagged by 0x6150 and 0x1001
+        # straight into the data store, EDS encodings (what NodeObjects.store / encode_raw would write)
+        (store.get(LOCAL_DECISION) or store.setdefault(LOCAL_DECISION, {}))[0] = self._u_bytes[decision]
+        if self._pv_is_real32:
+            (store.get(AI_INPUT_PV) or store.setdefault(AI_INPUT_PV, {}))[1] = raw
+        else:
+            self._objects.store(AI_INPUT_PV, 1, reading)
+        status_raw = self._status_bytes.get(status)
+        if status_raw is None:
+            status_raw = self._status_bytes[status] = self._objects.variable(AI_STATUS, 1).encode_raw(status)
+        (store.get(AI_STATUS) or store.setdefault(AI_STATUS, {}))[1] = status_raw

@@ -1,4 +1,4 @@
-"""EMCY codes and frame layout of the taxel node (CiA 301 emergency object).
+"""EMCY producer of the taxel node twin (CiA 301 emergency object): codes, frame, 0x1001/0x1003.
 
 Frame (COB-ID from 0x1014, default 0x80 + node-ID), 8 bytes little-endian:
 ``error code (UNSIGNED16) | error register 0x1001 (UNSIGNED8) | manufacturer field (5 bytes)``.
@@ -14,11 +14,28 @@ Codes (CiA 301 error-code classes):
 
 Error register bits set on a fault: bit 0 (generic error, mandatory whenever any error is
 active) and bit 5 (device-profile specific).
+
+:class:`EmcyProducer` (one per node) keeps the error register 0x1001 and the pre-defined
+error field 0x1003 (newest first at sub 1, sub 0 = count, at most 8 entries; an entry is the
+EMCY code with the fault id in bits 16-31) up to date when the application reports a fault
+change, and sends the EMCY — in PRE-OPERATIONAL and OPERATIONAL only, and only while 0x1014
+is valid (bit 31 clear); the error register is kept up to date in every state. An
+open-circuit reading of ±inf is sent as ±3.4e38 (the REAL32 field), NaN as NaN. Its SDO
+rules: 0x1003:0 accepts only 0 (clear the history: subs 1-8 dropped), 0x1014 refuses a
+29-bit CAN-ID (0x06090030).
 """
 
 from __future__ import annotations
 
+import math
 import struct
+from typing import Callable
+
+from canopen.sdo import SdoAbortedError
+
+from .nmt import OPERATIONAL, PRE_OPERATIONAL, NmtSlave
+from .od import COB_29BIT, COB_ID_EMCY, COB_INVALID, ERROR_FIELD, ERROR_REGISTER, NodeObjects
+from .sdo import ABORT_VALUE_RANGE
 
 EMCY_NO_ERROR = 0x0000
 EMCY_OPEN_CIRCUIT = 0x5000
@@ -36,6 +53,8 @@ ERR_REG_SENSOR_FAULT = ERR_REG_GENERIC | ERR_REG_PROFILE
 
 EMCY_STRUCT = struct.Struct("<HBBf")  # code, error register, fault id, reading (REAL32)
 
+ERROR_HISTORY_LENGTH = 8  # 0x1003 sub 1..8 (EDS SubNumber 9)
+
 
 def emcy_payload(code: int, error_register: int, fault_id: int = 0, reading: float = 0.0) -> bytes:
     """The 8 data bytes of an EMCY frame."""
@@ -45,3 +64,53 @@ def emcy_payload(code: int, error_register: int, fault_id: int = 0, reading: flo
 def parse_emcy(data: bytes) -> tuple[int, int, int, float]:
     """``(code, error_register, fault_id, reading)`` of an EMCY frame's 8 data bytes."""
     return EMCY_STRUCT.unpack(bytes(data[:8]))
+
+
+class EmcyProducer:
+    """One node's EMCY producer (see module docstring)."""
+
+    def __init__(self, nmt: NmtSlave, objects: NodeObjects, send: Callable[[int, bytes], None]):
+        self._nmt = nmt
+        self._objects = objects
+        self._send = send
+
+    def fault_changed(self, fault: int, reading: float) -> None:
+        """The application's fault state became ``fault`` (``FAULT_NONE``: cleared) on
+        ``reading``: update 0x1001/0x1003, send the EMCY (or the error reset)."""
+        objects = self._objects
+        if fault == FAULT_NONE:
+            objects.store(ERROR_REGISTER, 0, 0)
+            self.send(EMCY_NO_ERROR, 0)
+            return
+        code = FAULT_EMCY_CODE[fault]
+        register = ERR_REG_SENSOR_FAULT
+        objects.store(ERROR_REGISTER, 0, register)
+        count = objects.read(ERROR_FIELD, 0)
+        history = [objects.read(ERROR_FIELD, s) for s in range(1, count + 1)]
+        history = [code | (fault << 16)] + history  # bits 16-31: manufacturer info (fault id)
+        history = history[:ERROR_HISTORY_LENGTH]
+        for sub, entry in enumerate(history, start=1):
+            objects.store(ERROR_FIELD, sub, entry)
+        objects.store(ERROR_FIELD, 0, len(history))
+        self.send(code, register, fault, reading)
+
+    def send(self, code: int, register: int, fault_id: int = 0, reading: float = 0.0) -> None:
+        if self._nmt.state not in (PRE_OPERATIONAL, OPERATIONAL):
+            return
+        cob = self._objects.read(COB_ID_EMCY)
+        if cob & COB_INVALID:
+            return
+        r = reading if math.isfinite(reading) or math.isnan(reading) else math.copysign(3.4e38, reading)
+        self._send(cob & 0x7FF, emcy_payload(code, register, fault_id, r))
+
+    # -- SDO rules of 0x1003 and 0x1014
+    def check_write(self, index: int, subindex: int, value, startup: bool) -> None:
+        if index == ERROR_FIELD and subindex == 0 and value != 0:
+            raise SdoAbortedError(ABORT_VALUE_RANGE)  # only 0 (clear history) may be written
+        if index == COB_ID_EMCY and value & COB_29BIT:
+            raise SdoAbortedError(ABORT_VALUE_RANGE)
+
+    def written(self, index: int, subindex: int) -> None:
+        if index == ERROR_FIELD and subindex == 0:  # 0 written: the history is cleared
+            for sub in range(1, ERROR_HISTORY_LENGTH + 1):
+                self._objects.discard(ERROR_FIELD, sub)

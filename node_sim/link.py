@@ -1,5 +1,10 @@
-"""What a node twin needs from its channel: :class:`NodeLink` (send, SYNC bursts) and
-:class:`Scheduler` (one timer thread per channel)."""
+"""What a node twin needs from its channel: :class:`NodeLink` and :class:`Scheduler`.
+
+One channel (CANopen network) of the rig has one lock, one :class:`Scheduler` (the timer
+thread of all its nodes: heartbeats, inhibit times, event timers) and one :class:`NodeLink`
+(send a frame; hold the frames of one SYNC and send them as one burst). Every node entry
+point and every timer callback runs with the channel lock held; nodes never block.
+"""
 
 from __future__ import annotations
 

@@ -12,11 +12,18 @@ file with ``configparser``; nothing is duplicated in Python.
 
 The index constants below name CiA 301/404 object indexes the code acts on (as canopen
 itself does); their types, defaults, access and mapping rights all come from the EDS.
+
+:class:`NodeObjects` is the glue between one node twin and its object dictionary: canopen's
+``LocalNode`` (the OD, the data store, canopen's SDO server), typed reads and writes of the
+data store, and the start-up values NMT reset-node / reset-communication restore. The
+services of the node (:mod:`node_sim.nmt`, :mod:`.heartbeat`, :mod:`.sdo`, :mod:`.pdo`,
+:mod:`.emcy`, :mod:`.sync`, :mod:`.detector`) read and write the OD through it.
 """
 
 from __future__ import annotations
 
 import configparser
+import copy
 import math
 import re
 from functools import lru_cache
@@ -112,3 +119,57 @@ def variable(od: ObjectDictionary, index: int, subindex: int = 0):
     if isinstance(obj, canopen.objectdictionary.ODVariable):
         return obj
     return obj[subindex]
+
+
+class NodeObjects:
+    """The object dictionary of one node twin at run time (see module docstring).
+
+    ``od`` defaults to the EDS imported for ``node_id``. ``local`` is canopen's ``LocalNode``
+    (its ``data_store`` is replaced, not mutated, by the NMT resets: hold ``local``, never the
+    store itself). ``real_limits`` are the EDS's REAL32 limits (:func:`real_limits`).
+    """
+
+    def __init__(self, node_id: int, od: ObjectDictionary | None = None, eds_path=EDS_PATH):
+        self.od = od if od is not None else load_od(node_id, eds_path)
+        self.real_limits = real_limits(eds_path)
+        self.local = canopen.LocalNode(node_id, self.od)
+        # LocalNode registers its NmtSlave's 0x1017 handler (which would start a python-can
+        # periodic task per node); the node's heartbeat producer does that job itself.
+        self.local._write_callbacks.clear()
+        self._startup_store: dict[int, dict[int, bytes]] = {}
+
+    def variable(self, index: int, subindex: int = 0):
+        return variable(self.od, index, subindex)
+
+    def read(self, index: int, subindex: int = 0):
+        """Current value of ``index:subindex`` decoded with its EDS data type."""
+        var = variable(self.od, index, subindex)
+        return var.decode_raw(self.local.get_data(index, subindex))
+
+    def store(self, index: int, subindex: int, value) -> None:
+        """Write an application-owned value straight into the data store (EDS encoding)."""
+        var = variable(self.od, index, subindex)
+        self.local.data_store.setdefault(index, {})[subindex] = var.encode_raw(value)
+
+    def store_raw(self, index: int, subindex: int, data: bytes) -> None:
+        self.local.data_store.setdefault(index, {})[subindex] = data
+
+    def discard(self, index: int, subindex: int) -> None:
+        """Drop a stored value: ``index:subindex`` reads its EDS default again."""
+        self.local.data_store.get(index, {}).pop(subindex, None)
+
+    # -- start-up values (the node's non-volatile parameters)
+    def save_startup(self) -> None:
+        """The current values become the ones the NMT resets restore."""
+        self._startup_store = copy.deepcopy(self.local.data_store)
+
+    def restore_startup(self) -> None:
+        """NMT reset node: the whole OD back to the start-up values."""
+        self.local.data_store = copy.deepcopy(self._startup_store)
+
+    def restore_communication(self) -> None:
+        """NMT reset communication: only the communication area (0x1000-0x1FFF) back."""
+        store = {i: s for i, s in self.local.data_store.items() if i not in COMM_AREA}
+        store.update({i: dict(s) for i, s in copy.deepcopy(self._startup_store).items()
+                      if i in COMM_AREA})
+        self.local.data_store = store

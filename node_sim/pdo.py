@@ -1,11 +1,54 @@
-"""TPDO engine of the taxel node twin (CiA 301): configuration and run-time state of a TPDO."""
+"""TPDO engine of the taxel node twin (CiA 301): TPDO1/TPDO2, synchronous and event-driven.
+
+canopen 2.4.1's ``LocalNode`` has no TPDO behaviour (no transmission on SYNC, no inhibit time
+or event timer, PDO data kept apart from the OD: canopen issues #145, #520, #558), so this
+module is the node's PDO engine. Configuration per 0x1800/0x1801 (communication) and
+0x1A00/0x1A01 (mapping), read from the OD when it changes, never per SYNC:
+
+* transmission only in OPERATIONAL, only while valid (0x180x:1 bit 31 clear) and mapped;
+* synchronous (transmission type 1..240): every n-th SYNC, honouring the SYNC start value
+  0x180x:6 when the SYNC carries a counter; type 0: on SYNC when the data changed;
+* event-driven (254/255): on change of the mapped data, spaced by the inhibit time 0x180x:3
+  (100 µs units; a change inside the inhibit window is sent when it ends, with the data
+  current then) and refreshed by the event timer 0x180x:5 (ms); also sent once on entering
+  OPERATIONAL. The change check runs on every SYNC (the data change when the node samples);
+* the payload is assembled from the OD data store at transmission time (no stale copy);
+  a TPDO's transmission time, the start of its inhibit time, is when its frame really left
+  (:meth:`node_sim.link.NodeLink.mark_sent`: the end of the SYNC burst).
+
+SDO rules (CiA 301), checked for downloads and start-up values: COB-ID 29-bit refused and its
+CAN-ID changed only while the PDO is not valid; transmission types 241-253 refused (reserved /
+RTR only); inhibit time and SYNC start value only while not valid; mapping only while not
+valid, entries only while sub 0 is 0, each entry an existing, readable, PDO-mappable object
+of exactly its size, at most 8 entries and 64 bits. A write to 0x180x/0x1A0x restarts the
+event machinery with the new values once they are stored.
+
+Hot path (one SYNC, every node): the valid, mapped TPDOs with their configuration and run-time
+state are kept as one tuple, rebuilt only after a change; the payload is read from the data
+store - no canopen PDO or ODVariable call per SYNC.
+"""
 
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import canopen
+from canopen.sdo import SdoAbortedError
+
+from .link import NodeLink
+from .nmt import OPERATIONAL, NmtSlave
+from .od import COB_29BIT, COB_INVALID, TPDO_COMM, TPDO_MAP, NodeObjects
+from .sdo import (ABORT_NOT_MAPPABLE, ABORT_PDO_LENGTH_EXCEEDED, ABORT_UNSUPPORTED_ACCESS, ABORT_VALUE_RANGE,
+                  ABORT_VALUE_TOO_HIGH)
+
+if TYPE_CHECKING:
+    from .node import TaxelNode
 
 MAX_MAPPED = 8
+N_TPDOS = len(TPDO_COMM)
 
 
 @dataclass
@@ -27,3 +70,256 @@ class _TpdoRuntime:
     last_tx_time: float = -math.inf  # monotonic
     pending: object | None = None    # scheduler handle of an inhibited event transmission
     event_timer: object | None = None
+
+
+
+class TpdoEngine:
+    """The TPDOs of one node (see module docstring): owns their configuration, run-time state
+    and timers. ``node`` is asked only whether it is silent."""
+
+    def __init__(self, node: "TaxelNode", nmt: NmtSlave, objects: NodeObjects, link: NodeLink):
+        self._node = node
+        self._nmt = nmt
+        self._objects = objects
+        self._local = objects.local
+        self._link = link
+        self._cfg: list[_TpdoConfig | None] = [None] * N_TPDOS
+        self._rt = [_TpdoRuntime() for _ in range(N_TPDOS)]
+        self._active: tuple[tuple[int, _TpdoConfig, _TpdoRuntime], ...] | None = None
+        self.frames_sent = 0
+
+    # ------------------------------------------------------------------ configuration
+    def config(self, pdo: int) -> _TpdoConfig:
+        """TPDO ``pdo`` (0-based) as the OD configures it now (cached until it changes)."""
+        cfg = self._cfg[pdo]
+        if cfg is None:
+            read = self._objects.read
+            comm, mapping = TPDO_COMM[pdo], TPDO_MAP[pdo]
+            cob = read(comm, 1)
+            entries = []
+            for sub in range(1, read(mapping, 0) + 1):
+                e = read(mapping, sub)
+                entries.append((e >> 16, (e >> 8) & 0xFF, e & 0xFF))
+            cfg = _TpdoConfig(
+                valid=not (cob & COB_INVALID), can_id=cob & 0x7FF,
+                transmission_type=read(comm, 2),
+                inhibit_s=read(comm, 3) * 100e-6,
+                event_timer_s=read(comm, 5) / 1000.0,
+                sync_start=read(comm, 6), mapping=entries)
+            self._cfg[pdo] = cfg
+        return cfg
+
+    def invalidate(self) -> None:
+        """The OD may have changed (start-up values, SDO download): re-read the configuration."""
+        self._cfg = [None] * N_TPDOS
+        self._active = None
+
+    def _activate(self) -> tuple[tuple[int, _TpdoConfig, _TpdoRuntime], ...]:
+        active = []
+        for pdo in range(N_TPDOS):
+            cfg = self.config(pdo)
+            if cfg.valid and cfg.mapping:
+                active.append((pdo, cfg, self._rt[pdo]))
+        self._active = tuple(active)
+        return self._active
+
+    # ------------------------------------------------------------------ NMT
+    def reset(self) -> None:
+        """Boot (power-on, NMT resets): timers stopped, configuration and state forgotten."""
+        self.leave_operational()
+        self.invalidate()
+        self._rt = [_TpdoRuntime() for _ in range(N_TPDOS)]
+
+    def enter_operational(self) -> None:
+        self._rt = [_TpdoRuntime() for _ in range(N_TPDOS)]
+        self._active = None
+        for pdo in range(N_TPDOS):
+            cfg = self.config(pdo)
+            if cfg.valid and cfg.mapping and cfg.transmission_type >= 254:
+                self._event(pdo, cfg, force=True)
+
+    def leave_operational(self) -> None:
+        """Cancel the inhibited transmissions and event timers."""
+        for rt in self._rt:
+            for handle in (rt.pending, rt.event_timer):
+                if handle is not None:
+                    handle.cancel()
+            rt.pending = rt.event_timer = None
+
+    # ------------------------------------------------------------------ SYNC
+    def on_sync(self, counter: int | None) -> None:
+        """A SYNC in OPERATIONAL (``counter``: its counter byte, None without), for a live node."""
+        active = self._active
+        if active is None:
+            active = self._activate()
+        for pdo, cfg, rt in active:
+            tt = cfg.transmission_type
+            if tt >= 254:
+                self._event(pdo, cfg)
+                continue
+            if tt == 0:
+                payload = self._payload(cfg)
+                if payload != rt.last_sent:
+                    self._transmit(pdo, cfg, payload)
+                continue
+            if not rt.started:
+                if cfg.sync_start and counter is not None and counter != cfg.sync_start:
+                    continue
+                rt.started = True
+                rt.sync_count = tt - 1 if cfg.sync_start and counter is not None else 0
+            rt.sync_count += 1
+            if rt.sync_count >= tt:
+                rt.sync_count = 0
+                self._transmit(pdo, cfg, self._payload(cfg))
+
+    # ------------------------------------------------------------------ transmission
+    def _payload(self, cfg: _TpdoConfig) -> bytes:
+        """The mapped objects' current bytes (what ``LocalNode.get_data`` returns: this node
+        registers no read callback, so the data store, else the EDS value/default)."""
+        local = self._local
+        if local._read_callbacks:  # someone added one: canopen's path
+            return b"".join(local.get_data(i, s)[: bits // 8] for i, s, bits in cfg.mapping)
+        store = local.data_store
+        if len(cfg.mapping) == 1:
+            i, s, bits = cfg.mapping[0]
+            try:
+                return store[i][s][: bits // 8]
+            except KeyError:
+                return local.get_data(i, s)[: bits // 8]
+        parts = []
+        for i, s, bits in cfg.mapping:
+            try:
+                parts.append(store[i][s][: bits // 8])
+            except KeyError:
+                parts.append(local.get_data(i, s)[: bits // 8])
+        return b"".join(parts)
+
+    def _transmit(self, pdo: int, cfg: _TpdoConfig, payload: bytes) -> None:
+        rt = self._rt[pdo]
+        link = self._link
+        if not self._node.silent:
+            link.send(cfg.can_id, payload)
+            self.frames_sent += 1
+        rt.last_sent = payload
+        link.mark_sent(rt)  # last_tx_time: now, or when the SYNC burst is sent
+        if cfg.transmission_type >= 254:
+            self._arm_event_timer(pdo, cfg)
+
+    def _event(self, pdo: int, cfg: _TpdoConfig, force: bool = False) -> None:
+        rt = self._rt[pdo]
+        payload = self._payload(cfg)
+        if not force and payload == rt.last_sent:
+            return
+        if rt.pending is not None:
+            return  # already waiting for the inhibit time; it sends the data current then
+        now = time.monotonic()
+        earliest = rt.last_tx_time + cfg.inhibit_s
+        if now >= earliest:
+            self._transmit(pdo, cfg, payload)
+        else:
+            def deferred():
+                rt.pending = None
+                if self._nmt.state == OPERATIONAL:
+                    c = self.config(pdo)
+                    if c.valid and c.transmission_type >= 254:
+                        self._transmit(pdo, c, self._payload(c))
+
+            rt.pending = self._link.scheduler.call_at(earliest, deferred)
+
+    def _arm_event_timer(self, pdo: int, cfg: _TpdoConfig) -> None:
+        rt = self._rt[pdo]
+        if rt.event_timer is not None:
+            rt.event_timer.cancel()
+            rt.event_timer = None
+        if cfg.event_timer_s > 0:
+            def refresh():
+                rt.event_timer = None
+                if self._nmt.state == OPERATIONAL:
+                    c = self.config(pdo)
+                    if c.valid and c.transmission_type >= 254:
+                        self._event(pdo, c, force=True)
+
+            rt.event_timer = self._link.scheduler.call_later(cfg.event_timer_s, refresh)
+
+    # ------------------------------------------------------------------ SDO
+    def written(self, index: int, subindex: int) -> None:
+        """0x180x / 0x1A0x downloaded: configuration stale now, event machinery restarted with
+        the new values once they are stored (just after this call)."""
+        self.invalidate()
+        self._link.scheduler.call_at(0.0, self.reconfigure)
+
+    def reconfigure(self) -> None:
+        """After an SDO write to 0x180x/0x1A0x: restart the event machinery with the new values."""
+        self.invalidate()
+        if self._nmt.state != OPERATIONAL:
+            return
+        for pdo in range(N_TPDOS):
+            rt = self._rt[pdo]
+            cfg = self.config(pdo)
+            if rt.event_timer is not None:
+                rt.event_timer.cancel()
+                rt.event_timer = None
+            if cfg.valid and cfg.mapping and cfg.transmission_type >= 254:
+                self._arm_event_timer(pdo, cfg)
+            elif rt.pending is not None:
+                rt.pending.cancel()
+                rt.pending = None
+
+    def check_write(self, index: int, subindex: int, value, startup: bool) -> None:
+        """SDO / start-up write to 0x180x or 0x1A0x (see module docstring)."""
+        if index in TPDO_COMM:
+            self._check_comm_write(TPDO_COMM.index(index), subindex, value, startup)
+        elif index in TPDO_MAP:
+            self._check_map_write(TPDO_MAP.index(index), subindex, value, startup)
+
+    def _check_comm_write(self, pdo: int, subindex: int, value: int, startup: bool) -> None:
+        read = self._objects.read
+        comm = TPDO_COMM[pdo]
+        valid_now = not (read(comm, 1) & COB_INVALID)
+        if subindex == 1:
+            if value & COB_29BIT:
+                raise SdoAbortedError(ABORT_VALUE_RANGE)
+            if not startup and valid_now and not (value & COB_INVALID) \
+                    and (value & 0x7FF) != (read(comm, 1) & 0x7FF):
+                raise SdoAbortedError(ABORT_VALUE_RANGE)  # CAN-ID changes only while not valid
+        elif subindex == 2:
+            if not (value <= 240 or value in (254, 255)):
+                raise SdoAbortedError(ABORT_VALUE_RANGE)  # 241-251 reserved, 252/253 RTR-only unsupported
+        elif subindex in (3, 6):
+            if not startup and valid_now:
+                raise SdoAbortedError(ABORT_VALUE_RANGE)  # CiA 301: not while the PDO is valid
+
+    def _check_map_write(self, pdo: int, subindex: int, value: int, startup: bool) -> None:
+        read = self._objects.read
+        comm, mapping = TPDO_COMM[pdo], TPDO_MAP[pdo]
+        if not startup and not (read(comm, 1) & COB_INVALID):
+            raise SdoAbortedError(ABORT_UNSUPPORTED_ACCESS)  # mapping only while the PDO is not valid
+        if subindex == 0:
+            if value > MAX_MAPPED:
+                raise SdoAbortedError(ABORT_VALUE_TOO_HIGH)
+            bits = 0
+            for sub in range(1, value + 1):
+                entry = read(mapping, sub)
+                bits += self._check_mappable(entry)
+            if bits > 64:
+                raise SdoAbortedError(ABORT_PDO_LENGTH_EXCEEDED)
+        else:
+            if not startup and read(mapping, 0) != 0:
+                raise SdoAbortedError(ABORT_UNSUPPORTED_ACCESS)  # CiA 301: set sub 0 to 0 first
+            if value != 0:
+                self._check_mappable(value)
+
+    def _check_mappable(self, entry: int) -> int:
+        index, subindex, bits = entry >> 16, (entry >> 8) & 0xFF, entry & 0xFF
+        od = self._objects.od
+        try:
+            var = self._objects.variable(index, subindex)
+            if isinstance(od[index], (canopen.objectdictionary.ODRecord,
+                                      canopen.objectdictionary.ODArray)) \
+                    and subindex not in od[index]:
+                raise KeyError(subindex)
+        except KeyError:
+            raise SdoAbortedError(ABORT_NOT_MAPPABLE) from None
+        if not var.pdo_mappable or not var.readable or bits != len(var):
+            raise SdoAbortedError(ABORT_NOT_MAPPABLE)
+        return bits

@@ -52,7 +52,9 @@ from taxel_net.errors import ParameterError
 from taxel_net.scene import TAXEL_KINDS, Scene
 
 from . import od as odx
-from .node import COB_INVALID, NodeLink, Scheduler, TaxelNode
+from .link import NodeLink, Scheduler
+from .node import TaxelNode
+from .od import COB_INVALID
 
 logger = logging.getLogger(__name__)
 
@@ -118,7 +120,7 @@ class _Channel(can.Listener):
         self._last_counter: int | None = None
         self.frames_sent = 0
         self.notifier: can.Notifier | None = None
-        self._sync_map: dict[int, list[tuple[TaxelNode, int]]] | None = None
+        self._sync_map: dict[int, list[tuple[TaxelNode, Callable, int]]] | None = None
 
     # -- python-can Listener
     def on_message_received(self, msg: can.Message) -> None:
@@ -151,14 +153,14 @@ class _Channel(can.Listener):
             return
         if self._sync_map is None:
             self._sync_map = {}
-            for n in self.nodes.values():
-                self._sync_map.setdefault(n.read(odx.COB_ID_SYNC) & 0x7FF, []).append(
-                    (n, self.scene_index[n.node_id]))
+            for n in self.nodes.values():  # each node's SYNC consumer, by its SYNC COB-ID (0x1005)
+                self._sync_map.setdefault(n.sync.cob_id, []).append(
+                    (n, n.sync.on_sync, self.scene_index[n.node_id]))
         sync_nodes = self._sync_map.get(can_id)
         if sync_nodes:
             self._on_sync(data, sync_nodes)
 
-    def _on_sync(self, data: bytes, nodes: Sequence[tuple[TaxelNode, int]]) -> None:
+    def _on_sync(self, data: bytes, nodes: Sequence[tuple[TaxelNode, Callable, int]]) -> None:
         counter = data[0] if len(data) >= 1 else None
         if counter is not None and self._last_counter is not None:
             overflow = self.rig.scene.bus.sync_counter or 240
@@ -177,12 +179,12 @@ class _Channel(can.Listener):
         # a SYNC): fewer thread switches between this notifier and the receivers' ones
         self.link.hold()
         try:
-            for node, index in nodes:
+            for node, on_sync, index in nodes:
                 if apply_silence is not None:
                     apply_silence(self.index, node, cycle)
                 elif node.silent:  # what _apply_silence does with no drop and no silent fault
                     node.silent = False
-                node.on_sync(cycle, readings[index], counter)
+                on_sync(cycle, readings[index], counter)  # node.sync.on_sync
         finally:
             self.link.release()
         self.rig._schedule_prefetch(self, cycle)

@@ -30,7 +30,9 @@ import pytest
 from fusion_center.core.encoding import local_decision
 from taxel_net.scene import BusSpec, Scene, TaxelSpec
 from node_sim import physics
-from node_sim.node import NodeLink, Scheduler, _TpdoRuntime, local_decision_pm1
+from node_sim.detector import local_decision_pm1
+from node_sim.link import NodeLink, Scheduler
+from node_sim.pdo import _TpdoRuntime
 from node_sim.od import EDS_PATH
 from taxel_net.canmsg import TxMessage
 from node_sim.rig import Rig
