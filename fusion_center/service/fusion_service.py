@@ -70,7 +70,7 @@ class FusionService:
     """The fusion centre on one python-can interface (one bus per scene channel).
 
     ``with FusionService(scene, ...) as svc: svc.boot(); svc.run(cycles)``. ``open`` (called by
-    ``__enter__``) raises :class:`~fusion_center.cli.UsageError` for an unknown interface, a
+    ``__enter__``) raises :class:`~taxel_net.errors.UsageError` for an unknown interface, a
     channel that cannot be opened, a missing EDS or an unwritable output file.
     """
 
