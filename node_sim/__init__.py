@@ -1,1 +1,57 @@
-"""taxel-can node firmware twin: CANopen taxel nodes (local detector, OD, NMT, PDO, heartbeat, EMCY)."""
+"""taxel-can node firmware twins: CANopen taxel nodes running the chapter's local detector.
+
+Public API (``docs/api.md``): :class:`Rig` (every node twin of a scene on its CAN bus(es)),
+:class:`TaxelNode` (one node twin) and :mod:`physics` (the simulated readings and ground
+truth). They are imported on first use (PEP 562): ``import node_sim.physics`` loads neither
+python-can nor canopen.
+
+Layout: the layout is the protocol. As in the ``canopen`` package (``nmt``, ``sdo``, ``pdo``,
+``sync``, ``emcy``), one module per CANopen service the twin implements, each owning that
+service's state; :class:`TaxelNode` composes them:
+
+* :mod:`.nmt` - NMT slave: states, boot-up, start/stop/pre-operational/resets;
+* :mod:`.heartbeat` - heartbeat producer (0x1017);
+* :mod:`.sdo` - SDO server: canopen's server behind the CiA 301 checks, abort codes;
+* :mod:`.pdo` - TPDO engine: SYNC-driven (types 0..240, SYNC start value) and event-driven
+  (254/255, inhibit time, event timer) TPDOs;
+* :mod:`.sync` - SYNC consumer (0x1005): what a SYNC triggers;
+* :mod:`.emcy` - EMCY producer, error register 0x1001, error history 0x1003;
+* :mod:`.detector` - the application: the local detector of the chapter (eqs 1-4,
+  u_i = ±1 from X_i − N_i ≥ ζ), sensor-fault checks, CiA 404 analog input;
+* :mod:`.od` - the object dictionary glue (the EDS ``eds/taxel_node.eds``, canopen's
+  ``LocalNode``, start-up values);
+* :mod:`.node` - :class:`TaxelNode`; :mod:`.link` - a node's channel (send, SYNC bursts,
+  timers);
+* :mod:`.rig` - :class:`Rig`; :mod:`.physics` - readings and ground truth; :mod:`.cli` - the
+  ``node-sim`` command.
+
+LSS (CiA 305) is not implemented yet (its module will be ``lss``). Nothing here imports from
+``fusion_center``; what the twins and the centre share comes from ``taxel_net``.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+# public name -> (module, attribute); attribute None: the module itself
+_EXPORTS: dict[str, tuple[str, str | None]] = {
+    "Rig": ("node_sim.rig", "Rig"),
+    "TaxelNode": ("node_sim.node", "TaxelNode"),
+    "physics": ("node_sim.physics", None),
+}
+
+__all__ = ["Rig", "TaxelNode", "physics"]
+
+
+def __getattr__(name: str):
+    if name not in _EXPORTS:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    module_name, attribute = _EXPORTS[name]
+    module = importlib.import_module(module_name)
+    value = module if attribute is None else getattr(module, attribute)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))
