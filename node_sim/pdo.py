@@ -152,6 +152,7 @@ class TpdoEngine:
         active = self._active
         if active is None:
             active = self._activate()
+        link = self._link
         for pdo, cfg, rt in active:
             tt = cfg.transmission_type
             if tt >= 254:
@@ -170,7 +171,12 @@ class TpdoEngine:
             rt.sync_count += 1
             if rt.sync_count >= tt:
                 rt.sync_count = 0
-                self._transmit(pdo, cfg, self._payload(cfg))
+                # _transmit for a synchronous TPDO of a live node, inlined (hot path)
+                payload = self._payload(cfg)
+                link.send(cfg.can_id, payload)
+                self.frames_sent += 1
+                rt.last_sent = payload
+                link.mark_sent(rt)  # last_tx_time: now, or when the SYNC burst is sent
 
     # ------------------------------------------------------------------ transmission
     def _payload(self, cfg: _TpdoConfig) -> bytes:
