@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 
 from taxel_net.errors import ParameterError, SceneError, UsageError
@@ -60,6 +61,16 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     except KeyboardInterrupt:
         return 130
+    except BrokenPipeError:
+        # the reader went away (``fusion-center demo | head``): no traceback; point stdout at
+        # /dev/null so the interpreter's final flush does not raise again; exit as a SIGPIPE
+        # death would (128 + 13)
+        try:
+            devnull = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(devnull, sys.stdout.fileno())
+        except (OSError, ValueError):
+            pass
+        return 141
 
 
 if __name__ == "__main__":

@@ -72,6 +72,8 @@ def replay_trace(scene: Scene, trace_path, *, json_lines=None, truth: bool = Tru
                         writer.write(record)
                     if on_record is not None:
                         on_record(record)
+        except BrokenPipeError:
+            raise  # stdout's reader went away: not the trace's fault (the CLI exits quietly)
         except (ValueError, OSError, EOFError) as exc:
             raise UsageError(f"trace {str(trace_path)!r}: unreadable frame: {exc}") from None
     finally:
