@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from fractions import Fraction
 
 from .curves import additive_pm1_constants, check_n, check_open_unit, check_xi
 from .encoding import check_encoding, check_integer
@@ -163,6 +164,44 @@ def solve_mean_deficit(b: float, rtol: float = DEFAULT_RTOL) -> tuple[float, int
     return z, evals
 
 
+# ------------------------------------------------------------------ certification helpers
+# Every float root below carries an error bound. Where the bound cannot decide a discrete
+# question -- the number of roots near a tangency, a root at a domain edge, the side of an
+# attainable U_G value (the present count) -- the problem is solved again for the exact float
+# inputs in mpmath (fusion_center.core.certify) and the root is rounded to the double on the
+# side that keeps every comparison with an attainable value exact.
+
+NEAR_DOUBLE_ROOT = 1e-8
+"""|alpha_tangent - alpha| below which two roots of eq 17 / eq 18 are a near-double pair: both
+are reported (from the extended-precision solution) and flagged ``near_double_root``."""
+
+
+def _grid_pm1(n: int):
+    """Attainable U_G = 2j - n (additive and ln of multiplicative, {-1,+1}): the two grid
+    values around x (integers of n's parity)."""
+    def around(x: float):
+        k = math.floor(x)
+        if (k - n) % 2:
+            k -= 1
+        return (k, k + 2)
+    return around
+
+
+def _grid_int(x: float):
+    k = math.floor(x)
+    return (k, k + 1)
+
+
+def _near_grid(x: float, err: float, around) -> bool:
+    lo, hi = around(x)
+    return x - lo <= err or hi - x <= err
+
+
+def _ceil_exact(x) -> int:
+    """ceil of a float or Fraction, exactly (no float rounding of n + lambda for n up to 2^53)."""
+    return math.ceil(Fraction(x))
+
+
 # ----------------------------------------------------------------------------- multiplicative
 
 
@@ -173,7 +212,8 @@ class MultiplicativeThreshold:
     scaled_thresholds: t = lambda/e^n of every non-trivial root in [-1, 1] (ascending; eq 16 has
         at most one). ln_thresholds: ln lambda = n + ln t, None where t <= 0.
     present_counts: per root, the smallest number of present taxels j (0..n) whose
-        U_G = e^(2j - n) >= lambda; 0 when lambda <= e^-n; None if no j qualifies.
+        U_G = e^(2j - n) >= lambda, exact (certified, consistent with ln_thresholds); 0 when
+        lambda <= e^-n.
     """
 
     n: int
@@ -190,8 +230,11 @@ def multiplicative_threshold(n, xi, beta, *, rtol: float = DEFAULT_RTOL, info: d
         int_lambda^{e^n} f(x) dx = (1 - beta)(e^n - lambda),  f = eqs 10-11.
 
     Solved as D(L' w) = beta with w = 1 - lambda/e^n, L' = ln(1/xi)/(1 - e^-2n) (module doc).
-    Works for every n >= 1 (no e^n is formed). ``info``, if given, receives the number of
-    function evaluations under "evaluations".
+    Works for every n >= 1 (no e^n is formed). Certified: where the float error bound of t
+    cannot decide t <= 0, t >= -1 (the edge lambda = -e^n) or the side of an attainable
+    ln U_G = 2j - n, t is recomputed in mpmath (:mod:`.certify`). ``info``, if given, receives
+    the number of function evaluations under "evaluations" and "certified": True when the
+    extended-precision path was taken.
     """
     n = check_n(n)
     xi = check_xi(xi)
@@ -200,17 +243,41 @@ def multiplicative_threshold(n, xi, beta, *, rtol: float = DEFAULT_RTOL, info: d
     z, evals = solve_mean_deficit(beta, rtol)
     if info is not None:
         info["evaluations"] = evals
+        info["certified"] = False
     w = z / l_prime
-    if w > 2.0:  # t < -1: outside [-e^n, e^n]
-        return MultiplicativeThreshold(n, xi, beta, (), (), ())
+    err_t = 16.0 * _EPS * w + _EPS  # z, L' and w to a few ulps each, 1 - w one more
+    grid = _grid_pm1(n)
     t = 1.0 - w
-    if t > 0.0:
-        ln_t = math.log1p(-w)
-        ln_lambda = n + ln_t
-        present = min(n, max(0, math.ceil(n + 0.5 * ln_t)))  # 2j - n >= n + ln t
-    else:
+    exact = abs(w - 2.0) <= err_t or abs(t) <= err_t
+    if not exact and t > 0.0:
+        ln_lambda = n + math.log1p(-w)
+        err_ln = err_t / t + 4.0 * _EPS * abs(ln_lambda)
+        exact = -n < ln_lambda + err_ln and ln_lambda - err_ln < n and _near_grid(ln_lambda, err_ln, grid)
+    if exact:
+        from . import certify
+
+        if info is not None:
+            info["certified"] = True
+        t_exact = certify.multiplicative_root(n, xi, beta)
+        if t_exact < -1:
+            return MultiplicativeThreshold(n, xi, beta, (), (), ())
+        t = float(t_exact)
+        if t_exact > 0:
+            import mpmath
+
+            with mpmath.workdps(certify.DPS):
+                ln_exact = n + mpmath.log(t_exact)
+            ln_lambda = certify.to_float(ln_exact, grid)
+        else:
+            ln_lambda = None
+    elif w > 2.0:  # t < -1: outside [-e^n, e^n]
+        return MultiplicativeThreshold(n, xi, beta, (), (), ())
+    elif t <= 0.0:
         ln_lambda = None
+    if ln_lambda is None:
         present = 0
+    else:
+        present = min(n, max(0, _ceil_exact((n + Fraction(ln_lambda)) / 2)))  # 2j - n >= ln lambda
     return MultiplicativeThreshold(n, xi, beta, (t,), (ln_lambda,), (present,))
 
 
@@ -224,7 +291,10 @@ class AdditiveThreshold:
     thresholds: every non-trivial root lambda in the domain ([-n, n] or [0, n]), ascending;
         0, 1 or 2 of them ("no root" is the empty tuple).
     present_counts: per root, the smallest number of present taxels j with U_G >= lambda
-        (U_G = 2j - n for "pm1", j for "01").
+        (U_G = 2j - n for "pm1", j for "01"), exact for the lambda returned.
+    near_double_root: True when alpha is within NEAR_DOUBLE_ROOT of the tangent value (the
+        maximum of Q, module doc): the two roots are then a near-double pair, both reported
+        (computed in extended precision), or none if alpha lies above the maximum.
     """
 
     n: int
@@ -233,6 +303,7 @@ class AdditiveThreshold:
     encoding: str
     thresholds: tuple[float, ...]
     present_counts: tuple[int, ...]
+    near_double_root: bool = False
 
 
 def _q_pm1(v, half_r, ln_r, half_c):
@@ -249,91 +320,101 @@ def _q_and_qprime_pm1(v, half_r, ln_r, half_c):
     return half_r * d + half_c * v, half_r * ln_r * dprime + half_c
 
 
-def _newton_q(alpha, v, half_r, ln_r, half_c, rtol, evals):
-    """Newton on Q(v) = alpha on one monotone side of the concave Q. From a start on the safe
-    side (Q(v) <= alpha) the iterates move one way; from the other side the first tangent step
-    lands on the safe side (the tangent lies above Q). After that, a step against the direction
-    is rounding noise: the iterate is at the floor of the attainable accuracy and is kept
-    (otherwise v can flip between two floats ~1e-15 apart until _MAX_ITER). The iteration also
-    stops once the predicted next step (quadratic convergence) is below rtol v."""
-    previous = 0.0
-    for k in range(_MAX_ITER):
-        q, qprime = _q_and_qprime_pm1(v, half_r, ln_r, half_c)
-        step = (q - alpha) / qprime
-        evals[0] += 1
-        if k >= 2 and step * previous < 0.0:
-            break
-        v -= step
-        if abs(step) <= rtol * v:
-            break
-        # quadratic convergence: the next step would be ~ |step/previous^2| step^2; stop if that
-        # is below rtol (saves the one or two steps that only land in the rounding noise)
-        if k >= 2 and abs(step) ** 3 <= rtol * v * previous * previous:
-            break
-        previous = step
-    return v
+def _q_error(v, half_r, half_c, alpha):
+    """Bound on the float error of Q(v) - alpha (each term to a few ulps, generous factor)."""
+    return 64.0 * _EPS * (half_r + abs(half_c) * v + alpha)
 
 
-def _additive_pm1_roots(alpha: float, xi: float, rtol: float, evals: list) -> list[float]:
-    """Roots v in (0, 2] of Q(v) = alpha (module doc), ascending in v."""
-    r, ln_r, c = additive_pm1_constants(xi)
-    half_r, half_c = 0.5 * r, 0.5 * c
-    slope0 = 0.25 * r * ln_r + half_c  # Q'(0) = p'(n) n / 2 > 0
-    q_end = _q_pm1(2.0, half_r, ln_r, half_c)
-    evals[0] += 1
-    roots: list[float] = []
-    if c >= 0.0 or _qprime_pm1(2.0, half_r, ln_r, half_c) >= 0.0:
-        if alpha <= q_end:  # Q increasing on [0, 2]
-            roots.append(min(2.0, _newton_q(alpha, alpha / slope0, half_r, ln_r, half_c, rtol, evals)))
-        return roots
-    # xi > 1/4 and Q has its maximum inside (0, 2): find it (Newton on Q', safeguarded). Newton
-    # converges quadratically, so a step <= 1e-8 v leaves an error ~1e-16 v: stop there (smaller
-    # steps are rounding noise of Q' near its zero, and bisecting them down to rtol cost ~20
-    # evaluations). v_star only decides "no root" (Q(v_star) < alpha, flat there) and clamps
-    # the roots of a near-tangent case.
-    lo, hi = 0.0, 2.0
-    v = 1.0
-    newton_tol = max(rtol, 1e-8)
+def _bracketed_newton(alpha, v, lo, hi, increasing, half_r, ln_r, half_c, rtol, evals):
+    """Root of Q(v) = alpha in [lo, hi], Q monotone there (increasing or not): Newton steps
+    kept inside the shrinking bracket, a bisection when a step leaves it or Q' = 0 (so the
+    tangent point of a near-double root cannot divide by zero). Stops when the step is below
+    rtol v, the bracket below 4 ulps, or Q(v) - alpha is within its own rounding error (one
+    last Newton step is taken then)."""
     for _ in range(_MAX_ITER):
-        dprime, dsecond = _dprime_and_dsecond(ln_r * v)
-        qp = half_r * ln_r * dprime + half_c  # Q'(v)
-        qpp = half_r * ln_r * ln_r * dsecond  # Q''(v) < 0
+        q, qprime = _q_and_qprime_pm1(v, half_r, ln_r, half_c)
         evals[0] += 1
-        if qp == 0.0:
-            break
-        if qp > 0.0:
+        f = q - alpha
+        if f == 0.0:
+            return v
+        if (f < 0.0) == increasing:
             lo = v
         else:
             hi = v
-        nxt = v - qp / qpp
-        if lo < nxt < hi:
-            if abs(nxt - v) <= newton_tol * v:
+        nxt = v - f / qprime if qprime != 0.0 else math.nan
+        inside = lo <= nxt <= hi
+        if not inside:
+            nxt = 0.5 * (lo + hi)
+        if abs(nxt - v) <= rtol * abs(nxt) or hi - lo <= 4.0 * _EPS * hi:
+            return nxt
+        if inside and abs(f) <= _q_error(v, half_r, half_c, alpha):
+            return nxt
+        v = nxt
+    return v
+
+
+def _additive_pm1_roots(alpha: float, xi: float, rtol: float, evals: list):
+    """Roots v in (0, 2] of Q(v) = alpha (module doc), ascending in v, in floats; None when the
+    error bound cannot decide the number of roots (near tangency, a root at v = 2)."""
+    r, ln_r, c = additive_pm1_constants(xi)
+    half_r, half_c = 0.5 * r, 0.5 * c
+    slope0 = 0.25 * r * ln_r + half_c  # Q'(0) = p'(n) n / 2 > 0
+    evals[0] += 1
+    if c >= 0.0 or _qprime_pm1(2.0, half_r, ln_r, half_c) >= 0.0:
+        v_star = 2.0  # Q increasing on [0, 2]
+    else:
+        # xi > 1/4 and Q has its maximum inside (0, 2): Newton on Q', safeguarded by bisection;
+        # a step <= 1e-8 v leaves an error ~1e-16 v in v_star and ~1e-32 in Q(v_star)
+        lo, hi = 0.0, 2.0
+        v = 1.0
+        for _ in range(_MAX_ITER):
+            dprime, dsecond = _dprime_and_dsecond(ln_r * v)
+            qp = half_r * ln_r * dprime + half_c  # Q'(v)
+            qpp = half_r * ln_r * ln_r * dsecond  # Q''(v) < 0
+            evals[0] += 1
+            if qp == 0.0:
+                break
+            if qp > 0.0:
+                lo = v
+            else:
+                hi = v
+            nxt = v - qp / qpp
+            if lo < nxt < hi:
+                if abs(nxt - v) <= 1e-8 * v:
+                    v = nxt
+                    break
+            else:
+                nxt = 0.5 * (lo + hi)
+            if hi - lo <= rtol * hi:
                 v = nxt
                 break
-        else:
-            nxt = 0.5 * (lo + hi)
-        if hi - lo <= rtol * hi:
             v = nxt
-            break
-        v = nxt
-    v_star = v
-    q_max = _q_pm1(v_star, half_r, ln_r, half_c)
-    if alpha > q_max:
-        return roots
-    # starts: the roots of the parabola q_max + Q''(v_star) (v - v_star)^2 / 2 = alpha (good near
-    # the tangent case, where Newton from the far starts alpha/slope0 and 2 converges only
-    # linearly), kept within [alpha/slope0, 2]: alpha/slope0 <= first root (tangent at 0 above Q)
-    # and Q(2) <= alpha are safe starts, and a start on the other side of a root returns to
-    # the safe side in one step (_newton_q)
-    half_gap = math.sqrt(2.0 * (q_max - alpha) / -qpp)
-    first = _newton_q(alpha, max(alpha / slope0, v_star - half_gap), half_r, ln_r, half_c, rtol, evals)
-    roots.append(min(first, v_star))
-    if q_end <= alpha:
-        second = _newton_q(alpha, min(2.0, v_star + half_gap), half_r, ln_r, half_c, rtol, evals)
-        second = min(2.0, max(second, v_star))
-        if second > roots[0] * (1.0 + 1e-12):  # a tangent (double) root is reported once
-            roots.append(second)
+        v_star = v
+    gap = _q_pm1(v_star, half_r, ln_r, half_c) - alpha
+    evals[0] += 1
+    if abs(gap) <= _q_error(v_star, half_r, half_c, alpha) or (v_star < 2.0 and abs(gap) <= NEAR_DOUBLE_ROOT):
+        return None
+    if gap < 0.0:
+        return []
+    start = min(alpha / slope0, v_star)  # left of the first root (the tangent at 0 lies above Q)
+    roots = [_bracketed_newton(alpha, start, 0.0, v_star, True, half_r, ln_r, half_c, rtol, evals)]
+    if v_star < 2.0:
+        end = _q_pm1(2.0, half_r, ln_r, half_c) - alpha
+        evals[0] += 1
+        if abs(end) <= _q_error(2.0, half_r, half_c, alpha):
+            return None
+        if end < 0.0:
+            roots.append(_bracketed_newton(alpha, 2.0, v_star, 2.0, False, half_r, ln_r, half_c, rtol, evals))
     return roots
+
+
+def _additive_v_error(v, alpha, xi) -> float:
+    """Bound on the error of a float root v of Q(v) = alpha: E/|Q'(v)| + a few ulps of v."""
+    r, ln_r, c = additive_pm1_constants(xi)
+    half_r, half_c = 0.5 * r, 0.5 * c
+    slope = abs(_qprime_pm1(v, half_r, ln_r, half_c))
+    e = _q_error(v, half_r, half_c, alpha)
+    return (8.0 * e / slope if slope > 0.0 else math.inf) + 8.0 * _EPS * max(v, 1.0)
 
 
 def additive_threshold(n, xi, alpha, encoding: str = "pm1", *, rtol: float = DEFAULT_RTOL, info: dict | None = None) -> AdditiveThreshold:
@@ -342,27 +423,59 @@ def additive_threshold(n, xi, alpha, encoding: str = "pm1", *, rtol: float = DEF
         int_lambda^n f(x) dx = (1 - alpha)(n - lambda),
 
     f = eq 13 on [-n, n] for ``encoding="pm1"`` or eq 12 on [0, n] for ``"01"``. Every root in
-    the domain is returned (module doc); none is a result, never an error.
+    the domain is returned (module doc); none is a result, never an error. Certified: the number
+    of roots, a root at a domain edge and the present counts are exact (mpmath where the float
+    error bound cannot decide, :mod:`.certify`); near a tangency both roots are reported and
+    ``near_double_root`` is set.
     """
     n = check_n(n)
     xi = check_xi(xi)
     alpha = check_open_unit("alpha", alpha)
     encoding = check_encoding(encoding)
     evals = [0]
+    near_double = False
+    grid = _grid_int if encoding == "01" else _grid_pm1(n)
     if encoding == "01":
         z, evals[0] = solve_mean_deficit(alpha, rtol)
         v = z / -math.log(xi)
-        vs = [v] if v <= 1.0 else []
-        lambdas = [n * (1.0 - v) for v in vs]
-        counts = [min(n, max(0, math.ceil(n - n * v))) for v in vs]
+        err_v = 16.0 * _EPS * v
+        vs = None if abs(v - 1.0) <= err_v else ([v] if v <= 1.0 else [])
+        errs = [err_v]
     else:
         vs = _additive_pm1_roots(alpha, xi, rtol, evals)
-        vs.reverse()  # v ascending -> lambda = n (1 - v) ascending
+        if vs is not None:
+            vs.reverse()  # v descending -> lambda = n (1 - v) ascending
+            errs = [_additive_v_error(v, alpha, xi) for v in vs]
+    lambdas = None
+    if vs is not None:
         lambdas = [n * (1.0 - v) for v in vs]
-        counts = [min(n, max(0, math.ceil(n - 0.5 * n * v))) for v in vs]  # 2j - n >= n (1 - v)
+        for lam, err_v in zip(lambdas, errs):
+            err = n * err_v + 4.0 * _EPS * abs(lam)
+            if _near_grid(lam, err, grid) and -n < lam + err:
+                lambdas = None  # the side of an attainable U_G is undecided: certify
+                break
+    certified = lambdas is None
+    if certified:
+        from . import certify
+
+        import mpmath
+
+        if encoding == "01":
+            v_exact = certify.additive_01_root(xi, alpha)
+            exact_vs = [v_exact] if v_exact <= 1 else []
+        else:
+            exact_vs, near_double = certify.additive_pm1_roots(xi, alpha, NEAR_DOUBLE_ROOT)
+            exact_vs = exact_vs[::-1]
+        with mpmath.workdps(certify.DPS + 20):
+            lambdas = [certify.to_float(n * (1 - v), grid) for v in exact_vs]
+    if encoding == "01":
+        counts = [min(n, max(0, _ceil_exact(lam))) for lam in lambdas]
+    else:
+        counts = [min(n, max(0, _ceil_exact((n + Fraction(lam)) / 2))) for lam in lambdas]  # 2j - n >= lambda
     if info is not None:
         info["evaluations"] = evals[0]
-    return AdditiveThreshold(n, xi, alpha, encoding, tuple(lambdas), tuple(counts))
+        info["certified"] = certified
+    return AdditiveThreshold(n, xi, alpha, encoding, tuple(lambdas), tuple(counts), near_double)
 
 
 # ------------------------------------------------------------------------------- preferential
@@ -382,7 +495,15 @@ class PreferentialThreshold:
     (alpha > 3(1 - xi)/4); band_width and g_max do not depend on the root and are always set.
     mean_roots: every non-trivial root of eq 18 in [-g, g], ascending (empty, one, or two
     when 2 <= 3 alpha/(1 - xi) < 9/4, the second one in [-g, -g/2]); threshold_mean is the
-    largest.
+    largest. near_double_root: alpha within NEAR_DOUBLE_ROOT of the tangent value 3(1 - xi)/4
+    (both roots of the near-double pair are listed in mean_roots).
+
+    band: "centred" (default, the band centred on threshold_mean as above) or "eq19": the band of
+    width alpha g / 4 (eq 20) on which the mean of f is 1 - alpha (eq 19). Eq 19 and eq 20 fix
+    the band without eq 18; with f of eq 14 there are 0, 1 or 2 such bands in [-g, g],
+    listed in eq19_bands (initial, final), ascending; threshold_initial/final are then the
+    upper one (None if there is none). The centred band satisfies eq 19 only by coincidence
+    (docs/chapter-notes.md).
     """
 
     n: int
@@ -398,6 +519,9 @@ class PreferentialThreshold:
     threshold_final: float | None
     present_count: int | None
     mean_roots: tuple[float, ...] = ()
+    near_double_root: bool = False
+    band: str = "centred"
+    eq19_bands: tuple[tuple[float, float], ...] = ()
 
 
 def _weights(p: float, q: float) -> tuple[float, float, float, float, float]:
@@ -408,7 +532,18 @@ def _weights(p: float, q: float) -> tuple[float, float, float, float, float]:
     on the {0,1} tuple).
     """
     big_p, big_q = 2.0**p, 2.0**q
-    return big_p, big_q, big_p * big_q, (1.0 if p == 0.0 else 0.0), (1.0 if q == 0.0 else 0.0)
+    # PQ as 2^(p+q), the same float as in g(n) (rules.g_of_n), so U_G of the all-present vector
+    # equals g in floating point too
+    return big_p, big_q, 2.0 ** (p + q), (1.0 if p == 0.0 else 0.0), (1.0 if q == 0.0 else 0.0)
+
+
+def _mp_weights(p: float, q: float):
+    """The weights of :func:`_weights` in the current mpmath precision (exact inputs)."""
+    import mpmath
+
+    two = mpmath.mpf(2)
+    return (two ** mpmath.mpf(p), two ** mpmath.mpf(q), two ** (mpmath.mpf(p) + mpmath.mpf(q)),
+            mpmath.mpf(1 if p == 0.0 else 0), mpmath.mpf(1 if q == 0.0 else 0))
 
 
 def _best_run_value(n: int, present: int, weights: tuple, encoding: str) -> float:
@@ -516,18 +651,104 @@ def _smallest_present(n: int, weights: tuple, encoding: str, lam: float) -> int 
     return m if m <= n else None
 
 
-def preferential_threshold(n, xi, alpha, p, q, encoding: str = "pm1") -> PreferentialThreshold:
+def _float_above(x) -> float:
+    f = float(x)
+    return math.nextafter(f, math.inf) if f <= x else f
+
+
+def _float_at_or_below(x) -> float:
+    f = float(x)
+    return math.nextafter(f, -math.inf) if f > x else f
+
+
+def _certified_present(n, p, q, weights, encoding, mean, exact_mean):
+    """(present_count, mean): the smallest m with M(m) >= lambda_mean, exact. Where a float
+    M(m) lies within its error bound of the float mean, M(m) and the mean are evaluated in
+    mpmath (``exact_mean()``), and the returned mean is moved by an ulp if rounding put it on
+    the wrong side of M(m) (so the count and the returned mean agree)."""
+    m = _smallest_present(n, weights, encoding, mean)
+    g = weights[0] + weights[1] + n * weights[2]
+    err = 32.0 * _EPS * (abs(mean) + g)
+    window = sorted({0, 1, n} | {k for k in range((m if m is not None else n) - 2, (m if m is not None else n) + 3)
+                                 if 0 <= k <= n})
+    if all(abs(_best_run_value(n, k, weights, encoding) - mean) > err for k in window):
+        return m, mean
+    import mpmath
+
+    from . import certify
+
+    with mpmath.workdps(certify.DPS):
+        lam = exact_mean()
+        w = _mp_weights(p, q)
+        exact_m = {k: _best_run_value(n, k, w, encoding) for k in window}
+        for value in exact_m.values():
+            if abs(value - mean) <= err:
+                if lam > value and mean <= value:
+                    mean = _float_above(value)
+                elif lam <= value and mean > value:
+                    mean = _float_at_or_below(value)
+        # smallest k: 0 and 1 in order (M(1) < M(0) can happen), then M increasing on 2..n
+        # (the float answer m is within one place of the exact one: the window covers it)
+        if exact_m[0] >= lam:
+            found = 0
+        elif exact_m[1] >= lam:
+            found = 1
+        else:
+            found = next((k for k in window if k >= 2 and exact_m[k] >= lam), None)
+    return found, mean
+
+
+def _exact_mean_root(n, xi, alpha, p, q, minus=False):
+    """lambda_mean of eq 18 in mpmath, the + root (or the - root) for the exact inputs."""
+    import mpmath
+
+    a = 3 * mpmath.mpf(alpha) / (1 - mpmath.mpf(xi))
+    s = mpmath.sqrt(9 - 4 * a)
+    y = (-1 - s) / 2 if minus else 2 * (2 - a) / (1 + s)
+    big_p, big_q, pq, _, _ = _mp_weights(p, q)
+    g = mpmath.mpf(1) if n == 1 else (big_p + big_q) + (n - 2) * pq
+    return y * g
+
+
+def _eq19_bands(xi: float, alpha: float, g: float) -> tuple[tuple[float, float], ...]:
+    """Bands [y_i, y_i + w] g of width w g, w = alpha/4 (eq 20), with mean of f (eq 14) = 1 - alpha
+    (eq 19): (1 - xi)(y_i^2 + w y_i + w^2/3) + xi = 1 - alpha, i.e.
+    y_i^2 + w y_i + w^2/3 - C = 0, C = 1 - alpha/(1 - xi); y_i = (-w +- sqrt(4C - w^2/3))/2,
+    kept where the band lies inside [-1, 1]. The discriminant and C - w^2/3 are formed exactly
+    (fractions): no cancellation at the tangent band."""
+    a_, x_ = Fraction(alpha), Fraction(xi)
+    w = a_ / 4
+    c = 1 - a_ / (1 - x_)
+    disc = 4 * c - w * w / 3
+    if disc < 0:
+        return ()
+    s = math.sqrt(float(disc))
+    wf = float(w)
+    upper = 2.0 * float(c - w * w / 3) / (s + wf)  # (-w + s)/2 without cancellation
+    lower = -0.5 * (wf + s)
+    bands = []
+    for y in sorted({lower, upper}):
+        if -1.0 <= y and y + wf <= 1.0:
+            bands.append((y * g, (y + wf) * g))
+    return tuple(bands)
+
+
+def preferential_threshold(n, xi, alpha, p, q, encoding: str = "pm1", band: str = "centred") -> PreferentialThreshold:
     """HEBTEM threshold band of the preferential rule, eqs 18-20 with eq 14, g = g(n) of eq 15:
 
         int_{lambda_mean}^{g} f(x) dx = (1 - alpha)(g - lambda_mean)           (18)
-        delta lambda = alpha g / 4                                              (20)
+        int_{lambda_i}^{lambda_f} f(x) dx = (1 - alpha)(lambda_f - lambda_i)     (19)
+        delta lambda = lambda_f - lambda_i = alpha g / 4                         (20)
 
     With y = lambda/g, eq 18 divided by (g - lambda) is y^2 + y - 2 + a = 0, a = 3 alpha/(1-xi),
-    roots y = (-1 +- sqrt(9 - 4a))/2. The "+" root lies in [-1/2, 1) and exists iff
-    a <= 9/4; it is formed as 1 - 2a/(3 + s) (a < 1) or 2(2 - a)/(1 + s) (a >= 1), s = sqrt(9-4a),
-    without cancellation. The "-" root (-1 - s)/2 lies in [-1, -1/2] when a >= 2 (s <= 1) and
-    is then returned in ``mean_roots`` too. ``encoding`` only affects present_count (U_G of
-    eq 7 on that tuple).
+    roots y = (-1 +- sqrt(9 - 4a))/2. The "+" root lies in [-1/2, 1) and exists iff a <= 9/4;
+    it is formed as 1 - 2a/(3 + s) (a < 1) or 2(2 - a)/(1 + s) (a >= 1), s = sqrt(9 - 4a). The
+    "-" root (-1 - s)/2 lies in [-1, -1/2] when a >= 2 and is then returned in ``mean_roots``
+    too. 9 - 4a, 2 - a and the tests a <= 9/4, a >= 2 are exact (fractions of the float
+    inputs), so no root is invented or lost at a = 2 or 9/4 and both roots of a near-double
+    pair are returned (``near_double_root``). ``encoding`` only affects present_count (U_G of
+    eq 7 on that tuple), which is certified (:func:`_certified_present`). ``band``: "centred"
+    (default) or "eq19" (:class:`PreferentialThreshold`).
     """
     n = check_n(n)
     xi = check_xi(xi)
@@ -535,25 +756,41 @@ def preferential_threshold(n, xi, alpha, p, q, encoding: str = "pm1") -> Prefere
     p = check_weight("p", p)
     q = check_weight("q", q)
     encoding = check_encoding(encoding)
+    if band not in ("centred", "eq19"):
+        from taxel_net.errors import ParameterError
+
+        raise ParameterError("band", band, "must be 'centred' or 'eq19'")
     weights = _weights(p, q)
     # g(n) of eq 15, the expression of rules.g_of_n (tested equal) without re-checking n, p, q
-    g = 1.0 if n == 1 else (weights[0] + weights[1]) + (n - 2) * 2.0 ** (p + q)
-    one_minus_xi = 1.0 - xi
-    a = 3.0 * alpha / one_minus_xi
-    disc = 9.0 - 4.0 * a
-    band = alpha * g / 4.0  # eq 20, independent of the root
-    if disc < 0.0:
-        return PreferentialThreshold(n, xi, alpha, p, q, encoding, g, None, band, None, None, None)
-    s = math.sqrt(disc)
-    if a < 1.0:
-        y = 1.0 - 2.0 * a / (3.0 + s)
+    g = 1.0 if n == 1 else (weights[0] + weights[1]) + (n - 2) * weights[2]
+    a_exact = 3 * Fraction(alpha) / (1 - Fraction(xi))
+    disc = 9 - 4 * a_exact
+    width = alpha * g / 4.0  # eq 20, independent of the root
+    bands = _eq19_bands(xi, alpha, g) if band == "eq19" else ()
+    near_double = abs(Fraction(3, 4) * (1 - Fraction(xi)) - Fraction(alpha)) <= NEAR_DOUBLE_ROOT
+    if disc < 0:
+        return PreferentialThreshold(n, xi, alpha, p, q, encoding, g, None, width, None, None, None, (),
+                                     near_double, band, bands)
+    s = math.sqrt(float(disc))
+    if a_exact < 1:
+        y = 1.0 - 2.0 * float(a_exact) / (3.0 + s)
     else:
-        y = 2.0 * (2.0 * one_minus_xi - 3.0 * alpha) / (one_minus_xi * (1.0 + s))
+        y = 2.0 * float(2 - a_exact) / (1.0 + s)
     mean = y * g
+    mean, present = _certified_mean(n, xi, alpha, p, q, weights, encoding, mean)
     roots = (mean,)
-    if s <= 1.0 and s > 0.0:  # second root (-1 - s)/2 in [-1, -1/2]; s = 0 is the double root
+    if a_exact >= 2:  # second root (-1 - s)/2 in [-1, -1/2] (a double root at a = 9/4 is listed twice)
         roots = (0.5 * (-1.0 - s) * g, mean)
-    present = _smallest_present(n, weights, encoding, mean)
+    if band == "eq19":
+        initial, final = bands[-1] if bands else (None, None)
+    else:
+        initial, final = mean - 0.5 * width, mean + 0.5 * width
     return PreferentialThreshold(
-        n, xi, alpha, p, q, encoding, g, mean, band, mean - 0.5 * band, mean + 0.5 * band, present, roots
+        n, xi, alpha, p, q, encoding, g, mean, width, initial, final, present, roots, near_double, band, bands
     )
+
+
+def _certified_mean(n, xi, alpha, p, q, weights, encoding, mean):
+    present, mean = _certified_present(n, p, q, weights, encoding, mean,
+                                       lambda: _exact_mean_root(n, xi, alpha, p, q))
+    return mean, present
