@@ -25,6 +25,7 @@ import argparse
 import json
 import math
 import re
+from fractions import Fraction
 import sys
 
 import numpy as np
@@ -35,7 +36,7 @@ from ..core.curves import check_open_unit
 from ..core.encoding import check_encoding, check_integer, present_count, validate_decisions
 from taxel_net.errors import ParameterError
 from ..core.rules import check_weight
-from .threshold import parse_option
+from .threshold import parse_number, parse_option
 
 HELP = "fuse one vector of local decisions u_i with a fusion rule (HEBTEM or a baseline) and decide H0/H1"
 
@@ -59,6 +60,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--root", choices=("auto", "positive", "negative"),
         help="additive {-1,+1}: which root of eq 17 (auto: the side of U_G's sign, sec. 6.3.1)",
     )
+    parser.add_argument("--band", choices=("centred", "eq19"),
+                        help="preferential: band centred on lambda_mean (default) or the band of eqs 19-20")
     parser.add_argument("--pd", help="llr/np/k-of-n (and additive/multiplicative with a threshold: exact system"
                         " P_D, P_F of the rule in count form): detection probability 1 - P_M per taxel (list) or one value")
     parser.add_argument("--pf", help="llr/np/k-of-n/additive/multiplicative: false-alarm probability P_F per taxel"
@@ -79,7 +82,7 @@ _RULE_OPTIONS = {
     "xi": ("additive", "multiplicative", "preferential"), "alpha": ("additive", "preferential"),
     "beta": ("multiplicative",), "pd": ("k-of-n", "llr", "np", "additive", "multiplicative"),
     "pf": ("k-of-n", "llr", "np", "additive", "multiplicative"), "prior_h1": ("llr",),
-    "false_alarm": ("np",), "root": ("additive",),
+    "false_alarm": ("np",), "root": ("additive",), "band": ("preferential",),
 }
 
 
@@ -97,9 +100,9 @@ def _number_list(name: str, text: str, allowed: str) -> np.ndarray:
     values = []
     for i, token in enumerate(tokens):
         try:
-            value = float(token)
-        except ValueError:
-            raise ParameterError(f"{name}[{i}]", token, allowed) from None
+            value = float(parse_number(f"{name}[{i}]", token))  # no silent underflow (1e-400 -> 0)
+        except ParameterError as exc:
+            raise ParameterError(f"{name}[{i}]", token, allowed if token else exc.allowed) from None
         if not math.isfinite(value):
             raise ParameterError(f"{name}[{i}]", token, allowed)
         values.append(value)
@@ -197,7 +200,7 @@ def _hebtem(args, rule: str, u: np.ndarray, encoding: str, record: dict) -> None
         record["threshold"] = lam
         record["decision"] = "H1" if u_g >= lam else "H0"
         # U_G = 2K - n (pm1) or K (01) >= lambda  <=>  K >= min_present_count
-        _count_form_rates(args, record, math.ceil((n + lam) / 2) if encoding == "pm1" else math.ceil(lam))
+        _count_form_rates(args, record, math.ceil((n + Fraction(lam)) / 2) if encoding == "pm1" else math.ceil(lam))
     elif rule == "multiplicative":
         # the curve (eqs 10-11) and eq 16 are written for the {-1,+1} tuple (fig. 2a):
         # with {0,1} decisions we evaluate them at the equivalent ln U_G = 2K - n
@@ -222,7 +225,7 @@ def _hebtem(args, rule: str, u: np.ndarray, encoding: str, record: dict) -> None
             record["threshold"] = math.exp(ln_lam) if ln_lam < 709.0 else None
             record["decision"] = "H1" if ln_u_g_pm1 >= ln_lam else "H0"
             # e^(2K - n) >= lambda  <=>  K >= (n + ln lambda)/2
-            _count_form_rates(args, record, math.ceil((n + ln_lam) / 2))
+            _count_form_rates(args, record, math.ceil((n + Fraction(ln_lam)) / 2))
         else:  # lambda <= 0: every U_G > 0 accepts H1
             record["ln_threshold"] = None
             record["threshold"] = scaled * math.exp(n) if n < 709 else None
@@ -237,17 +240,42 @@ def _hebtem(args, rule: str, u: np.ndarray, encoding: str, record: dict) -> None
             return
         from ..core import thresholds
 
-        band = thresholds.preferential_threshold(n, xi, alpha, p, q, encoding=encoding)
+        band = thresholds.preferential_threshold(n, xi, alpha, p, q, encoding=encoding, band=args.band or "centred")
+        if band.near_double_root:
+            record["near_double_root"] = True
         if band.threshold_mean is None:  # a result, not an error: no threshold, no decision
             record["no_root"] = f"eq 18 has no root in [-g, g] for xi={xi}, alpha={alpha}: 3 alpha/(1 - xi) > 9/4"
             return
+        if band.band == "eq19":
+            record["band"] = "eq19"
+            if band.threshold_initial is None:
+                record["threshold"] = float(band.threshold_mean)
+                record["no_root"] = f"eqs 19-20 have no band in [-g, g] for xi={xi}, alpha={alpha}"
+                return
         low, high = float(band.threshold_initial), float(band.threshold_final)
         record["threshold"] = float(band.threshold_mean)
         record["threshold_initial"] = low
         record["threshold_final"] = high
         record["band_width"] = float(band.band_width)
         u_g = record["U_G"]
-        record["decision"] = "H1" if u_g >= high else ("H0" if u_g < low else "undecided")
+        above = _certified_at_least(u, encoding, p, q, u_g, high, g)
+        below = not _certified_at_least(u, encoding, p, q, u_g, low, g)
+        record["decision"] = "H1" if above else ("H0" if below else "undecided")
+
+
+def _certified_at_least(u, encoding, p, q, u_g: float, edge: float, g: float) -> bool:
+    """U_G >= edge for the exact U_G of eq 7 (a + b 2^p + c 2^q + d 2^(p+q), integer counts):
+    the float comparison where U_G's error bound decides it, else mpmath (60 digits)."""
+    err = 16.0 * 2.220446049250313e-16 * (g + abs(edge))
+    if abs(u_g - edge) > err:
+        return u_g >= edge
+    import mpmath
+
+    from ..core import rules
+
+    with mpmath.workdps(60):
+        exact = rules.preferential_exact(rules.preferential_coefficients(u, encoding), p, q)
+        return exact >= mpmath.mpf(edge)
 
 
 # eqs 31-32: Lambda = lambda_threshold is the chapter's undefined case (sec. 6.2)
@@ -283,8 +311,8 @@ def fuse(args) -> dict:
             record["ln_U_G"] = float(value.ln_U_G)
             record["U_G"] = float(value.U_G)
         elif rule == "preferential":
-            record["p"] = parse_option("p", args.p or "1", lambda v: check_weight("p", v))
-            record["q"] = parse_option("q", args.q or "1", lambda v: check_weight("q", v))
+            record["p"] = parse_option("p", "1" if args.p is None else args.p, lambda v: check_weight("p", v))
+            record["q"] = parse_option("q", "1" if args.q is None else args.q, lambda v: check_weight("q", v))
             record["U_G"] = float(rules.preferential(u, record["p"], record["q"], encoding))
         else:
             if args.k is None:
@@ -308,7 +336,7 @@ def fuse(args) -> dict:
     pd = _probabilities("pd", args.pd, n)
     pf = _probabilities("pf", args.pf, n)
     if rule == "llr":
-        prior = _open_unit("prior_h1", args.prior_h1 or "0.5")
+        prior = _open_unit("prior_h1", "0.5" if args.prior_h1 is None else args.prior_h1)
         llr = baselines.chair_varshney_llr(u, pd, pf, encoding, prior_h1=prior)
         record.update(U_G=llr, statistic="ln P(H1|U)/P(H0|U) (eq 31)", prior_h1=prior, threshold=0.0)
         record["decision"] = _DECISION[baselines.compare_log_ratio(llr, 0.0)]

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+from decimal import Decimal, InvalidOperation
 
 from taxel_net.errors import UsageError
 from ..core.curves import check_n, check_open_unit, check_xi
@@ -26,16 +27,55 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     level.add_argument("--beta", metavar="B", help="Type II error level in (0, 1): multiplicative")
     parser.add_argument("--p", metavar="P", help="preferential: weight of the succeeding taxel in [0, 2] (default 1)")
     parser.add_argument("--q", metavar="Q", help="preferential: weight of the preceding taxel in [0, 2] (default 1)")
+    parser.add_argument("--band", choices=("centred", "eq19"),
+                        help="preferential: threshold band centred on lambda_mean (default) or the band of eqs 19-20")
     parser.add_argument("--tuple", dest="encoding", choices=("pm1", "01"), default="pm1",
                         help="decision tuple: pm1 = {-1,+1} (default), 01 = {0,1}")
     parser.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
 
 
-def parse_option(name: str, text, check):
-    """``check(text)`` with the library's own validator (float(text) inside); a ParameterError
-    quotes the option as typed (``alpha='1e-400'``, not the 0.0 it parses to)."""
+_MIN_NORMAL = 2.2250738585072014e-308
+
+
+def parse_number(name: str, text):
+    """The number typed for option ``name``, never silently changed: an integer as an exact
+    int (so 9007199254740993 is not rounded to 2^53), anything else as the nearest double.
+    Empty text, text that is no number, a value that overflows (1e400) or underflows a double
+    (1e-400, or a subnormal that keeps fewer digits) raise ParameterError quoting the text."""
+    raw = "" if text is None else str(text).strip()
+    if raw == "":
+        raise ParameterError(name, text, "is empty: give a number")
     try:
-        return check(text)
+        exact = Decimal(raw)
+    except InvalidOperation:
+        raise ParameterError(name, text, "is not a number") from None
+    if not exact.is_finite():
+        return float(exact)  # nan / inf: each option's own check names its allowed range
+    value = float(exact)  # correctly rounded
+    if math.isinf(value):
+        raise ParameterError(name, text, "overflows a double (magnitude above 1.8e308)")
+    if exact == exact.to_integral_value():
+        return int(exact)
+    if math.isinf(value):
+        raise ParameterError(name, text, "overflows a double (magnitude above 1.8e308)")
+    if abs(value) < _MIN_NORMAL:
+        raise ParameterError(name, text, "underflows a double (nonzero magnitude below 2.2e-308)")
+    return value
+
+
+def parse_option(name: str, text, check):
+    """``check(value)`` with the library's own validator on the value of :func:`parse_number`;
+    a ParameterError quotes the option as typed (``alpha='1e-400'``)."""
+    try:
+        value = parse_number(name, text)
+    except ParameterError as exc:
+        try:
+            check(None)  # the option's own allowed range, for the message
+        except ParameterError as allowed:
+            raise ParameterError(exc.name, text, f"{exc.allowed}; {allowed.allowed}") from None
+        raise
+    try:
+        return check(value)
     except ParameterError as exc:
         raise ParameterError(exc.name, text, exc.allowed) from None
 
@@ -56,6 +96,8 @@ def _check_combination(args) -> None:
             raise UsageError(f"--rule {rule} needs --alpha A (Type I error level in (0, 1))")
     if rule != "preferential" and (args.p is not None or args.q is not None):
         raise UsageError("--p/--q only apply to --rule preferential")
+    if rule != "preferential" and args.band is not None:
+        raise UsageError("--band only applies to --rule preferential")
 
 
 def _result(args) -> dict:
@@ -72,15 +114,24 @@ def _result(args) -> dict:
     alpha = parse_option("alpha", args.alpha, lambda v: check_open_unit("alpha", v))
     if args.rule == "additive":
         res = additive_threshold(n, xi, alpha, args.encoding)
-        return {"rule": "additive", "n": n, "xi": xi, "alpha": alpha, "tuple": args.encoding,
-                "thresholds": list(res.thresholds), "present_counts": list(res.present_counts)}
+        out = {"rule": "additive", "n": n, "xi": xi, "alpha": alpha, "tuple": args.encoding,
+               "thresholds": list(res.thresholds), "present_counts": list(res.present_counts)}
+        if res.near_double_root:
+            out["near_double_root"] = True
+        return out
     p = parse_option("p", args.p, lambda v: check_weight("p", v)) if args.p is not None else 1.0
     q = parse_option("q", args.q, lambda v: check_weight("q", v)) if args.q is not None else 1.0
-    res = preferential_threshold(n, xi, alpha, p, q, args.encoding)
-    return {"rule": "preferential", "n": n, "xi": xi, "alpha": alpha, "p": p, "q": q, "tuple": args.encoding,
-            "g_max": res.g_max, "threshold_mean": res.threshold_mean, "threshold_means": list(res.mean_roots),
-            "threshold_initial": res.threshold_initial, "threshold_final": res.threshold_final,
-            "band_width": res.band_width, "present_count": res.present_count}
+    res = preferential_threshold(n, xi, alpha, p, q, args.encoding, band=args.band or "centred")
+    out = {"rule": "preferential", "n": n, "xi": xi, "alpha": alpha, "p": p, "q": q, "tuple": args.encoding,
+           "g_max": res.g_max, "threshold_mean": res.threshold_mean, "threshold_means": list(res.mean_roots),
+           "threshold_initial": res.threshold_initial, "threshold_final": res.threshold_final,
+           "band_width": res.band_width, "present_count": res.present_count}
+    if res.near_double_root:
+        out["near_double_root"] = True
+    if res.band == "eq19":
+        out["band"] = "eq19"
+        out["eq19_bands"] = [list(b) for b in res.eq19_bands]
+    return out
 
 
 def _fmt(value) -> str:
@@ -122,7 +173,7 @@ def _table(result: dict):
         table.add_column("lambda", justify="right")
         table.add_column("present taxels needed", justify="right")
         for lam, count in zip(result["thresholds"], result["present_counts"]):
-            table.add_row(_fmt(lam), _fmt(count))
+            table.add_row(_fmt(lam) + (" (near-double root)" if result.get("near_double_root") else ""), _fmt(count))
         if not result["thresholds"]:
             table.add_row("no root in the domain", "-")
     else:
@@ -131,6 +182,7 @@ def _table(result: dict):
         keys = ("g_max", "threshold_mean", "threshold_initial", "threshold_final", "band_width", "present_count")
         if len(result["threshold_means"]) > 1:
             keys += ("threshold_means",)  # eq 18's second root (sec. 2.2.3.4)
+        keys += tuple(k for k in ("near_double_root", "band", "eq19_bands") if k in result)
         for key in keys:
             table.add_row(key, _fmt(result[key]))
     return table

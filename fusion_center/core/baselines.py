@@ -298,15 +298,31 @@ def _merge_atoms(values: np.ndarray, p0: np.ndarray, p1: np.ndarray):
 
 
 def _randomised_boundary(p0: np.ndarray, p1: np.ndarray, alpha: float):
-    """Index j of the boundary atom and gamma, atoms in decreasing statistic order."""
-    cum_before = np.concatenate(([0.0], np.cumsum(p0)[:-1]))
-    cum_after = cum_before + p0
-    # first atom whose inclusion reaches alpha
-    j = int(np.searchsorted(cum_after, alpha, side="left"))
-    j = min(j, p0.size - 1)
-    gamma = (alpha - cum_before[j]) / p0[j] if p0[j] > 0 else 0.0
-    gamma = float(min(1.0, max(0.0, gamma)))
-    achieved = float(cum_before[j] + gamma * p0[j])
+    """Index j of the boundary atom and gamma, atoms in decreasing statistic order:
+    P0(atoms before j) + gamma p0[j] = alpha (N-P lemma, randomised boundary).
+
+    alpha <= 1/2: prefix sums. alpha > 1/2: complements, 1 - alpha (exact in floats for
+    alpha >= 1/2) against the H0 mass *after* j, summed from the small end, so gamma keeps its
+    digits for a false-alarm rate near 1 (1 - gamma = (1 - alpha - tail)/p0[j]); the prefix
+    form would subtract two numbers near 1 (1.4e-4 off in gamma at alpha = 1 - 1e-9).
+    """
+    size = p0.size
+    if alpha <= 0.5:
+        cum_before = np.concatenate(([0.0], np.cumsum(p0)[:-1]))
+        cum_after = cum_before + p0
+        j = min(int(np.searchsorted(cum_after, alpha, side="left")), size - 1)  # first reaching alpha
+        gamma = (alpha - cum_before[j]) / p0[j] if p0[j] > 0 else 0.0
+        gamma = float(min(1.0, max(0.0, gamma)))
+        achieved = float(cum_before[j] + gamma * p0[j])
+    else:
+        beta0 = 1.0 - alpha  # exact (Sterbenz)
+        tail_after = np.concatenate((np.cumsum(p0[::-1])[::-1][1:], [0.0]))  # P0(atoms after j)
+        # first j whose atoms up to j reach alpha: tail_after[j] <= 1 - alpha (tail decreasing)
+        j = min(int(np.searchsorted(-tail_after, -beta0, side="left")), size - 1)
+        rest = (beta0 - tail_after[j]) / p0[j] if p0[j] > 0 else 1.0  # = 1 - gamma
+        rest = float(min(1.0, max(0.0, rest)))
+        gamma = 1.0 - rest
+        achieved = float(1.0 - (tail_after[j] + rest * p0[j]))
     detection = float(np.sum(p1[:j]) + gamma * p1[j])
     return j, gamma, achieved, detection
 

@@ -30,6 +30,9 @@ __all__ = [
     "additive",
     "multiplicative",
     "preferential",
+    "preferential_coefficients",
+    "preferential_value",
+    "preferential_exact",
     "preferential_sister",
     "k_of_n",
     "g_of_n",
@@ -98,17 +101,73 @@ def _neighbour_sum(values: np.ndarray, p: float, q: float, sign: float) -> float
     return float(terms.sum())
 
 
+def preferential_coefficients(u, encoding: Encoding) -> tuple[int, int, int, int, int, int, int, int, int]:
+    """Integer counts behind eq 7: U_G = sum over taxels of u_i F_p(s_next) F_q(s_prev), where a
+    neighbour's factor (1 + u)^p is 0^p (absent on {-1,+1}), 1 (boundary u_0 = u_{n+1} = 0, or
+    absent on {0,1}) or 2^p (present). Returns w[s_next][s_prev] flattened (s = 0: factor 0^.,
+    1: factor 1, 2: factor 2^.), each the signed sum of u_i over the taxels in that state, so
+
+        U_G = sum_{s, t} w[s][t] F_p(s) F_q(t)   exactly.
+    """
+    arr = validate_decisions(u, encoding).astype(np.int64)
+    padded = np.concatenate(([0], arr, [0]))
+    base = 1 + padded  # 1 + u_j: 0 (absent pm1), 1 (boundary / absent 01), 2 (present)
+    nxt, prv = base[2:], base[:-2]
+    index = 3 * nxt + prv
+    w = np.bincount(index, weights=arr, minlength=9)
+    return tuple(int(round(x)) for x in w)
+
+
+def preferential_value(coefficients, p: float, q: float) -> float:
+    """U_G of eq 7 from :func:`preferential_coefficients`, in floats: a + b 2^p + c 2^q + d 2^(p+q)
+    with integer a, b, c, d (0^p, 0^q folded in). For the all-present vector this is the same
+    float expression as g(n) (:func:`g_of_n`): (2^p + 2^q) + (n - 2) 2^(p+q), so U_G never
+    exceeds g by a rounding error."""
+    w = coefficients
+    zp = 1 if p == 0.0 else 0
+    zq = 1 if q == 0.0 else 0
+    fp = (zp, 1, None)
+    fq = (zq, 1, None)
+    a = b = c = d = 0  # constant, 2^p, 2^q, 2^(p+q)
+    for s in range(3):
+        for t in range(3):
+            k = w[3 * s + t]
+            if not k:
+                continue
+            if s < 2 and t < 2:
+                a += k * fp[s] * fq[t]
+            elif s == 2 and t < 2:
+                b += k * fq[t]
+            elif s < 2 and t == 2:
+                c += k * fp[s]
+            else:
+                d += k
+    return ((b * 2.0**p + c * 2.0**q) + d * 2.0 ** (p + q)) + a
+
+
+def preferential_exact(coefficients, p: float, q: float):
+    """U_G of eq 7 as an mpmath number in the current precision (exact inputs)."""
+    import mpmath
+
+    w = coefficients
+    big_p, big_q = mpmath.mpf(2) ** mpmath.mpf(p), mpmath.mpf(2) ** mpmath.mpf(q)
+    fp = (1 if p == 0.0 else 0, 1, big_p)
+    fq = (1 if q == 0.0 else 0, 1, big_q)
+    return mpmath.fsum(w[3 * s + t] * fp[s] * fq[t] for s in range(3) for t in range(3) if w[3 * s + t])
+
+
 def preferential(u, p, q, encoding: Encoding) -> float:
     """Preferential selection rule, eq 7: U_G = sum_i u_i (1 + u_{i+1})^p (1 + u_{i-1})^q.
 
     u_0 = u_{n+1} = 0 (the chapter's boundary convention), 0**0 = 1, p and q real in [0, 2]
     (weights of the succeeding and the preceding taxel). Applied to the values of the given
-    tuple. For all taxels present the value is g(n) of eq 15 (:func:`g_of_n`) in both tuples.
+    tuple. For all taxels present the value is g(n) of eq 15 (:func:`g_of_n`) in both tuples,
+    as the same float. Evaluated from the integer counts of :func:`preferential_coefficients`
+    (error a few ulps of g; exact for integer p, q while the values stay below 2^53).
     """
     p = check_weight("p", p)
     q = check_weight("q", q)
-    arr = validate_decisions(u, encoding).astype(float)
-    return _neighbour_sum(arr, p, q, +1.0)
+    return preferential_value(preferential_coefficients(u, encoding), p, q)
 
 
 def preferential_sister(u, p, q, encoding: Encoding) -> float:
