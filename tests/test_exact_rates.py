@@ -1,0 +1,173 @@
+"""Exact system rates (part B): the preferential-rule DP (eq 7, eq 20 band) against brute force
+over all 2^n decision vectors (n <= 12, both tuples, integer and non-integer p, q, unequal
+per-taxel pd_i/pf_i), U_G and every vector's probability in mpmath; Chair-Varshney (eq 31) and
+N-P (eq 32) rates on kinds against brute force and against the identical-taxel N-P rule."""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import mpmath as mp
+import numpy as np
+import pytest
+
+from fusion_center.core import baselines
+from fusion_center.core.exact_rates import llr_error_rates, np_kinds_fusion, preferential_error_rates
+
+mp.mp.dps = 40
+
+
+def brute_preferential(pd, pf, p, q, encoding, low, high):
+    n = len(pd)
+    absent = -1 if encoding == "pm1" else 0
+    P, Q = mp.mpf(2) ** mp.mpf(p), mp.mpf(2) ** mp.mpf(q)
+    out = {"h1": [mp.mpf(0)] * 3, "h0": [mp.mpf(0)] * 3}  # [H1 decided, undecided, H0 decided]
+    for bits in itertools.product((0, 1), repeat=n):
+        u = [1 if b else absent for b in bits]
+        padded = [0] + u + [0]
+        val = mp.mpf(0)
+        for i in range(1, n + 1):
+            nxt, prv = 1 + padded[i + 1], 1 + padded[i - 1]
+            fp = P if nxt == 2 else (mp.mpf(1) if nxt == 1 else (mp.mpf(1) if p == 0 else mp.mpf(0)))
+            fq = Q if prv == 2 else (mp.mpf(1) if prv == 1 else (mp.mpf(1) if q == 0 else mp.mpf(0)))
+            val += u[i - 1] * fp * fq
+        k = 0 if val >= mp.mpf(high) else (2 if val < mp.mpf(low) else 1)
+        for name, probs in (("h1", pd), ("h0", pf)):
+            w = mp.mpf(1)
+            for b, pi in zip(bits, probs):
+                w *= mp.mpf(pi) if b else 1 - mp.mpf(pi)
+            out[name][k] += w
+    return out
+
+
+CASES = [("pm1", 1.0, 1.0), ("pm1", 1.3, 0.18), ("pm1", 0.0, 1.5), ("01", 1.0, 1.0), ("01", 0.5, 2.0),
+         ("01", 1.7, 0.3), ("pm1", 2.0, 0.0), ("01", 0.0, 0.0)]
+
+
+@pytest.mark.parametrize("encoding, p, q", CASES)
+@pytest.mark.parametrize("n", [1, 2, 3, 8])
+def test_preferential_dp_vs_all_vectors(encoding, p, q, n):
+    rng = np.random.default_rng(n * 31 + int(10 * p) + int(100 * q))
+    pd = rng.uniform(0.5, 0.99, n)
+    pf = rng.uniform(0.001, 0.3, n)
+    g = 1.0 if n == 1 else 2.0**p + 2.0**q + (n - 2) * 2.0 ** (p + q)
+    for low, high in ((0.2 * g, 0.45 * g), (-0.1 * g, 0.1 * g), (0.6 * g, 0.6 * g + 1e-9)):
+        ours = preferential_error_rates(pd, pf, p, q, encoding, low, high)
+        ref = brute_preferential(pd, pf, p, q, encoding, low, high)
+        got = {"h1": (ours.p_detect, ours.p_undecided_h1, ours.p_miss),
+               "h0": (ours.p_false_alarm, ours.p_undecided_h0, ours.p_reject)}
+        for hyp in ("h1", "h0"):
+            for a, b in zip(got[hyp], ref[hyp]):
+                assert abs(a - float(b)) <= 1e-12 * float(b) + 1e-300, (ours.method, hyp, a, b)
+
+
+@pytest.mark.parametrize("encoding, p, q", [("pm1", 1.3, 0.18), ("01", 0.5, 2.0), ("pm1", 0.0, 1.5)])
+def test_preferential_dp_vs_all_vectors_n12(encoding, p, q):
+    test_preferential_dp_vs_all_vectors(encoding, p, q, 12)
+
+
+def mp_chain_dp(pi, p, q, encoding, low, high):
+    """An independent DP in mpmath: state (u_(i-1), u_i) -> {U_G so far (mp number): probability}."""
+    n = len(pi)
+    absent = -1 if encoding == "pm1" else 0
+    P, Q = mp.mpf(2) ** p, mp.mpf(2) ** q
+    fac = lambda v, w, big: big if v == 1 else (mp.mpf(1) if (v == 0 or absent == 0 or w == 0) else mp.mpf(0))
+    # v: neighbour value (0 = boundary)
+    term = lambda prev, mid, nxt: mid * fac(nxt, p, P) * fac(prev, q, Q)
+    states = {}
+    for a in (absent, 1):
+        for b in (absent, 1):
+            w = (mp.mpf(pi[0]) if a == 1 else 1 - mp.mpf(pi[0])) * (mp.mpf(pi[1]) if b == 1 else 1 - mp.mpf(pi[1]))
+            states[(a, b)] = {term(0, a, b): w}
+    for i in range(2, n):
+        new = {}
+        for (a, b), dist in states.items():
+            for c in (absent, 1):
+                w = mp.mpf(pi[i]) if c == 1 else 1 - mp.mpf(pi[i])
+                t = term(a, b, c)
+                tgt = new.setdefault((b, c), {})
+                for v, pr in dist.items():
+                    tgt[v + t] = tgt.get(v + t, 0) + pr * w
+        states = new
+    res = [mp.mpf(0)] * 3
+    for (a, b), dist in states.items():
+        t = term(a, b, 0)
+        for v, pr in dist.items():
+            val = v + t
+            res[0 if val >= high else (2 if val < low else 1)] += pr
+    return res
+
+
+@pytest.mark.parametrize("encoding, p, q", [("pm1", 1.0, 1.0), ("pm1", 1.5, 0.5), ("01", 1.0, 2.0)])
+def test_preferential_dp_vs_mpmath_dp_n120(encoding, p, q):
+    rng = np.random.default_rng(2)
+    n = 120
+    pi = rng.uniform(0.001, 0.2, n)
+    g = 2.0**p + 2.0**q + (n - 2) * 2.0 ** (p + q)
+    low, high = 0.05 * g, 0.2 * g
+    ours = preferential_error_rates(pi, pi, p, q, encoding, low, high)
+    ref = mp_chain_dp(list(pi), p, q, encoding, low, high)
+    for a, b in zip((ours.p_false_alarm, ours.p_undecided_h0, ours.p_reject), ref):
+        assert abs(a - float(b)) <= 1e-11 * float(b) + 1e-300, (ours.method, a, b)
+
+
+def test_preferential_dp_edge_ties_exact():
+    """Integer p, q: U_G lands exactly on the band edges; H1 iff U_G >= high, H0 iff U_G < low."""
+    n, pd, pf = 9, [0.7] * 9, [0.2] * 9
+    for encoding in ("pm1", "01"):
+        for low, high in ((4.0, 12.0), (0.0, 0.0), (-3.0, 8.0)):
+            ours = preferential_error_rates(pd, pf, 1, 1, encoding, low, high)
+            ref = brute_preferential(pd, pf, 1, 1, encoding, low, high)
+            assert abs(ours.p_detect - float(ref["h1"][0])) <= 1e-13
+            assert abs(ours.p_reject - float(ref["h0"][2])) <= 1e-13
+
+
+def test_preferential_dp_tiny_tail_log_form():
+    """Under H0 with pf = 1e-3, H1 needs (almost) every taxel present: P ~ 1e-3^n, down to
+    1e-297 for n = 99 (chain DP), checked against the closed form of the few qualifying vectors."""
+    n = 99
+    g = 2 + 2 + (n - 2) * 4.0
+    ours = preferential_error_rates(0.9, 1e-3, 1, 1, "pm1", g - 1, g - 0.5, n=n)  # only all-present reaches g
+    assert ours.method == "chain"
+    assert math.isclose(ours.p_false_alarm, 1e-297, rel_tol=1e-12)
+    assert math.isclose(ours.logs()["log_p_false_alarm"], 99 * math.log(1e-3), rel_tol=1e-14)
+
+
+def brute_llr(pd, pf, prior):
+    n = len(pd)
+    t = -math.log(prior / (1 - prior))
+    d = f = 0.0
+    for bits in itertools.product((0, 1), repeat=n):
+        s = sum(math.log(a / b) if x else math.log((1 - a) / (1 - b)) for x, a, b in zip(bits, pd, pf))
+        w1 = math.prod(a if x else 1 - a for x, a in zip(bits, pd))
+        w0 = math.prod(b if x else 1 - b for x, b in zip(bits, pf))
+        if s - t > 1e-9 * max(1, abs(s)):
+            d += w1
+            f += w0
+    return d, f
+
+
+def test_llr_kinds_vs_all_vectors():
+    pd = [0.9] * 5 + [0.7] * 4 + [0.95] * 3
+    pf = [0.1] * 5 + [0.2] * 4 + [0.01] * 3
+    for prior in (0.5, 0.2, 0.9):
+        ours = llr_error_rates(pd, pf, prior)
+        d, f = brute_llr(pd, pf, prior)
+        assert math.isclose(ours.p_detect, d, rel_tol=1e-12) and math.isclose(ours.p_false_alarm, f, rel_tol=1e-12)
+
+
+def test_np_kinds_matches_identical_rule_and_beats_count_rule():
+    """One kind: the kinds N-P rule equals the identical-taxel rule. Two kinds: its power is at
+    least that of the count-only rule of the same size (it is the most powerful test)."""
+    pd, pf = np.full(40, 0.8), np.full(40, 0.1)
+    a = np_kinds_fusion(pd, pf, 0.01)
+    b = baselines.neyman_pearson_fusion(pd, pf, 0.01)
+    assert math.isclose(a["detection_probability"], b.detection_probability, rel_tol=1e-12)
+    assert math.isclose(a["gamma"], b.gamma, rel_tol=1e-9)
+    pd2 = np.r_[np.full(20, 0.9), np.full(37, 0.6)]
+    pf2 = np.r_[np.full(20, 0.05), np.full(37, 0.3)]
+    k = np_kinds_fusion(pd2, pf2, 0.01)
+    c = baselines.neyman_pearson_fusion(pd2, pf2, 0.01, method="count")
+    assert math.isclose(k["achieved_false_alarm"], 0.01, rel_tol=1e-9)
+    assert k["detection_probability"] >= c.detection_probability
