@@ -23,6 +23,7 @@ COMMANDS: dict[str, str] = {
     "fuse": "fuse",
     "bandwidth": "bandwidth",
     "report": "report",
+    "scenes": "scenes",
 }
 
 

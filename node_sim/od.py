@@ -33,8 +33,9 @@ import canopen
 from canopen.objectdictionary import ObjectDictionary, datatypes
 
 from taxel_net.errors import ParameterError
+from taxel_net.resources import eds_path
 
-EDS_PATH = Path(__file__).resolve().parent.parent / "eds" / "taxel_node.eds"
+EDS_PATH = eds_path()  # eds/taxel_node.eds, in the checkout or installed (taxel_net.resources)
 
 # CiA 301 communication area (0x1000-0x1FFF): restored by NMT reset-communication
 COMM_AREA = range(0x1000, 0x2000)

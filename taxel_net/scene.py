@@ -339,9 +339,12 @@ def load_scene(path) -> Scene:
     Raises :class:`SceneError` (file, dotted field, value, problem) on any unknown key, wrong
     type, out-of-range value, missing required field, duplicate node-ID per channel, a
     syntax error or an unreadable file. Precedence of per-taxel values:
-    ``[kinds.X]`` < the taxel's own row/table < ``[per_taxel]`` arrays.
+    ``[kinds.X]`` < the taxel's own row/table < ``[per_taxel]`` arrays. ``path`` may also
+    name a bundled scene (``"matrix57"``, :func:`taxel_net.resources.resolve_scene`).
     """
-    path = Path(path)
+    from .resources import resolve_scene
+
+    path = resolve_scene(path)
     sp = str(path)
     doc = _read_toml(path)
     top = _Where(sp)

@@ -4,19 +4,18 @@ from __future__ import annotations
 
 import argparse
 import uuid
-from pathlib import Path
 
 from .run import add_common_outputs, execute, load_run_scene, print_summary, setup_logging
 
 HELP = ("demo: node twins of a scene (default the 57-taxel matrix) and the fusion centre on an embedded "
         "virtual bus; --mode raw|decision to compare both")
 
-DEFAULT_SCENE = Path(__file__).resolve().parent.parent.parent / "scenes" / "matrix57.toml"
+DEFAULT_SCENE = "matrix57"  # the bundled scenes/matrix57.toml (taxel_net.resources)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--scene", default=str(DEFAULT_SCENE), metavar="FILE",
-                        help="scene file (default: scenes/matrix57.toml)")
+                        help="scene file or bundled scene name (default: matrix57; list: fusion-center scenes)")
     parser.add_argument("--drop-node", action="append", default=[], metavar="ID@CYCLE",
                         help="silence node ID from SYNC cycle CYCLE on (repeatable), e.g. 18@50")
     add_common_outputs(parser)

@@ -31,6 +31,7 @@ from typing import Callable, Sequence
 import can
 
 from taxel_net.errors import UsageError
+from taxel_net.resources import eds_path
 from taxel_net.scene import Scene
 from .cycles import MALFORMED, ClosedCycle, CycleAssembler
 from .decoder import BASE_SDO_REQUEST, COB_NMT, COB_SYNC
@@ -41,7 +42,7 @@ from .traces import open_trace_writer
 
 logger = logging.getLogger("fusion_center.service")
 
-DEFAULT_EDS = Path(__file__).resolve().parent.parent.parent / "eds" / "taxel_node.eds"
+DEFAULT_EDS = eds_path()  # eds/taxel_node.eds, in the checkout or installed (taxel_net.resources)
 
 
 @dataclass
