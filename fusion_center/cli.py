@@ -36,8 +36,21 @@ def _load(name: str):
     return importlib.import_module(f"fusion_center.commands.{COMMANDS[name]}")
 
 
+def package_version() -> str:
+    """The installed distribution's version (``taxel-can``), as ``pip show`` reports it."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("taxel-can")
+    except PackageNotFoundError:  # run from a checkout that was never installed
+        from . import __version__
+
+        return __version__
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="fusion-center", description="HEBTEM fusion centre for a CANopen taxel network")
+    parser.add_argument("--version", action="version", version=f"%(prog)s {package_version()}")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
     for name in COMMANDS:
         try:

@@ -26,6 +26,15 @@ from taxel_net.errors import ParameterError, SceneError
 from . import od as odx
 
 
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("taxel-can")
+    except PackageNotFoundError:  # a checkout that was never installed
+        return "unknown (not installed)"
+
+
 class _Parser(argparse.ArgumentParser):
     def error(self, message):
         self.exit(2, f"{self.prog}: error: {message}\n")
@@ -48,6 +57,7 @@ def _bus_option(text: str) -> tuple[str, object]:
 
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="node-sim", description="Run a scene's CANopen taxel node twins on a CAN bus.")
+    p.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     p.add_argument("--scene", required=True, help="scene file (TOML, docs/scene-format.md)")
     p.add_argument("--interface", default="virtual", help="python-can interface name (default: virtual)")
     p.add_argument("--channel", action="append", default=None,

@@ -105,3 +105,11 @@ def test_scenes_are_listed_and_named_after_a_plain_install(fresh_env, tmp_path):
     bad = _run(fresh_env, tmp_path, "fusion-center", "bandwidth", "--scene", "no_such_scene")
     assert bad.returncode == 2
     assert "bundled: " in bad.stderr and "matrix57" in bad.stderr and "Traceback" not in bad.stderr
+
+
+def test_both_commands_report_the_installed_version(fresh_env, tmp_path):
+    want = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["version"]
+    for command in ("fusion-center", "node-sim"):
+        out = _run(fresh_env, tmp_path, command, "--version")
+        assert out.returncode == 0, out.stderr
+        assert out.stdout.strip() == f"{command} {want}"
