@@ -171,3 +171,54 @@ def test_np_kinds_matches_identical_rule_and_beats_count_rule():
     c = baselines.neyman_pearson_fusion(pd2, pf2, 0.01, method="count")
     assert math.isclose(k["achieved_false_alarm"], 0.01, rel_tol=1e-9)
     assert k["detection_probability"] >= c.detection_probability
+
+
+def _fuse(capsys, *argv):
+    import json
+
+    from fusion_center.cli import main
+
+    rc = main(["fuse", *argv, "--json"])
+    out, err = capsys.readouterr()
+    assert rc == 0, err
+    return json.loads(out)
+
+
+def test_fuse_preferential_rates_cli_vs_all_vectors(capsys):
+    """fuse --rule preferential --pd/--pf: the four rates and their logs against brute force,
+    on the sec. 7.2 gripper ({0,1}, p = q = 1) and on non-integer p, q ({-1,+1})."""
+    u01 = "1,1,1,0,1,0,1,1,1,0,1,1,1,1,1,1,0,0"
+    rec = _fuse(capsys, "--rule", "preferential", "--u", u01, "--tuple", "01", "--xi", "0.003", "--alpha", "0.48",
+                "--pd", "0.95", "--pf", "0.05")
+    # all 2^18 vectors in numpy: p = q = 1 on {0,1} gives integer U_G (exact in floats)
+    bits = ((np.arange(2**18)[:, None] >> np.arange(18)) & 1).astype(float)
+    padded = np.pad(bits, ((0, 0), (1, 1)))
+    ug = (bits * (1 + padded[:, 2:]) * (1 + padded[:, :-2])).sum(axis=1)
+    k = bits.sum(axis=1)
+    for pi, names in ((0.95, ("p_detect", "p_undecided_h1")), (0.05, ("p_false_alarm", "p_undecided_h0"))):
+        w = np.exp(k * math.log(pi) + (18 - k) * math.log1p(-pi))
+        h1 = w[ug >= rec["threshold_final"]].sum()
+        und = w[(ug < rec["threshold_final"]) & (ug >= rec["threshold_initial"])].sum()
+        assert math.isclose(rec[names[0]], h1, rel_tol=1e-12)
+        assert math.isclose(rec[names[1]], und, rel_tol=1e-12)
+        assert math.isclose(rec["log_" + names[0]], math.log(h1), rel_tol=1e-12, abs_tol=1e-12)
+    pd = [0.9, 0.8, 0.95, 0.7, 0.85, 0.9, 0.99, 0.6, 0.75, 0.9]
+    pf = [0.1, 0.05, 0.2, 0.01, 0.1, 0.3, 0.02, 0.05, 0.1, 0.15]
+    rec = _fuse(capsys, "--rule", "preferential", "--u", "1,1,-1,1,1,1,-1,1,1,1", "--xi", "0.2", "--alpha", "0.3",
+                "--p", "1.37", "--q", "0.41", "--pd", ",".join(map(str, pd)), "--pf", ",".join(map(str, pf)))
+    ref = brute_preferential(pd, pf, 1.37, 0.41, "pm1", rec["threshold_initial"], rec["threshold_final"])
+    assert rec["rates_method"] == "chain"
+    assert math.isclose(rec["p_detect"], float(ref["h1"][0]), rel_tol=1e-12)
+    assert math.isclose(rec["p_false_alarm"], float(ref["h0"][0]), rel_tol=1e-12)
+
+
+def test_fuse_llr_and_np_rates_cli(capsys):
+    pd = [0.9] * 6 + [0.7] * 5
+    pf = [0.1] * 6 + [0.2] * 5
+    rec = _fuse(capsys, "--rule", "llr", "--u", "1,1,1,-1,-1,1,1,-1,1,-1,1", "--pd", ",".join(map(str, pd)),
+                "--pf", ",".join(map(str, pf)))
+    d, f = brute_llr(pd, pf, 0.5)
+    assert math.isclose(rec["p_detect"], d, rel_tol=1e-12) and math.isclose(rec["p_false_alarm"], f, rel_tol=1e-12)
+    rec = _fuse(capsys, "--rule", "np", "--u", "1,1,1,-1,-1,1,1,-1,1,-1,1", "--pd", ",".join(map(str, pd)),
+                "--pf", ",".join(map(str, pf)), "--false-alarm", "0.05")
+    assert math.isclose(rec["p_false_alarm"], 0.05, rel_tol=1e-12) and rec["optimal"] is True

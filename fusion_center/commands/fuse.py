@@ -80,8 +80,8 @@ def _open_unit(name: str, text) -> float:
 _RULE_OPTIONS = {
     "p": ("preferential",), "q": ("preferential",), "k": ("k-of-n",),
     "xi": ("additive", "multiplicative", "preferential"), "alpha": ("additive", "preferential"),
-    "beta": ("multiplicative",), "pd": ("k-of-n", "llr", "np", "additive", "multiplicative"),
-    "pf": ("k-of-n", "llr", "np", "additive", "multiplicative"), "prior_h1": ("llr",),
+    "beta": ("multiplicative",), "pd": ("k-of-n", "llr", "np", "additive", "multiplicative", "preferential"),
+    "pf": ("k-of-n", "llr", "np", "additive", "multiplicative", "preferential"), "prior_h1": ("llr",),
     "false_alarm": ("np",), "root": ("additive",), "band": ("preferential",),
 }
 
@@ -257,10 +257,41 @@ def _hebtem(args, rule: str, u: np.ndarray, encoding: str, record: dict) -> None
         record["threshold_initial"] = low
         record["threshold_final"] = high
         record["band_width"] = float(band.band_width)
+        if args.pd is not None or args.pf is not None:
+            _preferential_rates(args, record, p, q, encoding, low, high)
         u_g = record["U_G"]
         above = _certified_at_least(u, encoding, p, q, u_g, high, g)
         below = not _certified_at_least(u, encoding, p, q, u_g, low, g)
         record["decision"] = "H1" if above else ("H0" if below else "undecided")
+
+
+def _preferential_rates(args, record: dict, p, q, encoding, low: float, high: float) -> None:
+    """With --pd/--pf: exact system rates of the band decision (DP over the chain, exact_rates)."""
+    from ..core.exact_rates import preferential_error_rates
+
+    n = record["n"]
+    rates = preferential_error_rates(_probabilities("pd", args.pd, n), _probabilities("pf", args.pf, n),
+                                     p, q, encoding, low, high)
+    for key in ("p_detect", "p_false_alarm", "p_undecided_h1", "p_undecided_h0"):
+        record[key] = getattr(rates, key)
+    for key in ("p_detect", "p_false_alarm", "p_undecided_h1", "p_undecided_h0"):
+        record["log_" + key] = getattr(rates, "log_" + key)
+    record["rates_method"] = rates.method
+    if rates.ci95:
+        record["rates_ci95"] = {k: list(v) for k, v in rates.ci95.items()}
+
+
+def _baseline_rates(record: dict, pd, pf, prior: float) -> None:
+    """Exact P_D, P_F of "ln Lambda > threshold" (eq 31/32), or a Monte Carlo estimate, said so."""
+    from ..core.exact_rates import llr_error_rates
+
+    rates = llr_error_rates(pd, pf, prior)
+    record["p_detect"] = rates.p_detect
+    record["p_false_alarm"] = rates.p_false_alarm
+    record["log_p_false_alarm"] = math.log(rates.p_false_alarm) if rates.p_false_alarm > 0 else None
+    record["rates_method"] = rates.method
+    if rates.ci95:
+        record["rates_ci95"] = {k: list(v) for k, v in rates.ci95.items()}
 
 
 def _certified_at_least(u, encoding, p, q, u_g: float, edge: float, g: float) -> bool:
@@ -340,6 +371,7 @@ def fuse(args) -> dict:
         llr = baselines.chair_varshney_llr(u, pd, pf, encoding, prior_h1=prior)
         record.update(U_G=llr, statistic="ln P(H1|U)/P(H0|U) (eq 31)", prior_h1=prior, threshold=0.0)
         record["decision"] = _DECISION[baselines.compare_log_ratio(llr, 0.0)]
+        _baseline_rates(record, pd, pf, prior)
         return record
     # np
     ln_lr = baselines.np_log_statistic(u, pd, pf, encoding)
@@ -348,6 +380,7 @@ def fuse(args) -> dict:
         # the chapter's comparison: Lambda(U) against lambda_threshold = 1 (ln 1 = 0)
         record["threshold"] = 0.0
         record["decision"] = _DECISION[baselines.compare_log_ratio(ln_lr, 0.0)]
+        _baseline_rates(record, pd, pf, 0.5)  # Lambda > 1 is eq 31's test with P1 = P0
         return record
     alpha = _open_unit("false_alarm", args.false_alarm)
     np_rule = baselines.neyman_pearson_fusion(pd, pf, alpha)
@@ -361,6 +394,8 @@ def fuse(args) -> dict:
         detection_probability=np_rule.detection_probability,
         optimal=np_rule.optimal,
         decision=np_rule.decide(u, encoding),
+        p_detect=np_rule.detection_probability,
+        p_false_alarm=np_rule.achieved_false_alarm,
     )
     return record
 

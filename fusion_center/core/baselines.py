@@ -360,6 +360,11 @@ def neyman_pearson_fusion(pd, pf, false_alarm: float, method: str = "auto") -> N
       law. For heterogeneous taxels it is NOT the optimal N-P rule (the optimal one weighs
       each taxel by ln(pd/pf) - ln((1-pd)/(1-pf))); ``optimal`` is False and
       ``log_threshold`` None. Its power is a lower bound on the optimum's.
+    * "kinds" -- heterogeneous taxels that come in a few kinds with equal (pd, pf) per kind:
+      ln Lambda depends only on the present count per kind, whose law is a product of
+      binomials; every count tuple is an atom (up to exact_rates.KIND_ATOMS_MAX of them).
+      Exact and optimal (the most powerful randomised test), any n. "auto" picks it for
+      n > 20 when the count tuples fit, "count" otherwise.
     * "auto" -- "identical" if the taxels are identical, else "enumerate" for n <= 20,
       else "count".
     """
@@ -369,16 +374,29 @@ def neyman_pearson_fusion(pd, pf, false_alarm: float, method: str = "auto") -> N
     identical = bool(np.all(pd_arr == pd_arr[0]) and np.all(pf_arr == pf_arr[0]))
     if method == "auto":
         method = "identical" if identical else ("enumerate" if n <= NP_ENUMERATION_MAX_TAXELS else "count")
+        if method == "count":
+            from .exact_rates import KIND_ATOMS_MAX, kinds_of
+
+            sizes = kinds_of(pd_arr, pf_arr)[2]
+            if float(np.prod(sizes + 1.0)) <= KIND_ATOMS_MAX:
+                method = "kinds"
     if method == "identical" and not identical:
         raise ParameterError("method", method, "needs equal pd and equal pf for every taxel")
     if method == "enumerate" and n > NP_ENUMERATION_MAX_TAXELS:
         raise ParameterError("method", method, f"enumerates 2^n vectors: n={n} exceeds {NP_ENUMERATION_MAX_TAXELS}")
-    if method not in ("identical", "enumerate", "count"):
-        raise ParameterError("method", method, "must be 'auto', 'identical', 'enumerate' or 'count'")
+    if method not in ("identical", "enumerate", "count", "kinds"):
+        raise ParameterError("method", method, "must be 'auto', 'identical', 'enumerate', 'count' or 'kinds'")
 
     common = dict(requested_false_alarm=alpha, pd=pd_arr, pf=pf_arr)
-    if method == "enumerate":
-        values, p0, p1 = _merge_atoms(*_enumerate_llr_atoms(pd_arr, pf_arr))
+    if method in ("enumerate", "kinds"):
+        if method == "kinds":
+            from .exact_rates import _kind_atoms, kinds_of
+
+            llr, lp0, lp1 = _kind_atoms(*kinds_of(pd_arr, pf_arr))
+            atoms = (llr, np.exp(lp0), np.exp(lp1))
+        else:
+            atoms = _enumerate_llr_atoms(pd_arr, pf_arr)
+        values, p0, p1 = _merge_atoms(*atoms)
         j, gamma, achieved, detection = _randomised_boundary(p0, p1, alpha)
         return NPFusionRule(
             method=method, statistic="llr", log_threshold=float(values[j]), count_threshold=None,
