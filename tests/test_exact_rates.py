@@ -222,3 +222,24 @@ def test_fuse_llr_and_np_rates_cli(capsys):
     rec = _fuse(capsys, "--rule", "np", "--u", "1,1,1,-1,-1,1,1,-1,1,-1,1", "--pd", ",".join(map(str, pd)),
                 "--pf", ",".join(map(str, pf)), "--false-alarm", "0.05")
     assert math.isclose(rec["p_false_alarm"], 0.05, rel_tol=1e-12) and rec["optimal"] is True
+
+
+def test_monte_carlo_results_carry_exact_values_for_every_rule():
+    """evaluation.simulate: the preferential, llr and np rules now have exact P_D, P_F (DP over
+    the chain, product of binomials); where the Monte Carlo saw events, the exact value lies in
+    a 99.9 % Wilson interval around it."""
+    from fusion_center import evaluation
+    from fusion_center.core.montecarlo import wilson_interval
+    from taxel_net.scene import load_scene
+
+    for path in ("scenes/point_force.toml", "scenes/gripper18.toml"):
+        scene = load_scene(path)
+        mc = evaluation.simulate(scene, 20000, np.random.default_rng(4))
+        for name in ("preferential", "llr", "np"):
+            if name not in mc.rules:
+                continue
+            res = mc.rules[name]
+            assert res.pf.exact is not None and res.pd.exact is not None, (path, name)
+            for rate in (res.pf, res.pd):
+                lo, hi = wilson_interval(rate.successes, rate.trials, 0.999)
+                assert lo - 1e-12 <= rate.exact <= hi + 1e-12, (path, name, rate)

@@ -498,3 +498,36 @@ def np_kinds_fusion(pd, pf, false_alarm: float) -> dict:
     j, gamma, achieved, detection = _randomised_boundary(p0, p1, false_alarm)
     return {"log_threshold": float(values[j]), "gamma": gamma, "achieved_false_alarm": achieved,
             "detection_probability": detection, "kinds": int(len(size_k)), "method": "kinds"}
+
+
+def linear_statistic_tail(a, b, probs, threshold: float, gamma: float = 0.0, tol: float = 1e-9) -> float | None:
+    """P(S > threshold) + gamma P(S = threshold) for S = sum_i (a_i if taxel i present else b_i),
+    taxel i present with probability probs_i, independent (eq 31/32 statistics; ties within
+    tol relative). Exact: taxels with equal (a_i, b_i, probs_i) form kinds and every tuple of
+    per-kind counts is an atom (product of binomials); None when there are more than
+    KIND_ATOMS_MAX tuples."""
+    from scipy.special import gammaln, xlog1py, xlogy
+
+    a = np.asarray(a, float)
+    b = np.asarray(b, float)
+    probs = np.asarray(probs, float)
+    groups = {}
+    for key in zip(a, b, probs):
+        groups[key] = groups.get(key, 0) + 1
+    sizes = np.array(list(groups.values()), dtype=np.int64)
+    if float(np.prod(sizes + 1.0)) > KIND_ATOMS_MAX:
+        return None
+    stat = np.zeros(1)
+    logp = np.zeros(1)
+    for (ai, bi, pi), m in groups.items():
+        k = np.arange(m + 1)
+        s = k * ai + (m - k) * bi
+        with np.errstate(divide="ignore"):  # pi = 0 or 1: xlogy keeps 0 log 0 = 0
+            lp = (gammaln(m + 1) - gammaln(k + 1) - gammaln(m - k + 1)
+                  + xlogy(k, pi) + xlog1py(m - k, -pi))
+        stat = (stat[:, None] + s[None, :]).ravel()
+        logp = (logp[:, None] + lp[None, :]).ravel()
+    scale = np.maximum(1.0, np.abs(stat))
+    above = stat - threshold > tol * scale
+    tie = np.abs(stat - threshold) <= tol * scale
+    return float(np.exp(logp[above]).sum() + gamma * np.exp(logp[tie]).sum())

@@ -359,6 +359,8 @@ def simulate_model(setup: RuleSetup, zeta_mv, sigma_mv, patterns_mv, weights, pr
             exact_pd, exact_pf = exact_count_rates(m_count, taxel_pf, pd_patterns, weights)
         elif name == "np" and setup.np_rule is not None and setup.np_rule.statistic == "present_count":
             exact_pd, exact_pf = _exact_randomised_count(setup.np_rule, taxel_pf, pd_patterns, weights)
+        elif name in ("preferential", "llr", "np"):
+            exact_pd, exact_pf = _exact_other(name, setup, taxel_pf, pd_patterns, weights)
         pf = Rate.of(successes[0][name], n_trials, exact_pf)
         pd = Rate.of(successes[1][name], n_trials, exact_pd) if 1 in successes else None
         results[name] = RuleResult(pd, pf, _total_error(pd, pf, pi1), setup.thresholds.get(name), m_count)
@@ -366,6 +368,49 @@ def simulate_model(setup: RuleSetup, zeta_mv, sigma_mv, patterns_mv, weights, pr
     stats_h1 = {k: np.concatenate(v) for k, v in kept.get(1, {}).items()}
     return MonteCarloResult(int(n_trials), pi1, results, dict(setup.skipped), stats_h0, stats_h1,
                             taxel_pf, pd_patterns, weights, int(total * n), setup)
+
+
+def _exact_other(name, setup, taxel_pf, pd_patterns, weights):
+    """Exact (P_D, P_F) of the preferential rule (DP over the chain, U_G >= lambda_Th-mean), the
+    Chair-Varshney rule (eq 31 > ln lambda_0) and the N-P rule on ln Lambda (eq 32, randomised
+    boundary), under H0 and under every H1 pattern (weighted): fusion_center.core.exact_rates.
+    (None, None) where the exact law is out of reach (too many count tuples)."""
+    from . import exact_rates
+
+    def mixture(fn):
+        pf = fn(taxel_pf)
+        if pf is None:
+            return None, None
+        if pd_patterns.shape[0] == 0:
+            return None, pf
+        pds = [fn(row) for row in pd_patterns]
+        if any(v is None for v in pds):
+            return None, pf
+        return float(sum(w * v for w, v in zip(weights, pds))), pf
+
+    if name == "preferential":
+        p, q, tm = setup.preferential
+        n = taxel_pf.size
+        if not (setup.encoding == "pm1" and p > 0 and q > 0) and not (float(p).is_integer() and float(q).is_integer()) \
+                and n > exact_rates.SPARSE_MAX_TAXELS:
+            return None, None
+
+        def fn(probs):
+            return exact_rates.preferential_error_rates(probs, probs, p, q, setup.encoding, tm, tm).p_detect
+        return mixture(fn)
+    if name == "llr":
+        pd, pf, prior, ln_l0 = setup.llr
+        a = np.log(pd) - np.log(pf)
+        b = np.log1p(-pd) - np.log1p(-pf)
+        shift = math.log(prior) - math.log1p(-prior)
+        return mixture(lambda probs: exact_rates.linear_statistic_tail(a, b, probs, ln_l0 - shift, tol=0.0))
+    rule = setup.np_rule
+    if rule is None or rule.statistic != "llr":
+        return None, None
+    a = np.log(rule.pd) - np.log(rule.pf)
+    b = np.log1p(-rule.pd) - np.log1p(-rule.pf)
+    return mixture(lambda probs: exact_rates.linear_statistic_tail(
+        a, b, probs, rule.log_threshold, rule.gamma, tol=baselines.LLR_TIE_TOLERANCE))
 
 
 def _exact_randomised_count(rule, taxel_pf, pd_patterns, weights):

@@ -28,6 +28,7 @@ def _save(fig, path) -> None:
 
 
 _BITRATE_MARKERS = "os^Dv<>p"
+_LOG_FLOOR = 1e-300  # exact values are drawn down to here (log axes)
 
 
 def error_vs_runtime(points: list[dict], floor: float, path, bitrates=None) -> None:
@@ -51,7 +52,9 @@ def error_vs_runtime(points: list[dict], floor: float, path, bitrates=None) -> N
             ax.errorbar([x], [est], yerr=[[est - lo], [hi - est]], fmt=_BITRATE_MARKERS[j % len(_BITRATE_MARKERS)],
                         color=c, capsize=3)
             if err.get("exact") is not None:
-                ax.plot([x], [max(err["exact"], floor)], marker="D", mfc="none", color=c, ms=10)
+                ax.plot([x], [max(err["exact"], _LOG_FLOOR)], marker="D", mfc="none", color=c, ms=10)
+            if err["estimate"] == 0.0:  # Monte Carlo saw no error event: its value is only a bound
+                ax.annotate("MC: no event", (x, est), fontsize=6, xytext=(4, 4), textcoords="offset points", color=c)
     if len(bitrates) > 1:
         handles = [Line2D([], [], marker=_BITRATE_MARKERS[j % len(_BITRATE_MARKERS)], ls="none", color="k",
                           label=f"{int(b) // 1000} kbit/s") for j, b in enumerate(bitrates)]
@@ -65,13 +68,14 @@ def error_vs_runtime(points: list[dict], floor: float, path, bitrates=None) -> N
         ax.errorbar([p["cpu_time_per_decision_us"]], [est], yerr=[[est - lo], [hi - est]], fmt="o", color=c,
                     capsize=3, label=f"{p['rule']} ({p['mode']})")
         if err.get("exact") is not None:
-            ax.plot([p["cpu_time_per_decision_us"]], [max(err["exact"], floor)], marker="D", mfc="none", color=c, ms=10)
+            ax.plot([p["cpu_time_per_decision_us"]], [max(err["exact"], _LOG_FLOOR)], marker="D", mfc="none",
+                    color=c, ms=10)
     ax.set_xlabel("CPU time per decision [µs]")
     for ax in axes:
         ax.set_xscale("log")
         ax.set_yscale("log")
         ax.grid(True, which="both", alpha=0.3)
-    axes[0].set_ylabel("total error vs ground truth (MC, 95 % CI; ◇ exact)")
+    axes[0].set_ylabel("total error vs ground truth (MC, 95 % CI; ◇ exact, every rule)")
     axes[0].axhline(floor, ls=":", color="k", lw=0.8)
     axes[1].legend(fontsize=7, loc="best")
     fig.suptitle("detection error vs run time (decision mode vs centralised raw-data test)")
@@ -88,18 +92,27 @@ def roc_curves(roc: dict, operating: dict, path) -> None:
         if name == "count_exact":
             continue
         ax.plot(np.maximum(r["pf"], 1e-12), r["pd"], "-", color=_COLOURS.get(name, "tab:cyan"), label=f"{name} (MC)")
-    for name, (pf, pd) in operating.items():
+    low = 1e-12
+    for name, point in operating.items():
+        pf, pd = point[0], point[1]
+        exact = point[2] if len(point) > 2 else None
         if pd is None:
             continue
-        ax.plot([max(pf, 1e-12)], [pd], "o", color=_COLOURS.get(name, "tab:cyan"), ms=8, mec="k")
-        ax.annotate(name, (max(pf, 1e-12), pd), fontsize=7, xytext=(4, -10), textcoords="offset points")
+        colour = _COLOURS.get(name, "tab:cyan")
+        ax.plot([max(pf, 1e-12)], [pd], "o", color=colour, ms=8, mec="k")
+        label = name + (" (MC: no false alarm)" if pf == 0.0 else "")
+        ax.annotate(label, (max(pf, 1e-12), pd), fontsize=7, xytext=(4, -10), textcoords="offset points")
+        if exact is not None and exact[0] is not None and exact[1] is not None:
+            epf = max(exact[0], _LOG_FLOOR)
+            low = min(low, epf)
+            ax.plot([epf], [exact[1]], "D", mfc="none", color=colour, ms=10)  # exact operating point
     ax.set_xscale("log")
-    ax.set_xlim(1e-12, 1.0)
+    ax.set_xlim(low, 1.0)
     ax.set_xlabel("P_F (system false alarm)")
     ax.set_ylabel("P_D (system detection)")
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=7, loc="lower right")
-    ax.set_title("ROC: operating points of the configured rules")
+    ax.set_title("ROC: operating points of the configured rules (o MC, ◇ exact)")
     _save(fig, path)
 
 
