@@ -118,6 +118,7 @@ class _Channel(can.Listener):
         self.cycle: int | None = None           # cycle number of the last SYNC fully processed
         self.lost_syncs = 0
         self._last_counter: int | None = None
+        self._sync_length_error = False
         self.frames_sent = 0
         self.notifier: can.Notifier | None = None
         self._sync_map: dict[int, list[tuple[TaxelNode, Callable, int]]] | None = None
@@ -137,13 +138,18 @@ class _Channel(can.Listener):
 
     def _dispatch(self, can_id: int, data: bytes) -> None:
         if can_id == 0x000:
-            if len(data) >= 2:
+            if len(data) == 2:  # CiA 301: NMT module control has DLC 2; any other length is ignored
                 target = data[1]
                 nodes = self.nodes.values() if target == 0 else (
                     [self.nodes[target]] if target in self.nodes else [])
                 for node in nodes:
                     node.on_nmt(data[0])
                 self._sync_map = None  # resets restore 0x1005
+                if target == 0 and data[0] in (0x81, 0x82):
+                    # every node reset by the master: the simulated world restarts with the
+                    # master's cycle 0 (a second master run sees the same scene as the first)
+                    self.sync_count = 0
+                    self._last_counter = None
             return
         if 0x601 <= can_id <= 0x67F:
             node = self.nodes.get(can_id - 0x600)
@@ -158,6 +164,14 @@ class _Channel(can.Listener):
                     (n, n.sync.on_sync, self.scene_index[n.node_id]))
         sync_nodes = self._sync_map.get(can_id)
         if sync_nodes:
+            if len(data) != (1 if self.rig.scene.bus.sync_counter else 0):
+                # CiA 301: SYNC length error - ignored, EMCY 0x8240 (once until a valid SYNC)
+                if not self._sync_length_error:
+                    self._sync_length_error = True
+                    for node, _, _ in sync_nodes:
+                        node.emcy.send(0x8240, 0x11)  # error register: generic + communication
+                return
+            self._sync_length_error = False
             self._on_sync(data, sync_nodes)
 
     def _on_sync(self, data: bytes, nodes: Sequence[tuple[TaxelNode, Callable, int]]) -> None:

@@ -60,6 +60,11 @@ class BusSpec:
 
 
 @dataclass(frozen=True)
+class MasterSpec:
+    restart: str = "always"           # "always": NMT-start a live node found not operational | "never"
+
+
+@dataclass(frozen=True)
 class ObjectSpec:
     model: str = "none"               # one of OBJECT_MODELS
     x: float = 0.0                    # contact centre (taxel coordinate units)
@@ -133,6 +138,7 @@ class Scene:
     forces: ForcesSpec = field(default_factory=ForcesSpec)
     stages: tuple[str, ...] = ("fusion",)  # requested; the pipeline builds only what the scene supports
     faults: tuple[FaultSpec, ...] = ()
+    master: MasterSpec = field(default_factory=MasterSpec)
 
     @property
     def n(self) -> int:
@@ -162,7 +168,7 @@ _INT_TAXEL_FIELDS = ("node_id", "channel")
 _STR_TAXEL_FIELDS = ("kind", "jaw", "axis")
 
 _TOP_KEYS = ("scene", "bus", "kinds", "taxels", "taxels_file", "per_taxel", "object", "fusion",
-             "forces", "outputs", "faults")
+             "forces", "outputs", "faults", "master")
 _SCENE_KEYS = ("name", "description", "seed", "cycles")
 _BUS_KEYS = ("bitrate", "sync_period_ms", "sync_counter", "heartbeat_producer_ms",
              "heartbeat_consumer_ms", "mode", "transmission_type", "inhibit_time_100us",
@@ -171,6 +177,11 @@ _OBJECT_KEYS = ("model", "x", "y", "radius", "present", "velocity", "slip_onset_
                 "tangential_force", "readings_mv", "readings_are")
 _FUSION_KEYS = ("rules", "decide_with", "tuple", "xi", "alpha", "beta", "additive_root", "p", "q",
                 "k", "np_false_alarm", "prior_h1", "costs")
+_MASTER_KEYS = ("restart",)
+RESTART_POLICIES = ("always", "never")
+SYNC_PERIOD_MIN_MS = 1.0          # the SYNC producer's resolution (a 57-node cycle needs ~3.5 ms at 1 Mbit/s)
+SYNC_PERIOD_MAX_MS = 4_294_967.295  # 0x1006 communication cycle period: UNSIGNED32 µs
+CYCLES_MAX = 10**10               # > 3 years of 10 ms cycles
 _FORCES_KEYS = ("mu", "unit", "inclusion_angle_deg")
 _OUTPUTS_KEYS = ("stages",)
 _FAULT_KEYS = ("node_id", "channel", "fault", "from_cycle", "until_cycle")
@@ -281,6 +292,10 @@ def _read_toml(path: Path) -> dict:
             return tomllib.load(fh)
     except tomllib.TOMLDecodeError as exc:
         raise SceneError(str(path), "<toml>", None, f"TOML syntax error: {exc}") from None
+    except UnicodeDecodeError as exc:
+        raise SceneError(str(path), "<file>", None,
+                         f"not a UTF-8 text file (TOML is UTF-8): byte 0x{exc.object[exc.start]:02X} "
+                         f"at offset {exc.start}") from None
     except OSError as exc:
         raise SceneError(str(path), "<file>", None, f"cannot read: {exc.strerror or exc}") from None
 
@@ -362,7 +377,7 @@ def load_scene(path) -> Scene:
         sw.fail("name", name, "must not be empty")
     description = _str(sw, "description", sc.get("description", ""))
     seed = _int(sw, "seed", sc.get("seed", 0), 0, 2**63 - 1, "must be an integer >= 0")
-    cycles = _int(sw, "cycles", sc.get("cycles", 100), 1, None, "must be an integer >= 1")
+    cycles = _int(sw, "cycles", sc.get("cycles", 100), 1, CYCLES_MAX, f"must be an integer in 1..{CYCLES_MAX}")
 
     bus = _load_bus(sp, top, doc.get("bus", {}))
     taxels = _load_taxels(path, top, doc, bus)
@@ -375,9 +390,11 @@ def load_scene(path) -> Scene:
     outs = _table(top, "outputs", doc.get("outputs", {}), _OUTPUTS_KEYS)
     stages = _distinct_strings(ow, "stages", outs.get("stages", ["fusion"]), STAGES)
     faults = _load_faults(sp, top, doc.get("faults", []), taxels)
+    mt = _table(top, "master", doc.get("master", {}), _MASTER_KEYS)
+    restart = _str(_Where(sp, "master"), "restart", mt.get("restart", MasterSpec.restart), RESTART_POLICIES)
     return Scene(path=sp, name=name, description=description, seed=seed, cycles=cycles, bus=bus,
                  taxels=taxels, object=obj, fusion=fusion, forces=forces, stages=tuple(stages),
-                 faults=faults)
+                 faults=faults, master=MasterSpec(restart=restart))
 
 
 def _load_bus(sp: str, top: _Where, raw) -> BusSpec:
@@ -386,7 +403,8 @@ def _load_bus(sp: str, top: _Where, raw) -> BusSpec:
     d = BusSpec()
     bitrate = _int(w, "bitrate", b.get("bitrate", d.bitrate), BITRATE_MIN, BITRATE_MAX,
                    f"CAN bit rate must lie in {BITRATE_MIN}..{BITRATE_MAX} bit/s")
-    sync = _num(w, "sync_period_ms", b.get("sync_period_ms", d.sync_period_ms), lo=0.0, lo_open=True)
+    sync = _num(w, "sync_period_ms", b.get("sync_period_ms", d.sync_period_ms), lo=SYNC_PERIOD_MIN_MS,
+                hi=SYNC_PERIOD_MAX_MS)
     counter = _int(w, "sync_counter", b.get("sync_counter", d.sync_counter))
     if not (counter == 0 or 2 <= counter <= 240):
         w.fail("sync_counter", counter, "0x1019: 0 (no counter) or 2..240")

@@ -43,3 +43,113 @@ def test_closed_stdout_ends_quietly():
     assert b"Traceback" not in err, err.decode()
     assert b"BrokenPipe" not in err, err.decode()
     assert proc.returncode == 141
+
+
+# --------------------------------------------------------------------------- bounded memory
+def _virtual_time_service(tmp_path, keep_records):
+    """A FusionService as ``run`` builds it, fed in virtual time (no bus traffic, no clock)."""
+    import uuid
+
+    import can
+
+    from fusion_center.service import FusionService
+    from taxel_net.scene import load_scene
+
+    scene = load_scene(MATRIX)
+    service = FusionService(scene, interface="virtual", channels=[f"lr-{uuid.uuid4().hex[:8]}"],
+                            json_lines=tmp_path / "log.jsonl", keep_records=keep_records)
+    frames = {
+        "sync": can.Message(arbitration_id=0x80, data=b"", is_extended_id=False),
+        "tpdo": [[can.Message(arbitration_id=0x180 + t.node_id, data=bytes([v]), is_extended_id=False)
+                  for v in (0xFF, 0x01)] for t in scene.taxels],
+        "hb": [can.Message(arbitration_id=0x700 + t.node_id, data=b"\x05", is_extended_id=False)
+               for t in scene.taxels],
+    }
+    state = {"k": 0}
+
+    def feed(cycles):
+        receive = service.stream.receive
+        for _ in range(cycles):
+            k = state["k"]
+            state["k"] += 1
+            t = 1.0 + 0.01 * k
+            frames["sync"].timestamp = t
+            service.master.sync_sent_at[k] = 0.0
+            receive(frames["sync"], 0)
+            contact = (k % 200) >= 60 and (k % 200) < 140
+            for i, pair in enumerate(frames["tpdo"]):
+                msg = pair[1 if contact and i < 6 else 0]
+                msg.timestamp = t + 2e-4
+                receive(msg, 0)
+            if k % 10 == 0:
+                for msg in frames["hb"]:
+                    msg.timestamp = t + 5e-4
+                    receive(msg, 0)
+
+    return service, feed
+
+
+def test_memory_does_not_grow_with_cycles(tmp_path):
+    """keep_records=False (what run/demo use): after a warm-up, 600 more cycles allocate < 150 KB
+    net (the old service kept every record and latency sample: ~2.9 KiB a cycle, ~1.7 MB here)."""
+    import gc
+    import tracemalloc
+
+    service, feed = _virtual_time_service(tmp_path, keep_records=False)
+    with service:
+        feed(400)
+        gc.collect()
+        tracemalloc.start(1)
+        try:
+            before = tracemalloc.get_traced_memory()[0]
+            feed(600)
+            gc.collect()
+            grown = tracemalloc.get_traced_memory()[0] - before
+        finally:
+            tracemalloc.stop()
+        assert service.stats.records == 1000
+        assert len(service.records) == 0
+        assert len(service.master.sync_sent_at) <= 256
+    assert grown < 150_000, f"{grown} bytes kept over 600 cycles"
+
+
+def test_running_aggregates_equal_the_figures_of_the_records(tmp_path):
+    """keep_records=True keeps every record; the running aggregates (what the summary prints) equal
+    the figures recomputed from those records, with a rule that disagrees with the truth."""
+    service, feed = _virtual_time_service(tmp_path, keep_records=True)
+    with service:
+        feed(450)
+        service.drain()
+    records = [r for r in service.records if "decision" in r]
+    assert len(records) == service.stats.records == 450
+    stats = service.stats
+    for d in ("H1", "H0", "undecided"):
+        assert stats.decisions[d] == sum(r["decision"] == d for r in records)
+    decided = [r for r in records if r["decision"] != "undecided"]
+    assert stats.agree_with_truth() == f"{sum(r['decision'] == r['truth'] for r in decided)}/{len(decided)}"
+    expected = {}
+    for name in records[0]["rules"]:
+        ok = [r for r in records if r["rules"][name]["decision"] in ("H1", "H0")]
+        expected[name] = f"{sum(r['rules'][name]['decision'] == r['truth'] for r in ok)}/{len(ok)}"
+    assert stats.rules_agree_with_truth() == expected
+    assert len(set(expected.values())) > 1  # some rule disagrees: the comparison can fail
+    assert stats.degraded == sum(bool(r["degraded"]) for r in records)
+
+
+def test_latency_histogram_percentiles_within_one_bin():
+    from fusion_center.service.aggregates import LatencyHistogram
+
+    rng = np.random.default_rng(3)
+    samples = np.concatenate([rng.lognormal(0.0, 0.6, 5000), [0.0005, 250.0, 2e5]])
+    hist = LatencyHistogram()
+    for x in samples:
+        hist.add(float(x))
+    hist.add(float("nan"))  # ignored
+    assert hist.count == samples.size
+    data = np.sort(samples)
+    for q in (1, 50, 90, 99, 99.9, 100):
+        k = min(data.size - 1, max(0, int(np.ceil(q / 100 * data.size)) - 1))
+        exact = data[k]
+        assert abs(hist.percentile(q) - exact) <= 0.02 * exact + 1e-3, (q, hist.percentile(q), exact)
+    assert hist.percentile(100) == data[-1] and hist.percentile(0.001) == data[0]
+    assert len(hist.counts) == hist.bins  # fixed size, whatever was added

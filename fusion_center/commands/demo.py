@@ -41,7 +41,8 @@ def parse_drops(items: list[str], scene) -> dict[int, list[int]]:
 
 
 def run_demo(scene, cycles: int, *, drops: dict[int, list[int]] | None = None, json_lines=None, trace=None,
-             live: bool = False, boot_timeout: float = 3.0, channel_tag: str | None = None):
+             live: bool = False, boot_timeout: float = 3.0, channel_tag: str | None = None,
+             keep_records: bool | int = True):
     """Start the node twins (``node_sim.rig.Rig``) and the fusion centre on a private virtual
     channel, run ``cycles`` SYNC cycles, return (service, summary dict)."""
     from node_sim.rig import Rig
@@ -51,7 +52,8 @@ def run_demo(scene, cycles: int, *, drops: dict[int, list[int]] | None = None, j
     tag = channel_tag or uuid.uuid4().hex[:8]
     channels = [f"demo-{tag}-{name}" for name in scene.bus.channels]
     drops = drops or {}
-    service = FusionService(scene, interface="virtual", channels=channels, json_lines=json_lines, trace=trace)
+    service = FusionService(scene, interface="virtual", channels=channels, json_lines=json_lines, trace=trace,
+                            keep_records=keep_records)
     rig = Rig(scene, interface="virtual", channel=channels)
 
     def before_sync(cycle: int) -> None:
@@ -72,6 +74,6 @@ def run(args) -> int:
     scene, cycles = load_run_scene(args)
     drops = parse_drops(args.drop_node, scene)
     _, summary = run_demo(scene, cycles, drops=drops, json_lines=args.json_lines, trace=args.log,
-                          live=not args.no_live, boot_timeout=args.boot_timeout)
+                          live=not args.no_live, boot_timeout=args.boot_timeout, keep_records=False)
     print_summary(summary)
     return 0

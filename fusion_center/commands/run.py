@@ -97,27 +97,20 @@ def execute(service, cycles: int, *, live: bool, boot_timeout: float, before_syn
 
 
 def summarise(service, summary) -> dict:
-    records = [r for r in service.records if "decision" in r]
-    decisions = {d: sum(r["decision"] == d for r in records) for d in ("H1", "H0", "undecided")}
-    with_truth = [r for r in records if "truth" in r and r["decision"] != "undecided"]
-    correct = sum(r["decision"] == r["truth"] for r in with_truth)
-    per_rule: dict[str, str] = {}
-    for name in (records[0].get("rules") or {}) if records else ():
-        decided = [r for r in records if "truth" in r and r["rules"].get(name, {}).get("decision") in ("H1", "H0")]
-        agree = sum(r["rules"][name]["decision"] == r["truth"] for r in decided)
-        per_rule[name] = f"{agree}/{len(decided)}"
+    """The summary of a run from the service's running aggregates (no record is needed)."""
+    stats = service.stats
     out = {
         "scene": service.scene.name,
         "mode": service.scene.bus.mode,
         "cycles": summary.cycles,
-        "records": len(service.records),
+        "records": stats.records,
         "decide_with": service.scene.fusion.decide_with,
-        "decisions": decisions,
-        "agree_with_truth": f"{correct}/{len(with_truth)}" if with_truth else None,
-        "rules_agree_with_truth": per_rule,
-        "degraded_cycles": sum(bool(r.get("degraded")) for r in records),
+        "decisions": {d: stats.decisions[d] for d in ("H1", "H0", "undecided")},
+        "agree_with_truth": stats.agree_with_truth(),
+        "rules_agree_with_truth": stats.rules_agree_with_truth(),
+        "degraded_cycles": stats.degraded,
         "missing_at_boot": summary.missing_at_boot,
-        "stages_run": records[-1]["stages_run"] if records else [],
+        "stages_run": stats.stages_run,
         "stages_skipped": service.pipeline.stages_skipped,
         "rules_skipped": service.pipeline.rules_skipped,
         "counters": {k: v for k, v in summary.counters.items() if v},
@@ -173,13 +166,30 @@ def load_run_scene(args):
     """The scene of ``--scene`` with ``--mode`` applied, and the cycle count (``--cycles`` or the
     scene's). The node twins and the fusion centre get this same (overridden) scene."""
     from taxel_net.errors import UsageError
-    from taxel_net.scene import load_scene
+    from taxel_net.scene import CYCLES_MAX, load_scene
 
+    if args.cycles is not None and not 1 <= args.cycles <= CYCLES_MAX:
+        raise UsageError(f"--cycles {args.cycles}: must lie in 1..{CYCLES_MAX}")
+    check_boot_timeout(args.boot_timeout)
+    if getattr(args, "bitrate", None) is not None and not BITRATE_RANGE[0] <= args.bitrate <= BITRATE_RANGE[1]:
+        raise UsageError(f"--bitrate {args.bitrate}: must lie in {BITRATE_RANGE[0]}..{BITRATE_RANGE[1]} bit/s "
+                         "(CAN nominal bit rate)")
     scene = apply_mode(load_scene(args.scene), args.mode)
     cycles = args.cycles if args.cycles is not None else scene.cycles
-    if cycles < 1:
-        raise UsageError(f"--cycles {cycles}: must be >= 1")
     return scene, cycles
+
+
+BOOT_TIMEOUT_MAX_S = 3600.0
+BITRATE_RANGE = (5_000, 1_000_000)
+
+
+def check_boot_timeout(value: float) -> None:
+    import math
+
+    from taxel_net.errors import UsageError
+
+    if not (math.isfinite(value) and 0.0 < value <= BOOT_TIMEOUT_MAX_S):
+        raise UsageError(f"--boot-timeout {value}: must be a number of seconds in (0, {BOOT_TIMEOUT_MAX_S:g}]")
 
 
 def print_summary(summary: dict) -> None:
@@ -195,7 +205,7 @@ def run(args) -> int:
     channels = args.channel.split(",") if args.channel else None
     service = FusionService(scene, interface=args.interface, channels=channels, bitrate=args.bitrate,
                             bus_kwargs=parse_bus_options(args.bus_option), json_lines=args.json_lines,
-                            trace=args.log)
+                            trace=args.log, keep_records=False)
     with service:
         summary = execute(service, cycles, live=not args.no_live, boot_timeout=args.boot_timeout)
     print_summary(summary)

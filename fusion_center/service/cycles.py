@@ -84,6 +84,8 @@ FLAG_ERROR = 4
 STATE_UNKNOWN = -1
 STATE_RESETTING = -2  # NMT reset sent: silent until its boot-up
 
+EMCY_PER_CYCLE = 16  # EMCY entries a record carries at most (the rest are counted: emcy_dropped)
+
 # one disposition per event fed (their sum == number of events)
 COUNTER_NAMES: tuple[str, ...] = (
     "sync",            # valid SYNC (opened a cycle)
@@ -160,7 +162,10 @@ class ClosedCycle:
     held_readings: np.ndarray   # float64: last X_i ever received (NaN = never)
     late_frames: int           # late PDOs counted since the previous closed cycle
     bad_frames: int            # malformed frames since the previous closed cycle
-    emcy: tuple[EmcyEvent, ...]  # EMCY frames since the previous closed cycle
+    emcy: tuple[EmcyEvent, ...]  # EMCY frames since the previous closed cycle (at most EMCY_PER_CYCLE)
+    states: np.ndarray = None  # int16 per taxel: NMT state at the SYNC (STATE_*, -1 unknown, -2 resetting)
+    duplicates: tuple[int, ...] = ()  # taxel indexes with duplicate node-ID evidence since the previous cycle
+    emcy_dropped: int = 0      # EMCY frames since the previous cycle beyond EMCY_PER_CYCLE (counted only)
 
 
 class CycleAssembler:
@@ -191,6 +196,8 @@ class CycleAssembler:
         self.t0_us: int | None = None
         self.last_us = 0
         self.last_heard = np.full(n, -1, dtype=np.int64)  # relative µs, -1 = never
+        self.bootup_seq = np.full(n, -1, dtype=np.int64)  # events fed before its last boot-up, -1 = none
+        self.reset_seq = np.full(n, -1, dtype=np.int64)   # events fed before the last NMT reset to it
         self.state = np.full(n, STATE_UNKNOWN, dtype=np.int16)
         self.decisions = np.zeros(n, dtype=np.int8)
         self.readings = np.full(n, np.nan)
@@ -200,6 +207,7 @@ class CycleAssembler:
         self.held_decisions = np.zeros(n, dtype=np.int8)
         self.held_readings = np.full(n, np.nan)
         self.expected = np.zeros(n, dtype=bool)
+        self.sync_state = self.state.copy()
         self.missing = np.ones(n, dtype=bool)
         self.pending = 0
         self.is_open = False
@@ -209,7 +217,12 @@ class CycleAssembler:
         self.late_since = 0
         self.bad_since = 0
         self.emcy_since: list[EmcyEvent] = []
+        self.emcy_dropped = 0
         self.bootups: list[int] = []  # taxel indexes that sent boot-up (drained by the master)
+        # duplicate node-ID evidence (two devices answering for one node-ID):
+        self.sdo_outstanding = np.zeros(n, dtype=bool)  # an SDO request is waiting for its answer
+        self.duplicate_since: set[int] = set()          # evidence since the previous closed cycle
+        self.duplicates: set[int] = set()               # every node-ID ever flagged (taxel indexes)
 
     # ------------------------------------------------------------------ queries
     @property
@@ -290,6 +303,7 @@ class CycleAssembler:
             self.last_heard[idx] = t
             if state == STATE_BOOTUP:
                 self.state[idx] = STATE_PRE_OPERATIONAL  # a node boots into pre-operational
+                self.bootup_seq[idx] = sum(counts)
                 self.bootups.append(idx)
                 counts[C_BOOTUP] += 1
             else:
@@ -323,7 +337,10 @@ class CycleAssembler:
                 return self._bad(C_BAD_DLC)
             code, register, manufacturer = decode_emcy(data)
             self.last_heard[idx] = t
-            self.emcy_since.append(EmcyEvent(self.labels[idx], idx, code, register, manufacturer.hex(), t))
+            if len(self.emcy_since) < EMCY_PER_CYCLE:
+                self.emcy_since.append(EmcyEvent(self.labels[idx], idx, code, register, manufacturer.hex(), t))
+            else:
+                self.emcy_dropped += 1
             counts[C_EMCY] += 1
             return None
         if kind == K_SDO_RESPONSE or kind == K_SDO_REQUEST:
@@ -331,9 +348,16 @@ class CycleAssembler:
                 return self._bad(C_BAD_DLC)
             if kind == K_SDO_RESPONSE:
                 self.last_heard[idx] = t
+                if self.sdo_outstanding[idx]:
+                    self.sdo_outstanding[idx] = False
+                else:  # an answer nobody asked for: a second server with this node-ID
+                    self._duplicate(idx)
                 if data[0] == 0x80:
                     counts[C_SDO_ABORT] += 1
                     return None
+            else:
+                if data[0] != 0x80:  # an abort from the client expects no answer
+                    self.sdo_outstanding[idx] = True
             counts[C_SDO] += 1
             return None
         if kind == K_NMT:
@@ -345,6 +369,10 @@ class CycleAssembler:
         return None
 
     # ------------------------------------------------------------------ helpers
+    def _duplicate(self, idx: int) -> None:
+        self.duplicate_since.add(idx)
+        self.duplicates.add(idx)
+
     def _bad(self, counter: int):
         self.counts[counter] += 1
         self.bad_since += 1
@@ -377,6 +405,7 @@ class CycleAssembler:
         live = self.last_heard >= (max(0, t - self.consumer_us) if self.consumer_us > 0 else 0)
         self.missing = ~live  # new arrays at every SYNC (never changed in place: _close hands them over)
         self.expected = live & (self.state == STATE_OPERATIONAL)
+        self.sync_state = self.state.copy()  # replaced, never changed in place (handed over at the close)
         self.pending = int(np.count_nonzero(self.expected)) if self.synchronous_every_sync else -1
         if self.pending == 0:
             self.pending = -1  # nothing to wait for: close at the next SYNC only
@@ -406,15 +435,22 @@ class CycleAssembler:
             NMT_RESET_NODE: STATE_RESETTING,
             NMT_RESET_COMMUNICATION: STATE_RESETTING,
         }[command]
+        is_reset = command in (NMT_RESET_NODE, NMT_RESET_COMMUNICATION)
         if node_id == 0:
             members = self.channel_members[channel] if 0 <= channel < len(self.channel_members) else ()
             self.state[members] = new_state
+            if is_reset:  # a boot-up fed after this point answers it (the master waits for that)
+                self.reset_seq[members] = sum(self.counts) - 1
+
             if command != NMT_START and self.is_open:
                 return self._close("nmt", t)
         else:
             idx = self.index_by_node[channel].get(node_id) if 0 <= channel < len(self.index_by_node) else None
             if idx is not None:
                 self.state[idx] = new_state
+                if is_reset:
+                    self.reset_seq[idx] = sum(self.counts) - 1
+
         return None
 
     def _close(self, closed_by: str, t: int) -> ClosedCycle:
@@ -435,9 +471,15 @@ class CycleAssembler:
             late_frames=self.late_since,
             bad_frames=self.bad_since,
             emcy=tuple(self.emcy_since),
+            states=self.sync_state,
+            duplicates=tuple(sorted(self.duplicate_since)),
+            emcy_dropped=self.emcy_dropped,
         )
         self.is_open = False
         self.late_since = 0
         self.bad_since = 0
         self.emcy_since = []
+        self.emcy_dropped = 0
+        if self.duplicate_since:
+            self.duplicate_since = set()
         return closed

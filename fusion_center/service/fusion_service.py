@@ -33,6 +33,7 @@ import can
 from taxel_net.errors import UsageError
 from taxel_net.resources import eds_path
 from taxel_net.scene import Scene
+from .aggregates import LatencyHistogram, RunAggregates
 from .cycles import MALFORMED, ClosedCycle, CycleAssembler
 from .decoder import BASE_SDO_REQUEST, COB_NMT, COB_SYNC
 from .pipeline import CyclePipeline
@@ -41,6 +42,8 @@ from .stream import EventStream, RateLimitedLog, _StreamListener
 from .traces import open_trace_writer
 
 logger = logging.getLogger("fusion_center.service")
+
+LATENCY_SAMPLES = 4096  # recent latency samples kept as such (benchmarks); the histograms keep all
 
 DEFAULT_EDS = eds_path()  # eds/taxel_node.eds, in the checkout or installed (taxel_net.resources)
 
@@ -57,9 +60,12 @@ class RunSummary:
     missing_at_boot: list = field(default_factory=list)
     own_echoes: int = 0
     tx_errors: int = 0
-    latency_ms: list = field(default_factory=list)
+    latency_ms: list = field(default_factory=list)  # the most recent samples (at most LATENCY_SAMPLES)
+    latency_hist: LatencyHistogram | None = None     # every sample of the run (fixed size)
 
     def latency_percentile(self, q: float) -> float | None:
+        if self.latency_hist is not None:
+            return self.latency_hist.percentile(q)
         if not self.latency_ms:
             return None
         data = sorted(self.latency_ms)
@@ -73,6 +79,12 @@ class FusionService:
     ``with FusionService(scene, ...) as svc: svc.boot(); svc.run(cycles)``. ``open`` (called by
     ``__enter__``) raises :class:`~taxel_net.errors.UsageError` for an unknown interface, a
     channel that cannot be opened, a missing EDS or an unwritable output file.
+
+    Memory does not grow with the number of cycles except by ``keep_records``: ``True`` keeps
+    every record in :attr:`records` (tests, short runs), ``False`` none, an int ``k`` the last
+    ``k``. Records always go to the decision log and to :attr:`stats` (running aggregates);
+    latencies to fixed-size histograms (:attr:`latency`, :attr:`centre_latency`) and the last
+    :data:`LATENCY_SAMPLES` samples (:attr:`latency_ms`, :attr:`centre_latency_ms`).
     """
 
     def __init__(self, scene: Scene, *, interface: str = "virtual", channels: Sequence[str] | None = None,
@@ -98,9 +110,15 @@ class FusionService:
         self.assembler = CycleAssembler(scene)
         self.labels = self.assembler.labels
         self.pipeline = CyclePipeline(scene, truth=truth)
-        self.records: list[dict] = []
-        self.latency_ms: list[float] = []         # SYNC transmission -> record written
-        self.centre_latency_ms: list[float] = []  # closing event (last TPDO / SYNC) -> record written
+        if keep_records is True:
+            self.records: list[dict] | deque[dict] = []
+        else:
+            self.records = deque(maxlen=max(0, int(keep_records)))
+        self.stats = RunAggregates()
+        self.latency = LatencyHistogram()         # SYNC transmission -> record written
+        self.centre_latency = LatencyHistogram()  # closing event (last TPDO / SYNC) -> record written
+        self.latency_ms: deque[float] = deque(maxlen=LATENCY_SAMPLES)
+        self.centre_latency_ms: deque[float] = deque(maxlen=LATENCY_SAMPLES)
         self.pipeline_errors = 0
         self.own_echoes = 0
         self.drop_own_echo = interface == "udp_multicast"
@@ -221,7 +239,13 @@ class FusionService:
         self.missing_at_boot = missing
         present = [i for i in range(self.scene.n) if i not in set(missing)]
         if configure:
+            with self.stream.lock:
+                mark = self.assembler.events
             self.master.configure(present)
+            with self.stream.lock:  # booted (again) while being configured: its reset undid it
+                again = [i for i in present if self.assembler.bootup_seq[i] >= mark]
+            if again:
+                self.master.configure(again)
         self.master.start_nodes()
         return missing
 
@@ -258,7 +282,7 @@ class FusionService:
         m = self.master
         return RunSummary(
             cycles=m.sync_sent if m else 0,
-            records=len(self.records) if self.keep_records else (self.writer.count if self.writer else 0),
+            records=self.stats.records,
             counters=self.stream.counters(),
             sdo_writes=m.sdo_writes if m else 0,
             sdo_aborts=m.sdo_aborts if m else 0,
@@ -268,6 +292,7 @@ class FusionService:
             own_echoes=self.own_echoes,
             tx_errors=self.stream.tx_errors,
             latency_ms=list(self.latency_ms),
+            latency_hist=self.latency,
         )
 
     # ------------------------------------------------------------------ evaluation
@@ -293,18 +318,29 @@ class FusionService:
             self.pipeline_errors += 1
             logger.exception("cycle %d: evaluation failed", item.cycle)
             record = {"cycle": item.cycle, "t": round(item.sync_us * 1e-6, 6), "error": str(exc)}
-        sent = self.master.sync_sent_at.get(item.cycle) if self.master else None
+        sent = self.master.sync_sent_at.pop(item.cycle, None) if self.master else None
         if sent is not None:
-            self.latency_ms.append((time.perf_counter() - sent) * 1e3)
+            ms = (time.perf_counter() - sent) * 1e3
+            self.latency.add(ms)
+            self.latency_ms.append(ms)
             t0 = self.assembler.t0_us
             if t0 is not None:
-                self.centre_latency_ms.append((time.time() - (t0 + item.close_us) * 1e-6) * 1e3)
+                ms = (time.time() - (t0 + item.close_us) * 1e-6) * 1e3
+                self.centre_latency.add(ms)
+                self.centre_latency_ms.append(ms)
         if self.writer is not None:
             try:
                 self.writer.write(record)
             except (OSError, ValueError) as exc:
                 self._rate_log.warning("writer", "decision log write failed: %s", exc)
-        if self.keep_records:
+        try:
+            self.stats.add(record)
+        except Exception:  # noqa: BLE001 - the aggregates never stop the records
+            logger.exception("cycle %d: aggregating the record failed", item.cycle)
+        if record.get("duplicate_nodes"):
+            self._rate_log.warning("duplicate", "cycle %d: duplicate node-ID evidence for node(s) %s "
+                                   "(two devices answer for one node-ID)", item.cycle, record["duplicate_nodes"])
+        if self.keep_records is not False:
             self.records.append(record)
         for callback in self.on_record:
             try:

@@ -36,7 +36,13 @@ from typing import Callable
 import canopen
 
 from taxel_net.scene import TAXEL_KINDS, Scene
+import numpy as np
+
+from .cycles import C_BOOTUP
+from .stream import RateLimitedLog
 from .decoder import (
+    STATE_PRE_OPERATIONAL,
+    STATE_STOPPED,
     BASE_TPDO1,
     BASE_TPDO2,
     COB_NMT,
@@ -50,6 +56,7 @@ from .decoder import (
 logger = logging.getLogger("fusion_center.master")
 
 COB_INVALID = 0x8000_0000
+BOOT_QUIET_S = 0.05  # after the reset at start: no new boot-up for this long before configuring
 HEARTBEAT_PRODUCER = 0x1017
 TPDO_COMM = (0x1800, 0x1801)
 DETECTOR = 0x2001
@@ -112,6 +119,13 @@ class Master:
         self._stop = threading.Event()
         self._sync_thread: threading.Thread | None = None
         self._reconfigure: set[int] = set()
+        self.restart = scene.master.restart == "always"
+        self._log = RateLimitedLog(logger, 2.0)
+        self.restarts = 0                # NMT start commands sent to nodes found not operational
+        self._off_since = np.full(scene.n, -1, dtype=np.int64)  # SYNC index a node was first seen off
+        self._last_start = np.full(scene.n, -10**9, dtype=np.int64)  # SYNC index of its last restart
+        hb = max(scene.bus.heartbeat_producer_ms, scene.bus.sync_period_ms)
+        self._restart_every = max(2, int(hb / scene.bus.sync_period_ms))  # SYNCs between two restarts of a node
 
     # ------------------------------------------------------------------ NMT
     def nmt(self, command: int, node_id: int = 0, channel: int | None = None) -> None:
@@ -120,19 +134,33 @@ class Master:
             self.stream.transmit(ch, COB_NMT, bytes((command, node_id)))
 
     def wait_for_boot(self, timeout_s: float, listen_s: float = 0.3) -> list[int]:
-        """Wait for every scene node to be heard (boot-up or heartbeat); return the missing.
+        """Reset the communication of every node (CiA 302 boot-up of the NMT master: NMT reset
+        communication to all), wait for every scene node's boot-up; return the missing.
 
-        Nodes not heard within ``listen_s`` get an NMT reset-communication (they answer with a
-        boot-up); whoever is still silent at ``timeout_s`` is missing (and is configured and
-        started later if it ever boots).
+        The reset puts nodes left running by an earlier master (a previous ``run``) back into
+        their boot-up state, so every run starts from the same node state. Nodes not booted
+        within ``listen_s`` get a second, per-node reset-communication; whoever has been heard
+        neither by a boot-up nor otherwise since the reset at ``timeout_s`` is missing (and is
+        configured and started later if it ever boots).
         """
+        assembler = self.stream.assembler
+        with self.stream.lock:
+            assembler.last_heard[:] = -1  # heard since the reset only
+        self.nmt(NMT_RESET_COMMUNICATION, 0)  # the assembler notes its place in the stream
         start = time.monotonic()
         deadline = start + timeout_s
         reset_sent = False
+        bootups, quiet_since = -1, start
         while True:
-            silent = self.service.never_heard()
+            with self.stream.lock:
+                silent = [int(i) for i in np.flatnonzero(assembler.bootup_seq < assembler.reset_seq)]
+                seen = assembler.counts[C_BOOTUP]
             now = time.monotonic()
-            if not silent:
+            if seen != bootups:
+                bootups, quiet_since = seen, now
+            # every node booted after the reset, and no boot-up for BOOT_QUIET_S: a boot-up sent
+            # just before the reset (fed after it) is followed by the one answering it
+            if not silent and now - quiet_since >= min(BOOT_QUIET_S, timeout_s / 4):
                 return []
             if not reset_sent and now - start >= min(listen_s, timeout_s / 2):
                 for i in silent:
@@ -140,6 +168,8 @@ class Master:
                     self.stream.transmit(t.channel, COB_NMT, bytes((NMT_RESET_COMMUNICATION, t.node_id)))
                 reset_sent = True
             if now >= deadline:
+                heard = set(range(self.scene.n)) - set(self.service.never_heard())
+                silent = [i for i in silent if i not in heard]  # heard, no boot-up: present
                 for i in silent:
                     logger.warning("node %s never booted within %.1f s: missing", self.service.labels[i], timeout_s)
                 return silent
@@ -254,9 +284,13 @@ class Master:
                 if overflow:
                     counter = counter % overflow + 1
                 payload = sync_payload(counter if overflow else None)
-                self.sync_sent_at[k] = time.perf_counter()
+                sent_at = self.sync_sent_at
+                sent_at[k] = time.perf_counter()
+                if len(sent_at) > 256:  # cycles never evaluated (e.g. lost): keep the map bounded
+                    sent_at.pop(next(iter(sent_at)), None)
                 self.stream.transmit_all([(ch, COB_SYNC, payload) for ch in channels])
                 self.sync_sent += 1
+                self._supervise(k)
                 next_at += period
             # let the last cycle complete (early close) for up to one period, then end it
             deadline = time.monotonic() + period
@@ -265,6 +299,41 @@ class Master:
             self.stream.transmit_all([(ch, COB_NMT, bytes((NMT_PRE_OPERATIONAL, 0))) for ch in channels])
         except Exception:  # noqa: BLE001 - e.g. the bus went away: end the run, never hang
             logger.exception("SYNC producer stopped")
+
+
+    # ------------------------------------------------------------------ supervision
+    def _supervise(self, k: int) -> None:
+        """After SYNC ``k``: a live node found not operational (stopped or pre-operational: by a
+        heartbeat, or by an NMT command of another master seen in the stream) at two SYNCs in a
+        row is started again (``[master] restart = "always"``), at most once per heartbeat
+        period; a node being reconfigured after its boot-up is left to that. ``"never"``: the
+        record names it (``nodes_by_state``) and nothing is sent."""
+        if not self.restart:
+            return
+        assembler = self.stream.assembler
+        with self.stream.lock:
+            state = assembler.state
+            off = ~assembler.missing & ((state == STATE_STOPPED) | (state == STATE_PRE_OPERATIONAL))
+        since = self._off_since
+        since[~off] = -1
+        if not off.any():
+            return
+        since[off & (since < 0)] = k
+        due = off & (since < k) & (k - self._last_start >= self._restart_every)
+        if not due.any():
+            return
+        with self._stats_lock:
+            busy = set(self._reconfigure)
+        for i in np.flatnonzero(due):
+            i = int(i)
+            if i in busy:
+                continue
+            t = self.scene.taxels[i]
+            self._last_start[i] = k
+            self.restarts += 1
+            self.stream.transmit(t.channel, COB_NMT, bytes((NMT_START, t.node_id)))
+            self._log.warning("restart", "node %s is %s: NMT start sent (restart %d)", self.service.labels[i],
+                              "stopped" if state[i] == STATE_STOPPED else "pre-operational", self.restarts)
 
 
 def _is_variable(node, index: int) -> bool:

@@ -39,10 +39,15 @@ from ..core.encoding import local_decision
 from taxel_net.scene import Scene
 from ..stages import plan_stages
 from .centralised_tests import CentralisedTests
-from .cycles import ClosedCycle
+from .cycles import STATE_RESETTING, ClosedCycle
+from .decoder import STATE_NAMES as _DECODER_STATE_NAMES
 from .decision_fusion import DecisionFusion
 from .physical import PhysicalEvaluation
 from .records import jsonable
+
+
+STATE_NAMES = {**_DECODER_STATE_NAMES, STATE_RESETTING: "resetting"}
+TRUTH_PRECOMPUTED = 4096  # cycles whose ground truth is computed when the pipeline is built
 
 
 class _Pattern(NamedTuple):
@@ -92,7 +97,9 @@ class CyclePipeline:
         if truth:
             from node_sim.physics import truth_batch
 
-            self._truth = ["H1" if present else "H0" for present in truth_batch(scene, np.arange(scene.cycles))]
+            # precomputed for the first cycles only (bounded memory; later cycles: object_present)
+            first = np.arange(min(scene.cycles, TRUTH_PRECOMPUTED))
+            self._truth = ["H1" if present else "H0" for present in truth_batch(scene, first)]
         self.fusion.warm_up()
 
     # ------------------------------------------------------------------ the record
@@ -149,9 +156,13 @@ class CyclePipeline:
         record["degraded"] = n_received < self.n
         record["missing_nodes"] = [labels[i] for i in np.flatnonzero(missing)] if missing.any() else []
         record["silent_nodes"] = [labels[i] for i in np.flatnonzero(silent)] if silent.any() else []
+        record["nodes_by_state"] = self._nodes_by_state(closed, missing, silent)
+        record["duplicate_nodes"] = [labels[i] for i in closed.duplicates]
         record["late_frames"] = closed.late_frames
         record["bad_frames"] = closed.bad_frames
         record["emcy"] = [e.as_record() for e in closed.emcy]
+        if closed.emcy_dropped:
+            record["emcy_dropped"] = closed.emcy_dropped
         record["rules"] = rule_results
 
         t_seconds = closed.sync_us * 1e-6
@@ -176,6 +187,23 @@ class CyclePipeline:
         if self.with_truth:
             record["truth"] = self.truth(closed.cycle)
         return record
+
+    def _nodes_by_state(self, closed: ClosedCycle, missing: np.ndarray, silent: np.ndarray) -> dict:
+        """Every node that did not take part as an operational node: ``missing`` (heartbeat
+        consumer time expired / never heard), ``silent`` (operational at the SYNC, no PDO), and
+        the live nodes that were not operational at the SYNC by their NMT state (``stopped``,
+        ``pre-operational``, ``resetting``, ``unknown``). Empty when every node took part."""
+        out: dict[str, list] = {}
+        off = ~closed.expected & ~missing
+        if missing.any():
+            out["missing"] = [self.labels[i] for i in np.flatnonzero(missing)]
+        if silent.any():
+            out["silent"] = [self.labels[i] for i in np.flatnonzero(silent)]
+        if off.any() and closed.states is not None:
+            for i in np.flatnonzero(off):
+                name = STATE_NAMES.get(int(closed.states[i]), "unknown")
+                out.setdefault(name, []).append(self.labels[i])
+        return out
 
     def truth(self, cycle: int) -> str:
         if 0 <= cycle < len(self._truth):
