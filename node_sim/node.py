@@ -1,7 +1,7 @@
 """The taxel node firmware twin: one CANopen slave composed of its services.
 
-canopen 2.4.1's ``LocalNode`` supplies the object dictionary (loaded from the EDS), the
-data store and the SDO server. It has no slave behaviour beyond that (no TPDO on SYNC, no
+canopen 2.4.1's ``LocalNode`` supplies the object dictionary (loaded from the EDS) and the
+data store. It has no slave behaviour beyond that (no TPDO on SYNC, no
 inhibit time / event timer, PDO data kept apart from the OD, no way out of INITIALISING
 after an NMT reset: canopen issues #145, #520, #558, #47), so the node twin adds one module
 per CANopen service, each owning that service's state (the layout follows canopen's own:
@@ -39,7 +39,7 @@ from .detector import Detector
 from .emcy import EmcyProducer
 from .heartbeat import HeartbeatProducer
 from .link import NodeLink, Scheduler
-from .nmt import STATE_NAMES, NmtSlave
+from .nmt import STATE_NAMES, STOPPED, NmtSlave
 from .od import COB_INVALID
 from .pdo import TpdoEngine
 from .sdo import SdoServer
@@ -79,7 +79,7 @@ class TaxelNode:
         self.detector = Detector(objects, self.emcy.fault_changed)
         self.pdo = TpdoEngine(self, self.nmt, objects, link)
         self.sync = SyncConsumer(self, self.nmt, objects, self.detector.sample, self.pdo.on_sync)
-        self.sdo = SdoServer(node_id, self.nmt, objects, self._send)
+        self.sdo = SdoServer(node_id, self.nmt, objects, self._send, link.scheduler)
         # each object's write rules and side effects, from the service that owns it
         sdo = self.sdo
         sdo.add_check((odx.ERROR_FIELD, odx.COB_ID_EMCY), self.emcy.check_write)
@@ -125,6 +125,8 @@ class TaxelNode:
         if self.silent:
             return
         self.nmt.on_command(command)
+        if self.nmt.state == STOPPED:
+            self.sdo.reset()  # no SDO in STOPPED: a transfer in progress is dropped
 
     def on_sdo_request(self, data: bytes) -> None:
         if self.silent:
@@ -138,6 +140,7 @@ class TaxelNode:
 
     def shutdown(self) -> None:
         self.heartbeat.stop()
+        self.sdo.reset()
         self.pdo.leave_operational()
 
     # ------------------------------------------------------------------ frames out
@@ -150,6 +153,7 @@ class TaxelNode:
     # ------------------------------------------------------------------ NMT hooks
     def _before_boot(self) -> None:
         self.heartbeat.stop()
+        self.sdo.reset()
         self.pdo.reset()
 
     def _after_boot(self) -> None:
