@@ -83,7 +83,7 @@ class TaxelNode:
         # each object's write rules and side effects, from the service that owns it
         sdo = self.sdo
         sdo.add_check((odx.ERROR_FIELD, odx.COB_ID_EMCY), self.emcy.check_write)
-        sdo.add_check((odx.COB_ID_SYNC,), self.sync.check_write)
+        sdo.add_check((odx.COB_ID_SYNC, odx.SYNC_OVERFLOW), self.sync.check_write)
         sdo.add_check(odx.TPDO_COMM + odx.TPDO_MAP, self.pdo.check_write)
         sdo.add_check((odx.DETECTOR,), self.detector.check_write)
         sdo.add_written(None, self.detector.invalidate)  # any write: parameters re-read at the next SYNC

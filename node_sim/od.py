@@ -46,6 +46,7 @@ COB_ID_SYNC = 0x1005
 COB_ID_EMCY = 0x1014
 HEARTBEAT_PRODUCER = 0x1017
 IDENTITY = 0x1018
+SYNC_OVERFLOW = 0x1019        # synchronous counter overflow value: 0 = SYNC without counter, 2..240
 TPDO_COMM = (0x1800, 0x1801)  # sub 1 COB-ID, 2 transmission type, 3 inhibit (100 µs), 5 event timer (ms), 6 SYNC start
 TPDO_MAP = (0x1A00, 0x1A01)
 # COB-ID entries (0x1005, 0x1014, 0x180x:1): CiA 301 bits

@@ -8,15 +8,16 @@ node twins on it: python-can's ``virtual`` interface deep-copies every frame onc
 Start-up (what a real node has in its non-volatile memory; a master that configures
 nothing still gets working nodes): each node's OD is written from the scene — ζ, N_i, kind,
 x, y (0x2001), slope/intercept (0x6126/0x6127), heartbeat time (0x1017 =
-``bus.heartbeat_producer_ms``), TPDO transmission type / inhibit time / event timer
-(0x1800/0x1801 from ``bus``), TPDO2 enabled iff ``bus.mode == "raw"``, and the stuck-reading
+``bus.heartbeat_producer_ms``), SYNC counter overflow (0x1019 = ``bus.sync_counter``), TPDO
+transmission type / inhibit time / event timer (0x1800/0x1801 from ``bus``), TPDO2 enabled iff ``bus.mode == "raw"``, and the stuck-reading
 detector switched off (0x2002:2 = 0) for a taxel simulated without noise
 (``noise_sigma_mv == 0``: its readings are legitimately identical). These values are what
 NMT reset-node / reset-communication restore. Then every node sends its boot-up.
 
 SYNC cycle number: the nodes of a channel sample X_i for cycle ``c`` = the number of SYNCs
 the rig has seen on that channel since :meth:`Rig.start` (the first SYNC is cycle 0). When
-the SYNC carries a counter byte (``bus.sync_counter`` = overflow value 2..240), a jump of
+the SYNC carries a counter byte (the nodes' 0x1019 = overflow value 2..240, start-up value
+``bus.sync_counter``; a SYNC whose length does not match 0x1019 is a length error), a jump of
 the counter is read as lost SYNCs: the cycle number advances by the counter difference and
 ``lost_syncs`` counts the gap, so the nodes stay aligned with the master's cycles.
 
@@ -118,6 +119,7 @@ class _Channel(can.Listener):
         self.cycle: int | None = None           # cycle number of the last SYNC fully processed
         self.lost_syncs = 0
         self._last_counter: int | None = None
+        self._overflow = 0                      # the nodes' 0x1019 (read with the SYNC map)
         self._sync_length_error = False
         self.frames_sent = 0
         self.notifier: can.Notifier | None = None
@@ -162,9 +164,13 @@ class _Channel(can.Listener):
             for n in self.nodes.values():  # each node's SYNC consumer, by its SYNC COB-ID (0x1005)
                 self._sync_map.setdefault(n.sync.cob_id, []).append(
                     (n, n.sync.on_sync, self.scene_index[n.node_id]))
+            # the SYNC counter overflow value 0x1019 of the channel's nodes (the most common
+            # one, should a master give them different values)
+            overflows = [n.sync.overflow for n in self.nodes.values()]
+            self._overflow = max(set(overflows), key=overflows.count) if overflows else 0
         sync_nodes = self._sync_map.get(can_id)
         if sync_nodes:
-            if len(data) != (1 if self.rig.scene.bus.sync_counter else 0):
+            if len(data) != (1 if self._overflow else 0):
                 # CiA 301: SYNC length error - ignored, EMCY 0x8240 (once until a valid SYNC)
                 if not self._sync_length_error:
                     self._sync_length_error = True
@@ -177,8 +183,7 @@ class _Channel(can.Listener):
     def _on_sync(self, data: bytes, nodes: Sequence[tuple[TaxelNode, Callable, int]]) -> None:
         counter = data[0] if len(data) >= 1 else None
         if counter is not None and self._last_counter is not None:
-            overflow = self.rig.scene.bus.sync_counter or 240
-            step = (counter - self._last_counter - 1) % overflow + 1
+            step = (counter - self._last_counter - 1) % self._overflow + 1
         else:
             step = 1
         self._last_counter = counter
@@ -337,6 +342,7 @@ class Rig:
             odx.NOISE_ESTIMATE: float(t.noise_mv),
             odx.TAXEL_KIND: TAXEL_KINDS[t.kind],
             (odx.HEARTBEAT_PRODUCER, 0): int(bus.heartbeat_producer_ms),
+            (odx.SYNC_OVERFLOW, 0): int(bus.sync_counter),
         }
         if t.x is not None:
             values[odx.POS_X] = float(t.x)

@@ -3,6 +3,11 @@
 * COB-ID SYNC 0x1005: the CAN-ID the node consumes SYNC on (default 0x80). The node never
   produces SYNC: a write with bit 30 (generate) or bit 29 (29-bit ID) set is refused with
   SDO abort 0x06090030.
+* Synchronous counter overflow value 0x1019: 0 = SYNC without a counter byte (DLC 0), 2..240 =
+  SYNC carries a counter 1..value (DLC 1); 1 and 241..255 are refused (0x06090030). The
+  channel (:mod:`node_sim.rig`) reads it to check the SYNC length and to count lost SYNCs
+  from counter jumps; no overflow value is assumed. (No 0x1006 here, so it may be written in
+  any state in which SDO is served.)
 * What a SYNC triggers, in any NMT state but INITIALISING and never while the node is
   silent (a dead node): the application samples X_i of that cycle, checks it for sensor
   faults and decides u_i (eqs 1-4, :mod:`node_sim.detector`); then, in OPERATIONAL only,
@@ -22,7 +27,7 @@ from typing import TYPE_CHECKING, Callable
 from canopen.sdo import SdoAbortedError
 
 from .nmt import INITIALISING, OPERATIONAL, NmtSlave
-from .od import COB_29BIT, COB_ID_SYNC, NodeObjects
+from .od import COB_29BIT, COB_ID_SYNC, SYNC_OVERFLOW, NodeObjects
 from .sdo import ABORT_VALUE_RANGE
 
 if TYPE_CHECKING:
@@ -53,9 +58,17 @@ class SyncConsumer:
         """The 11-bit CAN-ID of SYNC (0x1005 now)."""
         return self._objects.read(COB_ID_SYNC) & 0x7FF
 
+    @property
+    def overflow(self) -> int:
+        """0x1019 now: the SYNC counter's overflow value (0: SYNC without counter)."""
+        return self._objects.read(SYNC_OVERFLOW)
+
     def check_write(self, index: int, subindex: int, value, startup: bool) -> None:
-        """SDO / start-up write to 0x1005 (see module docstring)."""
-        if value & (SYNC_GENERATE | COB_29BIT):
+        """SDO / start-up write to 0x1005 or 0x1019 (see module docstring)."""
+        if index == SYNC_OVERFLOW:
+            if not (value == 0 or 2 <= value <= 240):
+                raise SdoAbortedError(ABORT_VALUE_RANGE)
+        elif value & (SYNC_GENERATE | COB_29BIT):
             raise SdoAbortedError(ABORT_VALUE_RANGE)
 
     def on_sync(self, cycle: int, reading: float, counter: int | None = None) -> None:

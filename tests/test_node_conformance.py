@@ -1,0 +1,123 @@
+"""CiA 301 objects of the node twins as canopen's master sees them: 0x1019 (SYNC counter
+overflow), EMCY pairing across NMT states.
+
+canopen's ``Network`` + ``RemoteNode`` (same EDS) is the master on a python-can virtual bus; the
+SYNCs are sent by the master with the counter byte it chooses. Waits are "eventually" bounds.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+import uuid
+
+import canopen
+import numpy as np
+import pytest
+
+from node_sim import emcy as em
+from node_sim.od import EDS_PATH
+from node_sim.rig import Rig
+from taxel_net.scene import BusSpec, Scene, TaxelSpec
+
+WAIT = 5.0
+
+
+def make_scene(channel: str, n: int = 2, **bus) -> Scene:
+    taxels = tuple(TaxelSpec(node_id=i + 1, kind="R", zeta_mv=1.0, noise_mv=0.0, noise_sigma_mv=0.0,
+                             x=10.0 * i, y=0.0) for i in range(n))
+    bus.setdefault("heartbeat_producer_ms", 0)
+    return Scene(path="<test>", name="test", taxels=taxels, bus=BusSpec(channels=(channel,), **bus))
+
+
+def wait_until(pred, timeout=WAIT) -> bool:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if pred():
+            return True
+        time.sleep(0.005)
+    return False
+
+
+class Setup:
+    def __init__(self, scene: Scene, source):
+        self.rig = Rig(scene, reading_source=source).start()
+        self.network = canopen.Network()
+        self.network.connect(interface="virtual", channel=scene.bus.channels[0])
+        self.remote = {}
+        for t in scene.taxels:
+            rn = canopen.RemoteNode(t.node_id, str(EDS_PATH))
+            rn.sdo.RESPONSE_TIMEOUT = 2.0
+            self.network.add_node(rn)
+            self.remote[t.node_id] = rn
+
+    def sync(self, data: bytes, expect_cycle: int) -> None:
+        self.network.send_message(0x80, data)
+        assert self.rig.wait_cycle(expect_cycle, timeout=WAIT)
+
+    def nmt(self, command: int, node_id: int = 0) -> None:
+        self.network.send_message(0x000, bytes([command, node_id]))
+
+    def close(self) -> None:
+        self.network.disconnect()
+        self.rig.stop()
+
+
+@pytest.fixture
+def factory():
+    made = []
+
+    def make(source=None, n=2, **bus):
+        scene = make_scene(f"test-conf-{uuid.uuid4().hex[:10]}", n, **bus)
+        s = Setup(scene, source or (lambda cycle: np.zeros(n)))
+        made.append(s)
+        return s
+
+    yield make
+    for s in made:
+        s.close()
+
+
+def _abort(fn) -> int:
+    with pytest.raises(canopen.SdoAbortedError) as info:
+        fn()
+    return info.value.code
+
+
+# ------------------------------------------------------------------------ 0x1019
+
+def test_sync_counter_overflow_object(factory):
+    s = factory(sync_counter=7)
+    rn = s.remote[1]
+    assert rn.sdo[0x1019].raw == 7                       # start-up value from the scene
+    assert _abort(lambda: setattr(rn.sdo[0x1019], "raw", 1)) == 0x06090030
+    assert _abort(lambda: setattr(rn.sdo[0x1019], "raw", 241)) == 0x06090031   # EDS HighLimit 240
+    rn.sdo[0x1019].raw = 0
+    rn.sdo[0x1019].raw = 240
+    assert rn.sdo[0x1019].raw == 240
+    s.nmt(0x82, 1)                                        # reset communication: start-up value back
+    assert wait_until(lambda: s.rig.node(1).read(0x1019) == 7)
+
+
+def test_master_overflow_written_over_sdo_is_honoured(factory):
+    """Scene without counter (0x1019 = 0); the master configures overflow 10 on every node and
+    sends SYNCs counting 1..10: a wrap is one cycle, a gap counts as lost SYNCs (no 240)."""
+    s = factory()
+    for rn in s.remote.values():
+        assert rn.sdo[0x1019].raw == 0
+        rn.sdo[0x1019].raw = 10
+    cycle = 0
+    for counter in list(range(1, 11)) + [1, 2]:
+        s.sync(bytes([counter]), cycle)
+        cycle += 1
+    assert s.rig.cycle() == 11 and s.rig.lost_syncs() == 0
+    s.sync(bytes([5]), 14)                                # 2 -> 5: two SYNCs lost
+    assert s.rig.lost_syncs() == 2
+    s.sync(bytes([1]), 20)                                # 5 -> (wrap at 10) -> 1: five lost
+    assert s.rig.lost_syncs() == 7
+    # back to 0: a SYNC with a counter byte is now a length error (ignored), one without counts
+    for rn in s.remote.values():
+        rn.sdo[0x1019].raw = 0
+    s.network.send_message(0x80, b"\x02")
+    s.sync(b"", 21)
+    assert s.rig.lost_syncs() == 7
