@@ -29,38 +29,21 @@ Names are imported on first use: ``import fusion_center.core.rules`` stays free 
 
 from __future__ import annotations
 
-import importlib
+import lazy_loader
+
+from taxel_net.errors import ParameterError, SceneError, UsageError  # noqa: F401  (light: no CAN)
+from taxel_net.scene import Scene, load_scene  # noqa: F401
 
 __version__ = "0.1.0"
 
-# public name -> (module, attribute); attribute None: the module itself
-_EXPORTS: dict[str, tuple[str, str | None]] = {
-    "load_scene": ("taxel_net.scene", "load_scene"),
-    "Scene": ("taxel_net.scene", "Scene"),
-    "ParameterError": ("taxel_net.errors", "ParameterError"),
-    "SceneError": ("taxel_net.errors", "SceneError"),
-    "UsageError": ("taxel_net.errors", "UsageError"),
-    "FusionService": ("fusion_center.service", "FusionService"),
-    "RunSummary": ("fusion_center.service", "RunSummary"),
-    "replay_trace": ("fusion_center.service", "replay_trace"),
-    "read_records": ("fusion_center.service", "read_records"),
-    "plan_stages": ("fusion_center.stages", "plan_stages"),
-    "StagePlan": ("fusion_center.stages", "StagePlan"),
-    "simulate": ("fusion_center.evaluation", "simulate"),
-    "core": ("fusion_center.core", None),
-}
-
-__all__ = sorted(_EXPORTS) + ["__version__"]
-
-
-def __getattr__(name: str):
-    if name not in _EXPORTS:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    module_name, attribute = _EXPORTS[name]
-    module = importlib.import_module(module_name)
-    value = module if attribute is None else getattr(module, attribute)
-    globals()[name] = value
-    return value
+# the rest is imported on first use (PEP 562): ``import fusion_center.core.rules`` loads no CAN
+_getattr, _dir, _lazy = lazy_loader.attach(__name__, submodules=["core"], submod_attrs={
+    "service": ["FusionService", "RunSummary", "replay_trace", "read_records"],
+    "stages": ["plan_stages", "StagePlan"],
+    "evaluation": ["simulate"],
+})
+__getattr__ = _getattr
+__all__ = sorted(set(_lazy) | {"ParameterError", "SceneError", "UsageError", "Scene", "load_scene", "__version__"})
 
 
 def __dir__() -> list[str]:

@@ -31,27 +31,8 @@ LSS (CiA 305) is not implemented yet (its module will be ``lss``). Nothing here 
 
 from __future__ import annotations
 
-import importlib
+import lazy_loader
 
-# public name -> (module, attribute); attribute None: the module itself
-_EXPORTS: dict[str, tuple[str, str | None]] = {
-    "Rig": ("node_sim.rig", "Rig"),
-    "TaxelNode": ("node_sim.node", "TaxelNode"),
-    "physics": ("node_sim.physics", None),
-}
-
-__all__ = ["Rig", "TaxelNode", "physics"]
-
-
-def __getattr__(name: str):
-    if name not in _EXPORTS:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    module_name, attribute = _EXPORTS[name]
-    module = importlib.import_module(module_name)
-    value = module if attribute is None else getattr(module, attribute)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(__all__))
+# imported on first use (PEP 562): ``import node_sim.physics`` loads no CAN library
+__getattr__, __dir__, __all__ = lazy_loader.attach(
+    __name__, submodules=["physics"], submod_attrs={"rig": ["Rig"], "node": ["TaxelNode"]})

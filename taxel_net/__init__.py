@@ -12,27 +12,10 @@ imported on first use: ``import taxel_net.scene`` loads no CAN library.
 
 from __future__ import annotations
 
-import importlib
+import lazy_loader
 
-_EXPORTS = {
-    "load_scene": "scene",
-    "Scene": "scene",
-    "ParameterError": "errors",
-    "SceneError": "errors",
-    "UsageError": "errors",
-    "TxMessage": "canmsg",
-}
-
-__all__ = sorted(_EXPORTS)
-
-
-def __getattr__(name: str):
-    if name not in _EXPORTS:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(importlib.import_module(f"{__name__}.{_EXPORTS[name]}"), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(__all__))
+__getattr__, __dir__, __all__ = lazy_loader.attach(__name__, submod_attrs={
+    "scene": ["load_scene", "Scene"],
+    "errors": ["ParameterError", "SceneError", "UsageError"],
+    "canmsg": ["TxMessage"],
+})
