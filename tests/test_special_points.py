@@ -351,6 +351,8 @@ def _run(capsys, *argv):
     (["fuse", "--rule", "preferential", "--u", "1,1,-1", "--p="], ["p=", "empty", "[0, 2]"]),
     (["fuse", "--rule", "llr", "--u", "1,1", "--pd", "0.9", "--pf", "0.1", "--prior-h1="], ["prior_h1", "empty"]),
     (["threshold", "--rule", "additive", "--n", "57", "--xi=", "--alpha", "0.1"], ["xi=", "empty"]),
+    (["fuse", "--rule", "additive", "--u", "1,1.0000000000000001"], ["u[1]", "1.0000000000000001"]),
+    (["threshold", "--rule", "additive", "--n", "57", "--xi", "1e-310", "--alpha", "0.1"], ["xi=", "underflows"]),
 ])
 def test_cli_parsing(capsys, argv, words):
     rc, out, err = _run(capsys, *argv)

@@ -93,16 +93,19 @@ def _check_options(args) -> None:
             raise UsageError(f"{flag} does not apply to --rule {args.rule} (only to: {', '.join(users)})")
 
 
-def _number_list(name: str, text: str, allowed: str) -> np.ndarray:
+def _number_list(name: str, text: str, allowed: str, integers: bool = False) -> np.ndarray:
     tokens = [t.strip() for t in str(text).split(",")]
     if tokens == [""]:
         raise ParameterError(name, text, allowed + "; got an empty list (n >= 1 needed)")
     values = []
     for i, token in enumerate(tokens):
         try:
-            value = float(parse_number(f"{name}[{i}]", token))  # no silent underflow (1e-400 -> 0)
+            parsed = parse_number(f"{name}[{i}]", token)  # no silent underflow (1e-400 -> 0)
         except ParameterError as exc:
             raise ParameterError(f"{name}[{i}]", token, allowed if token else exc.allowed) from None
+        if integers and not isinstance(parsed, int):  # 1.0000000000000001 would round to 1
+            raise ParameterError(f"{name}[{i}]", token, allowed)
+        value = float(parsed)
         if not math.isfinite(value):
             raise ParameterError(f"{name}[{i}]", token, allowed)
         values.append(value)
@@ -111,7 +114,7 @@ def _number_list(name: str, text: str, allowed: str) -> np.ndarray:
 
 def parse_decisions(text: str, encoding: str) -> np.ndarray:
     allowed = "-1 or 1 for tuple 'pm1'" if encoding == "pm1" else "0 or 1 for tuple '01'"
-    values = _number_list("u", text, f"must be a comma-separated list of decisions ({allowed})")
+    values = _number_list("u", text, f"must be a comma-separated list of decisions ({allowed})", integers=True)
     return validate_decisions(values, encoding)
 
 

@@ -763,19 +763,28 @@ def preferential_threshold(n, xi, alpha, p, q, encoding: str = "pm1", band: str 
     weights = _weights(p, q)
     # g(n) of eq 15, the expression of rules.g_of_n (tested equal) without re-checking n, p, q
     g = 1.0 if n == 1 else (weights[0] + weights[1]) + (n - 2) * weights[2]
-    a_exact = 3 * Fraction(alpha) / (1 - Fraction(xi))
-    disc = 9 - 4 * a_exact
+    a_float = 3.0 * alpha / (1.0 - xi)
     width = alpha * g / 4.0  # eq 20, independent of the root
     bands = _eq19_bands(xi, alpha, g) if band == "eq19" else ()
-    near_double = abs(Fraction(3, 4) * (1 - Fraction(xi)) - Fraction(alpha)) <= NEAR_DOUBLE_ROOT
+    if abs(a_float - 2.0) > 1e-5 and abs(a_float - 2.25) > 1e-5:
+        # away from a = 2 and 9/4: floats decide and keep ~1e-10 relative accuracy in 2 - a, 9 - 4a
+        a_exact = a_float
+        disc = 9.0 - 4.0 * a_float
+        near_double = False
+    else:  # exact rational arithmetic on the float inputs
+        a_exact = 3 * Fraction(alpha) / (1 - Fraction(xi))
+        disc = 9 - 4 * a_exact
+        near_double = abs(Fraction(3, 4) * (1 - Fraction(xi)) - Fraction(alpha)) <= NEAR_DOUBLE_ROOT
     if disc < 0:
         return PreferentialThreshold(n, xi, alpha, p, q, encoding, g, None, width, None, None, None, (),
                                      near_double, band, bands)
     s = math.sqrt(float(disc))
     if a_exact < 1:
         y = 1.0 - 2.0 * float(a_exact) / (3.0 + s)
-    else:
+    elif isinstance(a_exact, Fraction):
         y = 2.0 * float(2 - a_exact) / (1.0 + s)
+    else:  # 2(1 - xi) - 3 alpha over (1 - xi): the printed form's cancellation is bounded by 1e-5
+        y = 2.0 * (2.0 * (1.0 - xi) - 3.0 * alpha) / ((1.0 - xi) * (1.0 + s))
     mean = y * g
     mean, present = _certified_mean(n, xi, alpha, p, q, weights, encoding, mean)
     roots = (mean,)
