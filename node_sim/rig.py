@@ -121,6 +121,8 @@ class _Channel(can.Listener):
         self._last_counter: int | None = None
         self._overflow = 0                      # the nodes' 0x1019 (read with the SYNC map)
         self._sync_length_error = False
+        self._rx_time = 0.0
+        self.late_syncs = 0  # SYNCs handled after their synchronous window (0x1007): no TPDO sent
         self.frames_sent = 0
         self.notifier: can.Notifier | None = None
         self._sync_map: dict[int, list[tuple[TaxelNode, Callable, int]]] | None = None
@@ -131,6 +133,7 @@ class _Channel(can.Listener):
             return
         try:
             with self.lock:
+                self._rx_time = msg.timestamp
                 self._dispatch(msg.arbitration_id, bytes(msg.data))
         except Exception:  # never kill the notifier thread
             logger.exception("node-sim: handling frame 0x%03X failed", msg.arbitration_id)
@@ -178,6 +181,15 @@ class _Channel(can.Listener):
                         node.emcy.send(0x8240, 0x11)  # error register: generic + communication
                 return
             self._sync_length_error = False
+            window = self.rig.scene.bus.sync_window
+            if window and self._rx_time and (time.time() - self._rx_time) * 1e6 > window:
+                # CiA 301 0x1007: a synchronous PDO is not sent after the window; a SYNC handled
+                # that late (a loaded host) only advances the cycle count
+                self.late_syncs += 1
+                self.sync_count += 1
+                self._last_counter = data[0] if data else None
+                self.cycle = self.sync_count - 1
+                return
             self._on_sync(data, sync_nodes)
 
     def _on_sync(self, data: bytes, nodes: Sequence[tuple[TaxelNode, Callable, int]]) -> None:

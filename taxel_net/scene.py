@@ -57,6 +57,15 @@ class BusSpec:
     inhibit_time_100us: int = 0       # 0x1800:3
     event_timer_ms: int = 0           # 0x1800:5 (0 = off)
     channels: tuple[str, ...] = ("taxel0",)
+    sync_window_us: int = 0           # 0x1007 synchronous window length (µs), 0: off (CiA 301 default);
+                                      # -1: 80 % of the SYNC period (what a scene file gets by default)
+
+    @property
+    def sync_window(self) -> int:
+        """The synchronous window length in µs (0x1007; 0 = no window)."""
+        if self.sync_window_us >= 0:
+            return self.sync_window_us
+        return int(round(self.sync_period_ms * 1000)) * 4 // 5
 
 
 @dataclass(frozen=True)
@@ -172,7 +181,7 @@ _TOP_KEYS = ("scene", "bus", "kinds", "taxels", "taxels_file", "per_taxel", "obj
 _SCENE_KEYS = ("name", "description", "seed", "cycles")
 _BUS_KEYS = ("bitrate", "sync_period_ms", "sync_counter", "heartbeat_producer_ms",
              "heartbeat_consumer_ms", "mode", "transmission_type", "inhibit_time_100us",
-             "event_timer_ms", "channels")
+             "event_timer_ms", "channels", "sync_window_us")
 _OBJECT_KEYS = ("model", "x", "y", "radius", "present", "velocity", "slip_onset_cycle",
                 "tangential_force", "readings_mv", "readings_are")
 _FUSION_KEYS = ("rules", "decide_with", "tuple", "xi", "alpha", "beta", "additive_root", "p", "q",
@@ -421,10 +430,15 @@ def _load_bus(sp: str, top: _Where, raw) -> BusSpec:
     channels = _distinct_strings(w, "channels", b.get("channels", list(d.channels)))
     if not channels:
         w.fail("channels", channels, "needs at least one channel")
+    period_us = int(round(sync * 1000))
+    window = _int(w, "sync_window_us", b.get("sync_window_us", period_us * 4 // 5), 0, 0xFFFFFFFF)
+    if window >= period_us:
+        w.fail("sync_window_us", window, f"0x1007 must be shorter than the SYNC period ({period_us} µs), "
+                                         "or 0 (no window)")
     return BusSpec(bitrate=bitrate, sync_period_ms=sync, sync_counter=counter,
                    heartbeat_producer_ms=hb_p, heartbeat_consumer_ms=hb_c, mode=mode,
                    transmission_type=tt, inhibit_time_100us=inhibit, event_timer_ms=ev,
-                   channels=tuple(channels))
+                   channels=tuple(channels), sync_window_us=window)
 
 
 def _load_taxels(path: Path, top: _Where, doc: dict, bus: BusSpec) -> tuple[TaxelSpec, ...]:

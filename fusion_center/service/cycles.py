@@ -20,7 +20,9 @@ everything it decides is a function of that stream, so feeding the trace back
 * A node is *expected* in a cycle when it is live and operational (its NMT state follows the
   heartbeat byte, the master's own NMT commands seen in the stream, and "a node that sends a
   PDO is operational").
-* The cycle closes (``closed_by``) when every expected node has delivered its primary PDO
+* The cycle closes (``closed_by``) at the end of the synchronous window (0x1007,
+  ``[bus] sync_window_us``; ``"window"``: at the first event later than SYNC + window, with
+  ``close_us`` = SYNC + window), when every expected node has delivered its primary PDO
   (``"complete"``: TPDO1 in decision mode, TPDO2 in raw mode; only for synchronous
   transmission type 1 and at least one expected node), at the next valid SYNC
   (``"sync"``), or at an NMT broadcast stop / pre-operational / reset (``"nmt"``, the master
@@ -29,9 +31,15 @@ everything it decides is a function of that stream, so feeding the trace back
   or any PDO while no cycle is open (after an early close, before the first SYNC) - is
   counted as ``late`` and dropped, never mixed into a finished cycle.
 
-Limit: a 1-byte TPDO1 carries no cycle tag (the SYNC counter is in the SYNC frame only), so a
-PDO delayed past the next SYNC is indistinguishable from an early answer to that SYNC; it is
-attributed to the cycle open when it arrives. Only ordering in the stream is used.
+* A PDO whose own time stamp precedes the time stamp of the SYNC that opened the cycle was
+  sent (virtual bus: stamped by the sender) or received (SocketCAN, udp_multicast: stamped by
+  the kernel on reception) before that SYNC, so it answers an earlier one: ``late``, never
+  counted in the open cycle. The master stamps its own SYNC *before* handing it to the bus,
+  so every answer to it is later. The stream keeps each frame's own time stamp (the trace
+  stores it, so replay decides the same); the assembler's clock ``t`` is that stamp made
+  monotonic. This needs frame time stamps on the host's clock (python-can's virtual,
+  socketcan and udp_multicast buses; an interface with its own hardware clock that python-can
+  does not map to ``time.time()`` would need the SYNC's echo time instead).
 
 Every event fed is counted under exactly one disposition in :data:`COUNTER_NAMES`, so the
 counters always sum to the number of events fed (the fuzz test checks this).
@@ -191,6 +199,7 @@ class CycleAssembler:
         self.synchronous_every_sync = bus.transmission_type == 1
         self.consumer_us = int(bus.heartbeat_consumer_ms) * 1000
         self.sync_overflow = int(bus.sync_counter)
+        self.window_us = int(bus.sync_window)  # 0x1007, 0 = no window
 
         self.counts = [0] * len(COUNTER_NAMES)
         self.t0_us: int | None = None
@@ -213,6 +222,7 @@ class CycleAssembler:
         self.is_open = False
         self.cycle = -1
         self.sync_us = 0
+        self.sync_raw = 0  # the opening SYNC's own time stamp (the master's: taken before its send)
         self.sync_counter: int | None = None
         self.late_since = 0
         self.bad_since = 0
@@ -246,10 +256,19 @@ class CycleAssembler:
         """Consume one event; return the :class:`ClosedCycle` it closed, or None."""
         if self.t0_us is None:
             self.t0_us = timestamp_us
-        t = timestamp_us - self.t0_us
-        if t < self.last_us:  # the stream is monotonic by contract; clamp defensively
+        raw = t = timestamp_us - self.t0_us  # raw: the frame's own time stamp
+        if t < self.last_us:  # the assembler's clock is monotonic (the stream order is the truth)
             t = self.last_us
         self.last_us = t
+        if self.is_open and self.window_us and t > self.sync_us + self.window_us:
+            # the synchronous window (0x1007) of the open cycle is over: close it first; the
+            # event is then handled with no cycle open (a PDO is late)
+            closed = self._close("window", self.sync_us + self.window_us)
+            self._feed(t, raw, channel, can_id, data, flags)
+            return closed
+        return self._feed(t, raw, channel, can_id, data, flags)
+
+    def _feed(self, t: int, raw: int, channel: int, can_id: int, data: bytes, flags: int):
         counts = self.counts
         if flags:
             if flags & FLAG_ERROR:
@@ -284,7 +303,7 @@ class CycleAssembler:
             self.last_heard[idx] = t
             self.state[idx] = STATE_OPERATIONAL
             self.held_decisions[idx] = u
-            if not self.is_open or self.got1[idx]:
+            if not self.is_open or self.got1[idx] or raw < self.sync_raw:
                 counts[C_LATE] += 1
                 self.late_since += 1
                 return None
@@ -311,7 +330,7 @@ class CycleAssembler:
                 counts[C_HEARTBEAT] += 1
             return None
         if kind == K_SYNC:
-            return self._sync(t, channel, data)
+            return self._sync(t, channel, data, raw)
         if kind == K_TPDO2:
             if size != 4:
                 return self._bad(C_BAD_DLC)
@@ -321,7 +340,7 @@ class CycleAssembler:
             self.last_heard[idx] = t
             self.state[idx] = STATE_OPERATIONAL
             self.held_readings[idx] = reading
-            if not self.is_open or self.got2[idx]:
+            if not self.is_open or self.got2[idx] or raw < self.sync_raw:
                 counts[C_LATE] += 1
                 self.late_since += 1
                 return None
@@ -385,7 +404,7 @@ class CycleAssembler:
                 return self._close("complete", t)
         return None
 
-    def _sync(self, t: int, channel: int, data: bytes):
+    def _sync(self, t: int, channel: int, data: bytes, raw: int | None = None):
         counter = None
         if self.sync_overflow:
             if len(data) != 1:
@@ -417,6 +436,7 @@ class CycleAssembler:
             self.got2_any = False
         self.cycle += 1
         self.sync_us = t
+        self.sync_raw = t if raw is None else raw
         self.sync_counter = counter
         self.is_open = True
         return closed

@@ -28,6 +28,7 @@ raised: a node whose configuration failed still takes part with its stored value
 from __future__ import annotations
 
 import logging
+import math
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -126,6 +127,10 @@ class Master:
         self._last_start = np.full(scene.n, -10**9, dtype=np.int64)  # SYNC index of its last restart
         hb = max(scene.bus.heartbeat_producer_ms, scene.bus.sync_period_ms)
         self._restart_every = max(2, int(hb / scene.bus.sync_period_ms))  # SYNCs between two restarts of a node
+        # SYNCs a node must look off before it is restarted: a bit more than one heartbeat period
+        # (a heartbeat sent just before the node took an NMT start still says pre-operational
+        # until the next one), so it is deciding again within two heartbeat periods
+        self._off_syncs = max(2, math.ceil(1.2 * scene.bus.heartbeat_producer_ms / scene.bus.sync_period_ms))
 
     # ------------------------------------------------------------------ NMT
     def nmt(self, command: int, node_id: int = 0, channel: int | None = None) -> None:
@@ -265,6 +270,8 @@ class Master:
         counter = 0
         channels = list(range(len(self.networks)))
         next_at = time.monotonic()
+        window = self.scene.bus.sync_window / 1e6
+        last_sent = None
         try:
             for k in range(cycles):
                 if self._stop.is_set():
@@ -276,6 +283,12 @@ class Master:
                 elif delay < -period:
                     self.sync_overruns += 1
                     next_at = time.monotonic()  # fell behind by more than a period: re-phase
+                if last_sent is not None and window:
+                    # never two SYNCs closer than the synchronous window (a late SYNC catching
+                    # up would otherwise let a node's answer to the previous one fall in this one)
+                    gap = last_sent + window - time.monotonic()
+                    if gap > 0 and self._stop.wait(gap):
+                        break
                 if before_sync is not None:
                     try:
                         before_sync(k)
@@ -288,6 +301,7 @@ class Master:
                 sent_at[k] = time.perf_counter()
                 if len(sent_at) > 256:  # cycles never evaluated (e.g. lost): keep the map bounded
                     sent_at.pop(next(iter(sent_at)), None)
+                last_sent = time.monotonic()
                 self.stream.transmit_all([(ch, COB_SYNC, payload) for ch in channels])
                 self.sync_sent += 1
                 self._supervise(k)
@@ -304,8 +318,8 @@ class Master:
     # ------------------------------------------------------------------ supervision
     def _supervise(self, k: int) -> None:
         """After SYNC ``k``: a live node found not operational (stopped or pre-operational: by a
-        heartbeat, or by an NMT command of another master seen in the stream) at two SYNCs in a
-        row is started again (``[master] restart = "always"``), at most once per heartbeat
+        heartbeat, or by an NMT command of another master seen in the stream) at every SYNC for
+        1.2 heartbeat periods is started again (``[master] restart = "always"``), at most once per heartbeat
         period; a node being reconfigured after its boot-up is left to that. ``"never"``: the
         record names it (``nodes_by_state``) and nothing is sent."""
         if not self.restart:
@@ -319,7 +333,7 @@ class Master:
         if not off.any():
             return
         since[off & (since < 0)] = k
-        due = off & (since < k) & (k - self._last_start >= self._restart_every)
+        due = off & (k - since >= self._off_syncs) & (k - self._last_start >= self._restart_every)
         if not due.any():
             return
         with self._stats_lock:

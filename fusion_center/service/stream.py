@@ -107,6 +107,7 @@ class EventStream:
         self.lock = threading.Lock()
         self.fed = 0
         self.last_us: int | None = None
+        self.first_us: int | None = None
         self.tx_errors = 0
         self.trace_errors = 0
         self.rate_log = RateLimitedLog(logger)
@@ -117,10 +118,16 @@ class EventStream:
         """Feed one event (stream lock held); True when it closed a cycle."""
         self.fed += 1
         try:
+            # the frame's own time stamp (µs), not clamped to be monotonic: the assembler uses it
+            # to tell a PDO sent before the open cycle's SYNC (late) from an answer to it, and
+            # clamps its own clock; only a time before the first event is raised to it (a
+            # trace cannot store a time before its start)
             us = quantise_timestamp(msg.timestamp)
-            last = self.last_us
-            if last is not None and us < last:
-                us = last
+            first = self.first_us
+            if first is None:
+                self.first_us = us
+            elif us < first:
+                us = first
             self.last_us = us
             if self.trace is not None:
                 msg.timestamp = us / 1e6
@@ -167,13 +174,14 @@ class EventStream:
             for channel, can_id, data in frames:
                 msg = TxMessage(arbitration_id=can_id, data=data, is_extended_id=False,
                                  is_remote_frame=remote, channel=channel)
+                sent_at = time.time()  # before the send: every answer to this frame is later
                 try:
                     self.buses[channel].send(msg)
                 except can.CanError as exc:
                     self.tx_errors += 1
                     self.rate_log.warning("tx_error", "transmit 0x%03X on channel %d failed: %s", can_id, channel, exc)
                     continue
-                msg.timestamp = time.time()
+                msg.timestamp = sent_at
                 closed |= self._feed_locked(msg, channel)
         if closed or len(self._trace_queue) >= TRACE_BATCH:
             self._after_feed(closed)
