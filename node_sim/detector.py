@@ -22,7 +22,8 @@ write the OD —
   overload);
 * parameters: ζ 0x2001:1 and N_i 0x2001:2 (mV), full scale 0x2002:1 and the stuck-sample count
   M 0x2002:2 (0 = off); kind/x/y 0x2001:3-5 describe the taxel (the kind must be one of the
-  scene's kinds: SDO abort 0x06090030);
+  scene's kinds: SDO abort 0x06090030); a full scale ≤ 0 is refused with 0x06090032 (the
+  node's own check: no REAL32 limit in the EDS, which objdictgen would refuse);
 * faults: open circuit (reading not finite or |X| ≥ full scale: status "not valid" plus the
   overload bit of its sign) and stuck (M consecutive identical REAL32 samples). While a fault
   is active the decision is "absent" (−1), flagged by 0x6150:1 bit 0 and the EMCY producer
@@ -48,7 +49,7 @@ from taxel_net.scene import KIND_NAMES
 from .emcy import FAULT_NONE, FAULT_OPEN_CIRCUIT, FAULT_STUCK
 from .od import (AI_INPUT_PV, AI_STATUS, FULL_SCALE, LOCAL_DECISION, NOISE_ESTIMATE, STUCK_SAMPLES, TAXEL_KIND,
                  ZETA, NodeObjects)
-from .sdo import ABORT_VALUE_RANGE
+from .sdo import ABORT_VALUE_RANGE, ABORT_VALUE_TOO_LOW
 
 AI_STATUS_NOT_VALID = 0x01
 AI_STATUS_POSITIVE_OVERLOAD = 0x02
@@ -111,9 +112,13 @@ class Detector:
         return cfg
 
     def check_write(self, index: int, subindex: int, value, startup: bool) -> None:
-        """SDO / start-up write to 0x2001 (the detector configuration)."""
+        """SDO / start-up write to 0x2001 / 0x2002 (the detector configuration)."""
         if (index, subindex) == TAXEL_KIND and value not in KIND_NAMES:
             raise SdoAbortedError(ABORT_VALUE_RANGE)
+        if (index, subindex) == FULL_SCALE and not value > 0:
+            # full scale > 0: checked here, not as an EDS LowLimit (a REAL32 limit that
+            # objdictgen refuses and canopen drops)
+            raise SdoAbortedError(ABORT_VALUE_TOO_LOW)
 
     def sample(self, reading: float) -> None:
         """X_i of one SYNC: fault checks, decision (eqs 1-4), OD update."""

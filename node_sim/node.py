@@ -85,7 +85,7 @@ class TaxelNode:
         sdo.add_check((odx.ERROR_FIELD, odx.COB_ID_EMCY), self.emcy.check_write)
         sdo.add_check((odx.COB_ID_SYNC, odx.SYNC_OVERFLOW), self.sync.check_write)
         sdo.add_check(odx.TPDO_COMM + odx.TPDO_MAP, self.pdo.check_write)
-        sdo.add_check((odx.DETECTOR,), self.detector.check_write)
+        sdo.add_check((odx.DETECTOR, odx.FAULT_DETECTION), self.detector.check_write)
         sdo.add_written(None, self.detector.invalidate)  # any write: parameters re-read at the next SYNC
         sdo.add_written((odx.ERROR_FIELD,), self.emcy.written)
         sdo.add_written(odx.TPDO_COMM + odx.TPDO_MAP, self.pdo.written)

@@ -52,6 +52,7 @@ TPDO_MAP = (0x1A00, 0x1A01)
 # COB-ID entries (0x1005, 0x1014, 0x180x:1): CiA 301 bits
 COB_INVALID = 0x80000000      # bit 31: PDO / EMCY not valid
 COB_29BIT = 0x20000000
+COB_NO_RTR = 0x40000000       # TPDO COB-ID bit 30: no RTR allowed (the twins never answer a remote frame)
 # manufacturer area
 LOCAL_DECISION = 0x2000       # u_i, INTEGER8 +1/-1 (eqs 2-3)
 DETECTOR = 0x2001             # sub 1 ζ mV, 2 N_i mV, 3 kind, 4 x, 5 y

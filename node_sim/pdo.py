@@ -18,7 +18,8 @@ module is the node's PDO engine. Configuration per 0x1800/0x1801 (communication)
 
 SDO rules (CiA 301), checked for downloads and start-up values: COB-ID 29-bit refused and its
 CAN-ID changed only while the PDO is not valid; transmission types 241-253 refused (reserved /
-RTR only); inhibit time and SYNC start value only while not valid; mapping only while not
+RTR only); bit 30 of the COB-ID (no RTR) is set in the EDS defaults and the rig's start-up
+values and stored as written, but no remote frame is ever answered; inhibit time and SYNC start value only while not valid; mapping only while not
 valid, entries only while sub 0 is 0, each entry an existing, readable, PDO-mappable object
 of exactly its size, at most 8 entries and 64 bits. A write to 0x180x/0x1A0x restarts the
 event machinery with the new values once they are stored.

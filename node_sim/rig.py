@@ -372,7 +372,8 @@ class Rig:
             values[(comm, 5)] = int(bus.event_timer_ms)
         # raw mode: the node sends its reading (TPDO2) *instead of* its decision (TPDO1)
         raw = bus.mode == "raw"
-        tpdo1_cob, tpdo2_cob = 0x180 + t.node_id, 0x280 + t.node_id
+        # bit 30 set: no RTR (the twins never answer a remote frame), as in the EDS defaults
+        tpdo1_cob, tpdo2_cob = odx.COB_NO_RTR | 0x180 + t.node_id, odx.COB_NO_RTR | 0x280 + t.node_id
         values[(odx.TPDO_COMM[0], 1)] = tpdo1_cob | COB_INVALID if raw else tpdo1_cob
         values[(odx.TPDO_COMM[1], 1)] = tpdo2_cob if raw else tpdo2_cob | COB_INVALID
         return values

@@ -5,6 +5,8 @@ fail, and document it, if canopen changes behaviour)."""
 from __future__ import annotations
 
 import configparser
+import subprocess
+import sys
 import io
 import math
 
@@ -31,8 +33,8 @@ def all_variables(od):
 @pytest.mark.parametrize("node_id", [1, 5, 127])
 def test_loads_with_node_relative_cob_ids(node_id):
     od = canopen.import_od(EDS, node_id)
-    assert od[0x1800][1].default == 0x180 + node_id
-    assert od[0x1801][1].default == 0x80000280 + node_id      # TPDO2 disabled (bit 31)
+    assert od[0x1800][1].default == 0x40000180 + node_id      # bit 30: no RTR
+    assert od[0x1801][1].default == 0xC0000280 + node_id      # TPDO2 disabled (bit 31), no RTR
     assert od[0x1014].default == 0x80 + node_id
     assert od[0x1200][1].default == 0x600 + node_id and od[0x1200][2].default == 0x580 + node_id
 
@@ -60,7 +62,7 @@ def test_manufacturer_and_cia404_objects():
     assert isinstance(det, ODRecord)
     assert [det[s].data_type for s in range(1, 6)] == [datatypes.REAL32, datatypes.REAL32, datatypes.UNSIGNED8,
                                                        datatypes.REAL32, datatypes.REAL32]
-    assert det[3].default == 0                                  # kind "unset" until configured
+    assert det[3].default == 1 and (det[3].min, det[3].max) == (1, 6)   # kinds R..IR, default R
     for index in (0x6126, 0x6127, 0x6130):                      # CiA 404: arrays, sub 1 = channel 1
         assert isinstance(od[index], ODArray) and od[index][0].default == 1
         assert od[index][1].data_type == datatypes.REAL32
@@ -92,18 +94,26 @@ def test_export_import_round_trip_keeps_what_canopen_keeps(tmp_path):
     assert back.device_information.nr_of_TXPDO == 2
 
 
-def test_known_loss_real32_limits_dropped_at_import():
+def test_real32_limits_written_as_integers_survive_import():
+    """canopen 2.4.1 drops a decimal REAL32 limit ("0.0") and objdictgen refuses one, so the
+    only REAL32 limit of the EDS (ζ >= 0) is written as an integer, which canopen keeps; full
+    scale > 0 (not an integer bound) is the node's own check."""
     parser = configparser.RawConfigParser()
     parser.optionxform = str
     parser.read(EDS)
-    assert parser.get("2001sub1", "LowLimit") == "0.0"           # in the file ...
+    real32 = [sec for sec in parser.sections() if parser.get(sec, "DataType", fallback="") == "0x0008"]
+    for sec in real32:
+        for key in ("LowLimit", "HighLimit"):
+            if parser.has_option(sec, key):
+                int(parser.get(sec, key), 0)                     # integer syntax only
+    assert parser.get("2001sub1", "LowLimit") == "0"
     od = canopen.import_od(EDS, 5)
-    assert od[0x2001][1].min is None                             # ... but canopen drops it
+    assert od[0x2001][1].min == 0                                # kept by canopen
     assert od[0x2000].min == -1 and od[0x2000].max == 1          # integer limits survive
     # the node reads the REAL32 limits itself, from the same file
     limits = odx.real_limits()
     assert limits[(0x2001, 1)] == (0.0, math.inf)
-    assert limits[(0x2002, 1)] == (0.001, math.inf)
+    assert (0x2002, 1) not in limits   # full scale > 0: the node's own check (no EDS limit)
 
 
 def test_known_loss_negative_default_exported_as_0x_minus(tmp_path):
@@ -126,3 +136,30 @@ def test_missing_eds_is_a_parameter_error(tmp_path):
         odx.load_od(3, tmp_path / "nope.eds")
     with pytest.raises(ParameterError, match="node_id"):
         odx.load_od(128)
+
+
+# ------------------------------------------------------------------------ other EDS tools
+
+def test_eds_utils_reads_and_validates_the_file_as_shipped():
+    """eds-utils (PyPI ``eds-utils``): its reader finds no error and ``eds-validate`` exits 0
+    with nothing to report (it splits sections on blank lines and entries on '=', so the file
+    has no free comment block and no '=' inside a value)."""
+    from eds_utils.core.file_io.read_eds import read_eds
+
+    eds, errors = read_eds(str(EDS))
+    assert errors == []
+    run = subprocess.run([sys.executable, "-c", "from eds_utils.eds_validate import eds_validate; eds_validate()",
+                          str(EDS)], capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0 and run.stdout.strip() == "" and run.stderr == "", run
+
+
+def test_objdictgen_loads_the_file_as_shipped():
+    """objdictgen (CanFestival's ``odg``): loads the EDS with every object canopen sees."""
+    from objdictgen.node import Node
+
+    node = Node.LoadFile(str(EDS))
+    od = canopen.import_od(EDS, 1)
+    assert sorted(node.GetIndexes()) == sorted(obj.index for obj in od.values())
+    run = subprocess.run([sys.executable, "-m", "objdictgen", "list", str(EDS)],
+                         capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0 and "0x1019" in run.stdout and "0x2001" in run.stdout, run

@@ -300,7 +300,7 @@ def test_raw_mode_enables_tpdo2_with_process_value(setup_factory):
     frames = s.monitor.wait_count(0x281, 2)
     values = [struct.unpack("<f", bytes(f.data))[0] for f in frames]
     assert values == [pytest.approx(2.0), pytest.approx(1.99, rel=1e-6)]
-    assert s.remote[3].sdo[0x1801][1].raw == 0x283
+    assert s.remote[3].sdo[0x1801][1].raw == 0x40000283   # valid, bit 30: no RTR
 
 
 # ------------------------------------------------------------------------ event-driven TPDOs
@@ -386,8 +386,8 @@ def test_sdo_abort_codes(setup_factory):
     assert _abort(lambda: setattr(rn.sdo[0x2001][2], "raw", math.nan)) == 0x06090030
     assert zeta.raw == pytest.approx(1.5)                                      # unchanged
     kind = rn.sdo[0x2001][3]
-    assert _abort(lambda: setattr(kind, "raw", 7)) == 0x06090030              # unknown kind
-    assert _abort(lambda: setattr(kind, "raw", 0)) == 0x06090030              # "unset" refused
+    assert _abort(lambda: setattr(kind, "raw", 7)) == 0x06090031              # above HighLimit 6
+    assert _abort(lambda: setattr(kind, "raw", 0)) == 0x06090032              # below LowLimit 1
     assert _abort(lambda: rn.sdo.download(0x2000, 0, b"\x01")) == 0x06010002  # read-only
     assert _abort(lambda: rn.sdo.download(0x1000, 0, b"\0\0\0\0")) == 0x06010002
     assert _abort(lambda: rn.sdo.download(0x1018, 1, b"\0\0\0\0")) == 0x06010002

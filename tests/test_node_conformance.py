@@ -121,3 +121,60 @@ def test_master_overflow_written_over_sdo_is_honoured(factory):
     s.network.send_message(0x80, b"\x02")
     s.sync(b"", 21)
     assert s.rig.lost_syncs() == 7
+
+
+# ------------------------------------------------------------------------ EDS defaults
+
+def _writable(od):
+    for obj in od.values():
+        for var in ([obj] if isinstance(obj, canopen.objectdictionary.ODVariable)
+                    else [obj[s] for s in obj.subindices]):
+            if var.writable and var.default is not None:
+                yield var
+
+
+def _sdo_var(rn, var):
+    obj = rn.sdo[var.index]
+    return obj if isinstance(rn.object_dictionary[var.index], canopen.objectdictionary.ODVariable) else obj[var.subindex]
+
+
+def test_every_writable_default_of_the_eds_is_accepted(factory):
+    """A tool that downloads the EDS defaults (CiA 306 DefaultValue) gets no abort: in index
+    order, and for the TPDOs with the CiA 301 procedure (PDO invalid while its parameters
+    and mapping change, then the default COB-ID)."""
+    s = factory(n=1)
+    rn = s.remote[1]
+    tpdo = (0x1800, 0x1801, 0x1A00, 0x1A01)
+    written = 0
+    for var in _writable(rn.object_dictionary):
+        if var.index in tpdo:
+            continue
+        _sdo_var(rn, var).raw = var.default
+        written += 1
+    assert written >= 10
+    assert rn.sdo[0x2001][3].raw == 1 and rn.sdo[0x1019].raw == 0
+    for comm, mapping in ((0x1800, 0x1A00), (0x1801, 0x1A01)):
+        cob = rn.object_dictionary[comm][1].default
+        rn.sdo[comm][1].raw = cob | 0x80000000
+        for var in _writable(rn.object_dictionary):
+            if var.index == comm and var.subindex != 1:
+                _sdo_var(rn, var).raw = var.default
+        rn.sdo[mapping][0].raw = 0
+        for var in _writable(rn.object_dictionary):
+            if var.index == mapping and var.subindex != 0:
+                _sdo_var(rn, var).raw = var.default
+        rn.sdo[mapping][0].raw = rn.object_dictionary[mapping][0].default
+        rn.sdo[comm][1].raw = cob
+        assert rn.sdo[comm][1].raw == cob
+    assert rn.sdo[0x1800][1].raw == 0x40000181               # valid, no RTR (bit 30)
+    assert rn.sdo[0x1801][1].raw == 0xC0000281               # not valid, no RTR
+
+
+def test_limits_the_eds_cannot_carry_are_checked_by_the_node(factory):
+    s = factory(n=1)
+    rn = s.remote[1]
+    assert _abort(lambda: setattr(rn.sdo[0x2002][1], "raw", 0.0)) == 0x06090032    # full scale > 0
+    assert _abort(lambda: setattr(rn.sdo[0x2002][1], "raw", -5.0)) == 0x06090032
+    assert _abort(lambda: setattr(rn.sdo[0x2001][1], "raw", -0.01)) == 0x06090032   # ζ >= 0
+    rn.sdo[0x2002][1].raw = 0.5
+    assert rn.sdo[0x2002][1].raw == 0.5

@@ -98,8 +98,8 @@ def test_startup_configuration_written_from_scene():
                 assert rn.sdo[comm][2].raw == 255
                 assert rn.sdo[comm][3].raw == 30
                 assert rn.sdo[comm][5].raw == 500
-            assert rn.sdo[0x1801][1].raw == 0x283        # raw mode: TPDO2 valid ...
-            assert rn.sdo[0x1800][1].raw == 0x183 | 0x80000000   # ... instead of TPDO1
+            assert rn.sdo[0x1801][1].raw == 0x40000283   # raw mode: TPDO2 valid (bit 30: no RTR) ...
+            assert rn.sdo[0x1800][1].raw == 0xC0000183   # ... instead of TPDO1
             assert rn.sdo[0x2002][2].raw == 20           # noisy taxel: stuck detector on (EDS default)
         finally:
             net.disconnect()
@@ -113,8 +113,8 @@ def test_decision_mode_leaves_tpdo2_disabled():
     ch = uid()
     scene = Scene(path="<t>", name="d", taxels=(TaxelSpec(node_id=1, kind="R"),), bus=BusSpec(channels=(ch,)))
     with Rig(scene, reading_source=lambda c: np.zeros(1)) as rig:
-        assert rig.node(1).read(0x1801, 1) == 0x80000281
-        assert rig.node(1).read(0x1800, 1) == 0x181
+        assert rig.node(1).read(0x1801, 1) == 0xC0000281
+        assert rig.node(1).read(0x1800, 1) == 0x40000181
 
 
 def test_more_than_127_taxels_use_one_network_per_channel():
