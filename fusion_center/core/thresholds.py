@@ -276,8 +276,10 @@ def multiplicative_threshold(n, xi, beta, *, rtol: float = DEFAULT_RTOL, info: d
         ln_lambda = None
     if ln_lambda is None:
         present = 0
-    else:
+    elif exact:
         present = min(n, max(0, _ceil_exact((n + Fraction(ln_lambda)) / 2)))  # 2j - n >= ln lambda
+    else:  # ln lambda is farther than its error bound from every 2j - n: the float ceil is exact
+        present = min(n, max(0, math.ceil(0.5 * (n + ln_lambda))))
     return MultiplicativeThreshold(n, xi, beta, (t,), (ln_lambda,), (present,))
 
 
@@ -468,10 +470,19 @@ def additive_threshold(n, xi, alpha, encoding: str = "pm1", *, rtol: float = DEF
             exact_vs = exact_vs[::-1]
         with mpmath.workdps(certify.DPS + 20):
             lambdas = [certify.to_float(n * (1 - v), grid) for v in exact_vs]
-    if encoding == "01":
-        counts = [min(n, max(0, _ceil_exact(lam))) for lam in lambdas]
+    # 2j - n >= lambda (pm1) or j >= lambda (01); off the certified path lambda is farther than
+    # its error bound (which exceeds the rounding of n + lambda) from every attainable value,
+    # so the float ceil is exact there
+    if certified:
+        ceil = _ceil_exact
+        half = lambda lam: (n + Fraction(lam)) / 2
     else:
-        counts = [min(n, max(0, _ceil_exact((n + Fraction(lam)) / 2))) for lam in lambdas]  # 2j - n >= lambda
+        ceil = math.ceil
+        half = lambda lam: 0.5 * (n + lam)
+    if encoding == "01":
+        counts = [min(n, max(0, ceil(lam))) for lam in lambdas]
+    else:
+        counts = [min(n, max(0, ceil(half(lam)))) for lam in lambdas]
     if info is not None:
         info["evaluations"] = evals[0]
         info["certified"] = certified
@@ -669,10 +680,12 @@ def _certified_present(n, p, q, weights, encoding, mean, exact_mean):
     m = _smallest_present(n, weights, encoding, mean)
     g = weights[0] + weights[1] + n * weights[2]
     err = 32.0 * _EPS * (abs(mean) + g)
-    window = sorted({0, 1, n} | {k for k in range((m if m is not None else n) - 2, (m if m is not None else n) + 3)
-                                 if 0 <= k <= n})
-    if all(abs(_best_run_value(n, k, weights, encoding) - mean) > err for k in window):
+    centre = m if m is not None else n
+    # the comparisons that decided m: M(m) >= mean, M(m - 1) < mean (and M(0), M(1) near the start)
+    decisive = (0, 1, centre - 1, centre) if centre <= 3 else (centre - 1, centre)
+    if all(abs(_best_run_value(n, k, weights, encoding) - mean) > err for k in decisive if 0 <= k <= n):
         return m, mean
+    window = sorted({0, 1, n} | {k for k in range(centre - 2, centre + 3) if 0 <= k <= n})
     import mpmath
 
     from . import certify
