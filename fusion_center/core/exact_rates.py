@@ -460,8 +460,8 @@ def llr_error_rates(pd, pf, prior_h1: float = 0.5, *, samples: int = 200_000,
                     rng: np.random.Generator | None = None) -> KindRates:
     """P_D, P_F of the Chair-Varshney rule (eq 31, H1 iff ln P(H1|U)/P(H0|U) > 0; a tie
     within 1e-9 is "undecided"). Exact when the count tuples per kind fit in KIND_ATOMS_MAX
-    (kinds, or all 2^n vectors for n <= 20); otherwise a Monte Carlo estimate
-    (``method="monte-carlo"``, 95 % Wilson intervals in ``ci95``)."""
+    (kinds, or all 2^n vectors for n <= 20); otherwise an importance-sampling estimate
+    (``method="importance-sampling"``, 95 % intervals in ``ci95``)."""
     pd_k, pf_k, size_k = kinds_of(pd, pf)
     threshold = -math.log(prior_h1 / (1.0 - prior_h1))
     if float(np.prod(size_k + 1.0)) <= KIND_ATOMS_MAX:
@@ -472,17 +472,64 @@ def llr_error_rates(pd, pf, prior_h1: float = 0.5, *, samples: int = 200_000,
     a = np.log(pd_arr) - np.log(pf_arr)
     b = np.log1p(-pd_arr) - np.log1p(-pf_arr)
     rng = rng if rng is not None else np.random.default_rng(0)
-    out = []
-    for probs in (pd_arr, pf_arr):
-        hits = 0
-        for start in range(0, samples, 10_000):
-            m = min(10_000, samples - start)
-            present = rng.random((m, probs.size)) < probs
-            stat = np.where(present, a, b).sum(axis=1)
-            hits += int(np.count_nonzero(stat - threshold > 1e-9 * np.maximum(1.0, np.abs(stat))))
-        out.append(hits)
-    ci = {"p_detect": _wilson(out[0], samples), "p_false_alarm": _wilson(out[1], samples)}
-    return KindRates(out[0] / samples, out[1] / samples, method="monte-carlo", samples=samples, ci95=ci)
+    det, det_ci = importance_sampling_tail(a, b, pd_arr, threshold, samples, rng)
+    fa, fa_ci = importance_sampling_tail(a, b, pf_arr, threshold, samples, rng)
+    return KindRates(det, fa, method="importance-sampling", samples=samples,
+                     ci95={"p_detect": det_ci, "p_false_alarm": fa_ci})
+
+
+def importance_sampling_tail(a, b, probs, threshold: float, samples: int, rng: np.random.Generator):
+    """P(S > threshold), S = sum_i (a_i if present else b_i), taxel i present with probability
+    probs_i, by importance sampling with exponential tilting: taxel i is drawn present with
+    q_i = p_i e^(theta a_i) / (p_i e^(theta a_i) + (1 - p_i) e^(theta b_i)), theta chosen so that
+    the tilted mean of S is the threshold (theta = 0 when the event is not rare), each sample
+    weighted by exp(-theta S + sum_i ln M_i(theta)). Returns (estimate, 95 % normal interval)."""
+    a = np.asarray(a, float)
+    b = np.asarray(b, float)
+    p = np.asarray(probs, float)
+
+    def tilted(theta):
+        la = np.log(p) + theta * a
+        lb = np.log1p(-p) + theta * b
+        lm = np.logaddexp(la, lb)  # ln M_i(theta)
+        q = np.exp(la - lm)
+        return q, lm
+
+    def mean(theta):
+        q, _ = tilted(theta)
+        return float(np.sum(q * a + (1 - q) * b))
+
+    # the rarer side is estimated: the upper tail if the mean lies below the threshold (tilt up,
+    # theta > 0), else the lower tail P(S <= threshold) (tilt down) and its complement returned
+    upper = mean(0.0) < threshold
+    sign = 1.0 if upper else -1.0
+    lo, hi = 0.0, 1.0
+    while (mean(sign * hi) < threshold) == upper and hi < 1e6:
+        hi *= 2.0
+    for _ in range(100):
+        mid = 0.5 * (lo + hi)
+        if (mean(sign * mid) < threshold) == upper:
+            lo = mid
+        else:
+            hi = mid
+    theta = sign * hi
+    q, lm = tilted(theta)
+    total_lm = float(np.sum(lm))
+    values = []
+    for start in range(0, samples, 10_000):
+        m = min(10_000, samples - start)
+        present = rng.random((m, p.size)) < q
+        stat = np.where(present, a, b).sum(axis=1)
+        hit = stat - threshold > 1e-9 * np.maximum(1.0, np.abs(stat))
+        if not upper:
+            hit = ~hit
+        values.append(np.where(hit, np.exp(-theta * stat + total_lm), 0.0))
+    w = np.concatenate(values)
+    est = float(w.mean())
+    half = 1.959963984540054 * float(w.std(ddof=1)) / math.sqrt(w.size)
+    if upper:
+        return est, (max(0.0, est - half), est + half)
+    return 1.0 - est, (max(0.0, 1.0 - est - half), min(1.0, 1.0 - est + half))
 
 
 def np_kinds_fusion(pd, pf, false_alarm: float) -> dict:
