@@ -88,6 +88,7 @@ from .decoder import (
 FLAG_EXTENDED = 1
 FLAG_REMOTE = 2
 FLAG_ERROR = 4
+FLAG_FD = 8
 
 STATE_UNKNOWN = -1
 STATE_RESETTING = -2  # NMT reset sent: silent until its boot-up
@@ -113,6 +114,7 @@ COUNTER_NAMES: tuple[str, ...] = (
     "remote_frame",    # RTR frame (CiA 301 discourages RTR; not used by the taxel nodes)
     "error_frame",     # CAN error frame reported by the interface
     "extended_id",     # 29-bit identifier (CANopen uses 11-bit COB-IDs)
+    "fd_frame",        # CAN FD frame (the scene's buses are classic CAN)
     "internal_error",  # an exception inside the receive path (counted, never raised)
 )
 _C = {name: i for i, name in enumerate(COUNTER_NAMES)}
@@ -122,7 +124,8 @@ C_SDO, C_SDO_ABORT, C_TIME = _C["sdo"], _C["sdo_abort"], _C["time"]
 C_BAD_DLC, C_BAD_VALUE, C_UNKNOWN = _C["bad_dlc"], _C["bad_value"], _C["unknown_cob_id"]
 C_REMOTE, C_ERROR, C_EXTENDED, C_INTERNAL = (
     _C["remote_frame"], _C["error_frame"], _C["extended_id"], _C["internal_error"])
-MALFORMED = ("bad_dlc", "bad_value", "unknown_cob_id", "remote_frame", "error_frame", "extended_id")
+C_FD = _C["fd_frame"]
+MALFORMED = ("bad_dlc", "bad_value", "unknown_cob_id", "remote_frame", "error_frame", "extended_id", "fd_frame")
 _MALFORMED_IDX = frozenset(_C[name] for name in MALFORMED)
 
 
@@ -233,6 +236,7 @@ class CycleAssembler:
         self.sdo_outstanding = np.zeros(n, dtype=bool)  # an SDO request is waiting for its answer
         self.duplicate_since: set[int] = set()          # evidence since the previous closed cycle
         self.duplicates: set[int] = set()               # every node-ID ever flagged (taxel indexes)
+        self.solicited = [False] * len(scene.bus.channels)  # last SDO answer fed per channel was awaited
 
     # ------------------------------------------------------------------ queries
     @property
@@ -275,8 +279,10 @@ class CycleAssembler:
                 counts[C_ERROR] += 1
             elif flags & FLAG_REMOTE:
                 counts[C_REMOTE] += 1
-            else:
+            elif flags & FLAG_EXTENDED:
                 counts[C_EXTENDED] += 1
+            else:
+                counts[C_FD] += 1
             self.bad_since += 1
             return None
         try:
@@ -369,6 +375,7 @@ class CycleAssembler:
                 self.last_heard[idx] = t
                 if self.sdo_outstanding[idx]:
                     self.sdo_outstanding[idx] = False
+                    self.solicited[channel] = True  # the listener hands it to canopen's SDO client
                 else:  # an answer nobody asked for: a second server with this node-ID
                     self._duplicate(idx)
                 if data[0] == 0x80:

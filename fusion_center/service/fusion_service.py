@@ -35,10 +35,9 @@ from taxel_net.resources import eds_path
 from taxel_net.scene import Scene
 from .aggregates import LatencyHistogram, RunAggregates
 from .cycles import MALFORMED, ClosedCycle, CycleAssembler
-from .decoder import BASE_SDO_REQUEST, COB_NMT, COB_SYNC
 from .pipeline import CyclePipeline
 from .records import RecordWriter
-from .stream import EventStream, RateLimitedLog, _StreamListener
+from .stream import EchoFilter, EventStream, RateLimitedLog, _StreamListener
 from .traces import open_trace_writer
 
 logger = logging.getLogger("fusion_center.service")
@@ -121,8 +120,6 @@ class FusionService:
         self.centre_latency_ms: deque[float] = deque(maxlen=LATENCY_SAMPLES)
         self.pipeline_errors = 0
         self.own_echoes = 0
-        self.drop_own_echo = interface == "udp_multicast"
-        self.master_cob_ids = frozenset([COB_NMT, COB_SYNC] + [BASE_SDO_REQUEST + t.node_id for t in scene.taxels])
         self.buses: list[can.BusABC] = []
         self.notifiers: list[can.Notifier] = []
         self.networks = []
@@ -131,6 +128,8 @@ class FusionService:
         self._eval_lock = threading.Lock()  # one evaluation at a time, in cycle order
         self.stream = EventStream(self.assembler, on_closed=self._pending.append,
                                   after_closed=self._process_pending)
+        if interface == "udp_multicast":  # every datagram comes back to its sender
+            self.stream.echoes = EchoFilter()
         self.writer: RecordWriter | None = None
         self._trace_logger = None
         self._opened = False

@@ -27,6 +27,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from collections import deque
 from typing import TYPE_CHECKING, Callable, Iterable, Sequence
 
 import can
@@ -35,6 +36,7 @@ from taxel_net.canmsg import TxMessage
 from .cycles import (
     FLAG_ERROR,
     FLAG_EXTENDED,
+    FLAG_FD,
     FLAG_REMOTE,
     ClosedCycle,
     CycleAssembler,
@@ -47,6 +49,42 @@ if TYPE_CHECKING:
 logger = logging.getLogger("fusion_center.service")
 
 TRACE_BATCH = 256  # events queued for the trace before it is written even if no cycle closed
+ECHO_WINDOW_S = 1.0  # an echo of a frame the master sent comes back within this (udp_multicast)
+ECHO_PENDING_MAX = 4096  # frames sent whose echo is still awaited (oldest forgotten first)
+
+
+class EchoFilter:
+    """The frames the master sent whose own echo has not come back yet (udp_multicast loops
+    every datagram back to its sender). A received frame is dropped as an echo only if it is
+    a byte-identical copy (channel, ID, data, RTR) of one of those sent within
+    :data:`ECHO_WINDOW_S`, and each sent frame absorbs one copy at most: an identical-looking
+    frame from another sender (another master's NMT/SYNC, a tool's SDO request) is counted
+    and traced like any other frame."""
+
+    def __init__(self):
+        self._pending: deque[tuple[float, int, int, bytes, bool]] = deque()
+        self._lock = threading.Lock()
+
+    def sent(self, channel: int, can_id: int, data: bytes, remote: bool) -> None:
+        with self._lock:
+            if len(self._pending) >= ECHO_PENDING_MAX:
+                self._pending.popleft()
+            self._pending.append((time.monotonic(), channel, can_id, bytes(data), remote))
+
+    def is_echo(self, msg: can.Message, channel: int) -> bool:
+        if msg.is_extended_id or msg.is_error_frame or msg.is_fd:
+            return False
+        now = time.monotonic()
+        key = (channel, msg.arbitration_id, bytes(msg.data), bool(msg.is_remote_frame))
+        with self._lock:
+            pending = self._pending
+            while pending and now - pending[0][0] > ECHO_WINDOW_S:
+                pending.popleft()
+            for k, entry in enumerate(pending):
+                if entry[1:] == key:
+                    del pending[k]
+                    return True
+        return False
 
 
 class RateLimitedLog:
@@ -81,6 +119,8 @@ def message_flags(msg: can.Message) -> int:
         flags |= FLAG_REMOTE
     if msg.is_extended_id:
         flags |= FLAG_EXTENDED
+    if msg.is_fd:
+        flags |= FLAG_FD
     return flags
 
 
@@ -113,6 +153,7 @@ class EventStream:
         self.rate_log = RateLimitedLog(logger)
         self._trace_queue: list[can.Message] = []
         self._trace_lock = threading.Lock()  # taken before ``lock``, never while holding it
+        self.echoes: EchoFilter | None = None  # set by the service on udp_multicast
 
     def _feed_locked(self, msg: can.Message, channel: int) -> bool:
         """Feed one event (stream lock held); True when it closed a cycle."""
@@ -134,7 +175,7 @@ class EventStream:
                 msg.channel = channel
                 self._trace_queue.append(msg)
             flags = 0
-            if msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id:
+            if msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id or msg.is_fd:
                 flags = message_flags(msg)
             closed = self.assembler.feed(us, channel, msg.arbitration_id, msg.data, flags)
             if closed is not None and self.on_closed is not None:
@@ -154,7 +195,7 @@ class EventStream:
             except Exception as exc:  # noqa: BLE001 - the receive path never raises
                 self.rate_log.warning("after_closed", "after a closed cycle: %s: %s", type(exc).__name__, exc)
         if closed or len(self._trace_queue) >= TRACE_BATCH:
-            self.flush_trace()
+            self.flush_trace(to_disk=closed)
 
     def receive(self, msg: can.Message, channel: int) -> None:
         """A frame from the bus (or from a trace, in replay)."""
@@ -182,12 +223,17 @@ class EventStream:
                     self.rate_log.warning("tx_error", "transmit 0x%03X on channel %d failed: %s", can_id, channel, exc)
                     continue
                 msg.timestamp = sent_at
+                if self.echoes is not None:
+                    self.echoes.sent(channel, can_id, data, remote)
                 closed |= self._feed_locked(msg, channel)
         if closed or len(self._trace_queue) >= TRACE_BATCH:
             self._after_feed(closed)
 
-    def flush_trace(self) -> None:
-        """Write the queued trace messages, in stream order (any thread, outside the stream lock)."""
+    def flush_trace(self, to_disk: bool = False) -> None:
+        """Write the queued trace messages, in stream order (any thread, outside the stream lock);
+        ``to_disk`` (at every cycle close): also flush the writer's file buffer to the OS, so a
+        SIGKILL loses at most the cycle in flight (text formats; a BLF writer keeps its current
+        container in memory until it is full or closed)."""
         with self._trace_lock:
             with self.lock:
                 batch = self._trace_queue
@@ -203,6 +249,14 @@ class EventStream:
                 except Exception as exc:  # noqa: BLE001 - e.g. disk full: count, log, go on
                     self.trace_errors += 1
                     self.rate_log.warning("trace", "trace write failed: %s: %s", type(exc).__name__, exc)
+            if to_disk:
+                file = getattr(trace, "file", None)
+                try:
+                    if file is not None and not file.closed:
+                        file.flush()
+                except (OSError, ValueError) as exc:
+                    self.trace_errors += 1
+                    self.rate_log.warning("trace", "trace flush failed: %s", exc)
 
     def close_trace(self) -> None:
         """Write what is queued, then stop the trace writer (``can.Logger``) and detach it."""
@@ -227,18 +281,16 @@ class EventStream:
 
 class _StreamListener(can.Listener):
     """python-can listener of one channel: hands every frame to the stream, then to canopen
-    (``canopen.network.MessageListener``) when canopen has subscribed to its COB-ID (SDO
-    responses, heartbeats, EMCY, NMT: not the TPDOs, which are most of the traffic); never raises.
-
-    canopen's ``Network.scanner`` therefore sees only those frames (every node's heartbeat
-    among them); nothing here uses it."""
+    (``canopen.network.MessageListener``) only the SDO answers its client is waiting for - as
+    the stream validated them (8 bytes, 11-bit data frame, a request outstanding): junk never
+    reaches the canopen library (no log line per malformed heartbeat/EMCY, no EMCY log or SDO
+    response queue that grows). Heartbeats and EMCY are decoded by the stream. Never raises."""
 
     def __init__(self, service: "FusionService", channel: int, network=None):
         self.service = service
         self.channel = channel
         self.stream = service.stream
-        self.drop_echo = service.drop_own_echo
-        self.own_ids = service.master_cob_ids
+        self.echoes = service.stream.echoes
         self.network = network
         if network is not None:
             from canopen.network import MessageListener
@@ -248,7 +300,7 @@ class _StreamListener(can.Listener):
 
     def on_message_received(self, msg: can.Message) -> None:
         try:
-            if self.drop_echo and msg.arbitration_id in self.own_ids and not msg.is_extended_id:
+            if self.echoes is not None and self.echoes.is_echo(msg, self.channel):
                 self.service.own_echoes += 1  # our own frame looped back (udp_multicast)
                 return
             self.stream.receive(msg, self.channel)
@@ -259,8 +311,11 @@ class _StreamListener(can.Listener):
                     bootups.clear()
                 for index in drained:
                     self.service.on_bootup(index)
-            if self.network is not None and msg.arbitration_id in self.subscribers:
-                self.canopen.on_message_received(msg)
+            solicited = self.stream.assembler.solicited
+            if solicited[self.channel]:  # this frame was an awaited SDO answer
+                solicited[self.channel] = False
+                if self.network is not None and msg.arbitration_id in self.subscribers:
+                    self.canopen.on_message_received(msg)
         except Exception as exc:  # noqa: BLE001 - never let the Notifier thread die
             with self.stream.lock:
                 self.stream.assembler.count_internal_error()
