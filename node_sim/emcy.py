@@ -19,7 +19,11 @@ active) and bit 5 (device-profile specific).
 error field 0x1003 (newest first at sub 1, sub 0 = count, at most 8 entries; an entry is the
 EMCY code with the fault id in bits 16-31) up to date when the application reports a fault
 change, and sends the EMCY — in PRE-OPERATIONAL and OPERATIONAL only, and only while 0x1014
-is valid (bit 31 clear); the error register is kept up to date in every state. An
+is valid (bit 31 clear); the error register is kept up to date in every state. EMCYs come in
+pairs: a fault that begins while the node cannot report (STOPPED) is reported when it can
+again (:meth:`EmcyProducer.resume`, on entering PRE-OPERATIONAL / OPERATIONAL), and an error
+reset is sent only after a reported error (a fault that begins and ends unreported sends
+neither; one reported and cleared while stopped gets its error reset on resuming). An
 open-circuit reading of ±inf is sent as ±3.4e38 (the REAL32 field), NaN as NaN. Its SDO
 rules: 0x1003:0 accepts only 0 (clear the history: subs 1-8 dropped), 0x1014 refuses a
 29-bit CAN-ID (0x06090030).
@@ -73,6 +77,22 @@ class EmcyProducer:
         self._nmt = nmt
         self._objects = objects
         self._send = send
+        self._active: tuple[int, int, int, float] | None = None   # the sensor fault now
+        self._reported = False     # its EMCY was sent (an error reset is owed when it clears)
+
+    def reset(self) -> None:
+        """NMT reset: the fault state is forgotten (the detector starts afresh)."""
+        self._active = None
+        self._reported = False
+
+    def resume(self) -> None:
+        """The node can report again (PRE-OPERATIONAL / OPERATIONAL entered): send what the
+        master has not been told — the EMCY of a fault that began while it could not
+        report, or the error reset of a reported fault that cleared meanwhile."""
+        if self._active is not None and not self._reported:
+            self._reported = self.send(*self._active)
+        elif self._active is None and self._reported:
+            self._reported = not self.send(EMCY_NO_ERROR, 0)
 
     def fault_changed(self, fault: int, reading: float) -> None:
         """The application's fault state became ``fault`` (``FAULT_NONE``: cleared) on
@@ -80,7 +100,9 @@ class EmcyProducer:
         objects = self._objects
         if fault == FAULT_NONE:
             objects.store(ERROR_REGISTER, 0, 0)
-            self.send(EMCY_NO_ERROR, 0)
+            self._active = None
+            if self._reported:  # an error reset only follows a reported error
+                self._reported = not self.send(EMCY_NO_ERROR, 0)
             return
         code = FAULT_EMCY_CODE[fault]
         register = ERR_REG_SENSOR_FAULT
@@ -92,16 +114,19 @@ class EmcyProducer:
         for sub, entry in enumerate(history, start=1):
             objects.store(ERROR_FIELD, sub, entry)
         objects.store(ERROR_FIELD, 0, len(history))
-        self.send(code, register, fault, reading)
+        self._active = (code, register, fault, reading)
+        self._reported = self.send(code, register, fault, reading)
 
-    def send(self, code: int, register: int, fault_id: int = 0, reading: float = 0.0) -> None:
+    def send(self, code: int, register: int, fault_id: int = 0, reading: float = 0.0) -> bool:
+        """Send an EMCY now if the node may (see module docstring); True if it was sent."""
         if self._nmt.state not in (PRE_OPERATIONAL, OPERATIONAL):
-            return
+            return False
         cob = self._objects.read(COB_ID_EMCY)
         if cob & COB_INVALID:
-            return
+            return False
         r = reading if math.isfinite(reading) or math.isnan(reading) else math.copysign(3.4e38, reading)
         self._send(cob & 0x7FF, emcy_payload(code, register, fault_id, r))
+        return True
 
     # -- SDO rules of 0x1003 and 0x1014
     def check_write(self, index: int, subindex: int, value, startup: bool) -> None:

@@ -127,6 +127,8 @@ class TaxelNode:
         self.nmt.on_command(command)
         if self.nmt.state == STOPPED:
             self.sdo.reset()  # no SDO in STOPPED: a transfer in progress is dropped
+        else:
+            self.emcy.resume()  # EMCYs owed while the node could not report
 
     def on_sdo_request(self, data: bytes) -> None:
         if self.silent:
@@ -169,11 +171,13 @@ class TaxelNode:
         self.objects.restore_startup()
         self.detector.invalidate()
         self.detector.reset()
+        self.emcy.reset()
 
     def _reset_communication(self) -> None:
         self.objects.restore_communication()
         self.detector.invalidate()
         self.detector.reset()
+        self.emcy.reset()
 
     # ------------------------------------------------------------------ introspection
     @property

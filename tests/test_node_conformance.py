@@ -178,3 +178,55 @@ def test_limits_the_eds_cannot_carry_are_checked_by_the_node(factory):
     assert _abort(lambda: setattr(rn.sdo[0x2001][1], "raw", -0.01)) == 0x06090032   # ζ >= 0
     rn.sdo[0x2002][1].raw = 0.5
     assert rn.sdo[0x2002][1].raw == 0.5
+
+
+# ------------------------------------------------------------------------ EMCY pairing
+
+def _emcy_codes(rn) -> list[int]:
+    return [e.code for e in rn.emcy.log]
+
+
+def test_emcy_of_a_fault_that_began_while_stopped_is_sent_on_resuming(factory):
+    """Node 1 open circuit from cycle 1 on, while STOPPED: no EMCY then (CiA 301), the EMCY
+    when it is started, the error reset when it clears. Node 2 faults and recovers while
+    stopped: neither EMCY nor error reset (every error reset follows a reported error)."""
+    def source(cycle):
+        x1 = math.nan if 1 <= cycle < 4 else 0.0
+        x2 = math.nan if cycle == 1 else 0.0
+        return np.array([x1, x2])
+
+    s = factory(source)
+    rn1, rn2 = s.remote[1], s.remote[2]
+    s.nmt(0x02)                                             # stop both
+    assert wait_until(lambda: s.rig.node(1).state == 0x04 and s.rig.node(2).state == 0x04)
+    s.sync(b"", 0)
+    s.sync(b"", 1)                                          # both faulted, stopped
+    s.sync(b"", 2)                                          # node 2 fine again
+    assert s.rig.node(1).read(0x1001) == 0x21 and s.rig.node(2).read(0x1001) == 0
+    s.nmt(0x80)                                             # pre-operational: may report
+    assert wait_until(lambda: _emcy_codes(rn1) == [0x5000])
+    assert [e.code for e in rn1.emcy.active] == [0x5000]
+    s.sync(b"", 3)
+    s.sync(b"", 4)                                          # node 1 fine again: error reset
+    assert wait_until(lambda: _emcy_codes(rn1) == [0x5000, 0x0000])
+    assert rn1.emcy.active == []
+    assert rn2.sdo[0x1001].raw == 0                         # round trip after node 2's frames
+    assert _emcy_codes(rn2) == []
+
+
+def test_error_reset_of_a_fault_cleared_while_stopped(factory):
+    def source(cycle):
+        return np.array([math.nan if cycle == 1 else 0.0, 0.0])
+
+    s = factory(source)
+    rn1 = s.remote[1]
+    s.sync(b"", 0)
+    s.sync(b"", 1)                                          # pre-operational: EMCY sent
+    assert wait_until(lambda: _emcy_codes(rn1) == [0x5000])
+    s.nmt(0x02, 1)
+    assert wait_until(lambda: s.rig.node(1).state == 0x04)
+    s.sync(b"", 2)                                          # cleared while stopped: no frame
+    assert s.rig.node(1).read(0x1001) == 0
+    s.nmt(0x01, 1)                                          # started: the error reset owed
+    assert wait_until(lambda: _emcy_codes(rn1) == [0x5000, 0x0000])
+    assert rn1.emcy.active == []
