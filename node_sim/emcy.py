@@ -9,6 +9,8 @@ Codes (CiA 301 error-code classes):
 * ``0x0000`` error reset / no error — sent when the last active fault clears;
 * ``0x5000`` device hardware — open circuit: the reading is not finite or |X| ≥ full scale
   (0x2002:1); an open bridge/input stage reads at the rail or produces no conversion;
+* ``0x8130`` communication — heartbeat error: a heartbeat the node consumes (0x1016) was
+  lost (:class:`node_sim.heartbeat.HeartbeatConsumer`); error register bits 0 and 4;
 * ``0x7300`` sensor — stuck reading: M (0x2002:2) consecutive identical raw samples
   (the code CiA 402/404-style devices use for a sensor fault).
 
@@ -44,6 +46,7 @@ from .sdo import ABORT_VALUE_RANGE
 EMCY_NO_ERROR = 0x0000
 EMCY_OPEN_CIRCUIT = 0x5000
 EMCY_STUCK = 0x7300
+EMCY_HEARTBEAT = 0x8130       # life guard / heartbeat error (a consumed heartbeat lost)
 
 FAULT_NONE = 0
 FAULT_STUCK = 1
@@ -52,6 +55,7 @@ FAULT_NAMES = {FAULT_NONE: "none", FAULT_STUCK: "stuck", FAULT_OPEN_CIRCUIT: "op
 FAULT_EMCY_CODE = {FAULT_STUCK: EMCY_STUCK, FAULT_OPEN_CIRCUIT: EMCY_OPEN_CIRCUIT}
 
 ERR_REG_GENERIC = 0x01
+ERR_REG_COMMUNICATION = 0x10
 ERR_REG_PROFILE = 0x20
 ERR_REG_SENSOR_FAULT = ERR_REG_GENERIC | ERR_REG_PROFILE
 
@@ -79,11 +83,44 @@ class EmcyProducer:
         self._send = send
         self._active: tuple[int, int, int, float] | None = None   # the sensor fault now
         self._reported = False     # its EMCY was sent (an error reset is owed when it clears)
+        self._comm_error = False   # a heartbeat consumed by this node is lost (0x1016)
+        self._comm_reported = False
 
     def reset(self) -> None:
         """NMT reset: the fault state is forgotten (the detector starts afresh)."""
         self._active = None
         self._reported = False
+        self._comm_error = False
+        self._comm_reported = False
+
+    def _register(self) -> int:
+        register = ERR_REG_SENSOR_FAULT if self._active is not None else 0
+        if self._comm_error:
+            register |= ERR_REG_GENERIC | ERR_REG_COMMUNICATION
+        return register
+
+    def _push_history(self, entry: int) -> None:
+        objects = self._objects
+        count = objects.read(ERROR_FIELD, 0)
+        history = [entry] + [objects.read(ERROR_FIELD, s) for s in range(1, count + 1)]
+        history = history[:ERROR_HISTORY_LENGTH]
+        for sub, value in enumerate(history, start=1):
+            objects.store(ERROR_FIELD, sub, value)
+        objects.store(ERROR_FIELD, 0, len(history))
+
+    def communication_error(self, active: bool) -> None:
+        """A consumed heartbeat was lost (``active``) or every one is back: EMCY 0x8130 with
+        error register bit 4, then its error reset (only after a reported 0x8130)."""
+        if active == self._comm_error:
+            return
+        self._comm_error = active
+        register = self._register()
+        self._objects.store(ERROR_REGISTER, 0, register)
+        if active:
+            self._push_history(EMCY_HEARTBEAT)
+            self._comm_reported = self.send(EMCY_HEARTBEAT, register)
+        elif self._comm_reported:
+            self._comm_reported = not self.send(EMCY_NO_ERROR, register)
 
     def resume(self) -> None:
         """The node can report again (PRE-OPERATIONAL / OPERATIONAL entered): send what the
@@ -92,28 +129,28 @@ class EmcyProducer:
         if self._active is not None and not self._reported:
             self._reported = self.send(*self._active)
         elif self._active is None and self._reported:
-            self._reported = not self.send(EMCY_NO_ERROR, 0)
+            self._reported = not self.send(EMCY_NO_ERROR, self._register())
+        if self._comm_error and not self._comm_reported:
+            self._comm_reported = self.send(EMCY_HEARTBEAT, self._register())
+        elif not self._comm_error and self._comm_reported:
+            self._comm_reported = not self.send(EMCY_NO_ERROR, self._register())
 
     def fault_changed(self, fault: int, reading: float) -> None:
         """The application's fault state became ``fault`` (``FAULT_NONE``: cleared) on
         ``reading``: update 0x1001/0x1003, send the EMCY (or the error reset)."""
         objects = self._objects
         if fault == FAULT_NONE:
-            objects.store(ERROR_REGISTER, 0, 0)
             self._active = None
+            register = self._register()
+            objects.store(ERROR_REGISTER, 0, register)
             if self._reported:  # an error reset only follows a reported error
-                self._reported = not self.send(EMCY_NO_ERROR, 0)
+                self._reported = not self.send(EMCY_NO_ERROR, register)
             return
         code = FAULT_EMCY_CODE[fault]
-        register = ERR_REG_SENSOR_FAULT
+        self._active = (code, ERR_REG_SENSOR_FAULT, fault, reading)
+        register = self._register()
         objects.store(ERROR_REGISTER, 0, register)
-        count = objects.read(ERROR_FIELD, 0)
-        history = [objects.read(ERROR_FIELD, s) for s in range(1, count + 1)]
-        history = [code | (fault << 16)] + history  # bits 16-31: manufacturer info (fault id)
-        history = history[:ERROR_HISTORY_LENGTH]
-        for sub, entry in enumerate(history, start=1):
-            objects.store(ERROR_FIELD, sub, entry)
-        objects.store(ERROR_FIELD, 0, len(history))
+        self._push_history(code | (fault << 16))  # bits 16-31: manufacturer info (fault id)
         self._active = (code, register, fault, reading)
         self._reported = self.send(code, register, fault, reading)
 

@@ -11,6 +11,8 @@ per CANopen service, each owning that service's state (the layout follows canope
   data store, start-up values restored by the NMT resets;
 * :class:`node_sim.nmt.NmtSlave` - NMT state machine and boot-up;
 * :class:`node_sim.heartbeat.HeartbeatProducer` - heartbeat per 0x1017;
+  :class:`node_sim.heartbeat.HeartbeatConsumer` - the master's heartbeat per 0x1016, error
+  behaviour 0x1029 on its loss;
 * :class:`node_sim.sdo.SdoServer` - canopen's SDO server behind the CiA 301 checks; every
   object's write rules are registered by the service that owns the object;
 * :class:`node_sim.sync.SyncConsumer` - 0x1005 and what a SYNC triggers;
@@ -37,9 +39,10 @@ from canopen.sdo import SdoAbortedError
 from . import od as odx
 from .detector import Detector
 from .emcy import EmcyProducer
-from .heartbeat import HeartbeatProducer
+from .heartbeat import HeartbeatConsumer, HeartbeatProducer
 from .link import NodeLink, Scheduler
-from .nmt import STATE_NAMES, STOPPED, NmtSlave
+from .nmt import (NMT_ENTER_PRE_OPERATIONAL, NMT_STOP, OPERATIONAL, STATE_NAMES, STOPPED,
+                  NmtSlave)
 from .od import COB_INVALID
 from .pdo import TpdoEngine
 from .sdo import SdoServer
@@ -76,6 +79,7 @@ class TaxelNode:
                             reset_node=self._reset_node, reset_communication=self._reset_communication)
         self.heartbeat = HeartbeatProducer(node_id, self.nmt, objects, self._send, link.scheduler)
         self.emcy = EmcyProducer(self.nmt, objects, self._send)
+        self.heartbeat_consumer = HeartbeatConsumer(self.nmt, objects, link.scheduler, self._heartbeat_event)
         self.detector = Detector(objects, self.emcy.fault_changed)
         self.pdo = TpdoEngine(self, self.nmt, objects, link)
         self.sync = SyncConsumer(self, self.nmt, objects, self.detector.sample, self.pdo.on_sync)
@@ -90,6 +94,8 @@ class TaxelNode:
         sdo.add_written((odx.ERROR_FIELD,), self.emcy.written)
         sdo.add_written(odx.TPDO_COMM + odx.TPDO_MAP, self.pdo.written)
         sdo.add_written((odx.HEARTBEAT_PRODUCER,), self.heartbeat.written)
+        sdo.add_check((odx.CONSUMER_HEARTBEAT,), self.heartbeat_consumer.check_write)
+        sdo.add_written((odx.CONSUMER_HEARTBEAT,), self.heartbeat_consumer.written)
 
     # ------------------------------------------------------------------ OD access
     def read(self, index: int, subindex: int = 0):
@@ -130,6 +136,12 @@ class TaxelNode:
         else:
             self.emcy.resume()  # EMCYs owed while the node could not report
 
+    def on_heartbeat(self, node_id: int, state: int) -> None:
+        """A heartbeat / boot-up frame of ``node_id`` (the heartbeat consumer, 0x1016)."""
+        if self.silent:
+            return
+        self.heartbeat_consumer.on_heartbeat(node_id, state)
+
     def on_sdo_request(self, data: bytes) -> None:
         if self.silent:
             return
@@ -142,6 +154,7 @@ class TaxelNode:
 
     def shutdown(self) -> None:
         self.heartbeat.stop()
+        self.heartbeat_consumer.reset()
         self.sdo.reset()
         self.pdo.leave_operational()
 
@@ -153,8 +166,21 @@ class TaxelNode:
         self._frames_sent += 1
 
     # ------------------------------------------------------------------ NMT hooks
+    def _heartbeat_event(self, node_id: int, lost: bool) -> None:
+        """A consumed heartbeat lost / back: EMCY 0x8130 (or its reset), then on a loss the
+        NMT state 0x1029:1 asks for (0: pre-operational if operational, 1: none, 2: stopped)."""
+        self.emcy.communication_error(bool(self.heartbeat_consumer.lost))
+        if not lost:
+            return
+        behaviour = self.objects.read(odx.ERROR_BEHAVIOUR, 1)
+        if behaviour == 0 and self.nmt.state == OPERATIONAL:
+            self.on_nmt(NMT_ENTER_PRE_OPERATIONAL)
+        elif behaviour == 2:
+            self.on_nmt(NMT_STOP)
+
     def _before_boot(self) -> None:
         self.heartbeat.stop()
+        self.heartbeat_consumer.reset()
         self.sdo.reset()
         self.pdo.reset()
 

@@ -44,8 +44,10 @@ ERROR_REGISTER = 0x1001
 ERROR_FIELD = 0x1003          # pre-defined error field, sub 0 = number of errors (newest at sub 1)
 COB_ID_SYNC = 0x1005
 COB_ID_EMCY = 0x1014
+CONSUMER_HEARTBEAT = 0x1016   # sub n: producer node-ID << 16 | time ms (0 = entry off)
 HEARTBEAT_PRODUCER = 0x1017
 IDENTITY = 0x1018
+ERROR_BEHAVIOUR = 0x1029      # sub 1 communication error: 0 pre-operational, 1 no change, 2 stopped
 SYNC_OVERFLOW = 0x1019        # synchronous counter overflow value: 0 = SYNC without counter, 2..240
 TPDO_COMM = (0x1800, 0x1801)  # sub 1 COB-ID, 2 transmission type, 3 inhibit (100 µs), 5 event timer (ms), 6 SYNC start
 TPDO_MAP = (0x1A00, 0x1A01)

@@ -191,6 +191,10 @@ class _Channel(can.Listener):
                 self.cycle = self.sync_count - 1
                 return
             self._on_sync(data, sync_nodes)
+        elif 0x701 <= can_id <= 0x77F and len(data) == 1:
+            # a heartbeat / boot-up of another participant (the master): heartbeat consumers
+            for node in self.nodes.values():
+                node.on_heartbeat(can_id - 0x700, data[0])
 
     def _on_sync(self, data: bytes, nodes: Sequence[tuple[TaxelNode, Callable, int]]) -> None:
         counter = data[0] if len(data) >= 1 else None

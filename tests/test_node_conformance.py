@@ -230,3 +230,57 @@ def test_error_reset_of_a_fault_cleared_while_stopped(factory):
     s.nmt(0x01, 1)                                          # started: the error reset owed
     assert wait_until(lambda: _emcy_codes(rn1) == [0x5000, 0x0000])
     assert rn1.emcy.active == []
+
+
+# ------------------------------------------------------------------------ heartbeat consumer
+
+MASTER_ID = 0x70   # the master's heartbeat: 0x770
+
+
+def _consume_master(rn, time_ms: int = 100) -> None:
+    rn.sdo[0x1016][1].raw = MASTER_ID << 16 | time_ms
+
+
+def test_heartbeat_consumer_objects(factory):
+    s = factory(n=1)
+    rn = s.remote[1]
+    assert rn.sdo[0x1016][0].raw == 2 and rn.sdo[0x1016][1].raw == 0 and rn.sdo[0x1029][1].raw == 0
+    _consume_master(rn)
+    assert rn.sdo[0x1016][1].raw == 0x00700064
+    assert _abort(lambda: setattr(rn.sdo[0x1016][2], "raw", MASTER_ID << 16 | 50)) == 0x06040043  # same node twice
+    rn.sdo[0x1016][2].raw = MASTER_ID << 16                 # time 0: entry off, accepted
+    assert _abort(lambda: setattr(rn.sdo[0x1016][2], "raw", 0x01000000 | 5 << 16 | 50)) == 0x06090030
+    assert _abort(lambda: setattr(rn.sdo[0x1029][1], "raw", 3)) == 0x06090031
+    rn.sdo[0x1029][1].raw = 2
+    s.nmt(0x82, 1)                                           # reset communication: defaults back
+    assert wait_until(lambda: s.rig.node(1).read(0x1016, 1) == 0 and s.rig.node(1).read(0x1029, 1) == 0)
+
+
+@pytest.mark.parametrize("behaviour, state_after", [(0, 0x7F), (1, 0x05), (2, 0x04)])
+def test_master_heartbeat_loss_emcy_and_error_behaviour(factory, behaviour, state_after):
+    s = factory(n=2)
+    rn1, rn2 = s.remote[1], s.remote[2]
+    _consume_master(rn1)                                     # node 2 consumes nothing
+    rn1.sdo[0x1029][1].raw = behaviour
+    beat = s.network.send_periodic(0x700 + MASTER_ID, [0x05], 0.02)
+    try:
+        s.nmt(0x01)
+        assert wait_until(lambda: s.rig.node(1).state == 0x05 and s.rig.node(2).state == 0x05)
+    finally:
+        beat.stop()
+    # the master's heartbeat is gone: EMCY 0x8130, error register bits 0 + 4, state per 0x1029
+    assert wait_until(lambda: [e.code for e in rn1.emcy.active] == [0x8130])
+    assert rn1.emcy.active[0].register == 0x11
+    assert wait_until(lambda: s.rig.node(1).state == state_after)
+    assert s.rig.node(1).read(0x1001) == 0x11
+    assert s.rig.node(1).read(0x1003, 1) == 0x8130
+    assert s.rig.node(2).state == 0x05 and rn2.emcy.log == []
+    # it is back: error reset EMCY, the register clears
+    beat = s.network.send_periodic(0x700 + MASTER_ID, [0x05], 0.02)
+    try:
+        if state_after == 0x04:
+            s.nmt(0x80, 1)                                   # stopped: no EMCY until it may report
+        assert wait_until(lambda: [e.code for e in rn1.emcy.log] == [0x8130, 0x0000])
+        assert rn1.emcy.active == [] and s.rig.node(1).read(0x1001) == 0
+    finally:
+        beat.stop()

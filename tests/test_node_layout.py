@@ -134,7 +134,7 @@ def test_one_module_per_service(module, cls):
 def test_taxel_node_composes_the_services_and_keeps_no_service_state():
     from node_sim.detector import Detector
     from node_sim.emcy import EmcyProducer
-    from node_sim.heartbeat import HeartbeatProducer
+    from node_sim.heartbeat import HeartbeatConsumer, HeartbeatProducer
     from node_sim.link import NodeLink, Scheduler
     from node_sim.nmt import NmtSlave
     from node_sim.node import TaxelNode
@@ -146,7 +146,8 @@ def test_taxel_node_composes_the_services_and_keeps_no_service_state():
     scheduler = Scheduler(threading.RLock(), name="test-layout")
     try:
         node = TaxelNode(5, NodeLink(lambda can_id, data: None, scheduler))
-        kinds = {"objects": NodeObjects, "nmt": NmtSlave, "heartbeat": HeartbeatProducer, "sdo": SdoServer,
+        kinds = {"objects": NodeObjects, "nmt": NmtSlave, "heartbeat": HeartbeatProducer,
+                 "heartbeat_consumer": HeartbeatConsumer, "sdo": SdoServer,
                  "pdo": TpdoEngine, "sync": SyncConsumer, "emcy": EmcyProducer, "detector": Detector}
         for name, kind in kinds.items():
             assert type(getattr(node, name)) is kind, name
