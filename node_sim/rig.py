@@ -7,7 +7,8 @@ node twins on it: python-can's ``virtual`` interface deep-copies every frame onc
 
 Start-up (what a real node has in its non-volatile memory; a master that configures
 nothing still gets working nodes): each node's OD is written from the scene — ζ, N_i, kind,
-x, y (0x2001), slope/intercept (0x6126/0x6127), heartbeat time (0x1017 =
+x, y (0x2001), slope/intercept (0x6126/0x6127), serial number (0x1018:4,
+:func:`identity_serial`), heartbeat time (0x1017 =
 ``bus.heartbeat_producer_ms``), SYNC counter overflow (0x1019 = ``bus.sync_counter``), TPDO
 transmission type / inhibit time / event timer (0x1800/0x1801 from ``bus``), TPDO2 enabled iff ``bus.mode == "raw"``, and the stuck-reading
 detector switched off (0x2002:2 = 0) for a taxel simulated without noise
@@ -43,6 +44,7 @@ import dataclasses
 import logging
 import threading
 import time
+import zlib
 from typing import Callable, Mapping, Sequence
 
 import can
@@ -246,6 +248,13 @@ class _Channel(can.Listener):
                 logger.warning("node-sim channel %s: send 0x%03X failed: %s", self.name, can_id, exc)
 
 
+def identity_serial(scene: Scene, t) -> int:
+    """0x1018:4 of taxel ``t``: ``crc32(scene name) & 0xFFFF`` in bits 16-31, its channel in
+    bits 8-15, its node-ID in bits 0-7 — distinct for every node of a scene (node-IDs are
+    unique per channel) and the same in every run and process of that scene."""
+    return (zlib.crc32(scene.name.encode("utf-8")) & 0xFFFF) << 16 | (t.channel & 0xFF) << 8 | t.node_id
+
+
 class Rig:
     """All node twins of ``scene`` (see module docstring).
 
@@ -359,6 +368,7 @@ class Rig:
             odx.TAXEL_KIND: TAXEL_KINDS[t.kind],
             (odx.HEARTBEAT_PRODUCER, 0): int(bus.heartbeat_producer_ms),
             (odx.SYNC_OVERFLOW, 0): int(bus.sync_counter),
+            (odx.IDENTITY, 4): identity_serial(self.scene, t),
         }
         if t.x is not None:
             values[odx.POS_X] = float(t.x)

@@ -419,7 +419,8 @@ def test_sdo_transfer_protocols_seen_by_a_canopen_master(setup_factory):
     response = s.monitor.wait_count(0x581, 1, since=t0)[0]
     assert bytes(response.data) == bytes([0x43, 0x01, 0x20, 0x01]) + struct.pack("<f", 1.5)
     # identity object (CiA 301 0x1018), expedited UNSIGNED32s
-    assert [rn.sdo[0x1018][sub].raw for sub in range(5)] == [4, 0, 0x7A01, 0x00010000, 0]
+    assert [rn.sdo[0x1018][sub].raw for sub in range(4)] == [4, 0, 0x7A01, 0x00010000]
+    assert rn.sdo[0x1018][4].raw & 0xFFFF == 0x0001     # serial: channel 0, node-ID 1 (+ scene hash)
     # segmented upload of the 15-byte device name 0x1008: initiate (0x41, size 15), then
     # segments of 7, 7 and 1 bytes: 0x00 (toggle 0), 0x10 (toggle 1), 0x0D (toggle 0, 6 unused, last)
     t0 = time.time()

@@ -7,6 +7,7 @@ SYNCs are sent by the master with the counter byte it chooses. Waits are "eventu
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 import uuid
@@ -284,3 +285,29 @@ def test_master_heartbeat_loss_emcy_and_error_behaviour(factory, behaviour, stat
         assert rn1.emcy.active == [] and s.rig.node(1).read(0x1001) == 0
     finally:
         beat.stop()
+
+
+# ------------------------------------------------------------------------ identity 0x1018
+
+def test_identity_distinct_per_node_and_stable_per_scene(factory):
+    """0x1018: vendor-ID 0 (no CiA vendor-ID is assigned to this project: the EDS says so),
+    product code 0x7A01 and revision 1.0 of the twin, serial distinct per node and the same in
+    every run of the scene (what an identity check or LSS needs)."""
+    from node_sim.rig import identity_serial
+
+    s = factory(n=3)
+    ids = {nid: tuple(rn.sdo[0x1018][sub].raw for sub in range(1, 5)) for nid, rn in s.remote.items()}
+    assert {i[:3] for i in ids.values()} == {(0, 0x7A01, 0x00010000)}
+    serials = [i[3] for i in ids.values()]
+    assert len(set(serials)) == 3 and all(serials)
+    scene = s.rig.scene
+    assert serials == [identity_serial(scene, t) for t in scene.taxels]
+    # a second rig of the same scene (another run) reports the same serials
+    again = Rig(scene).start()
+    try:
+        assert [again.node(t.node_id).read(0x1018, 4) for t in scene.taxels] == serials
+    finally:
+        again.stop()
+    # another scene (name) gives other serials
+    other = dataclasses.replace(scene, name="another scene")
+    assert {identity_serial(other, t) for t in other.taxels}.isdisjoint(serials)
