@@ -155,8 +155,20 @@ class FusionService:
             raise UsageError(f"EDS file {str(self.eds_path)!r} not found (needed for the SDO configuration)")
         try:
             od = canopen.import_od(str(self.eds_path))
-        except Exception as exc:  # noqa: BLE001
-            raise UsageError(f"EDS file {str(self.eds_path)!r} cannot be read: {exc}") from None
+        except Exception as exc:  # noqa: BLE001 - any content: one line naming the file
+            raise UsageError(f"EDS file {str(self.eds_path)!r} cannot be read: "
+                             + " ".join(f"{type(exc).__name__}: {exc}".split())) from None
+        from .master import node_configuration
+
+        for index in range(self.scene.n):  # every object the SDO configuration writes
+            for obj, sub, _ in node_configuration(self.scene, index):
+                try:
+                    entry = od[obj]
+                    if sub or not isinstance(entry, canopen.objectdictionary.ODVariable):
+                        entry[sub]
+                except (KeyError, TypeError):
+                    raise UsageError(f"EDS file {str(self.eds_path)!r}: object 0x{obj:04X}:{sub} is missing "
+                                     "(the SDO configuration of the nodes writes it)") from None
         try:
             for name in self.channel_names:
                 self.buses.append(self._open_bus(name))
