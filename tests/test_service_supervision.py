@@ -47,14 +47,21 @@ def _stop_all(bus):
 
 def test_forged_stop_all_restarted_within_two_heartbeat_periods():
     scene = load_scene(MATRIX)
-    service, _ = _run(scene, 80, {20: _stop_all})
+    service, summary = _run(scene, 80, {20: _stop_all})
+    from fusion_center.commands.run import format_summary, summarise
+
+    lines = format_summary(summarise(service, summary))
+    assert any(line.startswith("nmt_restarts:") for line in lines), lines
     records = service.records
     hb_cycles = int(2 * scene.bus.heartbeat_producer_ms / scene.bus.sync_period_ms)
     stopped = [r for r in records if "stopped" in r["nodes_by_state"]]
     assert stopped, "the stop-all was never seen in a record"
     first = stopped[0]["cycle"]
     assert 20 <= first <= 20 + hb_cycles // 2  # seen at the next SYNCs (later on a loaded host)
-    assert len(stopped[0]["nodes_by_state"]["stopped"]) == scene.n
+    # every node is named stopped (a node whose last PDO came after the forged frame looks
+    # operational - silent - until its next heartbeat says stopped)
+    named = {nid for r in stopped if r["cycle"] <= first + hb_cycles for nid in r["nodes_by_state"]["stopped"]}
+    assert named == {t.node_id for t in scene.taxels}
     # started again (per node NMT start) and deciding within two heartbeat periods (a node
     # whose last PDO came after the forged frame looks operational until its next heartbeat)
     limit = first + hb_cycles
@@ -84,6 +91,11 @@ def test_duplicate_node_id_is_flagged():
     index = [t.node_id for t in scene.taxels].index(18)
     twin = dataclasses.replace(scene, taxels=(scene.taxels[index],))
     service, _ = _run(scene, 30, {}, extra_nodes=[twin])
+    from fusion_center.commands.run import format_summary, summarise
+
+    lines = format_summary(summarise(service, _))
+    assert [line.split(":", 1)[1].strip() for line in lines if line.startswith("duplicate_nodes:")] == [
+        "18 (two devices answer for one node-ID)"]
     flagged = [r for r in service.records if r["duplicate_nodes"]]
     assert flagged and all(r["duplicate_nodes"] == [18] for r in flagged)
     assert service.assembler.duplicates == {index}

@@ -124,6 +124,11 @@ def summarise(service, summary) -> dict:
     }
     if summary.own_echoes:
         out["own_echoes_dropped"] = summary.own_echoes
+    master = service.master
+    if master is not None and master.restarts:
+        out["nmt_restarts"] = master.restarts
+    if service.assembler.duplicates:
+        out["duplicate_nodes"] = sorted((service.labels[i] for i in service.assembler.duplicates), key=str)
     return out
 
 
@@ -157,6 +162,12 @@ def format_summary(summary: dict) -> list[str]:
     ]
     if "own_echoes_dropped" in summary:
         lines.append(("own_echoes_dropped", str(summary["own_echoes_dropped"])))
+    if "nmt_restarts" in summary:
+        lines.append(("nmt_restarts", f"{summary['nmt_restarts']} (nodes found stopped or pre-operational, "
+                                      "started again: [master] restart)"))
+    if "duplicate_nodes" in summary:
+        lines.append(("duplicate_nodes", ", ".join(map(str, summary["duplicate_nodes"]))
+                      + " (two devices answer for one node-ID)"))
     width = max(len(k) for k, _ in lines)
     return [f"{k + ':':<{width + 1}} {v}" for k, v in lines]
 
