@@ -3,7 +3,7 @@
 Import rules (docs/architecture.md), checked on the source (ast) and in fresh interpreters:
 
 * ``fusion_center.core`` - pure functions of the method: imports only the standard library's
-  pure modules, numpy, scipy, itself and ``taxel_net.errors``; never ``can``, ``canopen``,
+  pure modules, numpy, scipy, mpmath, itself and ``taxel_net.errors``; never ``can``, ``canopen``,
   ``rich``, ``matplotlib``; no file, socket or clock I/O.
 * ``taxel_net`` - shared by twins and centre: imports neither ``fusion_center`` nor ``node_sim``.
 * ``node_sim`` - the firmware twins: imports nothing from ``fusion_center``.
