@@ -71,6 +71,15 @@ class EchoFilter:
                 self._pending.popleft()
             self._pending.append((time.monotonic(), channel, can_id, bytes(data), remote))
 
+    def forget(self, channel: int, can_id: int, data: bytes, remote: bool) -> None:
+        """A frame that could not be sent: no echo will come."""
+        key = (channel, can_id, bytes(data), remote)
+        with self._lock:
+            for k in range(len(self._pending) - 1, -1, -1):
+                if self._pending[k][1:] == key:
+                    del self._pending[k]
+                    return
+
     def is_echo(self, msg: can.Message, channel: int) -> bool:
         if msg.is_extended_id or msg.is_error_frame or msg.is_fd:
             return False
@@ -216,15 +225,17 @@ class EventStream:
                 msg = TxMessage(arbitration_id=can_id, data=data, is_extended_id=False,
                                  is_remote_frame=remote, channel=channel)
                 sent_at = time.time()  # before the send: every answer to this frame is later
+                if self.echoes is not None:  # before the send: its echo can come back at once
+                    self.echoes.sent(channel, can_id, data, remote)
                 try:
                     self.buses[channel].send(msg)
                 except can.CanError as exc:
+                    if self.echoes is not None:
+                        self.echoes.forget(channel, can_id, data, remote)
                     self.tx_errors += 1
                     self.rate_log.warning("tx_error", "transmit 0x%03X on channel %d failed: %s", can_id, channel, exc)
                     continue
                 msg.timestamp = sent_at
-                if self.echoes is not None:
-                    self.echoes.sent(channel, can_id, data, remote)
                 closed |= self._feed_locked(msg, channel)
         if closed or len(self._trace_queue) >= TRACE_BATCH:
             self._after_feed(closed)
