@@ -262,10 +262,10 @@ def _hebtem(args, rule: str, u: np.ndarray, encoding: str, record: dict) -> None
         record["band_width"] = float(band.band_width)
         if args.pd is not None or args.pf is not None:
             _preferential_rates(args, record, p, q, encoding, low, high)
-        u_g = record["U_G"]
-        above = _certified_at_least(u, encoding, p, q, u_g, high, g)
-        below = not _certified_at_least(u, encoding, p, q, u_g, low, g)
-        record["decision"] = "H1" if above else ("H0" if below else "undecided")
+        # exact U_G against the band edges (mpmath where rounding cannot decide)
+        from ..core.preferential_band import band_decision
+
+        record["decision"] = band_decision(band, record["U_G"], u)
 
 
 def _preferential_rates(args, record: dict, p, q, encoding, low: float, high: float) -> None:
@@ -295,21 +295,6 @@ def _baseline_rates(record: dict, pd, pf, prior: float) -> None:
     record["rates_method"] = rates.method
     if rates.ci95:
         record["rates_ci95"] = {k: list(v) for k, v in rates.ci95.items()}
-
-
-def _certified_at_least(u, encoding, p, q, u_g: float, edge: float, g: float) -> bool:
-    """U_G >= edge for the exact U_G of eq 7 (a + b 2^p + c 2^q + d 2^(p+q), integer counts):
-    the float comparison where U_G's error bound decides it, else mpmath (60 digits)."""
-    err = 16.0 * 2.220446049250313e-16 * (g + abs(edge))
-    if abs(u_g - edge) > err:
-        return u_g >= edge
-    import mpmath
-
-    from ..core import rules
-
-    with mpmath.workdps(60):
-        exact = rules.preferential_exact(rules.preferential_coefficients(u, encoding), p, q)
-        return exact >= mpmath.mpf(edge)
 
 
 # eqs 31-32: Lambda = lambda_threshold is the chapter's undefined case (sec. 6.2)

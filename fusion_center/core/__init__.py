@@ -9,7 +9,9 @@ Modules (one job each):
 * :mod:`.rules` - the fusion rules: multiplicative (eq 5), additive (eq 6), preferential
   (eq 7, g(n) eq 15), k-of-n (sec. 2.2.1)
 * :mod:`.curves` - the probability curves P(H1 | U_G) (eqs 8-14)
-* :mod:`.thresholds` - HEBTEM thresholds (eqs 16-20); :mod:`.certify` - their certified roots,
+* :mod:`.thresholds` - HEBTEM thresholds (eqs 16-17 here, the names of eqs 18-20 re-exported);
+  :mod:`.mean_deficit` - D(z) of Appendix I and its inverse; :mod:`.preferential_band` - the
+  preferential band (eqs 18-20) and its certified decision; :mod:`.certify` - certified roots,
   counts and decisions (mpmath where rounding cannot decide)
 * :mod:`.baselines` - Chair-Varshney (eq 31), Neyman-Pearson (eq 32), Bayes threshold (eq 22)
 * :mod:`.poisson_binomial` - the law of the present count, in the log domain

@@ -19,6 +19,7 @@ import math
 
 __all__ = [
     "DPS",
+    "NEAR_DOUBLE_ROOT",
     "mp_d",
     "mp_dprime",
     "additive_pm1_roots",
@@ -29,6 +30,10 @@ __all__ = [
 
 DPS = 60  # first working precision (decimal digits); doubled while undecided, up to 480
 MAX_DPS = 480
+
+NEAR_DOUBLE_ROOT = 1e-8
+"""|alpha_tangent - alpha| below which two roots of eq 17 / eq 18 are a near-double pair: both
+are reported (from the extended-precision solution) and flagged ``near_double_root``."""
 
 
 def _mp():
