@@ -41,8 +41,8 @@ from .detector import Detector
 from .emcy import EmcyProducer
 from .heartbeat import HeartbeatConsumer, HeartbeatProducer
 from .link import NodeLink, Scheduler
-from .nmt import (NMT_ENTER_PRE_OPERATIONAL, NMT_STOP, OPERATIONAL, STATE_NAMES, STOPPED,
-                  NmtSlave)
+from .nmt import (NMT_ENTER_PRE_OPERATIONAL, NMT_RESET_COMMUNICATION, NMT_RESET_NODE, NMT_STOP,
+                  OPERATIONAL, STATE_NAMES, STOPPED, NmtSlave)
 from .od import COB_INVALID
 from .pdo import TpdoEngine
 from .sdo import SdoServer
@@ -62,12 +62,21 @@ class TaxelNode:
 
     Services (attributes): ``objects``, ``nmt``, ``heartbeat``, ``emcy``, ``detector``,
     ``pdo``, ``sync``, ``sdo``; ``od`` and ``local`` are ``objects.od`` / ``objects.local``.
+
+    LSS (CiA 305): ``lss`` is the device's :class:`node_sim.lss.LssSlave` (None: no LSS), which
+    outlives the node; an NMT reset that makes another node-ID active (configured over LSS)
+    is handed to ``renumber(node, node_id, command)``: the owner starts the device again
+    under that node-ID (0xFF: non-configured, LSS only), as a CANopen stack re-initialises its
+    communication objects.
     """
 
-    def __init__(self, node_id: int, link: NodeLink, od=None, eds_path=odx.EDS_PATH):
+    def __init__(self, node_id: int, link: NodeLink, od=None, eds_path=odx.EDS_PATH, *,
+                 lss=None, renumber=None):
         self.node_id = node_id
         self.link = link
         self.silent = False
+        self.lss = lss
+        self._renumber = renumber
         self._frames_sent = 0
         self.objects = objects = odx.NodeObjects(node_id, od, eds_path)
         self.od = objects.od
@@ -130,6 +139,11 @@ class TaxelNode:
     def on_nmt(self, command: int) -> None:
         if self.silent:
             return
+        if self.lss is not None and command in (NMT_RESET_NODE, NMT_RESET_COMMUNICATION):
+            node_id = self.lss.on_reset(application=command == NMT_RESET_NODE)
+            if node_id != self.node_id and self._renumber is not None:
+                self._renumber(self, node_id, command)  # CiA 305: the new node-ID becomes active
+                return
         self.nmt.on_command(command)
         if self.nmt.state == STOPPED:
             self.sdo.reset()  # no SDO in STOPPED: a transfer in progress is dropped

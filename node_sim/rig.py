@@ -15,6 +15,15 @@ detector switched off (0x2002:2 = 0) for a taxel simulated without noise
 (``noise_sigma_mv == 0``: its readings are legitimately identical). These values are what
 NMT reset-node / reset-communication restore. Then every node sends its boot-up.
 
+LSS (CiA 305, :mod:`node_sim.lss`): every taxel is a device with an LSS slave whose address is
+its 0x1018 (the EDS's vendor-ID, product code and revision, :func:`identity_serial`). With
+``[master] assign_ids = "lss"`` the devices start non-configured (node-ID 0xFF): no node
+twin, no boot-up, only LSS, until a master gives each a node-ID (Fastscan, configure node-ID,
+switch state global); the device then boots as a node twin under that node-ID, with the
+start-up values of its taxel for that node-ID. An NMT reset that activates another node-ID
+(configured over LSS) starts the device again in the same way. One LSS request reaches every
+slave of the channel; identical answers leave as one frame, as on a CAN bus.
+
 SYNC cycle number: the nodes of a channel sample X_i for cycle ``c`` = the number of SYNCs
 the rig has seen on that channel since :meth:`Rig.start` (the first SYNC is cycle 0). When
 the SYNC carries a counter byte (the nodes' 0x1019 = overflow value 2..240, start-up value
@@ -54,6 +63,7 @@ from taxel_net.canmsg import TxMessage
 from taxel_net.errors import ParameterError
 from taxel_net.scene import TAXEL_KINDS, Scene
 
+from . import lss as lssx
 from . import od as odx
 from .link import NodeLink, Scheduler
 from .node import TaxelNode
@@ -117,6 +127,7 @@ class _Channel(can.Listener):
         self.link = NodeLink(self.send, self.scheduler, self.send_many if self._burst is not None else None)
         self.nodes: dict[int, TaxelNode] = {}
         self.scene_index: dict[int, int] = {}   # node-ID -> taxel index in scene order
+        self.lss: dict[int, lssx.LssSlave] = {}  # taxel index -> its LSS slave (configured or not)
         self.sync_count = 0                     # SYNCs seen (cycle of the next one if no loss)
         self.cycle: int | None = None           # cycle number of the last SYNC fully processed
         self.lost_syncs = 0
@@ -147,7 +158,7 @@ class _Channel(can.Listener):
         if can_id == 0x000:
             if len(data) == 2:  # CiA 301: NMT module control has DLC 2; any other length is ignored
                 target = data[1]
-                nodes = self.nodes.values() if target == 0 else (
+                nodes = list(self.nodes.values()) if target == 0 else (
                     [self.nodes[target]] if target in self.nodes else [])
                 for node in nodes:
                     node.on_nmt(data[0])
@@ -197,6 +208,17 @@ class _Channel(can.Listener):
             # a heartbeat / boot-up of another participant (the master): heartbeat consumers
             for node in self.nodes.values():
                 node.on_heartbeat(can_id - 0x700, data[0])
+        elif can_id == lssx.LSS_MASTER_COB and len(data) == 8:
+            self._on_lss(data)
+
+    def _on_lss(self, data: bytes) -> None:
+        """A request of the LSS master (CiA 305) to every LSS slave of the channel (a dead
+        node's answers nothing); identical answers leave as one frame (:func:`lssx.answer_all`)."""
+        nodes = self.nodes
+        slaves = [s for s in self.lss.values()
+                  if not (s.active_node_id in nodes and nodes[s.active_node_id].silent)]
+        for answer in lssx.answer_all(slaves, data):
+            self.send(lssx.LSS_SLAVE_COB, answer)
 
     def _on_sync(self, data: bytes, nodes: Sequence[tuple[TaxelNode, Callable, int]]) -> None:
         counter = data[0] if len(data) >= 1 else None
@@ -324,12 +346,17 @@ class Rig:
                                          f"cannot be opened with python-can interface {self.interface!r}: "
                                          f"{type(exc).__name__}: {exc}") from None
                 self._channels.append(_Channel(self, index, name, bus))
+            unconfigured = self.scene.master.assign_ids == "lss"
+            identity = self._identity()
             for i, t in enumerate(self.scene.taxels):
                 ch = self._channels[t.channel]
-                node = TaxelNode(t.node_id, ch.link, eds_path=self.eds_path)
-                node.configure(self._startup_values(t))
-                ch.nodes[t.node_id] = node
-                ch.scene_index[t.node_id] = i
+                ch.lss[i] = lssx.LssSlave(
+                    identity + (identity_serial(self.scene, t),),
+                    lssx.UNCONFIGURED if unconfigured else t.node_id, self.bitrate or self.scene.bus.bitrate,
+                    activate=lambda node_id, ch=ch, i=i: self._renumber(ch, i, None, node_id),
+                    call_later=ch.scheduler.call_later)
+                if not unconfigured:
+                    self._new_node(ch, i, t.node_id)
             for ch in self._channels:
                 ch.notifier = can.Notifier(ch.bus, [ch], timeout=0.05)
             for ch in self._channels:
@@ -360,7 +387,49 @@ class Rig:
         self.started = False
 
     # ------------------------------------------------------------------ configuration
-    def _startup_values(self, t) -> dict[tuple[int, int], object]:
+    def _identity(self) -> tuple[int, int, int]:
+        """0x1018:1-3 (vendor-ID, product code, revision number) as the EDS gives them."""
+        od = odx.load_od(1, self.eds_path)
+        return tuple(int(odx.variable(od, odx.IDENTITY, sub).default) for sub in (1, 2, 3))
+
+    def _new_node(self, ch: _Channel, index: int, node_id: int) -> TaxelNode:
+        """The node twin of taxel ``index`` under ``node_id``, configured with its start-up values."""
+        node = TaxelNode(node_id, ch.link, eds_path=self.eds_path, lss=ch.lss[index],
+                         renumber=lambda old, new, command: self._renumber(ch, index, old, new, command))
+        node.configure(self._startup_values(self.scene.taxels[index], node_id))
+        if node_id in ch.nodes:
+            logger.warning("node-sim channel %s: two nodes with node-ID %d: frames to it reach one only",
+                           ch.name, node_id)
+        ch.nodes[node_id] = node
+        ch.scene_index[node_id] = index
+        ch._sync_map = None
+        return node
+
+    def _renumber(self, ch: _Channel, index: int, old: TaxelNode | None, node_id: int, command: int = 0) -> None:
+        """CiA 305: taxel ``index`` starts again under ``node_id`` (LSS switch state global of a
+        non-configured node, or an NMT reset with another pending / stored node-ID): its old node
+        leaves the bus; unless ``node_id`` is 0xFF (non-configured: LSS only) a new node boots
+        with the start-up values of that node-ID (after a reset communication the application
+        area 0x2000-0xFFFF keeps its values)."""
+        if old is not None:
+            old.shutdown()
+            if ch.nodes.get(old.node_id) is old:
+                del ch.nodes[old.node_id]
+                ch.scene_index.pop(old.node_id, None)
+            ch._sync_map = None
+        if node_id == lssx.UNCONFIGURED:
+            return
+        node = self._new_node(ch, index, node_id)
+        if old is not None and command != 0x81:  # reset communication: the application area stays
+            store = node.local.data_store
+            store.update({i: dict(subs) for i, subs in old.local.data_store.items() if i not in odx.COMM_AREA})
+            node.detector.invalidate()
+        self._apply_silence(ch.index, node, ch.cycle if ch.cycle is not None else 0)
+        node.power_on()
+
+    def _startup_values(self, t, node_id: int | None = None) -> dict[tuple[int, int], object]:
+        """Start-up values of taxel ``t`` running under ``node_id`` (default: the scene's)."""
+        node_id = t.node_id if node_id is None else node_id
         bus = self.scene.bus
         values: dict[tuple[int, int], object] = {
             odx.ZETA: float(t.zeta_mv),
@@ -387,7 +456,7 @@ class Rig:
         # raw mode: the node sends its reading (TPDO2) *instead of* its decision (TPDO1)
         raw = bus.mode == "raw"
         # bit 30 set: no RTR (the twins never answer a remote frame), as in the EDS defaults
-        tpdo1_cob, tpdo2_cob = odx.COB_NO_RTR | 0x180 + t.node_id, odx.COB_NO_RTR | 0x280 + t.node_id
+        tpdo1_cob, tpdo2_cob = odx.COB_NO_RTR | 0x180 + node_id, odx.COB_NO_RTR | 0x280 + node_id
         values[(odx.TPDO_COMM[0], 1)] = tpdo1_cob | COB_INVALID if raw else tpdo1_cob
         values[(odx.TPDO_COMM[1], 1)] = tpdo2_cob if raw else tpdo2_cob | COB_INVALID
         return values
@@ -486,6 +555,12 @@ class Rig:
     def nodes(self) -> dict[tuple[int, int], TaxelNode]:
         """``{(channel, node_id): TaxelNode}`` of every node (scene order)."""
         return {(ch.index, nid): n for ch in self._channels for nid, n in ch.nodes.items()}
+
+    @property
+    def lss_slaves(self) -> dict[int, lssx.LssSlave]:
+        """``{taxel index (scene order): LssSlave}``: every device's LSS slave (CiA 305), with
+        or without a node-ID (a non-configured one has no entry in :attr:`nodes`)."""
+        return {i: s for ch in self._channels for i, s in sorted(ch.lss.items())}
 
     @property
     def buses(self) -> list[can.BusABC]:

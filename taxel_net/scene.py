@@ -71,6 +71,9 @@ class BusSpec:
 @dataclass(frozen=True)
 class MasterSpec:
     restart: str = "always"           # "always": NMT-start a live node found not operational | "never"
+    assign_ids: str = "scene"         # "scene": nodes have the scene's node-IDs | "lss": they start
+                                      # non-configured (0xFF) and the centre assigns each the scene's
+                                      # node-ID for its serial number (0x1018:4) by LSS Fastscan (CiA 305)
 
 
 @dataclass(frozen=True)
@@ -186,8 +189,9 @@ _OBJECT_KEYS = ("model", "x", "y", "radius", "present", "velocity", "slip_onset_
                 "tangential_force", "readings_mv", "readings_are")
 _FUSION_KEYS = ("rules", "decide_with", "tuple", "xi", "alpha", "beta", "additive_root", "p", "q",
                 "k", "np_false_alarm", "prior_h1", "costs")
-_MASTER_KEYS = ("restart",)
+_MASTER_KEYS = ("restart", "assign_ids")
 RESTART_POLICIES = ("always", "never")
+ASSIGN_IDS = ("scene", "lss")
 SYNC_PERIOD_MIN_MS = 1.0          # the SYNC producer's resolution (a 57-node cycle needs ~3.5 ms at 1 Mbit/s)
 SYNC_PERIOD_MAX_MS = 4_294_967.295  # 0x1006 communication cycle period: UNSIGNED32 µs
 CYCLES_MAX = 10**10               # > 3 years of 10 ms cycles
@@ -401,9 +405,10 @@ def load_scene(path) -> Scene:
     faults = _load_faults(sp, top, doc.get("faults", []), taxels)
     mt = _table(top, "master", doc.get("master", {}), _MASTER_KEYS)
     restart = _str(_Where(sp, "master"), "restart", mt.get("restart", MasterSpec.restart), RESTART_POLICIES)
+    assign_ids = _str(_Where(sp, "master"), "assign_ids", mt.get("assign_ids", MasterSpec.assign_ids), ASSIGN_IDS)
     return Scene(path=sp, name=name, description=description, seed=seed, cycles=cycles, bus=bus,
                  taxels=taxels, object=obj, fusion=fusion, forces=forces, stages=tuple(stages),
-                 faults=faults, master=MasterSpec(restart=restart))
+                 faults=faults, master=MasterSpec(restart=restart, assign_ids=assign_ids))
 
 
 def _load_bus(sp: str, top: _Where, raw) -> BusSpec:

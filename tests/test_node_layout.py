@@ -152,9 +152,12 @@ def test_taxel_node_composes_the_services_and_keeps_no_service_state():
         for name, kind in kinds.items():
             assert type(getattr(node, name)) is kind, name
         # the node's own attributes: its identity, its channel, "silent", the services
-        # (and od/local, the objects' views); the services' state lives in the services
+        # (and od/local, the objects' views), the device's LSS slave (it outlives the node:
+        # node_sim.lss) and the owner's hook for a new node-ID; the services' state lives in
+        # the services
         own = set(vars(node)) - set(kinds)
-        assert own == {"node_id", "link", "silent", "_frames_sent", "od", "local"}, own
+        assert own == {"node_id", "link", "silent", "_frames_sent", "od", "local", "lss", "_renumber"}, own
+        assert node.lss is None  # no LSS unless the owner gives the device one (the rig does)
         assert node.od is node.objects.od and node.local is node.objects.local
     finally:
         scheduler.stop()
