@@ -17,7 +17,8 @@ fusion centre uses; ``tests/test_node_fastpath.py`` checks they agree).
 :mod:`node_sim.sync`): take X_i (mV) for the cycle, check it for sensor faults, decide, and
 write the OD —
 
-* u_i to 0x2000 (INTEGER8 +1/−1), X_i to 0x6130:1 (CiA 404 AI input PV, REAL32 mV) and the
+* u_i to 0x2000 (INTEGER8 +1/−1) and, tagged with the sampling SYNC's counter, to 0x2003
+  (:func:`tagged_decision`: the cycle tag TPDO1 maps when the SYNC carries a counter), X_i to 0x6130:1 (CiA 404 AI input PV, REAL32 mV) and the
   CiA 404 AI status to 0x6150:1 (bit 0 PV not valid, bit 1 positive overload, bit 2 negative
   overload);
 * parameters: ζ 0x2001:1 and N_i 0x2001:2 (mV), full scale 0x2002:1 and the stuck-sample count
@@ -47,8 +48,8 @@ from canopen.sdo import SdoAbortedError
 from taxel_net.scene import KIND_NAMES
 
 from .emcy import FAULT_NONE, FAULT_OPEN_CIRCUIT, FAULT_STUCK
-from .od import (AI_INPUT_PV, AI_STATUS, FULL_SCALE, LOCAL_DECISION, NOISE_ESTIMATE, STUCK_SAMPLES, TAXEL_KIND,
-                 ZETA, NodeObjects)
+from .od import (AI_INPUT_PV, AI_STATUS, FULL_SCALE, LOCAL_DECISION, NOISE_ESTIMATE, STUCK_SAMPLES, TAGGED_DECISION,
+                 TAXEL_KIND, ZETA, NodeObjects)
 from .sdo import ABORT_VALUE_RANGE, ABORT_VALUE_TOO_LOW
 
 AI_STATUS_NOT_VALID = 0x01
@@ -56,6 +57,21 @@ AI_STATUS_POSITIVE_OVERLOAD = 0x02
 AI_STATUS_NEGATIVE_OVERLOAD = 0x04
 
 _REAL32 = struct.Struct("<f")
+
+
+TAG_BITS = 6          # 0x2003 bits 2-7: the SYNC counter modulo 64
+TAG_MASK = (1 << TAG_BITS) - 1
+
+
+def tagged_decision(decision: int, counter: int | None) -> int:
+    """Object 0x2003 (UNSIGNED8): u_i in bits 0-1 as a 2-bit two's complement number (0b01 = +1,
+    0b11 = −1, the low bits of INTEGER8 +1/−1) and, in bits 2-7, the counter of the SYNC the
+    decision was sampled at modulo 64 (0 for a SYNC without counter).
+
+    The fusion centre counts a tagged decision only in the cycle opened by a SYNC with the
+    same counter modulo 64, so an answer to an earlier SYNC is never mixed into a later cycle
+    (no extra bus bit: u_i needs 2 of the byte's 8)."""
+    return ((counter or 0) & TAG_MASK) << 2 | (0b01 if decision > 0 else 0b11)
 
 
 def local_decision_pm1(observation: float, noise: float, zeta: float) -> int:
@@ -84,6 +100,10 @@ class Detector:
         self._cfg_store: dict | None = None
         # EDS encodings of the values sample() writes (INTEGER8 u_i, REAL32 X_i, U8 status)
         self._u_bytes = {u: objects.variable(LOCAL_DECISION, 0).encode_raw(u) for u in (1, -1)}
+        # 0x2003 per (u_i, counter modulo 64): 128 one-byte values
+        tagged = objects.variable(TAGGED_DECISION, 0)
+        self._tagged_bytes = {(u, c): tagged.encode_raw(tagged_decision(u, c))
+                              for u in (1, -1) for c in range(TAG_MASK + 1)}
         self._pv_is_real32 = objects.variable(AI_INPUT_PV, 1).data_type == datatypes.REAL32
         self._status_bytes: dict[int, bytes] = {}
         self.reset()
@@ -120,8 +140,9 @@ class Detector:
             # objdictgen refuses and canopen drops)
             raise SdoAbortedError(ABORT_VALUE_TOO_LOW)
 
-    def sample(self, reading: float) -> None:
-        """X_i of one SYNC: fault checks, decision (eqs 1-4), OD update."""
+    def sample(self, reading: float, counter: int | None = None) -> None:
+        """X_i of one SYNC (``counter``: its counter byte, None without): fault checks,
+        decision (eqs 1-4), OD update."""
         store = self._local.data_store
         cfg = self._cfg
         if cfg is None or self._cfg_store is not store:
@@ -155,6 +176,8 @@ class Detector:
             decision = -1  # faulted: "absent", flagged by 0x6150 and 0x1001
         # straight into the data store, EDS encodings (what NodeObjects.store / encode_raw would write)
         (store.get(LOCAL_DECISION) or store.setdefault(LOCAL_DECISION, {}))[0] = self._u_bytes[decision]
+        (store.get(TAGGED_DECISION) or store.setdefault(TAGGED_DECISION, {}))[0] = \
+            self._tagged_bytes[decision, (counter or 0) & TAG_MASK]
         if self._pv_is_real32:
             (store.get(AI_INPUT_PV) or store.setdefault(AI_INPUT_PV, {}))[1] = raw
         else:

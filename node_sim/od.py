@@ -1,7 +1,7 @@
 """The taxel node's object dictionary: loaded from ``eds/taxel_node.eds``, never re-declared.
 
 The EDS (CiA 306 format; CiA 301 communication objects, CiA 404 analog-input objects and the
-manufacturer objects 0x2000-0x2002 of the local detector, chapter eqs 1-4) is the single
+manufacturer objects 0x2000-0x2003 of the local detector, chapter eqs 1-4) is the single
 source of the object dictionary. :func:`load_od` imports it with ``canopen.import_od``.
 
 canopen 2.4.1 loses some EDS content at import (documented and pinned by
@@ -57,6 +57,8 @@ COB_29BIT = 0x20000000
 COB_NO_RTR = 0x40000000       # TPDO COB-ID bit 30: no RTR allowed (the twins never answer a remote frame)
 # manufacturer area
 LOCAL_DECISION = 0x2000       # u_i, INTEGER8 +1/-1 (eqs 2-3)
+TAGGED_DECISION = 0x2003      # u_i in bits 0-1, SYNC counter mod 64 in bits 2-7 (TPDO1 with a SYNC counter)
+SYNC_WINDOW = 0x1007          # synchronous window length, µs (0 = none)
 DETECTOR = 0x2001             # sub 1 ζ mV, 2 N_i mV, 3 kind, 4 x, 5 y
 FAULT_DETECTION = 0x2002      # sub 1 full scale mV, 2 stuck-sample count M (0 = off)
 # CiA 404 analog input, channel 1 (sub 1)

@@ -133,6 +133,7 @@ class _Channel(can.Listener):
         self.lost_syncs = 0
         self._last_counter: int | None = None
         self._overflow = 0                      # the nodes' 0x1019 (read with the SYNC map)
+        self._window = 0                        # the nodes' 0x1007, µs (read with the SYNC map)
         self._sync_length_error = False
         self._rx_time = 0.0
         self.late_syncs = 0  # SYNCs handled after their synchronous window (0x1007): no TPDO sent
@@ -184,6 +185,9 @@ class _Channel(can.Listener):
             # one, should a master give them different values)
             overflows = [n.sync.overflow for n in self.nodes.values()]
             self._overflow = max(set(overflows), key=overflows.count) if overflows else 0
+            # and their synchronous window length 0x1007 (µs, 0 = none), likewise
+            windows = [n.objects.read(odx.SYNC_WINDOW) for n in self.nodes.values()]
+            self._window = max(set(windows), key=windows.count) if windows else 0
         sync_nodes = self._sync_map.get(can_id)
         if sync_nodes:
             if len(data) != (1 if self._overflow else 0):
@@ -194,7 +198,7 @@ class _Channel(can.Listener):
                         node.emcy.send(0x8240, 0x11)  # error register: generic + communication
                 return
             self._sync_length_error = False
-            window = self.rig.scene.bus.sync_window
+            window = self._window
             if window and self._rx_time and (time.time() - self._rx_time) * 1e6 > window:
                 # CiA 301 0x1007: a synchronous PDO is not sent after the window; a SYNC handled
                 # that late (a loaded host) only advances the cycle count
@@ -458,6 +462,9 @@ class Rig:
         # bit 30 set: no RTR (the twins never answer a remote frame), as in the EDS defaults
         tpdo1_cob, tpdo2_cob = odx.COB_NO_RTR | 0x180 + node_id, odx.COB_NO_RTR | 0x280 + node_id
         values[(odx.TPDO_COMM[0], 1)] = tpdo1_cob | COB_INVALID if raw else tpdo1_cob
+        # the cycle tag (decision mode with a SYNC counter): TPDO1 maps 0x2003 instead of 0x2000
+        values[(odx.TPDO_MAP[0], 1)] = (odx.TAGGED_DECISION if bus.cycle_tag else odx.LOCAL_DECISION) << 16 | 8
+        values[(odx.SYNC_WINDOW, 0)] = int(bus.sync_window)
         values[(odx.TPDO_COMM[1], 1)] = tpdo2_cob if raw else tpdo2_cob | COB_INVALID
         return values
 

@@ -39,7 +39,7 @@ SYNC_GENERATE = 0x40000000    # 0x1005 bit 30: this node would produce SYNC (ref
 class SyncConsumer:
     """One node's SYNC consumer (see module docstring).
 
-    ``sample(reading)`` is the application's per-SYNC step, ``tpdos_on_sync(counter)`` the
+    ``sample(reading, counter)`` is the application's per-SYNC step, ``tpdos_on_sync(counter)`` the
     TPDO engine's; ``node`` is asked only whether it is silent.
     """
 
@@ -81,6 +81,6 @@ class SyncConsumer:
             return
         self.last_cycle = cycle
         self.last_counter = counter
-        self._sample(float(reading))
+        self._sample(float(reading), counter)
         if state == OPERATIONAL:
             self._tpdos_on_sync(counter)

@@ -67,6 +67,12 @@ class BusSpec:
             return self.sync_window_us
         return int(round(self.sync_period_ms * 1000)) * 4 // 5
 
+    @property
+    def cycle_tag(self) -> bool:
+        """TPDO1 carries a cycle tag (object 0x2003: u_i in bits 0-1, the SYNC counter of the
+        sampling SYNC modulo 64 in bits 2-7): decision mode with a SYNC counter (0x1019 > 0)."""
+        return self.mode == "decision" and self.sync_counter > 0
+
 
 @dataclass(frozen=True)
 class MasterSpec:

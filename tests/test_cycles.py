@@ -245,3 +245,53 @@ def test_hold_mode_keeps_last_values_for_non_every_sync_transmission():
     closed = a.feed(30 * MS, 0, 0x80, b"")
     assert closed.decisions.tolist() == [0, 0, 0] and closed.held_decisions.tolist() == [1, 1, 1]
     assert np.array_equal(closed.received, [False] * 3)
+
+
+def tagged(node_id, u, counter):
+    """TPDO1 mapping 0x2003: u_i in bits 0-1 (0b01 = +1, 0b11 = -1), counter mod 64 in bits 2-7
+    (written out here, not taken from node_sim, so the two sides are checked against the spec)."""
+    return 0x180 + node_id, bytes([(counter % 64) << 2 | (0b01 if u > 0 else 0b11)])
+
+
+def test_tagged_decision_counts_only_in_the_cycle_of_its_sync():
+    sc = scene(sync_counter=240)
+    assert sc.bus.cycle_tag
+    a = CycleAssembler(sc)
+    boot_all(a, sc)
+    a.feed(10 * MS, 0, 0x80, bytes([70]))                  # cycle 0, counter 70 (tag 6)
+    a.feed(10 * MS + 100, 0, *tagged(10, 1, 70))
+    a.feed(10 * MS + 200, 0, *tagged(11, -1, 70))
+    # node 12 answers cycle 0 only after the next SYNC went out, stamped later than it: by time
+    # alone it looks like an answer to cycle 1; its tag says cycle 0 - late, never counted in 1
+    closed0 = a.feed(20 * MS, 0, 0x80, bytes([71]))
+    assert closed0.decisions.tolist() == [1, -1, 0] and closed0.closed_by == "sync"  # no 0x1007 here
+    a.feed(20 * MS + 100, 0, *tagged(12, 1, 70))
+    assert a.counters()["late"] == 1 and not a.got1[2]
+    a.feed(20 * MS + 200, 0, *tagged(12, -1, 71))          # its own answer to cycle 1: counted
+    a.feed(20 * MS + 300, 0, *tagged(10, 1, 71 + 64))      # the tag is the counter modulo 64
+    closed1 = a.feed(20 * MS + 400, 0, *tagged(11, 1, 71))
+    assert closed1.cycle == 1 and closed1.closed_by == "complete"
+    assert closed1.decisions.tolist() == [1, 1, -1]
+    assert a.counters()["tpdo1"] == 5
+
+
+def test_tagged_decision_codes_outside_the_two_values_are_bad():
+    sc = scene(sync_counter=4)
+    a = CycleAssembler(sc)
+    boot_all(a, sc)
+    a.feed(10 * MS, 0, 0x80, b"\x01")
+    a.feed(10 * MS + 1, 0, 0x180 + 10, bytes([1 << 2 | 0b00]))
+    a.feed(10 * MS + 2, 0, 0x180 + 10, bytes([1 << 2 | 0b10]))
+    a.feed(10 * MS + 3, 0, 0x180 + 10, b"\x01\x00")         # DLC 2
+    assert a.counters()["bad_value"] == 2 and a.counters()["bad_dlc"] == 1
+    assert a.decisions.tolist() == [0, 0, 0]
+
+
+def test_untagged_scenes_keep_the_integer8_decision():
+    sc = scene(sync_counter=0)
+    assert not sc.bus.cycle_tag and not scene(sync_counter=4, mode="raw").bus.cycle_tag
+    a = CycleAssembler(sc)
+    boot_all(a, sc)
+    a.feed(10 * MS, 0, 0x80, b"")
+    a.feed(10 * MS + 1, 0, 0x180 + 10, bytes([1 << 2 | 0b01]))  # a tagged byte: not INTEGER8 +-1
+    assert a.counters()["bad_value"] == 1

@@ -206,7 +206,7 @@ def test_sync_consumer_gates_on_silence_and_nmt_state():
     node = SimpleNamespace(silent=False)
     slave = nmt.NmtSlave(3, lambda can_id, data: None)
     samples, tpdos = [], []
-    consumer = SyncConsumer(node, slave, None, samples.append, tpdos.append)
+    consumer = SyncConsumer(node, slave, None, lambda x, counter: samples.append((x, counter)), tpdos.append)
     consumer.on_sync(0, 1.0, None)                   # INITIALISING: nothing
     slave.boot()
     consumer.on_sync(1, 2, 7)                        # pre-operational: sample, no TPDO
@@ -214,6 +214,6 @@ def test_sync_consumer_gates_on_silence_and_nmt_state():
     consumer.on_sync(2, 3.0, 8)
     node.silent = True
     consumer.on_sync(3, 4.0, 9)                      # dead node: nothing
-    assert samples == [2.0, 3.0] and type(samples[0]) is float
+    assert samples == [(2.0, 7), (3.0, 8)] and type(samples[0][0]) is float  # the counter goes to 0x2003
     assert tpdos == [8]
     assert (consumer.last_cycle, consumer.last_counter) == (2, 8)

@@ -175,7 +175,10 @@ def test_sync_counter_gap_counts_lost_syncs():
             assert requested == [0, 1, 3, 4, 6]
             assert rig.lost_syncs() == 2
             frames = rec.wait_count(0x181, 5)
-            assert [struct.unpack("<b", bytes(f.data))[0] for f in frames] == [-1, 1, 1, 1, 1]
+            # TPDO1 maps the tagged decision 0x2003 (a SYNC counter is configured): u_i in
+            # bits 0-1 (0b11 = -1, 0b01 = +1), the SYNC's counter modulo 64 in bits 2-7
+            assert [(f.data[0] & 3, f.data[0] >> 2) for f in frames] == [
+                (0b11, 1), (0b01, 2), (0b01, 4), (0b01, 1), (0b01, 3)]
     finally:
         rec.close()
 

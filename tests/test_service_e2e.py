@@ -197,11 +197,12 @@ def test_trace_is_written_in_stream_order_after_each_closed_cycle(matrix):
         feed(0x700 + taxel.node_id, b"\x00")  # boot-up
     feed(0x000, bytes([0x01, 0]))  # NMT start all
     assert written == []  # no cycle closed, fewer than TRACE_BATCH events: still queued
-    feed(0x080, b"")
+    assert matrix.bus.cycle_tag  # a SYNC counter: TPDO1 = u_i in bits 0-1 + the counter in bits 2-7
+    feed(0x080, b"\x01")
     for taxel in matrix.taxels[:-1]:
-        feed(0x180 + taxel.node_id, b"\xff")
+        feed(0x180 + taxel.node_id, bytes([1 << 2 | 0b11]))  # -1, SYNC counter 1
     assert written == [] and not closed
-    feed(0x180 + matrix.taxels[-1].node_id, b"\x01")  # the last TPDO closes the cycle
+    feed(0x180 + matrix.taxels[-1].node_id, bytes([1 << 2 | 0b01]))  # the last TPDO closes the cycle
     assert len(closed) == 1 and closed[0].closed_by == "complete"
     assert written == fed  # everything up to the closing frame, in order
     for _ in range(TRACE_BATCH):

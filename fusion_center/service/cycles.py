@@ -31,7 +31,15 @@ everything it decides is a function of that stream, so feeding the trace back
   or any PDO while no cycle is open (after an early close, before the first SYNC) - is
   counted as ``late`` and dropped, never mixed into a finished cycle.
 
-* A PDO whose own time stamp precedes the time stamp of the SYNC that opened the cycle was
+* With a SYNC counter (``sync_counter`` > 0) in decision mode, TPDO1 carries a *cycle tag*
+  (object 0x2003: u_i in bits 0-1 as a 2-bit two's complement number, 0b01 = +1, 0b11 = -1;
+  bits 2-7 the counter of the SYNC the node sampled, modulo 64). A decision is counted only
+  in the cycle opened by the SYNC with that counter; any other tag is ``late``. This does not
+  depend on any clock: a PDO delayed by a loaded host, a queue or a flood is never counted in
+  a later cycle. Raw mode (TPDO2, a full REAL32) and scenes without a SYNC counter carry no
+  tag and rely on the time stamps below.
+
+* Untagged PDOs: a PDO whose own time stamp precedes the time stamp of the SYNC that opened the cycle was
   sent (virtual bus: stamped by the sender) or received (SocketCAN, udp_multicast: stamped by
   the kernel on reception) before that SYNC, so it answers an earlier one: ``late``, never
   counted in the open cycle. The master stamps its own SYNC *before* handing it to the bus,
@@ -92,6 +100,8 @@ FLAG_FD = 8
 
 STATE_UNKNOWN = -1
 STATE_RESETTING = -2  # NMT reset sent: silent until its boot-up
+
+TAG_MASK = 0x3F  # the cycle tag of object 0x2003 (bits 2-7): the SYNC counter modulo 64
 
 EMCY_PER_CYCLE = 16  # EMCY entries a record carries at most (the rest are counted: emcy_dropped)
 
@@ -203,6 +213,7 @@ class CycleAssembler:
         self.consumer_us = int(bus.heartbeat_consumer_ms) * 1000
         self.sync_overflow = int(bus.sync_counter)
         self.window_us = int(bus.sync_window)  # 0x1007, 0 = no window
+        self.tagged = bus.cycle_tag  # TPDO1 maps 0x2003 (u_i + SYNC counter mod 64)
 
         self.counts = [0] * len(COUNTER_NAMES)
         self.t0_us: int | None = None
@@ -300,16 +311,28 @@ class CycleAssembler:
             if size != 1:
                 return self._bad(C_BAD_DLC)
             value = data[0]
-            if value == 1:
+            if self.tagged:  # object 0x2003: u_i in bits 0-1, SYNC counter mod 64 in bits 2-7
+                code = value & 0b11
+                if code == 0b01:
+                    u = 1
+                elif code == 0b11:
+                    u = -1
+                else:
+                    return self._bad(C_BAD_VALUE)
+                # the tag names the SYNC it answers: the open cycle's, or it is late
+                stale = self.sync_counter is None or (value >> 2) != (self.sync_counter & TAG_MASK)
+            elif value == 1:  # object 0x2000: INTEGER8 +1 / -1
                 u = 1
+                stale = raw < self.sync_raw
             elif value == 0xFF:
                 u = -1
+                stale = raw < self.sync_raw
             else:
                 return self._bad(C_BAD_VALUE)
             self.last_heard[idx] = t
             self.state[idx] = STATE_OPERATIONAL
             self.held_decisions[idx] = u
-            if not self.is_open or self.got1[idx] or raw < self.sync_raw:
+            if not self.is_open or self.got1[idx] or stale:
                 counts[C_LATE] += 1
                 self.late_since += 1
                 return None

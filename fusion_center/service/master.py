@@ -60,6 +60,11 @@ COB_INVALID = 0x8000_0000
 BOOT_QUIET_S = 0.05  # after the reset at start: no new boot-up for this long before configuring
 HEARTBEAT_PRODUCER = 0x1017
 TPDO_COMM = (0x1800, 0x1801)
+TPDO_MAP = (0x1A00, 0x1A01)
+SYNC_WINDOW = 0x1007
+SYNC_OVERFLOW = 0x1019
+LOCAL_DECISION = 0x2000
+TAGGED_DECISION = 0x2003
 DETECTOR = 0x2001
 AI_SCALING_FACTOR = 0x6126
 AI_SCALING_OFFSET = 0x6127
@@ -83,6 +88,8 @@ def node_configuration(scene: Scene, index: int) -> list[tuple[int, int, object]
     if t.intercept is not None:
         writes.append((AI_SCALING_OFFSET, 1, float(t.intercept)))
     writes.append((HEARTBEAT_PRODUCER, 0, int(bus.heartbeat_producer_ms)))
+    writes.append((SYNC_OVERFLOW, 0, int(bus.sync_counter)))
+    writes.append((SYNC_WINDOW, 0, int(bus.sync_window)))
     for comm, base, enabled in ((TPDO_COMM[0], BASE_TPDO1, bus.mode != "raw"),
                                 (TPDO_COMM[1], BASE_TPDO2, bus.mode == "raw")):
         cob = base + t.node_id
@@ -90,6 +97,11 @@ def node_configuration(scene: Scene, index: int) -> list[tuple[int, int, object]
         writes.append((comm, 2, int(bus.transmission_type)))
         writes.append((comm, 3, int(bus.inhibit_time_100us)))
         writes.append((comm, 5, int(bus.event_timer_ms)))
+        if comm == TPDO_COMM[0]:
+            # TPDO1 maps the tagged decision 0x2003 when the SYNC carries a counter (the cycle
+            # tag), else u_i 0x2000; CiA 301: mapping only while the PDO is invalid, sub 0 first
+            entry = (TAGGED_DECISION if bus.cycle_tag else LOCAL_DECISION) << 16 | 8
+            writes += [(TPDO_MAP[0], 0, 0), (TPDO_MAP[0], 1, entry), (TPDO_MAP[0], 0, 1)]
         if enabled:
             writes.append((comm, 1, cob))
     return writes
