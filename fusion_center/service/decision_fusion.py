@@ -24,7 +24,10 @@ in every rule:
   expressions as :mod:`fusion_center.core.baselines`, so the sums are bit-identical) and summed over
   the cycle's present/absent taxels;
 * the preferential rule (eq 7) calls :func:`fusion_center.core.rules.preferential` (it needs the
-  order of the decisions).
+  order of the decisions) and decides with
+  :func:`fusion_center.core.preferential_band.band_decision`: the band edges are compared with
+  the exact U_G (its integer counts, mpmath) wherever the float U_G lies within its rounding
+  error of an edge, as the count rules' certified counts do.
 
 The pipeline (:mod:`fusion_center.service.pipeline`) calls this once per new decision vector
 only: it caches the rule results per vector.
@@ -38,6 +41,7 @@ from functools import lru_cache
 import numpy as np
 
 from ..core import baselines, curves, poisson_binomial, rules, thresholds
+from ..core.preferential_band import band_decision
 from taxel_net.errors import ParameterError
 from taxel_net.scene import Scene
 from .records import jsonable
@@ -264,14 +268,9 @@ class DecisionFusion:
         if name == "preferential":
             value = rules.preferential(u, f.p, f.q, enc)
             th = preferential_threshold_cached(n, f.xi, f.alpha, f.p, f.q, enc)
-            if th.threshold_mean is None:
-                decision = "undecided"
-            elif value >= th.threshold_final:
-                decision = "H1"
-            elif value < th.threshold_initial:
-                decision = "H0"
-            else:
-                decision = "undecided"  # inside the threshold band: the fuzzy zone (eqs 19-20)
+            # H1 at or above the band, H0 below it, undecided inside (the fuzzy zone, eq 20) or
+            # without a band; certified: the exact U_G where rounding cannot decide an edge
+            decision = band_decision(th, value, u)
             p = curves.p_preferential(value, th.g_max, f.xi)
             return {"U_G": value, "threshold": th.threshold_mean, "band": [th.threshold_initial, th.threshold_final],
                     "g_max": th.g_max, "decision": decision, "p_h1": p}
