@@ -7,7 +7,7 @@ import sys
 
 from .run import add_mode_argument
 
-HELP = "re-fuse a recorded CAN trace (python-can LogReader: .log, .asc, .blf, .csv) offline"
+HELP = "re-fuse a recorded CAN trace (python-can LogReader: .log, .asc, .blf, .trc, .csv) offline"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -16,16 +16,31 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json-lines", metavar="OUT", default=None,
                         help="write the records here (default: print them on stdout)")
     add_mode_argument(parser)
+    parser.add_argument("--force", action="store_true",
+                        help="replay even when the trace does not match the scene (a channel the scene does "
+                             "not have, node-IDs of another scene, the other mode, a .csv of several channels)")
 
 
 def run(args) -> int:
+    from pathlib import Path
+
+    from taxel_net.errors import UsageError
     from taxel_net.scene import load_scene
     from ..service import replay_trace
     from ..service.records import dumps
+    from ..service.traces import check_trace
     from .run import apply_mode, setup_logging
 
     setup_logging()
     scene = apply_mode(load_scene(args.scene), args.mode)  # the mode of the recorded run
+    if not args.force:
+        try:
+            check_trace(scene, args.trace)  # before anything is written
+        except UsageError:
+            out = Path(args.json_lines) if args.json_lines else None
+            if out is not None and out.exists():
+                out.unlink()  # a log of an earlier replay must not pass for this one's
+            raise
     on_record = None if args.json_lines else (lambda r: print(dumps(r)))
     records, counters = replay_trace(scene, args.trace, json_lines=args.json_lines, on_record=on_record)
     out = sys.stderr if not args.json_lines else sys.stdout

@@ -11,6 +11,8 @@ from pathlib import Path
 from typing import Callable
 
 import can
+from can.io.logger import MESSAGE_WRITERS as _WRITERS  # what python-can writes, by extension
+from can.io.player import MESSAGE_READERS as _READERS  # ... and reads back
 
 from taxel_net.errors import UsageError
 from taxel_net.scene import Scene
@@ -19,27 +21,63 @@ from .pipeline import CyclePipeline
 from .records import RecordWriter
 from .stream import EventStream
 
-TRACE_SUFFIXES = (".log", ".asc", ".blf", ".csv", ".trc", ".mf4", ".txt", ".db")
+TRACE_SUFFIXES = tuple(sorted(_WRITERS))
+# formats whose frames come back without their channel (python-can's CSV and SQLite):
+# single-channel scenes only
+CHANNELLESS_SUFFIXES = (".csv", ".db")
+# formats whose reader numbers channels from 1 (PCAN-View's TRC: the writer adds 1)
+ONE_BASED_SUFFIXES = (".trc",)
+# replay refuses a trace whose frames of node-IDs or COB-IDs the scene does not have exceed
+# this fraction of its frames (a trace of another scene), unless --force
+FOREIGN_FRACTION_MAX = 0.02
+
+
+def check_trace_target(path, scene: Scene | None = None) -> None:
+    """Refuse, before a run starts, a ``--log`` path replay could not use: an extension python-
+    can does not write or cannot read back (``.txt``), a writer whose optional package is not
+    installed (``.mf4`` needs asammdf), a format without channels (``.csv``, ``.db``) for a
+    scene with several channels. Raises :class:`UsageError` (one line)."""
+    if path is None:
+        return
+    p = Path(path)
+    suffix = p.suffix.lower()
+    readable = [s for s in TRACE_SUFFIXES if s in _READERS]
+    if suffix not in _WRITERS:
+        raise UsageError(f"--log {str(path)!r}: unknown trace format {p.suffix!r} "
+                         f"(python-can writes and reads back {', '.join(readable)})")
+    if suffix not in _READERS:
+        raise UsageError(f"--log {str(path)!r}: python-can writes {suffix} but cannot read it back, so it "
+                         f"cannot be replayed (use {', '.join(readable)})")
+    if suffix == ".mf4":
+        try:
+            import asammdf  # noqa: F401
+        except ImportError:
+            raise UsageError(f"--log {str(path)!r}: .mf4 needs the asammdf package (pip install "
+                             "'python-can[mf4]'), not installed here; .blf or .log need nothing more") from None
+    if scene is not None and suffix in CHANNELLESS_SUFFIXES and len(scene.bus.channels) > 1:
+        raise UsageError(f"--log {str(path)!r}: {suffix} stores no channel, and scene {scene.name!r} has "
+                         f"{len(scene.bus.channels)} channels: use .log, .asc, .blf or .trc")
 
 
 def open_trace_writer(path) -> can.Listener:
     """``can.Logger(path)``: the format follows the extension (.log candump, .asc, .blf, .csv...)."""
-    p = Path(path)
-    if p.suffix.lower() not in TRACE_SUFFIXES:
-        raise UsageError(f"--log {str(path)!r}: unknown trace format {p.suffix!r} "
-                         f"(python-can writes {', '.join(TRACE_SUFFIXES)})")
+    check_trace_target(path)
     try:
-        return can.Logger(str(p))
-    except (OSError, ValueError) as exc:
+        return can.Logger(str(Path(path)))
+    except (OSError, ValueError, NotImplementedError, ImportError) as exc:
         raise UsageError(f"--log {str(path)!r}: cannot be written: {exc}") from None
 
 
-def trace_channel(msg: can.Message) -> int:
-    """Scene channel index of a frame read back from a trace (see ``EventStream``)."""
+def trace_channel(msg: can.Message, suffix: str = "") -> int:
+    """Scene channel index of a frame read back from a trace of format ``suffix`` (see
+    ``EventStream``): python-can's readers give the channel as written (``can0`` -> 0, ASC and
+    BLF 0-based), TRC's from 1; CSV and SQLite none (channel 0)."""
     from can.util import channel2int
 
     channel = channel2int(msg.channel)
-    return 0 if channel is None else channel
+    if channel is None:
+        return 0
+    return channel - 1 if suffix.lower() in ONE_BASED_SUFFIXES else channel
 
 
 def replay_trace(scene: Scene, trace_path, *, json_lines=None, truth: bool = True,
@@ -58,19 +96,10 @@ def replay_trace(scene: Scene, trace_path, *, json_lines=None, truth: bool = Tru
     """
     p = Path(trace_path)
     name = str(trace_path)
+    suffix = p.suffix.lower()
     out = Path(json_lines) if json_lines is not None else None
     try:
-        if not p.is_file():
-            raise UsageError(f"trace {name!r} not found")
-        try:
-            reader = can.LogReader(str(p))
-        except Exception as exc:  # noqa: BLE001 - any content: one line naming the file
-            raise UsageError(f"trace {name!r} cannot be read: {_one_line(exc)}") from None
-        try:
-            _check_complete(p, reader)
-        except UsageError:
-            _stop(reader)
-            raise
+        reader = _open_reader(p)
     except UsageError:
         if out is not None and out.exists():
             out.unlink()  # a log of an earlier replay must not pass for this one's
@@ -88,7 +117,7 @@ def replay_trace(scene: Scene, trace_path, *, json_lines=None, truth: bool = Tru
         try:
             for msg in reader:
                 frames += 1
-                stream.receive(msg, trace_channel(msg))
+                stream.receive(msg, trace_channel(msg, suffix))
                 while closed_cycles:
                     record = pipeline.evaluate(closed_cycles.pop(0))
                     records.append(record)
@@ -116,6 +145,111 @@ def replay_trace(scene: Scene, trace_path, *, json_lines=None, truth: bool = Tru
     return records, assembler.counters()
 
 
+def _open_reader(p: Path):
+    """``can.LogReader`` of a complete trace, or :class:`UsageError` (one line naming it)."""
+    name = str(p)
+    if not p.is_file():
+        raise UsageError(f"trace {name!r} not found")
+    try:
+        reader = can.LogReader(str(p))
+    except Exception as exc:  # noqa: BLE001 - any content: one line naming the file
+        raise UsageError(f"trace {name!r} cannot be read: {_one_line(exc)}") from None
+    try:
+        _check_complete(p, reader)
+    except UsageError:
+        _stop(reader)
+        raise
+    return reader
+
+
+def check_trace(scene: Scene, trace_path) -> dict:
+    """Is this trace a recording of ``scene`` in ``scene.bus.mode``? One pass over the frames
+    before replay writes anything; :class:`UsageError` (one line: what does not match, the
+    counts, ``--force`` to replay anyway) when:
+
+    * a frame is on a channel the scene does not have (channel index as :func:`trace_channel`
+      maps it; e.g. a two-channel trace replayed with a one-channel scene);
+    * the trace format stores no channel (``.csv``, ``.db``) and the scene has several;
+    * more than :data:`FOREIGN_FRACTION_MAX` of the frames carry a node-ID that is not a node of
+      the scene on that channel, or a COB-ID of no CANopen object the scene uses (a trace of
+      another scene);
+    * the nodes' PDOs are those of the other mode (TPDO2 X_i in a decision-mode replay, TPDO1
+      u_i in a raw-mode one).
+
+    Returns the counts (``frames``, ``channels``, ``foreign``, ``tpdo1``, ``tpdo2``).
+    """
+    from .decoder import (BASE_EMCY, BASE_HEARTBEAT, BASE_SDO_REQUEST, BASE_SDO_RESPONSE, BASE_TPDO1,
+                          BASE_TPDO2, COB_NMT, COB_SYNC, COB_TIME)
+
+    p = Path(trace_path)
+    name = str(trace_path)
+    suffix = p.suffix.lower()
+    n_channels = len(scene.bus.channels)
+    if suffix in CHANNELLESS_SUFFIXES and n_channels > 1:
+        raise UsageError(f"trace {name!r}: {suffix} stores no channel, and scene {scene.name!r} has {n_channels} "
+                         "channels: replay a .log, .asc, .blf or .trc trace of the run (or --force: all on channel 0)")
+    nodes = [set() for _ in range(n_channels)]
+    for t in scene.taxels:
+        nodes[t.channel].add(t.node_id)
+    bases = (BASE_EMCY, BASE_TPDO1, BASE_TPDO2, BASE_SDO_RESPONSE, BASE_SDO_REQUEST, BASE_HEARTBEAT)
+    frames = 0
+    off_channel: dict[int, int] = {}
+    foreign_nodes: dict[int, int] = {}
+    foreign_cobs: dict[int, int] = {}
+    tpdo = {BASE_TPDO1: 0, BASE_TPDO2: 0}
+    reader = _open_reader(p)
+    try:
+        for msg in reader:
+            frames += 1
+            channel = trace_channel(msg, suffix)
+            if not 0 <= channel < n_channels:
+                off_channel[channel] = off_channel.get(channel, 0) + 1
+                continue
+            if msg.is_error_frame or msg.is_extended_id:
+                continue  # counted as malformed by the replay itself, as live
+            cob = msg.arbitration_id
+            if cob in (COB_NMT, COB_SYNC, COB_TIME):
+                continue
+            base, node = cob & 0x780, cob & 0x7F
+            if base not in bases or node == 0:
+                foreign_cobs[cob] = foreign_cobs.get(cob, 0) + 1
+            elif node not in nodes[channel]:
+                foreign_nodes[node] = foreign_nodes.get(node, 0) + 1
+            elif base in tpdo:
+                tpdo[base] += 1
+    except Exception as exc:  # noqa: BLE001 - truncated, corrupted: any reader error
+        raise UsageError(f"trace {name!r}: unreadable after frame {frames}: {_one_line(exc)}") from None
+    finally:
+        _stop(reader)
+    force = "; --force replays it anyway"
+    if off_channel:
+        listed = ", ".join(f"{ch} ({count} frames)" for ch, count in sorted(off_channel.items()))
+        raise UsageError(f"trace {name!r}: frames on channel {listed}, but scene {scene.name!r} has channel(s) "
+                         f"0..{n_channels - 1} ({', '.join(scene.bus.channels)}){force}")
+    foreign = sum(foreign_nodes.values()) + sum(foreign_cobs.values())
+    if frames and foreign > FOREIGN_FRACTION_MAX * frames:
+        what = []
+        if foreign_nodes:
+            ids = sorted(foreign_nodes)
+            what.append(f"node-ID(s) {', '.join(map(str, ids[:8]))}{', ...' if len(ids) > 8 else ''} "
+                        f"({sum(foreign_nodes.values())} frames)")
+        if foreign_cobs:
+            cobs = sorted(foreign_cobs)
+            what.append(f"COB-ID(s) {', '.join(f'0x{c:03X}' for c in cobs[:8])}{', ...' if len(cobs) > 8 else ''} "
+                        f"({sum(foreign_cobs.values())} frames)")
+        raise UsageError(f"trace {name!r}: {foreign} of {frames} frames belong to no node of scene {scene.name!r}: "
+                         f"{' and '.join(what)}; recorded with another scene?{force}")
+    mode = scene.bus.mode
+    wanted, other = (BASE_TPDO1, BASE_TPDO2) if mode == "decision" else (BASE_TPDO2, BASE_TPDO1)
+    if tpdo[other] > tpdo[wanted]:
+        other_mode = "raw" if mode == "decision" else "decision"
+        raise UsageError(f"trace {name!r}: recorded in {other_mode} mode (TPDO1 u_i frames: {tpdo[BASE_TPDO1]}, "
+                         f"TPDO2 X_i frames: {tpdo[BASE_TPDO2]}), replayed in {mode} mode: give --mode {other_mode}"
+                         f"{force}")
+    return {"frames": frames, "channels": n_channels, "foreign": foreign,
+            "tpdo1": tpdo[BASE_TPDO1], "tpdo2": tpdo[BASE_TPDO2]}
+
+
 def _one_line(exc: BaseException) -> str:
     return " ".join(f"{type(exc).__name__}: {exc}".split())
 
@@ -131,7 +265,9 @@ def _stop(reader) -> None:
 
 def _check_complete(path: Path, reader) -> None:
     """Formats that say where they end: a BLF header carries the file size (written when the
-    writer closes the file), an ASC file ends with ``End TriggerBlock``."""
+    writer closes the file), an ASC file that begins a trigger block (``Begin Triggerblock``,
+    as python-can and Vector tools write it) ends with ``End TriggerBlock`` (can-utils'
+    ``log2asc`` writes no trigger block: nothing to check)."""
     suffix = path.suffix.lower()
     size = path.stat().st_size
     if suffix == ".blf":
@@ -141,8 +277,11 @@ def _check_complete(path: Path, reader) -> None:
                              f"(BLF header: {declared} bytes, file: {size} bytes)")
     elif suffix == ".asc":
         with open(path, "rb") as f:
+            begins = b"begin triggerblock" in f.read(4096).lower()
             f.seek(max(0, size - 256))
             tail = f.read().split(b"\n")
+        if not begins:
+            return
         last = next((line.strip() for line in reversed(tail) if line.strip()), b"")
         if last != b"End TriggerBlock":
             raise UsageError(f"trace {str(path)!r}: truncated (an ASC trace ends with 'End TriggerBlock'; "
