@@ -88,6 +88,14 @@ def run_once(scene, cycles: int, rate: float) -> dict:
 
 
 def check(scene, records, sent, counters) -> dict:
+    figures = check_records(scene, records)
+    return {"junk": sent[0], "junk_rate": sent[0] / sent[1] if sent[1] else 0.0, **figures,
+            "late": counters.get("late", 0)}
+
+
+def check_records(scene, records) -> dict:
+    """Records against the physics of their cycle: ``misattributed`` counts the records whose
+    received decisions differ from the twins' canonical decisions of that cycle (eqs 1-4)."""
     zeta = np.array([t.zeta_mv for t in scene.taxels])
     noise = np.array([t.noise_mv for t in scene.taxels])
     labels = [t.node_id for t in scene.taxels]
@@ -108,9 +116,8 @@ def check(scene, records, sent, counters) -> dict:
             # the received nodes' decisions must still be this cycle's
             absent = set(r["nodes_by_state"].get("silent", [])) | set(r["nodes_by_state"].get("missing", []))
             wrong += received_present != (physics_present - absent)
-    return {"junk": sent[0], "junk_rate": sent[0] / sent[1] if sent[1] else 0.0, "records": len(records),
-            "complete": complete, "degraded": degraded, "undecided": undecided, "misattributed": wrong,
-            "late": counters.get("late", 0)}
+    return {"records": len(records), "complete": complete, "degraded": degraded, "undecided": undecided,
+            "misattributed": wrong}
 
 
 def main(argv=None) -> int:

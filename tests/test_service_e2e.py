@@ -67,9 +67,6 @@ def test_demo_end_to_end_matches_the_physics(matrix, tmp_path):
     assert all(r["missing_nodes"] == [] for r in records)
 
 
-@pytest.mark.xfail(strict=False, reason=(
-    "issue 10 open: timing-sensitive since the synchronous window (cycles close at the window end); "
-    "fails intermittently on an idle 2-core host, see the session note"))
 def test_dropped_node_is_missing_within_its_consumer_time_and_recovers(matrix, tmp_path):
     # 20 ms SYNC period: less sensitive to a loaded machine; consumer time 300 ms = 15 cycles
     matrix = dataclasses.replace(matrix, bus=dataclasses.replace(matrix.bus, sync_period_ms=20.0))
@@ -114,7 +111,11 @@ def test_dropped_node_is_missing_within_its_consumer_time_and_recovers(matrix, t
     # recovery: it reports again after restore_node (no boot-up needed)
     back = records[restore_at + 2:]
     assert all(18 not in r["missing_nodes"] for r in back)
-    assert sum(18 not in r["silent_nodes"] for r in back) >= 0.8 * len(back)
+    # and is silent (its PDO late for the window) no more often than the node most often late on
+    # this host: the recovery is complete, whatever the load
+    silent_18 = sum(18 in r["silent_nodes"] for r in back)
+    others = [t.node_id for t in matrix.taxels if t.node_id != 18]
+    assert silent_18 <= max(sum(nid in r["silent_nodes"] for r in back) for nid in others) + 1
 
 
 def test_sigkill_loses_at_most_the_cycle_in_flight(tmp_path):

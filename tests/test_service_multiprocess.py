@@ -75,13 +75,22 @@ def test_node_sim_process_and_fusion_centre_on_udp_multicast(tmp_path):
     print(f"udp_multicast: {received}/{expected} decisions received, {lost} lost or late, "
           f"{summary.own_echoes} own frames looped back and dropped")
     # UDP on loopback loses hardly any frame; what is missing are answers that missed their
-    # synchronous window (0x1007) on a loaded host: the twins' process handled the SYNC too late
-    # and sent nothing, or the centre counted the PDO late - never put in the next cycle. On an
-    # idle machine nearly all arrive in time; on 2 shared, loaded cores 23-88 % did (before the
-    # window, up to a third of the "received" ones were answers to the previous SYNC)
+    # synchronous window (0x1007): the twins' process handled the SYNC too late and sent nothing
+    # (CiA 301), or the centre took the PDO after the window. How many do depends on how the
+    # host schedules two Python processes (on an idle machine nearly all arrive in time; on 2
+    # loaded cores as few as 12 % did), so no fraction is asserted here: bench/udp_two_process.py
+    # measures it. What must hold on any host: no decision is ever counted in a cycle it does
+    # not belong to - TPDO1 carries its SYNC's counter (the cycle tag, object 0x2003).
     late = summary.counters.get("late", 0)
-    print(f"udp_multicast: {late} PDOs late (after their window or stamped before their SYNC)")
-    assert received >= 0.2 * expected
+    print(f"udp_multicast: {late} PDOs late (after their window or tagged with another SYNC)")
+    sys.path.insert(0, str(ROOT / "bench"))
+    from junk_flood import check_records
+
+    figures = check_records(scene, records)
+    print(f"udp_multicast: {figures}")
+    assert scene.bus.cycle_tag
+    assert figures["misattributed"] == 0
+    assert received > 0 and figures["complete"] + figures["degraded"] > 0  # decisions crossed processes
     assert summary.own_echoes >= cycles  # our own SYNCs came back and were not fed twice
     assert summary.counters["sync"] == cycles
     assert summary.sdo_writes > 0
