@@ -58,10 +58,13 @@ def _virtual_time_service(tmp_path, keep_records):
     scene = load_scene(MATRIX)
     service = FusionService(scene, interface="virtual", channels=[f"lr-{uuid.uuid4().hex[:8]}"],
                             json_lines=tmp_path / "log.jsonl", keep_records=keep_records)
+    assert scene.bus.cycle_tag and scene.bus.sync_counter == 64
+    # SYNC counter c = 1..64 (index c - 1); TPDO1 = u_i in bits 0-1 (0b11 = -1, 0b01 = +1) and c mod 64
     frames = {
-        "sync": can.Message(arbitration_id=0x80, data=b"", is_extended_id=False),
-        "tpdo": [[can.Message(arbitration_id=0x180 + t.node_id, data=bytes([v]), is_extended_id=False)
-                  for v in (0xFF, 0x01)] for t in scene.taxels],
+        "sync": [can.Message(arbitration_id=0x80, data=bytes([c]), is_extended_id=False) for c in range(1, 65)],
+        "tpdo": [[[can.Message(arbitration_id=0x180 + t.node_id, data=bytes([(c % 64) << 2 | code]),
+                               is_extended_id=False) for code in (0b11, 0b01)] for c in range(1, 65)]
+                 for t in scene.taxels],
         "hb": [can.Message(arbitration_id=0x700 + t.node_id, data=b"\x05", is_extended_id=False)
                for t in scene.taxels],
     }
@@ -73,12 +76,13 @@ def _virtual_time_service(tmp_path, keep_records):
             k = state["k"]
             state["k"] += 1
             t = 1.0 + 0.01 * k
-            frames["sync"].timestamp = t
+            sync = frames["sync"][k % 64]
+            sync.timestamp = t
             service.master.sync_sent_at[k] = 0.0
-            receive(frames["sync"], 0)
+            receive(sync, 0)
             contact = (k % 200) >= 60 and (k % 200) < 140
-            for i, pair in enumerate(frames["tpdo"]):
-                msg = pair[1 if contact and i < 6 else 0]
+            for i, by_counter in enumerate(frames["tpdo"]):
+                msg = by_counter[k % 64][1 if contact and i < 6 else 0]
                 msg.timestamp = t + 2e-4
                 receive(msg, 0)
             if k % 10 == 0:
@@ -189,3 +193,14 @@ def test_sigkill_loses_at_most_the_cycle_in_flight_of_the_candump_trace(tmp_path
         pass
     assert records >= 60
     assert syncs >= records - 1, (syncs, records)
+
+
+def test_summary_stages_are_those_run_in_any_cycle_in_pipeline_order():
+    from fusion_center.service.aggregates import RunAggregates
+
+    agg = RunAggregates()
+    agg.add({"decision": "H1", "stages_run": ["area"]})                            # no PDO in this cycle
+    agg.add({"decision": "H1", "stages_run": ["fusion", "area", "contact_type"]})
+    agg.add({"decision": "undecided", "stages_run": ["slip", "area"]})
+    agg.add({"decision": "undecided", "stages_run": ["area"]})                     # the last record
+    assert agg.stages_run == ["fusion", "area", "contact_type", "slip"]

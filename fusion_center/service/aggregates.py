@@ -5,7 +5,8 @@ number of cycles (issue 10: a long-running centre kept every record and latency 
   bin width, 930 bins) with exact count, min, max and sum; a percentile is the upper edge of
   its bin clamped to [min, max], so it is within 2 % of the exact order statistic.
 * :class:`RunAggregates`: counters over the records (decisions, agreement of the decision and
-  of every rule with the truth, degraded cycles, the last record's ``stages_run``,
+  of every rule with the truth, degraded cycles, the stages run in any cycle (``stages_run``,
+  in pipeline order),
   ``nodes_by_state`` totals), fed one record at a time.
 """
 
@@ -13,6 +14,13 @@ from __future__ import annotations
 
 import math
 from collections import Counter
+
+
+STAGE_ORDER = ("fusion", "forces", "area", "contact_type", "slip")  # service.pipeline's order
+
+
+def _stage_rank(stage: str) -> tuple[int, str]:
+    return (STAGE_ORDER.index(stage) if stage in STAGE_ORDER else len(STAGE_ORDER), stage)
 
 
 class LatencyHistogram:
@@ -85,6 +93,7 @@ class RunAggregates:
         self.rule_agree: Counter = Counter()
         self.degraded = 0
         self.stages_run: list[str] = []
+        self._stages_seen: set[str] = set()
         self.undecided_by_integrity = 0
         self.node_state_cycles: Counter = Counter()  # state -> node-cycles in that state
 
@@ -110,7 +119,12 @@ class RunAggregates:
                     self.rule_agree[name] += verdict == truth
         if record.get("degraded"):
             self.degraded += 1
-        self.stages_run = record.get("stages_run", self.stages_run)
+        for stage in record.get("stages_run") or ():
+            if stage not in self._stages_seen:
+                self._stages_seen.add(stage)
+                # pipeline order, whatever cycle ran a stage first (a cycle with no PDO runs
+                # neither fusion nor contact type: the summary does not depend on which ones)
+                self.stages_run = sorted(self._stages_seen, key=_stage_rank)
         for state, nodes in (record.get("nodes_by_state") or {}).items():
             self.node_state_cycles[state] += len(nodes)
 
