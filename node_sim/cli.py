@@ -1,14 +1,23 @@
 """``node-sim``: start every taxel node twin of a scene on a CAN bus and run until stopped.
 
-    node-sim --scene scenes/matrix57.toml [--interface virtual|udp_multicast|socketcan|...]
-             [--channel CH ...] [--bitrate B] [--seed S] [--bus-option KEY=VALUE ...]
+    node-sim --scene scenes/matrix57.toml [-i INTERFACE] [-c CH[,CH]] [-b BITRATE]
+             [--bus-kwargs KEY=VALUE ...] [--seed S]
 
-One bus per scene channel (``bus.channels``); ``--channel`` is given once per scene channel
-(default: the scene's channel names, which suit the ``virtual`` interface). Any python-can
-interface works by name; ``--bus-option`` passes extra ``can.Bus`` keyword arguments (e.g.
-``port=43113`` for udp_multicast). Prints one "ready" line on stdout once every node has
-sent its boot-up, then runs until SIGINT/SIGTERM and shuts down cleanly (exit 0). A bad scene,
-an unknown interface, a channel that cannot be opened or a missing EDS exit 2 with one line.
+The bus flags are python-can's own (``can.cli.add_bus_arguments``: ``-i/--interface``,
+``-c/--channel``, ``-b/--bitrate``, ``--fd``, ``--data-bitrate``, ``--timing``,
+``--bus-kwargs``); what no flag gives comes from python-can's configuration as for ``can.Bus``
+(``can.util.load_config``: ``CAN_INTERFACE``/``CAN_CHANNEL``/``CAN_BITRATE``/``CAN_CONFIG``,
+``~/.canrc`` ...). No interface anywhere exits 2 saying how to give one (a ``virtual`` bus in
+its own process reaches nobody). One bus per scene channel (``bus.channels``): ``-c a,b`` (or
+``-c a -c b``) gives one bus channel per scene channel (default: the scene's channel names).
+``-b`` takes 125k..1M (``500k``, ``1M`` or a number); ``--bus-option KEY=VALUE`` (repeatable)
+is the older spelling of ``--bus-kwargs``. Prints one "ready" line on stdout once every node
+has sent its boot-up, then runs until SIGINT/SIGTERM and shuts down cleanly (exit 0). A bad
+scene, an unknown interface, a bit rate out of range, a channel that cannot be opened or a
+missing EDS exit 2 with one line.
+
+The fusion centre's commands share this plumbing (``fusion_center.commands``); the twins
+import nothing from the centre, so the few lines below are their own.
 """
 
 from __future__ import annotations
@@ -40,34 +49,130 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message}\n")
 
 
-def _bus_option(text: str) -> tuple[str, object]:
-    if "=" not in text:
-        raise argparse.ArgumentTypeError(f"{text!r}: expected KEY=VALUE")
-    key, value = text.split("=", 1)
-    low = value.lower()
-    if low in ("true", "false"):
-        return key, low == "true"
-    for conv in (int, float):
-        try:
-            return key, conv(value)
-        except ValueError:
-            pass
-    return key, value
+BITRATE_RANGE = (125_000, 1_000_000)  # classic CAN nominal bit rates (CiA 301: 125k..1M)
+DATA_BITRATE_MAX = 8_000_000
+
+
+def _bitrate(text: str) -> int:
+    """``500000``, ``500k``, ``1M`` -> bit/s (the range is checked after parsing)."""
+    item = str(text).strip().lower().replace("_", "")
+    scale = 1000 if item.endswith("k") else 1_000_000 if item.endswith("m") else 1
+    try:
+        value = float(item.rstrip("km")) * scale
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a bit rate (e.g. 500000, 500k or 1M)") from None
+    if value != int(value):
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number of bit/s")
+    return int(value)
+
+
+class _Channels(argparse.Action):
+    """``-c`` given again adds a channel (``-c a -c b`` = ``-c a,b``)."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        before = getattr(namespace, self.dest, None)
+        setattr(namespace, self.dest, values if before is None else f"{before},{values}")
 
 
 def build_parser() -> argparse.ArgumentParser:
+    import can.cli
+
     p = _Parser(prog="node-sim", description="Run a scene's CANopen taxel node twins on a CAN bus.")
     p.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     p.add_argument("--scene", required=True, help="scene file (TOML, docs/scene-format.md)")
-    p.add_argument("--interface", default="virtual", help="python-can interface name (default: virtual)")
-    p.add_argument("--channel", action="append", default=None,
-                   help="bus channel; once per scene channel (default: the scene's channel names)")
-    p.add_argument("--bitrate", type=int, default=None, help="bit rate passed to can.Bus (default: not passed)")
+    can.cli.add_bus_arguments(p)
+    for action in p._actions:  # noqa: SLF001 - adjust python-can's actions in place
+        if action.dest == "channel":
+            action.__class__ = _Channels
+            action.help = ("bus channel, e.g. can0, 239.74.163.2 (udp_multicast); one per scene channel: "
+                           "-c can0,can1 (default: python-can's configuration, else the scene's channel names)")
+        elif action.dest in ("bitrate", "data_bitrate"):
+            action.type = _bitrate
+            if action.dest == "bitrate":
+                action.help = (f"nominal bit rate {BITRATE_RANGE[0]}..{BITRATE_RANGE[1]} bit/s: 125k, 250k, 500k, "
+                               "800k, 1M or a number (default: python-can's configuration, else the interface's)")
+    p.add_argument("--bus-option", action="append", default=[], metavar="KEY=VALUE",
+                   help="one can.Bus keyword argument (repeatable): the older spelling of --bus-kwargs")
     p.add_argument("--seed", type=int, default=None, help="noise seed (default: the scene's)")
-    p.add_argument("--bus-option", type=_bus_option, action="append", default=[], metavar="KEY=VALUE",
-                   help="extra can.Bus keyword argument, e.g. port=43113 (repeatable)")
     p.add_argument("--eds", default=str(odx.EDS_PATH), help=argparse.SUPPRESS)
     return p
+
+
+def _check_bitrate(value, source: str) -> int:
+    if isinstance(value, str):
+        try:
+            value = _bitrate(value)
+        except argparse.ArgumentTypeError as exc:
+            raise ParameterError(source, value, str(exc)) from None
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or value != int(value) \
+            or not BITRATE_RANGE[0] <= value <= BITRATE_RANGE[1]:
+        raise ParameterError(source, value, f"must be a classic CAN bit rate in {BITRATE_RANGE[0]}..{BITRATE_RANGE[1]} "
+                                            "bit/s (125k, 250k, 500k, 800k, 1M)")
+    return int(value)
+
+
+def resolve_bus(args, scene) -> tuple[str, list | None, int | None, dict]:
+    """(interface, channels, bitrate, other can.Bus keywords): the flags, then python-can's
+    configuration (``can.util.load_config``, as ``can.Bus`` reads it)."""
+    import json
+    import os
+
+    from can.util import cast_from_string, load_config, load_environment_config, load_file_config
+
+    given = {key: getattr(args, key) for key in ("interface", "channel", "bitrate", "fd", "data_bitrate", "timing")
+             if key in args}
+    kwargs: dict = {}
+    for option in args.bus_option:
+        key, sep, value = option.partition("=")
+        if not sep or not key.isidentifier():
+            raise ParameterError("--bus-option", option, "expected KEY=VALUE (e.g. port=43113)")
+        kwargs[key] = cast_from_string(value)
+    kwargs.update(getattr(args, "bus_kwargs", None) or {})
+    given = {**kwargs, **given}
+    if "bitrate" in given:
+        _check_bitrate(given["bitrate"], "--bitrate")
+    if given.get("data_bitrate") is not None:
+        if not given.get("fd"):
+            raise ParameterError("--data-bitrate", given["data_bitrate"], "only with --fd")
+        if not given.get("bitrate", BITRATE_RANGE[0]) <= given["data_bitrate"] <= DATA_BITRATE_MAX:
+            raise ParameterError("--data-bitrate", given["data_bitrate"],
+                                 f"must lie between the nominal bit rate and {DATA_BITRATE_MAX} bit/s")
+    try:
+        env = load_environment_config()
+        files = load_file_config()
+    except json.JSONDecodeError as exc:
+        raise ParameterError("CAN_CONFIG", os.environ.get("CAN_CONFIG", "")[:60], f"not a JSON object ({exc})") from None
+    except Exception as exc:  # noqa: BLE001 - a config file configparser cannot read
+        raise ParameterError("python-can config file", type(exc).__name__, " ".join(str(exc).split())) from None
+    for values, source in ((given, "--interface"), (can.rc, "can.rc"),
+                           (env, "CAN_INTERFACE" if os.environ.get("CAN_INTERFACE") else "CAN_CONFIG"),
+                           (files, "python-can config file")):
+        interface = values.get("interface") or values.get("bustype")
+        if interface:
+            break
+    else:
+        raise ParameterError("interface", None, "no CAN interface given: use -i/--interface (e.g. -i socketcan "
+                             "-c can0), or python-can's configuration: CAN_INTERFACE/CAN_CHANNEL/CAN_BITRATE, or an "
+                             "[default] section with interface = ... in ~/.canrc")
+    if interface not in can.interfaces.VALID_INTERFACES:
+        raise ParameterError(f"{source}: interface", interface, "unknown python-can interface (known: "
+                             + ", ".join(sorted(can.interfaces.VALID_INTERFACES)) + ")")
+    try:
+        config = dict(load_config(config=dict(given)))
+    except Exception as exc:  # noqa: BLE001 - a bad port in a config file...
+        raise ParameterError("python-can configuration", type(exc).__name__, " ".join(str(exc).split())) from None
+    config.pop("interface")
+    channel = config.pop("channel", None)
+    bitrate = config.pop("bitrate", None)
+    if bitrate is not None:
+        bitrate = _check_bitrate(bitrate, "--bitrate" if "bitrate" in given else "bitrate (python-can configuration)")
+    channels = None
+    if channel is not None:
+        channels = [c.strip() for c in channel.split(",")] if isinstance(channel, str) else [channel]
+        if len(channels) != len(scene.bus.channels):
+            raise ParameterError("channel", channel, f"scene {scene.name!r} has {len(scene.bus.channels)} channel(s) "
+                                 f"{list(scene.bus.channels)}: give one bus channel for each, comma-separated")
+    return interface, channels, bitrate, config
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -85,16 +190,11 @@ def main(argv: list[str] | None = None) -> int:
 
         from .rig import Rig
 
-        if args.interface not in can.interfaces.VALID_INTERFACES:
-            raise ParameterError("interface", args.interface,
-                                 "unknown python-can interface (known: "
-                                 + ", ".join(sorted(can.interfaces.VALID_INTERFACES)) + ")")
         scene = load_scene(args.scene)
-        channel = None
-        if args.channel:
-            channel = args.channel[0] if len(args.channel) == 1 and len(scene.bus.channels) == 1 else args.channel
-        rig = Rig(scene, interface=args.interface, channel=channel, bitrate=args.bitrate, seed=args.seed,
-                  eds_path=args.eds, bus_kwargs=dict(args.bus_option))
+        odx.check_eds(args.eds)
+        interface, channels, bitrate, bus_kwargs = resolve_bus(args, scene)
+        rig = Rig(scene, interface=interface, channel=channels, bitrate=bitrate, seed=args.seed,
+                  eds_path=args.eds, bus_kwargs=bus_kwargs)
         signal.signal(signal.SIGINT, on_signal)
         signal.signal(signal.SIGTERM, on_signal)
         rig.start()
@@ -105,7 +205,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"node-sim: error: {exc}", file=sys.stderr)
         return 2
     try:
-        print(f"node-sim: ready: {scene.n} nodes of scene {scene.name!r} on {args.interface} "
+        print(f"node-sim: ready: {scene.n} nodes of scene {scene.name!r} on {interface} "
               f"channel(s) {', '.join(rig.channel_names)}", flush=True)
         while not stop.wait(0.2):
             pass

@@ -8,7 +8,7 @@ import uuid
 from .run import add_common_outputs, execute, load_run_scene, print_summary, setup_logging
 
 HELP = ("demo: node twins of a scene (default the 57-taxel matrix) and the fusion centre on an embedded "
-        "virtual bus; --mode raw|decision to compare both")
+        "virtual bus (no bus flags: python-can's configuration is not used); --mode raw|decision to compare both")
 
 DEFAULT_SCENE = "matrix57"  # the bundled scenes/matrix57.toml (taxel_net.resources)
 
@@ -70,10 +70,13 @@ def run_demo(scene, cycles: int, *, drops: dict[int, list[int]] | None = None, j
 
 
 def run(args) -> int:
+    from ..service.traces import check_trace_target
+
     setup_logging()
     scene, cycles = load_run_scene(args)
     drops = parse_drops(args.drop_node, scene)
+    check_trace_target(args.log, scene)
     _, summary = run_demo(scene, cycles, drops=drops, json_lines=args.json_lines, trace=args.log,
                           live=not args.no_live, boot_timeout=args.boot_timeout, keep_records=False)
     print_summary(summary)
-    return 0
+    return 130 if "interrupted" in summary else 0

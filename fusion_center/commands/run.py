@@ -42,34 +42,12 @@ def apply_mode(scene, mode: str | None):
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--scene", required=True, metavar="FILE", help="scene file (TOML, docs/scene-format.md)")
-    parser.add_argument("--interface", default="virtual",
-                        help="python-can interface: virtual, socketcan, udp_multicast, pcan, kvaser... (default virtual)")
-    parser.add_argument("--channel", default=None,
-                        help="bus channel(s), comma-separated, one per scene channel (default: the scene's names)")
-    parser.add_argument("--bitrate", type=int, default=None, metavar="B", help="bit/s passed to python-can")
-    parser.add_argument("--bus-option", action="append", default=[], metavar="KEY=VALUE",
-                        help="extra can.Bus keyword argument (repeatable), e.g. port=43114")
+    from . import add_bus_arguments
+
+    parser.add_argument("--scene", required=True, metavar="FILE",
+                        help="scene file or bundled scene name (docs/scene-format.md)")
+    add_bus_arguments(parser)
     add_common_outputs(parser)
-
-
-def parse_bus_options(options: list[str]) -> dict:
-    from taxel_net.errors import UsageError
-
-    out: dict = {}
-    for option in options:
-        key, sep, value = option.partition("=")
-        if not sep or not key:
-            raise UsageError(f"--bus-option {option!r}: expected KEY=VALUE")
-        for convert in (int, float):
-            try:
-                out[key] = convert(value)
-                break
-            except ValueError:
-                continue
-        else:
-            out[key] = {"true": True, "false": False}.get(value.lower(), value)
-    return out
 
 
 def setup_logging() -> None:
@@ -77,30 +55,70 @@ def setup_logging() -> None:
                         format="%(levelname)s %(name)s: %(message)s")
 
 
-def execute(service, cycles: int, *, live: bool, boot_timeout: float, before_sync=None, on_start=None) -> dict:
-    """Boot, run and summarise one service (shared by ``run`` and ``demo``)."""
+def execute(service, cycles: int, *, live: bool, boot_timeout: float, before_sync=None, on_start=None,
+            bus: str | None = None) -> dict:
+    """Boot, run and summarise one service (shared by ``run`` and ``demo``).
+
+    Ctrl-C (SIGINT, in the main thread): during the run it stops the SYNC producer, which ends
+    the open cycle with its NMT broadcast as at a normal end; every closed cycle is evaluated
+    and written whole (flushed), and the partial summary comes back with ``interrupted`` set
+    (the commands then exit 130). During boot it ends the boot (a summary of 0 cycles). A second
+    Ctrl-C ends the command at once, without a summary (exit 130).
+
+    The first Ctrl-C of the run is taken by a signal handler, not as a KeyboardInterrupt: one
+    raised inside ``Thread.join`` (the main thread waits there for the SYNC producer) leaves
+    CPython 3.11 believing the thread has ended (bpo-45274), so the summary would be taken
+    before the producer's last cycle."""
+    import contextlib
+    import signal
+    import threading
+
     from ..service.fusion_service import stdout_is_tty
 
     view = None
     if live and stdout_is_tty():
         from ..service.live import LiveView
 
-        view = LiveView(service, cycles=cycles)
+        view = LiveView(service, cycles=cycles, bus=bus)
         service.on_record.append(view.update)
     if on_start is not None:
         on_start()
-    if view is not None:
-        with view:
+    interrupted = False
+    phase = "boot"
+
+    def on_sigint(signum, frame):
+        nonlocal interrupted
+        first, interrupted = not interrupted, True
+        if first and phase == "run" and service.master is not None:
+            service.master.stop()  # the SYNC producer ends; service.run returns the summary
+            return
+        raise KeyboardInterrupt
+
+    previous = None
+    if threading.current_thread() is threading.main_thread():
+        previous = signal.signal(signal.SIGINT, on_sigint)
+    try:
+        with view if view is not None else contextlib.nullcontext():
             service.boot(boot_timeout)
+            phase = "run"
             summary = service.run(cycles, before_sync=before_sync)
-    else:
-        service.boot(boot_timeout)
-        summary = service.run(cycles, before_sync=before_sync)
-    return summarise(service, summary)
+    except KeyboardInterrupt:
+        if phase == "run":
+            raise  # the second Ctrl-C: no summary
+        interrupted = True
+        summary = service.summary()
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGINT, previous)
+    result = summarise(service, summary, bus=bus)
+    if interrupted:
+        result["interrupted"] = {"cycles_asked": cycles}
+    return result
 
 
-def summarise(service, summary) -> dict:
-    """The summary of a run from the service's running aggregates (no record is needed)."""
+def summarise(service, summary, *, bus: str | None = None) -> dict:
+    """The summary of a run from the service's running aggregates (no record is needed);
+    ``bus``: which bus the run used and where that came from (``run``; None for ``demo``)."""
     stats = service.stats
     out = {
         "scene": service.scene.name,
@@ -127,6 +145,8 @@ def summarise(service, summary) -> dict:
     master = service.master
     if master is not None and master.restarts:
         out["nmt_restarts"] = master.restarts
+    if bus is not None:
+        out["bus"] = bus
     if service.assembler.duplicates:
         out["duplicate_nodes"] = sorted((service.labels[i] for i in service.assembler.duplicates), key=str)
     return out
@@ -141,6 +161,7 @@ def format_summary(summary: dict) -> list[str]:
     d = summary["decisions"]
     lines = [
         ("scene", f"{summary['scene']} ({summary['mode']} mode)"),
+        *([("bus", summary["bus"])] if "bus" in summary else []),
         ("cycles", f"{summary['cycles']} SYNC, {summary['records']} records"),
         ("decisions", f"H1 {d['H1']}, H0 {d['H0']}, undecided {d['undecided']} ({summary['decide_with']})"),
         ("agree_with_truth", summary["agree_with_truth"] or "-"),
@@ -168,6 +189,9 @@ def format_summary(summary: dict) -> list[str]:
     if "duplicate_nodes" in summary:
         lines.append(("duplicate_nodes", ", ".join(map(str, summary["duplicate_nodes"]))
                       + " (two devices answer for one node-ID)"))
+    if "interrupted" in summary:
+        lines.append(("interrupted", f"Ctrl-C after {summary['cycles']} of {summary['interrupted']['cycles_asked']} "
+                                     "SYNC cycles: a partial summary; every record written is complete"))
     width = max(len(k) for k, _ in lines)
     return [f"{k + ':':<{width + 1}} {v}" for k, v in lines]
 
@@ -185,16 +209,15 @@ def load_run_scene(args):
     if args.cycles is not None and not 1 <= args.cycles <= CYCLES_MAX:
         raise UsageError(f"--cycles {args.cycles}: must lie in 1..{CYCLES_MAX}")
     check_boot_timeout(args.boot_timeout)
-    if getattr(args, "bitrate", None) is not None and not BITRATE_RANGE[0] <= args.bitrate <= BITRATE_RANGE[1]:
-        raise UsageError(f"--bitrate {args.bitrate}: must lie in {BITRATE_RANGE[0]}..{BITRATE_RANGE[1]} bit/s "
-                         "(CAN nominal bit rate)")
+    from . import check_bitrate_flags
+
+    check_bitrate_flags(args)
     scene = apply_mode(load_scene(args.scene), args.mode)
     cycles = args.cycles if args.cycles is not None else scene.cycles
     return scene, cycles
 
 
 BOOT_TIMEOUT_MAX_S = 3600.0
-BITRATE_RANGE = (5_000, 1_000_000)
 
 
 def check_boot_timeout(value: float) -> None:
@@ -213,14 +236,17 @@ def print_summary(summary: dict) -> None:
 
 def run(args) -> int:
     from ..service import FusionService
+    from . import resolve_bus
+    from ..service.traces import check_trace_target
 
     setup_logging()
     scene, cycles = load_run_scene(args)
-    channels = args.channel.split(",") if args.channel else None
-    service = FusionService(scene, interface=args.interface, channels=channels, bitrate=args.bitrate,
-                            bus_kwargs=parse_bus_options(args.bus_option), json_lines=args.json_lines,
-                            trace=args.log, keep_records=False)
+    check_trace_target(args.log, scene)
+    bus = resolve_bus(args, scene)
+    service = FusionService(scene, interface=bus.interface, channels=bus.channels, bitrate=bus.bitrate,
+                            bus_kwargs=bus.kwargs, json_lines=args.json_lines, trace=args.log, keep_records=False)
     with service:
-        summary = execute(service, cycles, live=not args.no_live, boot_timeout=args.boot_timeout)
+        summary = execute(service, cycles, live=not args.no_live, boot_timeout=args.boot_timeout,
+                          bus=bus.describe(service.channel_names))
     print_summary(summary)
-    return 0
+    return 130 if "interrupted" in summary else 0
