@@ -125,6 +125,7 @@ class Master:
         self.sdo_aborts = 0
         self.sdo_timeouts = 0
         self.configured: set[int] = set()
+        self.lss_report = None  # [master] assign_ids = "lss": what the LSS phase did (service.lss.LssReport)
         self.sync_sent = 0
         self.sync_overruns = 0
         self.sync_sent_at: dict[int, float] = {}  # cycle -> perf_counter at SYNC transmission
@@ -160,6 +161,8 @@ class Master:
         neither by a boot-up nor otherwise since the reset at ``timeout_s`` is missing (and is
         configured and started later if it ever boots).
         """
+        if self.scene.master.assign_ids == "lss":
+            self.assign_node_ids()
         assembler = self.stream.assembler
         with self.stream.lock:
             assembler.last_heard[:] = -1  # heard since the reset only
@@ -191,6 +194,19 @@ class Master:
                     logger.warning("node %s never booted within %.1f s: missing", self.service.labels[i], timeout_s)
                 return silent
             time.sleep(0.005)
+
+    def assign_node_ids(self):
+        """``[master] assign_ids = "lss"``: the non-configured nodes found by LSS Fastscan, each
+        given the node-ID the scene lists for its serial number (CiA 305, :mod:`.lss`); they
+        boot under it. Returns the :class:`~fusion_center.service.lss.LssReport`."""
+        from .lss import assign_node_ids
+
+        od = self.nodes[0].object_dictionary
+        identity = tuple(int(od[0x1018][sub].default) for sub in (1, 2, 3))
+        report = self.lss_report = assign_node_ids(self.service, self.scene, identity)
+        logger.info("LSS: %d node-IDs assigned in %.2f s (%d frames)%s", len(report.assigned), report.seconds,
+                    report.frames, f"; {len(report.unknown)} node(s) not in the scene" if report.unknown else "")
+        return report
 
     # ------------------------------------------------------------------ SDO
     def configure_node(self, index: int) -> bool:
