@@ -12,7 +12,7 @@ service (command specifier)               waiting  configuration  answer
 switch state global (0x04)                yes      yes            none
 switch state selective (0x40-0x43)        yes      no             0x44 when all four match
 configure node-ID (0x11)                  no       yes            0x11, error 0 / 1 (not 1..127, 0xFF)
-configure bit timing (0x13)               no       yes            0x13, error 0 / 1 (not in the table)
+configure bit timing (0x13)               no       yes            0x13, error 0 / 1 (not supported)
 activate bit timing (0x15)                no       yes            none
 store configuration (0x17)                no       yes            0x17, error 0
 inquire vendor/product/revision/serial    no       yes            0x5A-0x5D + the 32-bit number
@@ -42,7 +42,8 @@ configuration state.
 
 Bit timing: the CiA 301 table (index 0 = 1000, 1 = 800, 2 = 500, 3 = 250, 4 = 125, 6 = 50,
 7 = 20, 8 = 10 kbit/s; 5 is reserved and 9, automatic detection, is not supported, as in
-CANopenNode). Activation makes the pending rate the active one (:attr:`LssSlave.bit_rate`)
+CANopenNode), limited to the rates the device supports (the EDS's ``BaudRate_*`` entries, as
+the rig passes them: 125, 250, 500 and 1000 kbit/s). Activation makes the pending rate the active one (:attr:`LssSlave.bit_rate`)
 after the switch delay; the slave answers no LSS request until a second delay has passed.
 The twin's python-can bus keeps the rate it was opened with (a virtual bus has none): the
 rate is bookkeeping, what a real node would switch to.
@@ -103,20 +104,23 @@ class LssSlave:
 
     ``identity``: (vendor-ID, product code, revision number, serial number), the node's
     0x1018:1-4. ``node_id``: the node-ID it powers on with (active, pending and stored; 0xFF:
-    non-configured). ``bit_rate``: the bit rate it powers on with (bit/s). ``activate(node_id)``
+    non-configured). ``bit_rate``: the bit rate it powers on with (bit/s); ``bit_rates``: those
+    configure bit timing accepts (None: every rate of the table). ``activate(node_id)``
     is called when a non-configured slave gets its node-ID at switch state global (the owner
     starts the node). ``call_later(delay_s, fn)`` schedules the bit-timing switch (None: at
     once). Entry points run with the channel lock held.
     """
 
     def __init__(self, identity: tuple[int, int, int, int], node_id: int = UNCONFIGURED,
-                 bit_rate: int | None = None, *, activate: Callable[[int], None] | None = None,
+                 bit_rate: int | None = None, *, bit_rates: Iterable[int] | None = None,
+                 activate: Callable[[int], None] | None = None,
                  call_later: Callable[[float, Callable[[], None]], object] | None = None):
         if len(identity) != 4:
             raise ValueError("identity: (vendor-ID, product code, revision number, serial number)")
         self.address = tuple(int(v) & 0xFFFFFFFF for v in identity)
         self.active_node_id = self.pending_node_id = self.stored_node_id = int(node_id)
         self.bit_rate = self.pending_bit_rate = self.stored_bit_rate = bit_rate
+        self.bit_rates = frozenset(BIT_TIMING_TABLE.values() if bit_rates is None else bit_rates)
         self.state = WAITING
         self._activate = activate
         self._call_later = call_later
@@ -185,7 +189,7 @@ class LssSlave:
             return _answer(cs, ERROR_OUT_OF_RANGE)
         if cs == CS_CONFIGURE_BIT_TIMING:
             selector, index = data[1], data[2]
-            if selector == 0 and index in BIT_TIMING_TABLE:
+            if selector == 0 and BIT_TIMING_TABLE.get(index) in self.bit_rates:
                 self.pending_bit_rate = BIT_TIMING_TABLE[index]
                 return _answer(cs, ERROR_NONE)
             return _answer(cs, ERROR_OUT_OF_RANGE)

@@ -351,13 +351,13 @@ class Rig:
                                          f"{type(exc).__name__}: {exc}") from None
                 self._channels.append(_Channel(self, index, name, bus))
             unconfigured = self.scene.master.assign_ids == "lss"
-            identity = self._identity()
+            identity, bit_rates = self._lss_device()
             for i, t in enumerate(self.scene.taxels):
                 ch = self._channels[t.channel]
                 ch.lss[i] = lssx.LssSlave(
                     identity + (identity_serial(self.scene, t),),
                     lssx.UNCONFIGURED if unconfigured else t.node_id, self.bitrate or self.scene.bus.bitrate,
-                    activate=lambda node_id, ch=ch, i=i: self._renumber(ch, i, None, node_id),
+                    bit_rates=bit_rates, activate=lambda node_id, ch=ch, i=i: self._renumber(ch, i, None, node_id),
                     call_later=ch.scheduler.call_later)
                 if not unconfigured:
                     self._new_node(ch, i, t.node_id)
@@ -391,10 +391,12 @@ class Rig:
         self.started = False
 
     # ------------------------------------------------------------------ configuration
-    def _identity(self) -> tuple[int, int, int]:
-        """0x1018:1-3 (vendor-ID, product code, revision number) as the EDS gives them."""
+    def _lss_device(self) -> tuple[tuple[int, int, int], frozenset[int]]:
+        """What the EDS says of every device: 0x1018:1-3 (vendor-ID, product code, revision
+        number) and the bit rates it supports ([DeviceInfo] BaudRate_*), bit/s."""
         od = odx.load_od(1, self.eds_path)
-        return tuple(int(odx.variable(od, odx.IDENTITY, sub).default) for sub in (1, 2, 3))
+        identity = tuple(int(odx.variable(od, odx.IDENTITY, sub).default) for sub in (1, 2, 3))
+        return identity, frozenset(od.device_information.allowed_baudrates)
 
     def _new_node(self, ch: _Channel, index: int, node_id: int) -> TaxelNode:
         """The node twin of taxel ``index`` under ``node_id``, configured with its start-up values."""

@@ -14,6 +14,7 @@ import pytest
 from canopen.lss import LssError
 
 from node_sim import lss as lssx
+from node_sim.od import EDS_PATH
 from node_sim.rig import Rig, identity_serial
 from taxel_net.scene import BusSpec, MasterSpec, Scene, TaxelSpec
 
@@ -221,7 +222,11 @@ def test_configuration_services_refuse_what_the_node_cannot_take():
                 with pytest.raises(LssError, match="LSS Error: 1"):
                     master.lss.configure_node_id(bad)
             assert slave.pending_node_id == 5
-            for bad in (5, 9, 10):  # reserved, automatic detection, outside the table
+            # the EDS supports 125, 250, 500 and 1000 kbit/s; 5 is reserved, 9 automatic
+            # detection, 10 outside the CiA 301 table
+            assert canopen.import_od(str(EDS_PATH)).device_information.allowed_baudrates == {
+                125_000, 250_000, 500_000, 1_000_000}
+            for bad in (1, 5, 6, 7, 8, 9, 10):
                 with pytest.raises(LssError, match="LSS Error: 1"):
                     master.lss.configure_bit_timing(bad)
             assert slave.bit_rate == 500_000
