@@ -41,7 +41,7 @@ def test_loads_with_node_relative_cob_ids(node_id):
 
 def test_communication_objects():
     od = canopen.import_od(EDS, 5)
-    assert od[0x1000].default == 0x00000194 and od[0x1000].access_type == "ro"   # CiA 404
+    assert od[0x1000].default == 0 and od[0x1000].access_type == "ro"   # no device profile (docs/node-twins.md)
     assert od[0x1001].data_type == datatypes.UNSIGNED8 and od[0x1001].access_type == "ro"
     assert isinstance(od[0x1003], ODArray) and od[0x1003][0].data_type == datatypes.UNSIGNED8
     assert len(od[0x1003].subindices) == 9 and od[0x1003][8].data_type == datatypes.UNSIGNED32

@@ -207,7 +207,7 @@ def test_nmt_addressed_and_broadcast(setup_factory):
     s.nmt(0x80, 0)
     assert wait_until(lambda: all(s.rig.node(i).state == 0x7F for i in (1, 2, 3)))
     s.nmt(0x01, 9)                                   # a node-ID that is not on the bus
-    assert s.remote[2].sdo[0x1000].raw == 0x194      # answered after the NMT frame was handled
+    assert s.remote[2].sdo[0x1000].raw == 0          # answered after the NMT frame was handled
     assert all(s.rig.node(i).state == 0x7F for i in (1, 2, 3))
 
 
@@ -356,7 +356,7 @@ def _abort(fn) -> int:
 def test_sdo_reads_and_configuration_writes(setup_factory):
     s = setup_factory(_readings_by_cycle)
     rn = s.remote[2]
-    assert rn.sdo[0x1000].raw == 0x194
+    assert rn.sdo[0x1000].raw == 0  # device type: no device profile
     assert rn.sdo[0x1018][2].raw == 0x7A01
     assert rn.sdo[0x1200][1].raw == 0x602 and rn.sdo[0x1200][2].raw == 0x582
     assert rn.sdo[0x2001][3].raw == TAXEL_KINDS["C"]   # node 2 = second taxel, kind C

@@ -128,7 +128,7 @@ def test_node_sim_process_serves_a_canopen_master(tmp_path, multicast):
             rn.sdo.RESPONSE_TIMEOUT = 3.0
             network.add_node(rn)
             nodes[nid] = rn
-        assert nodes[9].sdo[0x1000].raw == 0x194
+        assert nodes[9].sdo[0x1000].raw == 0
         assert nodes[17].sdo[0x2001][1].raw == pytest.approx(1.5)
         assert nodes[4].sdo[0x1017].raw == 50
         nodes[9].sdo[0x1800][2].raw = 255        # node 9: event-driven TPDO1
