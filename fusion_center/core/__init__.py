@@ -68,6 +68,7 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(
         "slip": ["detect_slip", "SlipTracker", "SlipResult"],
         "bus_timing": [
             "frame_bits", "worst_case_frame_bits", "best_case_frame_bits", "frame_time_s", "bus_load",
+            "fd_frame_bits",
         ],
         "units": ["convert_force"],
         "exact_rates": [

@@ -28,18 +28,22 @@ elsewhere omits the intermission) and 8n + 67 + floor((54 + 8n - 1)/4) for 2.0B 
 The Linux kernel (include/linux/can/length.h, ``can_frame_bits``) counts the same numbers.
 Best case: no stuff bit at all, 8n + 47 (2.0A) or 8n + 67 (2.0B).
 
-CAN FD (ISO 11898-1:2015) is only estimated (``fd_frame_bits_estimate``: worst-case dynamic
-stuffing, bits split between the two phases), not built bit by bit. What differs: FDF/res/BRS/ESI bits in the control
-field; DLC codes 9..15 mean 12..64 bytes; a 3-bit Gray-coded stuff-bit count + parity bit
-before the CRC; CRC-17 (<= 16 bytes) or CRC-21 (> 16 bytes) with *fixed* stuff bits (one
-every 4 bits) in the CRC field instead of dynamic stuffing; and the data phase (from BRS to
-the CRC delimiter) at a second, higher bit rate, so a frame's duration is the sum of two
-bit-time products, not bits / bitrate.
+CAN FD (ISO 11898-1:2015) frames are built bit by bit too (``fd_frame_bits``; ``fd_frame_wire``
+gives the transmitted sequence). What differs from a classic frame: RRS/FDF/res/BRS/ESI bits
+in the arbitration and control fields; DLC codes 9..15 mean 12..64 bytes; dynamic stuffing ends
+with the data field, followed by a 3-bit Gray-coded stuff-bit count and its parity bit;
+CRC-17 (<= 16 bytes) or CRC-21 (> 16 bytes), computed over the dynamically *stuffed* bits, with
+*fixed* stuff bits (one before the stuff count, then one after every fourth bit) instead of
+dynamic stuffing; and the data phase (ESI to the last CRC bit) at a second, higher bit rate when
+BRS is set, so a frame's duration is the sum of two bit-time products, not bits / bitrate.
+``fd_frame_bits_estimate`` is the data-independent worst case of the same frame (the Linux
+kernel's bound).
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
+from typing import NamedTuple
 
 from taxel_net.errors import ParameterError
 
@@ -222,7 +226,7 @@ def bus_load(frames_bits_per_cycle: Iterable[int], cycle_period_s: float, bitrat
     return total / (float(cycle_period_s) * _check_bitrate(bitrate))
 
 
-# ---------------------------------------------------------------- CAN FD (estimate only)
+# ---------------------------------------------------------------- CAN FD (worst-case estimate)
 
 FD_LENGTHS = (0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64)
 
@@ -260,3 +264,173 @@ def fd_frame_time_s(data_len: int, nominal_bitrate: float, data_bitrate: float |
     nb = _check_bitrate(nominal_bitrate)
     db = nb if data_bitrate is None else _check_bitrate(data_bitrate)
     return nominal / nb + data / db
+
+
+# ---------------------------------------------------------------- CAN FD, bit by bit
+
+CRC17_POLY = 0x1685B      # x^17 + x^16 + x^14 + x^13 + x^11 + x^6 + x^4 + x^3 + x + 1 (x^17 implicit)
+CRC21_POLY = 0x102899     # x^21 + x^20 + x^13 + x^11 + x^7 + x^4 + x^3 + 1 (x^21 implicit)
+FD_DLC = {n: code for code, n in enumerate(FD_LENGTHS)}   # data bytes -> DLC code (9..15: 12..64)
+FD_BRS_INDEX = {False: 16, True: 35}   # position of BRS in SOF..data (SOF = 0), base / extended format
+FD_TRAILER_BITS = 1 + 1 + 1 + 7        # CRC delimiter, ACK slot, ACK delimiter, EOF (nominal rate)
+
+
+class FdFrameWire(NamedTuple):
+    """One CAN FD data frame as transmitted, SOF through the last CRC bit (``fd_frame_wire``).
+
+    ``bits``: the transmitted bit values (0 = dominant), dynamic and fixed stuff bits included;
+    ``head``: how many of them lie from SOF up to and including BRS (the arbitration phase);
+    ``stuff_count``: dynamic stuff bits inserted (the stuff count field carries it mod 8);
+    ``crc``: the CRC-17 or CRC-21 value, ``crc_width`` 17 or 21.
+    """
+
+    bits: tuple[int, ...]
+    head: int
+    stuff_count: int
+    crc: int
+    crc_width: int
+
+
+def _fd_crc(bits: Iterable[int], width: int, poly: int) -> int:
+    # ISO 11898-1:2015 10.4.2.6: the register starts with a 1 in its most significant bit
+    top = width - 1
+    mask = (1 << width) - 1
+    crc = 1 << top
+    for b in _check_bits(bits):
+        nxt = b ^ ((crc >> top) & 1)
+        crc = (crc << 1) & mask
+        if nxt:
+            crc ^= poly
+    return crc
+
+
+def crc17(bits: Iterable[int]) -> int:
+    """CRC-17 of CAN FD (frames with up to 16 data bytes; ISO 11898-1:2015 10.4.2.6), MSB first.
+
+    Generator x^17+x^16+x^14+x^13+x^11+x^6+x^4+x^3+x+1, register initialised to 1 followed by
+    16 zeros (ISO; the non-ISO Bosch FD 1.0 started from 0). Same shift register as ``crc15``."""
+    return _fd_crc(bits, 17, CRC17_POLY)
+
+
+def crc21(bits: Iterable[int]) -> int:
+    """CRC-21 of CAN FD (frames with 20 to 64 data bytes; ISO 11898-1:2015 10.4.2.6), MSB first.
+
+    Generator x^21+x^20+x^13+x^11+x^7+x^4+x^3+1, register initialised to 1 followed by 20 zeros."""
+    return _fd_crc(bits, 21, CRC21_POLY)
+
+
+def _check_fd_frame(can_id, data, brs, extended) -> tuple[int, bytes]:
+    if not isinstance(brs, bool):
+        raise ParameterError("brs", brs, "must be True or False")
+    if not isinstance(extended, bool):
+        raise ParameterError("extended", extended, "must be True or False")
+    if isinstance(can_id, bool) or not isinstance(can_id, int):
+        raise ParameterError("can_id", can_id, "must be an integer")
+    limit = MAX_EXT_ID if extended else MAX_STD_ID
+    if not 0 <= can_id <= limit:
+        raise ParameterError("can_id", can_id, f"must lie in 0..0x{limit:X} for "
+                                               f"{'extended' if extended else 'base'} format frames")
+    try:
+        payload = bytes(data)
+    except (TypeError, ValueError):
+        raise ParameterError("data", data, "must be bytes or a sequence of integers 0..255") from None
+    if len(payload) not in FD_DLC:
+        raise ParameterError("len(data)", len(payload),
+                             "a CAN FD data field holds 0-8, 12, 16, 20, 24, 32, 48 or 64 bytes")
+    return can_id, payload
+
+
+def fd_frame_fields(can_id: int, data: bytes | Sequence[int] = b"", *, brs: bool = True,
+                    extended: bool = False) -> list[int]:
+    """Unstuffed bits of a CAN FD data frame from SOF to the end of the data field.
+
+    ISO 11898-1:2015 10.4.2 (FD base format, FBFF): SOF | ID(11) | RRS=0 | IDE=0 | FDF=1 | res=0 |
+    BRS | ESI | DLC(4) | data; extended format (FEFF): SOF | base ID(11) | SRR=1 | IDE=1 |
+    ID extension(18) | RRS=0 | FDF=1 | res=0 | BRS | ESI | DLC | data. ESI = 0 (error-active
+    transmitter); BRS = 1 when ``brs`` (bit-rate switch). DLC 9..15 code 12..64 bytes.
+    """
+    can_id, payload = _check_fd_frame(can_id, data, brs, extended)
+    bits = [0]                                            # SOF
+    if extended:
+        bits += _to_bits(can_id >> 18, 11)                # base identifier ID28..ID18
+        bits += [1, 1]                                    # SRR, IDE
+        bits += _to_bits(can_id & 0x3FFFF, 18)            # identifier extension ID17..ID0
+        bits += [0]                                       # RRS
+    else:
+        bits += _to_bits(can_id, 11)
+        bits += [0, 0]                                    # RRS, IDE
+    bits += [1, 0, 1 if brs else 0, 0]                    # FDF, res, BRS, ESI
+    bits += _to_bits(FD_DLC[len(payload)], 4)
+    for byte in payload:
+        bits += _to_bits(byte, 8)
+    return bits
+
+
+def fd_frame_wire(can_id: int, data: bytes | Sequence[int] = b"", *, brs: bool = True,
+                  extended: bool = False) -> FdFrameWire:
+    """A CAN FD data frame as transmitted from SOF to the last CRC bit (ISO 11898-1:2015 10.5).
+
+    1. Dynamic stuffing from SOF to the end of the data field: after five equal bits a
+       complementary bit, which starts the next run - except after the last bit of the data
+       field (of the DLC for 0 bytes): there the fixed stuff bit below takes its place and no
+       dynamic stuff bit is inserted or counted (never two stuff bits in a row).
+    2. Stuff count: the number of dynamic stuff bits mod 8 as a 3-bit Gray code, then an even
+       parity bit over those three bits.
+    3. CRC-17 (<= 16 data bytes) or CRC-21 over the stuffed SOF..data sequence followed by the
+       stuff count and parity (the fixed stuff bits are not covered).
+    4. Fixed stuff bits, each the complement of the bit before it: one before the stuff count,
+       then one after every fourth bit of stuff count + CRC (6 bits with CRC-17, 7 with CRC-21).
+    """
+    can_id, payload = _check_fd_frame(can_id, data, brs, extended)
+    fields = fd_frame_fields(can_id, payload, brs=brs, extended=extended)
+    brs_index = FD_BRS_INDEX[extended]
+    last = len(fields) - 1
+    out: list[int] = []
+    head = 0
+    n_stuff = 0
+    run_value, run_len = -1, 0
+    for k, b in enumerate(fields):
+        out.append(b)
+        if b == run_value:
+            run_len += 1
+        else:
+            run_value, run_len = b, 1
+        if k == brs_index:
+            head = len(out)                               # a stuff bit right after BRS is data phase
+        if run_len == STUFF_RUN and k != last:
+            out.append(1 - b)
+            n_stuff += 1
+            run_value, run_len = 1 - b, 1
+    count = n_stuff % 8
+    gray = _to_bits(count ^ (count >> 1), 3)
+    stuff_field = gray + [gray[0] ^ gray[1] ^ gray[2]]   # even parity
+    width, poly = (17, CRC17_POLY) if len(payload) <= 16 else (21, CRC21_POLY)
+    crc = _fd_crc(out + stuff_field, width, poly)
+    fixed_part = stuff_field + _to_bits(crc, width)
+    wire = list(out)
+    wire.append(1 - wire[-1])                             # fixed stuff bit before the stuff count
+    for i, b in enumerate(fixed_part, 1):
+        wire.append(b)
+        if i % 4 == 0:
+            wire.append(1 - b)                            # after every fourth bit
+    return FdFrameWire(tuple(wire), head, n_stuff, crc, width)
+
+
+def fd_frame_bits(can_id: int, data: bytes | Sequence[int] = b"", *, brs: bool = True,
+                  extended: bool = False) -> tuple[int, int]:
+    """Exact length of one CAN FD data frame as (nominal_bits, data_bits) (ISO 11898-1:2015).
+
+    ``data_bits``: ESI through the last CRC bit, with the dynamic stuff bits, the stuff count,
+    its parity and the fixed stuff bits in that span (sent at the data bit rate when BRS is
+    set); ``nominal_bits``: everything else - SOF through BRS with their stuff bits, CRC
+    delimiter, ACK slot, ACK delimiter, EOF and the 3-bit intermission. With ``brs=False``
+    the whole frame runs at the nominal rate: ``(all bits, 0)``. The frame is built by
+    ``fd_frame_wire``; valid data lengths are 0-8, 12, 16, 20, 24, 32, 48 and 64 bytes
+    (anything else raises ``ParameterError``, a ``ValueError``). A frame's duration is
+    nominal_bits / nominal bit rate + data_bits / data bit rate.
+    """
+    wire = fd_frame_wire(can_id, data, brs=brs, extended=extended)
+    tail = FD_TRAILER_BITS + INTERMISSION_BITS
+    if not brs:
+        return len(wire.bits) + tail, 0
+    return wire.head + tail, len(wire.bits) - wire.head
