@@ -24,6 +24,7 @@ COMMANDS: dict[str, str] = {
     "bandwidth": "bandwidth",
     "report": "report",
     "scenes": "scenes",
+    "dcf": "dcf",
     "plot": "plot",
 }
 
