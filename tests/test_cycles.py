@@ -295,3 +295,81 @@ def test_untagged_scenes_keep_the_integer8_decision():
     a.feed(10 * MS, 0, 0x80, b"")
     a.feed(10 * MS + 1, 0, 0x180 + 10, bytes([1 << 2 | 0b01]))  # a tagged byte: not INTEGER8 +-1
     assert a.counters()["bad_value"] == 1
+
+
+def test_two_decisions_tagged_with_one_sync_flag_a_duplicate_node_id():
+    sc = scene(sync_counter=64)
+    a = CycleAssembler(sc)
+    boot_all(a, sc)
+    a.feed(10 * MS, 0, 0x80, bytes([5]))
+    a.feed(10 * MS + 1, 0, *tagged(10, 1, 5))
+    a.feed(10 * MS + 2, 0, *tagged(10, -1, 5))   # a second device answering for node 10
+    a.feed(10 * MS + 3, 0, *tagged(11, 1, 4))    # a late answer to the previous SYNC: no evidence
+    a.feed(10 * MS + 4, 0, *tagged(11, 1, 5))
+    closed = a.feed(10 * MS + 5, 0, *tagged(12, 1, 5))
+    assert closed.duplicates == (0,) and a.duplicates == {0}
+    assert closed.decisions.tolist() == [1, 1, 1]  # the first answer counts, the second is late
+    assert a.counters()["late"] == 2
+
+
+def test_without_the_tag_a_second_pdo_is_only_late():
+    sc = scene(sync_counter=0)
+    a = CycleAssembler(sc)
+    boot_all(a, sc)
+    a.feed(10 * MS, 0, 0x80, b"")
+    a.feed(10 * MS + 1, 0, *tpdo(10, 1))
+    a.feed(10 * MS + 2, 0, *tpdo(10, -1))   # could be a late answer to an earlier SYNC: not evidence
+    assert not a.duplicates and a.counters()["late"] == 1
+
+
+def windowed(sync_counter=64, n=3):
+    sc = scene(n=n, sync_counter=sync_counter)
+    return __import__("dataclasses").replace(sc, bus=__import__("dataclasses").replace(sc.bus, sync_window_us=8 * MS))
+
+
+def test_an_answer_on_the_bus_before_the_next_sync_counts_however_late_it_is_handled():
+    """Bus order: the master's SYNC 2 is fed when sent; node 12's answer to SYNC 1, on the bus
+    at 3 ms, reaches the assembler only after it. It counts in cycle 0, then SYNC 2 opens cycle 1."""
+    sc = windowed()
+    a = CycleAssembler(sc)
+    boot_all(a, sc)
+    a.feed(0, 0, 0x80, b"\x01")
+    a.feed(1 * MS, 0, *tagged(10, 1, 1))
+    a.feed(2 * MS, 0, *tagged(11, -1, 1))
+    assert a.feed_all(10 * MS, 0, 0x80, b"\x02") == []            # held: cycle 0's window is open
+    assert a.counters()["held"] == 1 and a.events == sum(a.counts) + 1
+    closed = a.feed_all(3 * MS, 0, *tagged(12, 1, 1))            # stamped 3 ms, handled after SYNC 2
+    assert [c.cycle for c in closed] == [0] and closed[0].closed_by == "complete"
+    assert closed[0].decisions.tolist() == [1, -1, 1]
+    assert a.cycle == 1 and a.is_open and a.sync_counter == 2 and not a.held  # SYNC 2 fed after it
+    assert "held" not in a.counters() and a.events == sum(a.counts)
+
+
+def test_the_first_node_frame_after_the_window_closes_the_cycle_and_feeds_what_was_held():
+    sc = windowed(sync_counter=0)  # untagged: by time stamps alone
+    a = CycleAssembler(sc)
+    boot_all(a, sc)
+    a.feed(0, 0, 0x80, b"")
+    a.feed(1 * MS, 0, *tpdo(10, 1))
+    a.feed(10 * MS, 0, 0x80, b"")                                  # held
+    a.feed(10 * MS + 1, 0, 0x600 + 10, bytes(8))                  # an SDO request: held too
+    a.feed(7 * MS, 0, 0x700 + 11, b"\x05")                         # in the window: fed at once
+    closed = a.feed_all(10 * MS + 200, 0, *tpdo(11, -1))           # after the window: cycle 0 ends
+    assert [c.closed_by for c in closed] == ["window"] and closed[0].close_us == 8 * MS
+    assert closed[0].decisions.tolist() == [1, 0, 0]
+    assert a.cycle == 1 and a.decisions.tolist() == [0, -1, 0]    # node 11's answer is cycle 1's
+    assert a.counters()["sdo"] == 1 and a.counters()["heartbeat"] == 1
+
+
+def test_with_no_node_frame_a_second_sync_or_the_end_of_run_releases_the_hold():
+    sc = windowed()
+    a = CycleAssembler(sc)
+    boot_all(a, sc)
+    a.feed(0, 0, 0x80, b"\x01")
+    assert a.feed_all(10 * MS, 0, 0x80, b"\x02") == []
+    closed = a.feed_all(20 * MS, 0, 0x80, b"\x03")                  # nodes all dead: SYNC 3 releases
+    assert [(c.cycle, c.closed_by) for c in closed] == [(0, "window")]
+    assert a.cycle == 1 and a.held                                 # SYNC 3 held behind cycle 1
+    closed = a.feed_all(25 * MS, 0, 0x000, bytes([0x80, 0]))       # NMT pre-operational all
+    assert [(c.cycle, c.closed_by) for c in closed] == [(1, "window"), (2, "nmt")]
+    assert not a.held and sum(a.counts) == a.events

@@ -69,11 +69,13 @@ def test_a_raising_consumer_is_counted_as_internal_error_not_raised():
         raise RuntimeError("boom")
 
     stream = EventStream(assembler, on_closed=broken)
-    stream.receive(can.Message(timestamp=1.0, arbitration_id=0x080, data=b"", is_extended_id=False), 0)
-    stream.receive(can.Message(timestamp=1.01, arbitration_id=0x080, data=b"", is_extended_id=False), 0)
+    # matrix57 has a SYNC counter (1 byte)
+    stream.receive(can.Message(timestamp=1.0, arbitration_id=0x080, data=b"\x01", is_extended_id=False), 0)
+    # a heartbeat stamped after the 8 ms window closes cycle 0, and the consumer raises
+    stream.receive(can.Message(timestamp=1.009, arbitration_id=0x701, data=b"\x05", is_extended_id=False), 0)
     counters = assembler.counters()
-    # the second SYNC was counted as "sync" before the consumer raised: no double count
-    assert counters["sync"] == 2 and counters["internal_error"] == 0
+    # the heartbeat was counted before the consumer raised: no double count
+    assert counters["sync"] == 1 and counters["heartbeat"] == 1 and counters["internal_error"] == 0
     assert sum(counters.values()) == stream.fed == 2
     # a frame that breaks the assembler itself (data of the wrong type) is an internal error
     bad = can.Message(timestamp=1.02, arbitration_id=0x181, data=b"\x01", is_extended_id=False)

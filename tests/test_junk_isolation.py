@@ -62,13 +62,20 @@ def test_junk_never_reaches_canopen(caplog):
     assert not [r for r in caplog.records if r.name.startswith("canopen")]
 
 
+def _without_sync_counter(scene):
+    """The scene with 0x1019 = 0: SYNC without counter byte (DLC 0), untagged TPDO1."""
+    import dataclasses
+
+    return dataclasses.replace(scene, bus=dataclasses.replace(scene.bus, sync_counter=0))
+
+
 def test_twins_ignore_wrong_length_nmt_and_sync_as_the_centre_counts_them():
     """A 3-byte NMT "stop all" and a 1-byte SYNC (no counter configured): the twins ignore both
     (CiA 301), answering the SYNC length error with EMCY 0x8240 once; the centre counts both
     bad_dlc; the next valid SYNC is answered by every node."""
     from node_sim.rig import Rig
 
-    scene = load_scene(MATRIX)
+    scene = _without_sync_counter(load_scene(MATRIX))
     channel = f"dlc-{uuid.uuid4().hex[:8]}"
     rig = Rig(scene, interface="virtual", channel=[channel])
     tool = can.Bus(interface="virtual", channel=channel)
@@ -129,7 +136,7 @@ def test_udp_multicast_drops_only_true_echoes():
     why = multicast_works(port)
     if why is not None:
         pytest.skip(why)
-    scene = load_scene(MATRIX)
+    scene = _without_sync_counter(load_scene(MATRIX))  # the SYNCs below have no counter byte
     sender = subprocess.Popen([sys.executable, "-c", SENDER, str(port)], cwd=ROOT, stdin=subprocess.PIPE,
                               stdout=subprocess.PIPE, text=True)
     try:

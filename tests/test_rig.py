@@ -190,7 +190,7 @@ def test_default_readings_come_from_scene_physics():
 
     from node_sim import physics
 
-    scene = replace(scene, bus=replace(scene.bus, channels=(ch,), heartbeat_producer_ms=0))
+    scene = replace(scene, bus=replace(scene.bus, channels=(ch,), heartbeat_producer_ms=0, sync_counter=0))  # untagged INTEGER8 u_i
     rec = Recorder(ch)
     try:
         with Rig(scene, seed=11) as rig:

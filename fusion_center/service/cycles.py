@@ -21,8 +21,9 @@ everything it decides is a function of that stream, so feeding the trace back
   heartbeat byte, the master's own NMT commands seen in the stream, and "a node that sends a
   PDO is operational").
 * The cycle closes (``closed_by``) at the end of the synchronous window (0x1007,
-  ``[bus] sync_window_us``; ``"window"``: at the first event later than SYNC + window, with
-  ``close_us`` = SYNC + window), when every expected node has delivered its primary PDO
+  ``[bus] sync_window_us``; ``"window"``: at the first node frame stamped later than SYNC +
+  window, or when held frames are released - see *Bus order* - with ``close_us`` = SYNC +
+  window), when every expected node has delivered its primary PDO
   (``"complete"``: TPDO1 in decision mode, TPDO2 in raw mode; only for synchronous
   transmission type 1 and at least one expected node), at the next valid SYNC
   (``"sync"``), or at an NMT broadcast stop / pre-operational / reset (``"nmt"``, the master
@@ -48,6 +49,17 @@ everything it decides is a function of that stream, so feeding the trace back
   monotonic. This needs frame time stamps on the host's clock (python-can's virtual,
   socketcan and udp_multicast buses; an interface with its own hardware clock that python-can
   does not map to ``time.time()`` would need the SYNC's echo time instead).
+
+Bus order (with a window): the stream is the order in which this process handled the frames,
+not the order they had on the bus - the master's own SYNC k+1 is fed when it is sent, while
+answers to SYNC k that were on the bus before it may still wait in a receive queue of a busy
+host. So while cycle k is open, a master frame (SYNC, NMT, SDO request), or any frame that is
+not a node's, arriving after SYNC k+1 is *held*, and node frames stamped inside k's window are
+fed ahead of it: they were on the bus before SYNC k+1 (the master sends no two SYNCs closer
+than the window). The first node frame stamped after the window closes k and feeds what was
+held, in order; so do a second SYNC, an NMT broadcast stop / pre-operational / reset (the end
+of a run) and :data:`HOLD_MAX` held frames. This is a function of the stream alone (replay
+holds and releases the same frames), and the trace keeps the order the frames were handled in.
 
 Every event fed is counted under exactly one disposition in :data:`COUNTER_NAMES`, so the
 counters always sum to the number of events fed (the fuzz test checks this).
@@ -92,6 +104,8 @@ from .decoder import (
     decode_real32,
 )
 
+NODE_KINDS = frozenset({K_TPDO1, K_TPDO2, K_HEARTBEAT, K_EMCY, K_SDO_RESPONSE})  # frames a node sends
+
 # event flags
 FLAG_EXTENDED = 1
 FLAG_REMOTE = 2
@@ -102,6 +116,8 @@ STATE_UNKNOWN = -1
 STATE_RESETTING = -2  # NMT reset sent: silent until its boot-up
 
 TAG_MASK = 0x3F  # the cycle tag of object 0x2003 (bits 2-7): the SYNC counter modulo 64
+
+HOLD_MAX = 4096  # master / other frames held at most while a window is open (then released)
 
 EMCY_PER_CYCLE = 16  # EMCY entries a record carries at most (the rest are counted: emcy_dropped)
 
@@ -213,6 +229,7 @@ class CycleAssembler:
         self.consumer_us = int(bus.heartbeat_consumer_ms) * 1000
         self.sync_overflow = int(bus.sync_counter)
         self.window_us = int(bus.sync_window)  # 0x1007, 0 = no window
+        self.held: list[tuple] = []  # events held until the open cycle's window is over (_route)
         self.tagged = bus.cycle_tag  # TPDO1 maps 0x2003 (u_i + SYNC counter mod 64)
 
         self.counts = [0] * len(COUNTER_NAMES)
@@ -252,10 +269,15 @@ class CycleAssembler:
     # ------------------------------------------------------------------ queries
     @property
     def events(self) -> int:
-        return sum(self.counts)
+        """Events fed: every one counted under one disposition, or held (see *Bus order*)."""
+        return sum(self.counts) + len(self.held)
 
     def counters(self) -> dict[str, int]:
-        return dict(zip(COUNTER_NAMES, self.counts))
+        """Events per disposition; ``held`` (only while nonzero): fed, not yet handled."""
+        counters = dict(zip(COUNTER_NAMES, self.counts))
+        if self.held:
+            counters["held"] = len(self.held)
+        return counters
 
     def malformed(self) -> int:
         return sum(self.counts[i] for i in _MALFORMED_IDX)
@@ -268,20 +290,84 @@ class CycleAssembler:
 
     # ------------------------------------------------------------------ the machine
     def feed(self, timestamp_us: int, channel: int, can_id: int, data: bytes, flags: int = 0):
-        """Consume one event; return the :class:`ClosedCycle` it closed, or None."""
+        """Consume one event; return the first :class:`ClosedCycle` it closed, or None (see
+        :meth:`feed_all`: an event can close two cycles)."""
+        closed = self.feed_all(timestamp_us, channel, can_id, data, flags)
+        return closed[0] if closed else None
+
+    def feed_all(self, timestamp_us: int, channel: int, can_id: int, data: bytes,
+                 flags: int = 0) -> list[ClosedCycle]:
+        """Consume one event; return the cycles it closed, oldest first (usually none or one)."""
         if self.t0_us is None:
             self.t0_us = timestamp_us
         raw = t = timestamp_us - self.t0_us  # raw: the frame's own time stamp
         if t < self.last_us:  # the assembler's clock is monotonic (the stream order is the truth)
             t = self.last_us
         self.last_us = t
-        if self.is_open and self.window_us and t > self.sync_us + self.window_us:
-            # the synchronous window (0x1007) of the open cycle is over: close it first; the
-            # event is then handled with no cycle open (a PDO is late)
-            closed = self._close("window", self.sync_us + self.window_us)
-            self._feed(t, raw, channel, can_id, data, flags)
-            return closed
-        return self._feed(t, raw, channel, can_id, data, flags)
+        out: list[ClosedCycle] = []
+        self._route(out, (t, raw, channel, can_id, data, flags))
+        return out
+
+    def _route(self, out: list, event: tuple) -> None:
+        """The synchronous window of the open cycle, in bus order (module docstring, "Bus order").
+
+        While cycle k is open with a window, node frames (TPDO, heartbeat, EMCY, SDO answer)
+        stamped inside its window are fed at once; the first one stamped after it closes the
+        cycle (``window``). A master frame (SYNC k+1, NMT, SDO request) or any other frame
+        arriving while k is open after SYNC k+1 has come is *held*: fed once the window is
+        over, so an answer to SYNC k that was on the bus before SYNC k+1 but reached this
+        process after it still counts in k. Also released by a second SYNC, an NMT broadcast
+        stop / pre-operational / reset, or :data:`HOLD_MAX` held events.
+        """
+        t, raw, channel, can_id, data, flags = event
+        if self.is_open and self.window_us:
+            kind = self._kind(channel, can_id, flags)
+            if kind in NODE_KINDS:
+                if raw > self.sync_raw + self.window_us:
+                    self._release(out)
+                    self._route(out, event)
+                    return
+                self._push(out, self._feed(t, raw, channel, can_id, data, flags))
+                if self.held and not self.is_open:  # it completed the cycle: feed what was held
+                    self._release(out)
+                return
+            if self.held:
+                release = (
+                    len(self.held) >= HOLD_MAX
+                    or (kind == K_SYNC and channel == 0)
+                    or (kind == K_NMT and len(data) == 2 and data[1] == 0 and data[0] != NMT_START))
+                if release:
+                    self._release(out)
+                    self._route(out, event)
+                else:
+                    self.held.append(event)
+                return
+            if kind == K_SYNC and channel == 0:
+                self.held.append(event)  # SYNC k+1 while k's window is open: hold it
+                return
+        self._push(out, self._feed(t, raw, channel, can_id, data, flags))
+
+    def _release(self, out: list) -> None:
+        """Close the open cycle at its window's end, then feed the held events in order."""
+        if self.is_open:
+            out.append(self._close("window", self.sync_us + self.window_us))
+        held, self.held = self.held, []
+        for t, raw, channel, can_id, data, flags in held:
+            self._push(out, self._feed(t, raw, channel, can_id, data, flags))
+
+    @staticmethod
+    def _push(out: list, closed) -> None:
+        if closed is not None:
+            out.append(closed)
+
+    def _kind(self, channel: int, can_id: int, flags: int) -> int | None:
+        if flags:
+            return None
+        try:
+            entry = self.tables[channel].get(can_id)
+        except (IndexError, TypeError, AttributeError):
+            return None
+        return entry[0] if entry is not None else None
 
     def _feed(self, t: int, raw: int, channel: int, can_id: int, data: bytes, flags: int):
         counts = self.counts
@@ -332,6 +418,10 @@ class CycleAssembler:
             self.last_heard[idx] = t
             self.state[idx] = STATE_OPERATIONAL
             self.held_decisions[idx] = u
+            if self.tagged and self.is_open and not stale and self.got1[idx] and self.synchronous_every_sync:
+                # a second decision tagged with this cycle's SYNC: one node sends one synchronous
+                # TPDO1 per SYNC, so two devices answer for this node-ID
+                self._duplicate(idx)
             if not self.is_open or self.got1[idx] or stale:
                 counts[C_LATE] += 1
                 self.late_since += 1

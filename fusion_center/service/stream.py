@@ -186,9 +186,10 @@ class EventStream:
             flags = 0
             if msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id or msg.is_fd:
                 flags = message_flags(msg)
-            closed = self.assembler.feed(us, channel, msg.arbitration_id, msg.data, flags)
-            if closed is not None and self.on_closed is not None:
-                self.on_closed(closed)
+            closed = self.assembler.feed_all(us, channel, msg.arbitration_id, msg.data, flags)
+            if closed and self.on_closed is not None:
+                for cycle in closed:  # oldest first (a released hold can close two)
+                    self.on_closed(cycle)
                 return True
         except Exception as exc:  # noqa: BLE001 - the receive path never raises
             if self.assembler.events < self.fed:
