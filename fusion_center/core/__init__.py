@@ -23,6 +23,8 @@ Modules (one job each):
 * :mod:`.contact` - contact type (eqs 33-34, Table 1)
 * :mod:`.slip` - slip detection (sec. 4)
 * :mod:`.bus_timing` - exact CAN frame lengths and bus load
+* :mod:`.layouts` - skin layouts (one-taxel or patch nodes, packed payloads, classic CAN or FD):
+  exact bits per SYNC cycle, bus load, highest SYNC rate
 
 The names below are the public API (``docs/api.md``) and are imported on first use, so that
 ``import fusion_center.core.rules`` loads only what ``rules`` needs.
@@ -36,7 +38,7 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(
     __name__,
     submodules=["encoding", "rules", "curves", "thresholds", "certify", "baselines", "poisson_binomial",
                 "exact_rates", "centralised", "montecarlo", "forces", "units", "geometry", "contact", "slip",
-                "bus_timing"],
+                "bus_timing", "layouts"],
     submod_attrs={
         "encoding": ["local_decision", "present_count", "to_pm1", "to_01"],
         "rules": ["additive", "multiplicative", "preferential", "preferential_sister", "k_of_n", "g_of_n"],
@@ -69,6 +71,10 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(
         "bus_timing": [
             "frame_bits", "worst_case_frame_bits", "best_case_frame_bits", "frame_time_s", "bus_load",
             "fd_frame_bits",
+        ],
+        "layouts": [
+            "skin_layout", "SkinLayout", "layout_cycle_bits", "layout_bus_use", "channels_needed",
+            "pdo_frame_stats", "FrameStats", "LayoutUse",
         ],
         "units": ["convert_force"],
         "exact_rates": [
