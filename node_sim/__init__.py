@@ -17,7 +17,8 @@ service's state; :class:`TaxelNode` composes them:
 * :mod:`.sync` - SYNC consumer (0x1005): what a SYNC triggers;
 * :mod:`.emcy` - EMCY producer, error register 0x1001, error history 0x1003;
 * :mod:`.detector` - the application: the local detector of the chapter (eqs 1-4,
-  u_i = ±1 from X_i − N_i ≥ ζ), sensor-fault checks, CiA 404 analog input;
+  u_i = ±1 from X_i − N_i ≥ ζ; also as 0x2003 with its cycle tag), sensor-fault checks, its
+  analog input (X_i in mV);
 * :mod:`.od` - the object dictionary glue (the EDS ``eds/taxel_node.eds``, canopen's
   ``LocalNode``, start-up values);
 * :mod:`.node` - :class:`TaxelNode`; :mod:`.link` - a node's channel (send, SYNC bursts,
@@ -25,7 +26,10 @@ service's state; :class:`TaxelNode` composes them:
 * :mod:`.rig` - :class:`Rig`; :mod:`.physics` - readings and ground truth; :mod:`.cli` - the
   ``node-sim`` command.
 
-LSS (CiA 305) is not implemented yet (its module will be ``lss``). Nothing here imports from
+* :mod:`.lss` - the LSS slave (CiA 305: switch state, configure node-ID and bit timing, store,
+  inquire, identify, Fastscan).
+
+Nothing here imports from
 ``fusion_center``; what the twins and the centre share comes from ``taxel_net``.
 """
 

@@ -373,3 +373,12 @@ def test_with_no_node_frame_a_second_sync_or_the_end_of_run_releases_the_hold():
     closed = a.feed_all(25 * MS, 0, 0x000, bytes([0x80, 0]))       # NMT pre-operational all
     assert [(c.cycle, c.closed_by) for c in closed] == [(1, "window"), (2, "nmt")]
     assert not a.held and sum(a.counts) == a.events
+
+
+def test_lss_frames_are_counted_as_lss_not_as_malformed():
+    sc = scene()
+    a = CycleAssembler(sc)
+    a.feed(0, 0, 0x7E5, bytes([0x04, 0x01, 0, 0, 0, 0, 0, 0]))   # switch state global: configuration
+    a.feed(1, 0, 0x7E4, bytes([0x11, 0, 0, 0, 0, 0, 0, 0]))       # a slave's answer
+    a.feed(2, 0, 0x7E5, bytes([0x04, 0x01]))                       # LSS is always 8 bytes
+    assert a.counters()["lss"] == 2 and a.counters()["bad_dlc"] == 1 and a.counters()["unknown_cob_id"] == 0

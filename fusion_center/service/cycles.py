@@ -86,6 +86,7 @@ from .decoder import (
     K_SDO_REQUEST,
     K_SDO_RESPONSE,
     K_SYNC,
+    K_LSS,
     K_TIME,
     K_TPDO1,
     K_TPDO2,
@@ -134,6 +135,7 @@ COUNTER_NAMES: tuple[str, ...] = (
     "sdo",             # SDO request or response
     "sdo_abort",       # SDO abort transfer (server -> client, command byte 0x80)
     "time",            # TIME stamp object
+    "lss",             # CiA 305 layer setting service frame (0x7E4 / 0x7E5, 8 bytes)
     "bad_dlc",         # known COB-ID, wrong data length
     "bad_value",       # known COB-ID, value outside its domain (u_i not ±1, state, counter...)
     "unknown_cob_id",  # COB-ID of no node/object in the scene
@@ -146,7 +148,7 @@ COUNTER_NAMES: tuple[str, ...] = (
 _C = {name: i for i, name in enumerate(COUNTER_NAMES)}
 C_SYNC, C_TPDO1, C_TPDO2, C_LATE = _C["sync"], _C["tpdo1"], _C["tpdo2"], _C["late"]
 C_HEARTBEAT, C_BOOTUP, C_EMCY, C_NMT = _C["heartbeat"], _C["bootup"], _C["emcy"], _C["nmt"]
-C_SDO, C_SDO_ABORT, C_TIME = _C["sdo"], _C["sdo_abort"], _C["time"]
+C_SDO, C_SDO_ABORT, C_TIME, C_LSS = _C["sdo"], _C["sdo_abort"], _C["time"], _C["lss"]
 C_BAD_DLC, C_BAD_VALUE, C_UNKNOWN = _C["bad_dlc"], _C["bad_value"], _C["unknown_cob_id"]
 C_REMOTE, C_ERROR, C_EXTENDED, C_INTERNAL = (
     _C["remote_frame"], _C["error_frame"], _C["extended_id"], _C["internal_error"])
@@ -501,6 +503,11 @@ class CycleAssembler:
             return None
         if kind == K_NMT:
             return self._nmt(t, channel, data)
+        if kind == K_LSS:
+            if size != 8:
+                return self._bad(C_BAD_DLC)
+            counts[C_LSS] += 1
+            return None
         # K_TIME
         if size != 6:
             return self._bad(C_BAD_DLC)

@@ -38,10 +38,13 @@ K_SDO_REQUEST = 6
 K_SYNC = 7
 K_NMT = 8
 K_TIME = 9
+K_LSS = 10  # CiA 305 LSS: 0x7E5 master -> slaves, 0x7E4 slave -> master
 
 COB_NMT = 0x000
 COB_SYNC = 0x080
 COB_TIME = 0x100
+COB_LSS_SLAVE = 0x7E4
+COB_LSS_MASTER = 0x7E5
 BASE_EMCY = 0x080
 BASE_TPDO1 = 0x180
 BASE_TPDO2 = 0x280
@@ -78,11 +81,12 @@ _EMCY = struct.Struct("<HB5s")
 def build_cob_tables(scene: Scene) -> list[dict[int, tuple[int, int]]]:
     """One dict per scene channel: COB-ID -> (frame kind, taxel index in fusion order).
 
-    Channel-wide objects (NMT, SYNC, TIME) map to taxel index -1. COB-IDs of node-IDs the
+    Channel-wide objects (NMT, SYNC, TIME, LSS) map to taxel index -1. COB-IDs of node-IDs the
     scene does not name are absent: the assembler counts them as ``unknown_cob_id``.
     """
     tables: list[dict[int, tuple[int, int]]] = [
-        {COB_NMT: (K_NMT, -1), COB_SYNC: (K_SYNC, -1), COB_TIME: (K_TIME, -1)}
+        {COB_NMT: (K_NMT, -1), COB_SYNC: (K_SYNC, -1), COB_TIME: (K_TIME, -1),
+         COB_LSS_SLAVE: (K_LSS, -1), COB_LSS_MASTER: (K_LSS, -1)}
         for _ in scene.bus.channels
     ]
     for index, taxel in enumerate(scene.taxels):

@@ -57,6 +57,7 @@ from .decoder import (
 logger = logging.getLogger("fusion_center.master")
 
 COB_INVALID = 0x8000_0000
+COB_NO_RTR = 0x4000_0000  # TPDO COB-ID bit 30 (CiA 301): no remote transmission request
 BOOT_QUIET_S = 0.05  # after the reset at start: no new boot-up for this long before configuring
 HEARTBEAT_PRODUCER = 0x1017
 TPDO_COMM = (0x1800, 0x1801)
@@ -92,7 +93,7 @@ def node_configuration(scene: Scene, index: int) -> list[tuple[int, int, object]
     writes.append((SYNC_WINDOW, 0, int(bus.sync_window)))
     for comm, base, enabled in ((TPDO_COMM[0], BASE_TPDO1, bus.mode != "raw"),
                                 (TPDO_COMM[1], BASE_TPDO2, bus.mode == "raw")):
-        cob = base + t.node_id
+        cob = COB_NO_RTR | base + t.node_id  # bit 30: no RTR, as the EDS defaults and the twins' start-up values
         writes.append((comm, 1, cob | COB_INVALID))
         writes.append((comm, 2, int(bus.transmission_type)))
         writes.append((comm, 3, int(bus.inhibit_time_100us)))

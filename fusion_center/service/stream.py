@@ -237,6 +237,8 @@ class EventStream:
                     self.rate_log.warning("tx_error", "transmit 0x%03X on channel %d failed: %s", can_id, channel, exc)
                     continue
                 msg.timestamp = sent_at
+                msg.is_rx = False  # sent by the centre: "Tx" in the trace (.asc, .blf, .trc); after
+                # the send, which has copied or serialised the frame (receivers see is_rx True)
                 closed |= self._feed_locked(msg, channel)
         if closed or len(self._trace_queue) >= TRACE_BATCH:
             self._after_feed(closed)
