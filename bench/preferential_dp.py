@@ -1,44 +1,117 @@
-"""Exact preferential-rule error rates (eq 7, eq 20 band): DP time against n.
+"""Exact preferential-rule error rates (eq 7, eq 20 band): DP time against n, side by side.
 
-Prints, for each method of fusion_center.core.exact_rates.preferential_error_rates, the time of
-one call (both hypotheses, best of 3 on a shared machine: +-50 % noise) for n = 10^2 .. 10^4,
-heterogeneous per-taxel pd_i / pf_i, the chapter's band (xi = 0.003, alpha = 0.48), and the
-exact rates as log10 (the false-alarm rates here are far below the double range):
+Prints, for each lattice form of fusion_center.core.exact_rates.preferential_error_rates
+("chain": {-1,+1} with p, q > 0; "lattice": one zero weight; "integer": integer p, q), the
+time of one call (both hypotheses) for n = 10^2 .. 10^4 with heterogeneous per-taxel pd_i /
+pf_i and the chapter's band (xi = 0.003, alpha = 0.48), and the exact rates as log10 ("<-300":
+below 1e-300, not computed; "-inf": impossible, or not reported by the other tree). Times are
+the process CPU time and the wall-clock time of the fastest of three calls (on a shared
+machine the CPU time is the steadier figure). ``--against OTHER_CHECKOUT`` runs the same calls
+in another checkout of this repository (``git worktree add /tmp/before <commit>``), each tree
+in its own interpreter, alternately, and prints the CPU-time ratio this/before:
 
-    .venv/bin/python bench/preferential_dp.py
+    .venv/bin/python bench/preferential_dp.py [--n 100,300,1000,3000,10000] [--against /tmp/before]
 """
 
 from __future__ import annotations
 
-import math
-import time
+import argparse
+import json
+import subprocess
+import sys
+from pathlib import Path
 
+ROOT = Path(__file__).resolve().parent.parent
+CASES = (("pm1", 1.0, 1.0), ("pm1", 1.3, 0.2), ("pm1", 0.0, 1.5), ("01", 1.0, 1.0))
+
+PROBE = r'''
+import json, math, sys, time
+root, sizes, cases, skip = sys.argv[1], json.loads(sys.argv[2]), json.loads(sys.argv[3]), json.loads(sys.argv[4])
+sys.path.insert(0, root)
 import numpy as np
-
-from fusion_center.core.exact_rates import preferential_error_rates
+import fusion_center.core.exact_rates as er
 from fusion_center.core.thresholds import preferential_threshold
+rng = np.random.default_rng(0)
+rows = []
+for encoding, p, q in cases:
+    for n in sizes:
+        pd = rng.uniform(0.8, 0.99, n)
+        pf = rng.uniform(0.001, 0.01, n)
+        if [encoding, p, q, n] in skip or [encoding, p, q, 0] in skip:
+            rows.append(None)
+            continue
+        band = preferential_threshold(n, 0.003, 0.48, p, q, encoding)
+        best = cpu = float("inf")
+        for _ in range(3):
+            t0, c0 = time.perf_counter(), time.process_time()
+            r = er.preferential_error_rates(pd, pf, p, q, encoding, band.threshold_initial, band.threshold_final)
+            wall, used = time.perf_counter() - t0, time.process_time() - c0
+            best, cpu = min(best, wall), min(cpu, used)
+        below = getattr(r, "below_floor", ())
+        logs = {k: ("<-300" if k in below else None) if getattr(r, "log_" + k) is None
+                else getattr(r, "log_" + k) / math.log(10)
+                for k in ("p_miss", "p_false_alarm", "p_undecided_h1", "p_undecided_h0")}
+        rows.append({"case": [encoding, p, q, n], "method": r.method, "wall": best, "cpu": cpu, "log10": logs})
+print(json.dumps({"module": er.__file__, "rows": rows}))
+'''
 
 
-def main() -> None:
-    rng = np.random.default_rng(0)
-    print(f"{'method':<8} {'tuple':<5} {'p':>4} {'q':>4} {'n':>6} {'seconds':>9}  {'log10 P_miss':>13} "
-          f"{'log10 P_FA':>11} {'log10 P_und|H0':>15}")
-    for encoding, p, q in (("pm1", 1.0, 1.0), ("pm1", 1.3, 0.2), ("01", 1.0, 1.0)):
-        for n in (100, 300, 1000, 3000, 10000):
-            if encoding == "01" and n > 3000:
-                continue  # the integer-value DP is O(n g): minutes at 10^4
-            pd = rng.uniform(0.8, 0.99, n)
-            pf = rng.uniform(0.001, 0.01, n)
-            band = preferential_threshold(n, 0.003, 0.48, p, q, encoding)
-            best = float("inf")
-            for _ in range(3):
-                t0 = time.perf_counter()
-                r = preferential_error_rates(pd, pf, p, q, encoding, band.threshold_initial, band.threshold_final)
-                best = min(best, time.perf_counter() - t0)
-            lg = lambda x: "-inf" if x is None else f"{x / math.log(10):.4f}"
-            print(f"{r.method:<8} {encoding:<5} {p:>4g} {q:>4g} {n:>6} {best:>9.3f}  {lg(r.log_p_miss):>13} "
-                  f"{lg(r.log_p_false_alarm):>11} {lg(r.log_p_undecided_h0):>15}")
+def measure(tree: Path, sizes, cases, skip=()) -> list[dict]:
+    res = subprocess.run([sys.executable, "-c", PROBE, str(tree), json.dumps(sizes), json.dumps(cases),
+                          json.dumps(list(skip))],
+                         capture_output=True, text=True, cwd=tree, timeout=3600)
+    if res.returncode != 0:
+        raise SystemExit(f"{tree}: {res.stderr.strip().splitlines()[-1] if res.stderr else res.returncode}")
+    out = json.loads(res.stdout)
+    if not out["module"].startswith(str(tree)):
+        raise SystemExit(f"{tree}: imported {out['module']} instead")
+    return out["rows"]
+
+
+def _fmt(x) -> str:
+    if x is None:
+        return "-inf"
+    return x if isinstance(x, str) else f"{x:.4f}"
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--n", default="100,300,1000,3000,10000", help="taxel counts, comma separated")
+    ap.add_argument("--against", type=Path, help="another checkout to compare with (the 'before')")
+    ap.add_argument("--rounds", type=int, default=1, help="alternating runs per tree (best CPU time kept)")
+    args = ap.parse_args(argv)
+    sizes = [int(x) for x in args.n.split(",")]
+    trees = {"this": ROOT} if args.against is None else {"before": args.against.resolve(), "this": ROOT}
+    # before the lattice DP (issue 13): one zero weight beyond 60 taxels was a Monte Carlo
+    # estimate (no exact figure to compare) and the {0,1} integer DP took minutes at 10^4
+    skip = {"this": [], "before": [["pm1", 0.0, 1.5, 0], ["01", 1.0, 1.0, 10000]]}
+    results: dict[str, list] = {}
+    for _ in range(args.rounds):
+        for name, tree in trees.items():
+            rows = measure(tree, sizes, CASES, skip[name])
+            if name not in results:
+                results[name] = rows
+            else:
+                for kept, new in zip(results[name], rows):
+                    if kept is not None:
+                        kept["cpu"], kept["wall"] = min(kept["cpu"], new["cpu"]), min(kept["wall"], new["wall"])
+    head = (f"{'method':<8} {'tuple':<5} {'p':>4} {'q':>4} {'n':>6} {'wall s':>7} {'cpu s':>6}"
+            + (f" {'before cpu s':>12} {'ratio':>6}" if "before" in results else "")
+            + f"  {'log10 P_miss':>13} {'log10 P_FA':>11} {'log10 P_und|H1':>15} {'log10 P_und|H0':>15}")
+    print(head)
+    for j, row in enumerate(results["this"]):
+        encoding, p, q, n = row["case"]
+        line = f"{row['method']:<8} {encoding:<5} {p:>4g} {q:>4g} {n:>6} {row['wall']:>7.3f} {row['cpu']:>6.3f}"
+        if "before" in results:
+            before = results["before"][j]
+            line += (f" {'-':>12} {'-':>6}" if before is None
+                     else f" {before['cpu']:>12.3f} {row['cpu'] / before['cpu']:>6.2f}")
+        logs = row["log10"]
+        line += "  " + " ".join(f"{_fmt(logs[k]):>{w}}" for k, w in (("p_miss", 13), ("p_false_alarm", 11),
+                                                                        ("p_undecided_h1", 15), ("p_undecided_h0", 15)))
+        print(line)
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

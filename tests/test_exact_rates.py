@@ -260,3 +260,112 @@ def test_importance_sampling_tail_covers_exact():
             est, (lo, hi) = importance_sampling_tail(a, b, probs, t, 40_000, rng)
             half = (hi - lo) / 2 * 3.29 / 1.96
             assert abs(est - exact) <= half + 1e-15, (t, exact, est, lo, hi)
+
+
+# ------------------------------------------------------------------ lattice DP: every lattice form, deep tails
+@pytest.mark.parametrize("encoding, p, q", [("pm1", 1.5, 0.0), ("pm1", 0.5, 1.5), ("pm1", 1.0, 2.0), ("pm1", 2.0, 2.0),
+                                            ("pm1", 0.0, 0.0), ("01", 2.0, 0.0), ("01", 1.0, 2.0)])
+@pytest.mark.parametrize("n", [2, 3, 9])
+def test_lattice_forms_vs_all_vectors(encoding, p, q, n):
+    """Folded units (2^q an integer), reversed chains (p and q swapped) and one zero weight."""
+    test_preferential_dp_vs_all_vectors(encoding, p, q, n)
+
+
+@pytest.mark.parametrize("encoding, p, q", [("pm1", 0.0, 1.5), ("pm1", 1.7, 0.0)])
+def test_one_zero_weight_is_exact_beyond_the_sparse_limit(encoding, p, q):
+    """{-1,+1} with one zero weight: U_G = 2^p m + u_n (or mirrored), exact for any n (was a
+    Monte Carlo estimate beyond 60 taxels); against the mpmath DP at n = 90."""
+    rng = np.random.default_rng(5)
+    n = 90
+    pi = rng.uniform(0.05, 0.6, n)
+    g = 2.0**p + 2.0**q + (n - 2) * 2.0 ** (p + q)
+    low, high = -0.2 * g, 0.25 * g
+    ours = preferential_error_rates(pi, pi, p, q, encoding, low, high)
+    assert ours.method == "lattice"
+    ref = mp_chain_dp(list(pi), p, q, encoding, low, high)
+    for a, b in zip((ours.p_false_alarm, ours.p_undecided_h0, ours.p_reject), ref):
+        assert abs(a - float(b)) <= 1e-11 * float(b) + 1e-300, (a, b)
+
+
+def log_chain_reference(pi, p, q, low, high):
+    """An independent DP for {-1,+1}, p, q > 0 in the log domain (np.logaddexp), without
+    scaling or trimming: state (u_(i-1), u_i, e_1) and m = -n..n; U_G = 2^(p+q) m + 2^p e_1 +
+    2^q e_n compared with the edges in mpmath. Returns ln P(H1), ln P(undecided), ln P(H0)."""
+    n = len(pi)
+    size = 2 * n + 3
+    mid = n + 1
+    ninf = -np.inf
+    L = np.full((2, 2, 3, size), ninf)
+    lp, lq = np.log(pi), np.log1p(-np.asarray(pi))
+    for a in (0, 1):
+        for b in (0, 1):
+            e1 = (1 if a else -1) if b else 0
+            L[a, b, e1 + 1, mid] = (lp[0] if a else lq[0]) + (lp[1] if b else lq[1])
+    for i in range(2, n):
+        new = np.full_like(L, ninf)
+        for a in (0, 1):
+            for b in (0, 1):
+                for c in (0, 1):
+                    s = (1 if b else -1) if (a and c) else 0
+                    moved = np.full(size, ninf)[None, :].repeat(3, 0)
+                    if s == 0:
+                        moved = L[a, b]
+                    elif s == 1:
+                        moved[:, 1:] = L[a, b, :, :-1]
+                    else:
+                        moved[:, :-1] = L[a, b, :, 1:]
+                    new[b, c] = np.logaddexp(new[b, c], moved + (lp[i] if c else lq[i]))
+        L = new
+    out = [[], [], []]
+    P, Q = mp.mpf(2) ** mp.mpf(p), mp.mpf(2) ** mp.mpf(q)
+    for a in (0, 1):
+        for b in (0, 1):
+            en = (1 if b else -1) if a else 0
+            for e1 in (-1, 0, 1):
+                row = L[a, b, e1 + 1]
+                for j in np.flatnonzero(np.isfinite(row)):
+                    u = P * Q * (j - mid) + P * e1 + Q * en
+                    out[0 if u >= high else (2 if u < low else 1)].append(row[j])
+    from scipy.special import logsumexp
+    return [float(logsumexp(v)) if v else None for v in out]
+
+
+def test_deep_tails_vs_a_log_domain_reference():
+    """n = 400, the chapter's band (xi = 0.003, alpha = 0.48): under H1 undecided ~1e-3 and a
+    miss ~1e-8, under H0 undecided ~1e-272 and a false alarm ~1e-371; every rate >= 1e-300
+    agrees with an untrimmed log-domain DP to 1e-11 (relative), the rates below are named."""
+    from fusion_center.core.thresholds import preferential_threshold
+
+    rng = np.random.default_rng(11)
+    n = 400
+    pd = rng.uniform(0.8, 0.99, n)
+    pf = rng.uniform(0.001, 0.02, n)
+    for p, q in ((1.3, 0.2), (1.0, 1.0)):
+        band = preferential_threshold(n, 0.003, 0.48, p, q)
+        low, high = band.threshold_initial, band.threshold_final
+        ours = preferential_error_rates(pd, pf, p, q, "pm1", low, high)
+        assert ours.method == "chain"
+        for probs, names in ((pd, ("p_detect", "p_undecided_h1", "p_miss")),
+                             (pf, ("p_false_alarm", "p_undecided_h0", "p_reject"))):
+            ref = log_chain_reference(probs, p, q, low, high)
+            for name, r in zip(names, ref):
+                got = getattr(ours, "log_" + name)
+                if r is not None and r >= math.log(1e-300):
+                    assert got is not None and abs(got - r) <= 1e-11 * max(1.0, abs(r)), (p, q, name, got, r)
+                    assert name not in ours.below_floor
+                else:
+                    assert got is None and name in ours.below_floor, (name, got, r)
+        assert ours.below_floor  # this band puts the H0 rates of H1-or-undecided far below 1e-300
+
+
+def test_floor_and_impossible_events():
+    """A zero-width band holds no value: impossible (None, not below the floor); a far tail
+    below 1e-300 is named in below_floor."""
+    n = 200
+    ours = preferential_error_rates(0.9, 1e-3, 1, 1, "pm1", 10.5, 10.5, n=n)
+    assert ours.log_p_undecided_h1 is None and ours.log_p_undecided_h0 is None
+    assert "p_undecided_h1" not in ours.below_floor and "p_undecided_h0" not in ours.below_floor
+    g = 4.0 * n - 4.0
+    far = preferential_error_rates(0.5, 1e-3, 1, 1, "pm1", g - 1, g - 0.5, n=n)  # H1 needs all 200 present
+    assert far.log_p_false_alarm is None and "p_false_alarm" in far.below_floor  # 1e-600
+    assert math.isclose(far.log_p_detect, n * math.log(0.5), rel_tol=1e-13)  # 2^-200, exact

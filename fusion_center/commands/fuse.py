@@ -280,6 +280,9 @@ def _preferential_rates(args, record: dict, p, q, encoding, low: float, high: fl
     for key in ("p_detect", "p_false_alarm", "p_undecided_h1", "p_undecided_h0"):
         record["log_" + key] = getattr(rates, "log_" + key)
     record["rates_method"] = rates.method
+    below = [key for key in ("p_detect", "p_false_alarm", "p_undecided_h1", "p_undecided_h0") if key in rates.below_floor]
+    if below:  # their log_ fields are null: 0 <= rate < 1e-300 (not impossible)
+        record["rates_below_1e-300"] = below
     if rates.ci95:
         record["rates_ci95"] = {k: list(v) for k, v in rates.ci95.items()}
 

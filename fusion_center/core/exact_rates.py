@@ -3,24 +3,46 @@ Chair-Varshney / Neyman-Pearson baselines (eqs 31-32) on taxels that come in kin
 
 Preferential rule (eq 7). With independent taxels (P(u_i present) = pd_i under H1, pf_i under
 H0) U_G depends on each taxel and its two neighbours only, so its law follows from a dynamic
-programme along the chain; the state is the last two decisions and the accumulated U_G:
+programme along the chain; the state is the last two decisions (u_(i-1), u_i) and a lattice
+coordinate x. Wherever every inner taxel's term is an integer multiple of one unit,
+
+    U_G = unit * x + (the first taxel's term) + (the last taxel's term),   x an integer:
 
 * {-1,+1}, p > 0, q > 0 (``method="chain"``): an absent neighbour's factor is 0^p = 0, so an
   inner taxel contributes u_i 2^(p+q) when both neighbours are present and 0 otherwise:
-  U_G = 2^(p+q) m + 2^p e_1 + 2^q e_n, m in -n..n an integer, e_1 = u_1 [u_2 present],
-  e_n = u_n [u_(n-1) present] in {-1, 0, 1}. The DP carries the law of m for each e_1 and
-  state: O(n^2) operations, a few numpy vector operations per taxel.
-* integer p, q (either tuple, ``method="integer"``): every term is an integer, U_G is an
-  integer in [-g, g]; the DP carries its law in an array.
-* otherwise (a zero weight on {-1,+1}, or non-integer p, q on {0,1}; ``method="exact-sparse"``):
-  U_G = a + b 2^p + c 2^q + d 2^(p+q) with integers a, b, c, d; the DP carries a dictionary over
-  (a, b, c, d), exact, practical up to ~60 taxels; beyond ``SPARSE_MAX_TAXELS`` the rates are
-  estimated by Monte Carlo with a 95 % Wilson interval (``method="monte-carlo"``, says so).
+  U_G = 2^(p+q) m + 2^p e_1 + 2^q e_n, m in -n..n, e_1 = u_1 [u_2 present], e_n = u_n
+  [u_(n-1) present] in {-1, 0, 1}; the DP carries m per state and per e_1 (three "labels").
+  Where 2^q (or 2^p) is an integer the unit 2^p (2^q) takes e_1 into the lattice: one label,
+  e.g. p = q = 1: U_G = 2 (2m + e_1) + 2 e_n. (Reversing the taxel order swaps p and q, eq 7.)
+* {-1,+1} with one zero weight (``method="lattice"``): U_G = 2^p m + u_n (or 2^q m + u_1).
+* integer p, q (either tuple, ``method="integer"``): every term is an integer.
+* otherwise ({0,1} with a non-integer weight: U_G = a + b (2^p + 2^q) + d 2^(p+q) needs three
+  integer coordinates; ``method="exact-sparse"``): a dictionary over the integer coefficients
+  (a, b, c, d) of 1, 2^p, 2^q, 2^(p+q), exact, practical up to ~60 taxels; beyond
+  ``SPARSE_MAX_TAXELS`` the rates are estimated by Monte Carlo with a 95 % Wilson interval
+  (``method="monte-carlo"``, says so).
+
+The lattice DP is a handful of numpy vector operations per taxel over the live window of x
+(``_lattice_law``): O(n W) with W the width of the law that matters, O(sqrt n) around the
+bulk plus the distance from the bulk to the band edges -- n = 10^4 in 0.3-0.7 s
+(``bench/preferential_dp.py``; before the window trimming of issue 13: O(n^2), 1.4-1.5 s).
+
+Accuracy. Probabilities are carried scaled by powers of two (from 2^900; the branch of the
+likelier decision is never multiplied, its factor goes into an exact-sum logarithm), so they
+stay normal doubles far below 1e-300. The window is trimmed every TRIM_EVERY taxels: on a
+side of the bulk where a band region may be small, columns below 1e-325 of probability
+(their total over the run stays below 1e-300 * 1e-12 for any n W up to 10^12); on a side where
+only the bulk's own region lies (x above the mean when U_G >= high holds the mean, say), below
+1e-24 of the mass -- that region is large, and mass that far beyond the bulk reaches the other
+side's regions even less often than the bulk does (the DP is shift-invariant in x). Every rate
+at or above FLOOR = 1e-300 is exact to ~1e-13 relative (tested against brute force over all
+2^n vectors, an mpmath DP and an untrimmed log-domain DP); a rate below FLOOR is not computed:
+its log is None and its name is in ``below_floor`` (an impossible event has None and is not).
 
 Decision (eq 20 band): H1 iff U_G >= high, H0 iff U_G < low, undecided between. Each
-comparison is exact: values within rounding of an edge are compared in mpmath. The three
-probabilities under each hypothesis are sums of positive terms (no complements), so tails down
-to ~1e-300 keep their relative accuracy; ``log_`` forms are natural logarithms.
+comparison is exact: the band edges become an integer threshold on x per pair of end labels,
+decided in mpmath where rounding cannot; the three probabilities under each hypothesis are
+sums of positive terms (no complements); ``log_`` forms are natural logarithms.
 
 Kinds (Chair-Varshney eq 31, N-P eq 32): when the taxels come in a few kinds with equal
 (pd, pf) per kind, ln Lambda depends only on the present count per kind, whose law is a product
@@ -31,6 +53,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from fractions import Fraction
 
 import numpy as np
 
@@ -39,6 +62,8 @@ from taxel_net.errors import ParameterError
 __all__ = [
     "PreferentialRates",
     "preferential_error_rates",
+    "preferential_law",
+    "FLOOR",
     "SPARSE_MAX_TAXELS",
     "KindRates",
     "kinds_of",
@@ -63,10 +88,11 @@ _NAMES = ("p_detect", "p_undecided_h1", "p_miss", "p_false_alarm", "p_undecided_
 class PreferentialRates:
     """System rates of the preferential band decision. Under H1: p_detect = P(H1 decided),
     p_undecided_h1, p_miss = P(H0 decided); under H0: p_false_alarm = P(H1 decided),
-    p_undecided_h0, p_reject = P(H0 decided). log_*: natural logarithms, exact below the
-    double range too (None for an impossible event); the plain values are exp of them (0.0
-    below ~1e-308). method: "chain", "integer", "exact-sparse" (exact) or "monte-carlo"
-    (estimate, with ``ci95`` per rate and ``samples``)."""
+    p_undecided_h0, p_reject = P(H0 decided). log_*: natural logarithms, exact down to FLOOR
+    (1e-300, below the double range of the plain values too); None for an impossible event, or
+    for a rate below FLOOR -- those are named in ``below_floor`` (0 <= rate < 1e-300). The plain
+    values are exp of the logs (0.0 below ~1e-308). method: "chain", "lattice", "integer",
+    "exact-sparse" (exact) or "monte-carlo" (estimate, with ``ci95`` per rate and ``samples``)."""
 
     log_p_detect: float | None
     log_p_undecided_h1: float | None
@@ -77,6 +103,7 @@ class PreferentialRates:
     method: str
     samples: int | None = None
     ci95: dict | None = None
+    below_floor: tuple = ()
 
     def __getattr__(self, name):
         if name in _NAMES:
@@ -125,153 +152,433 @@ def _check_probs(name: str, values, n: int) -> np.ndarray:
     return arr
 
 
-# ------------------------------------------------------------------ {-1,+1}, p, q > 0
-# Every DP starts from total mass 2^SCALE_BITS instead of 1 (an exact power of two), so tails
-# down to ~1e-570 stay normal doubles; sums are unscaled in the log domain. Columns whose every
-# entry is below TRIM (scaled: ~1e-571 of probability) are dropped from the live window; the
-# mass so dropped over the whole run is < 8 n^2 TRIM, far below 1e-300.
+# ------------------------------------------------------------------ lattice DP (chain, integer)
+# U_G is a sum of one term per taxel (eq 7), the term of taxel i a function of u_(i-1), u_i,
+# u_(i+1). Where every inner term is an integer multiple of one unit (2^(p+q) on {-1,+1} with
+# p, q > 0; 2^p or 2^q when the other weight is 0; 1 for integer p, q) U_G is
+#
+#     U_G = unit * x + (label of taxel 1's term) + (label of taxel n's term),   x an integer,
+#
+# and its law follows from a DP along the chain whose state is (u_(i-1), u_i), the start label
+# and x: an array over x per state and label. Every DP starts from total mass 2^SCALE_BITS (an
+# exact power of two), so probabilities far below the double range stay normal numbers; logs
+# are unscaled at the end. The live window of x is trimmed every TRIM_EVERY steps (module doc,
+# "Accuracy").
 SCALE_BITS = 900
 _LOG_SCALE = SCALE_BITS * math.log(2.0)
-TRIM = 1e-300
+FLOOR = 1e-300
+"""Rates below FLOOR are not reported (``below_floor``); rates at or above it are exact."""
+_LOG_FLOOR = math.log(FLOOR)
+# a tail side is trimmed at 1e-325 of probability (scaled), far below FLOOR: the mass so
+# dropped over the whole run is < n W 1e-325 (W the window) -- below 1e-300 * 1e-13 for any
+# n W up to 1e12; the side of the bulk only, where no small region lies, at 1e-24 of the mass
+TRIM_TAIL = math.exp(-325.0 * math.log(10.0) + _LOG_SCALE)
+TRIM_BULK = 1e-24 * 2.0**SCALE_BITS
+TRIM_EVERY = 8
+_BASIS = ("1", "2^p", "2^q", "2^(p+q)")
 
 
-def _chain_pm1(pi: np.ndarray) -> dict:
-    """Scaled law of (e_1, e_n, m) for {-1,+1}, p, q > 0 (module doc): {(e1, en): array over
-    m + n}, total mass 2^SCALE_BITS. One array X[a, b, e_1 + 1, m + mid] for the state
-    (u_(i-1), u_i) = (a, b); a step is six vector operations on the live window."""
+def _term(prev: int, own: int, nxt: int, p: float, q: float, encoding: str) -> tuple[int, int, int, int]:
+    """Integer coefficients (of 1, 2^p, 2^q, 2^(p+q)) of the eq 7 term u_i (1 + u_(i+1))^p
+    (1 + u_(i-1))^q of a taxel with own decision ``own`` (1 present, 0 absent) and neighbours
+    ``prev``/``nxt`` (1 present, 0 absent, 2 boundary u = 0). 0^0 = 1."""
+    u = 1 if own == 1 else (-1 if encoding == "pm1" else 0)
+    if u == 0:
+        return (0, 0, 0, 0)
+
+    def factor(state, weight):  # "x": 2^weight, 1, or 0
+        if state == 1:
+            return "x"
+        if state == 2 or encoding == "01" or weight == 0.0:
+            return 1
+        return 0
+
+    fp, fq = factor(nxt, p), factor(prev, q)
+    if fp == 0 or fq == 0:
+        return (0, 0, 0, 0)
+    if fp == "x" and fq == "x":
+        return (0, 0, 0, u)
+    if fp == "x":
+        return (0, u, 0, 0)
+    if fq == "x":
+        return (0, 0, u, 0)
+    return (u, 0, 0, 0)
+
+
+@dataclass(frozen=True)
+class _Lattice:
+    """U_G = unit * x + start label + end label (section comment), for the taxels in order
+    (``reverse`` False) or reversed (True: U_G of the reversed vector with p and q swapped is
+    the same value, eq 7). ``p``, ``q`` are the weights of that orientation, coefficients are
+    of (1, 2^p, 2^q, 2^(p+q)) in it. shift[a, b, c] is the lattice step of the middle taxel's
+    term; start[a][b] / end[a][b] = (steps, label index) of the first / last taxel's term
+    (a, b the present bits of the first two / last two taxels)."""
+
+    method: str
+    reverse: bool
+    p: float
+    q: float
+    unit: tuple[int, int, int, int]
+    shift: np.ndarray
+    start: tuple
+    end: tuple
+    start_labels: tuple
+    end_labels: tuple
+
+    def cost(self) -> int:
+        """Work per taxel, relative: labels carried through the DP times the spread of a step."""
+        return len(self.start_labels) * max(1, int(self.shift.max() - self.shift.min()))
+
+
+def _lattice_form(p: float, q: float, encoding: str, unit_index: int, method: str, reverse: bool) -> _Lattice | None:
+    """U_G in the lattice of basis element ``unit_index`` (0: 1, 1: 2^p, 2: 2^q, 3: 2^(p+q));
+    None if an inner term is not an integer multiple of it."""
+    # equal basis elements merged first: 2^0 = 1
+    def merge(c):
+        a, b, cq, d = c
+        if p == 0.0:
+            a, b, cq, d = a + b, 0, cq + d, 0
+        if q == 0.0:
+            a, b, cq, d = a + cq, b + d, 0, 0
+        return a, b, cq, d
+
+    # basis element j is 2^k times the unit when its exponent (0, p, q, p + q) exceeds the unit's
+    # by an integer k >= 0, decided exactly on the float inputs
+    exponents = [Fraction(0), Fraction(p), Fraction(q), Fraction(p) + Fraction(q)]
+    mult = []
+    for j in range(4):
+        k = exponents[j] - exponents[unit_index]
+        mult.append(2 ** int(k) if k.denominator == 1 and 0 <= k <= 8 else None)
+
+    def fold(c):
+        c = merge(c)
+        steps = sum(v * m for v, m in zip(c, mult) if m is not None)
+        label = tuple(0 if m is not None else v for v, m in zip(c, mult))
+        return steps, label
+
+    shift = np.zeros((2, 2, 2), dtype=np.int64)
+    for a in (0, 1):
+        for b in (0, 1):
+            for c in (0, 1):
+                steps, label = fold(_term(a, b, c, p, q, encoding))
+                if any(label):
+                    return None
+                shift[a, b, c] = steps
+    start_labels, end_labels, start, end = [], [], [[None, None], [None, None]], [[None, None], [None, None]]
+    for a in (0, 1):
+        for b in (0, 1):
+            steps, label = fold(_term(2, a, b, p, q, encoding))  # first taxel: boundary before it
+            if label not in start_labels:
+                start_labels.append(label)
+            start[a][b] = (steps, start_labels.index(label))
+            steps, label = fold(_term(a, b, 2, p, q, encoding))  # last taxel: boundary after it
+            if label not in end_labels:
+                end_labels.append(label)
+            end[a][b] = (steps, end_labels.index(label))
+    unit = tuple(1 if j == unit_index else 0 for j in range(4))
+    return _Lattice(method, reverse, p, q, unit, shift, tuple(map(tuple, start)), tuple(map(tuple, end)),
+                    tuple(start_labels), tuple(end_labels))
+
+
+def _lattice(p: float, q: float, encoding: str) -> _Lattice | None:
+    """The cheapest lattice form of U_G for these weights (over both orientations and every
+    unit that makes the inner terms integer multiples), None where U_G needs more than one
+    integer coordinate ({0,1} with a non-integer weight)."""
+    integer = float(p).is_integer() and float(q).is_integer()
+    if encoding == "pm1" and p > 0 and q > 0:
+        method = "chain"  # inner terms 0 or +-2^(p+q): units 2^(p+q), or 2^p when 2^q is an integer
+    elif encoding == "pm1" and (p == 0) != (q == 0) and not integer:
+        method = "lattice"  # a zero weight: inner terms 0 or +-2^p (+-2^q), an end taxel +-1
+    elif integer:
+        method = "integer"
+    else:
+        return None
+    forms = []
+    for reverse in (False, True):
+        pp, qq = (q, p) if reverse else (p, q)
+        for unit_index in range(4):
+            form = _lattice_form(pp, qq, encoding, unit_index, method, reverse)
+            if form is not None:
+                forms.append(form)
+    return min(forms, key=lambda f: (f.cost(), f.reverse, f.unit)) if forms else None
+
+
+def _lattice_law(pi: np.ndarray, lat: _Lattice, lower_tail: bool = True, upper_tail: bool = True):
+    """Law of (start label, end label, x) for n = pi.size >= 2 taxels in stored units:
+    ({(ls, le): (x_first, array over x from x_first)}, (E, L), dropped) with stored =
+    probability * 2^E / e^L, and ``dropped`` the stored mass removed by trimming (0.0 if
+    none). A side with ``*_tail`` True is trimmed at TRIM_TAIL (exact down to FLOOR), otherwise
+    at TRIM_BULK of the mass (the side where only the bulk's own region lies).
+
+    One step per taxel: Y[b, c] = P(c) (X[0, b] moved by shift[0, b, c] + X[1, b] moved by
+    shift[1, b, c]), four vector additions over the live window (three where the shifts of
+    both b agree) and one multiplication: the branch of the more likely decision is not
+    multiplied (its factor max(pc, 1 - pc) goes into L), the other by the ratio.
+    Every TRIM_EVERY steps the mass is rescaled by a power of two (to ~2^SCALE_BITS) and the
+    window trimmed."""
     n = pi.size
-    size = 2 * n + 3
-    mid = n + 1
-    X = np.zeros((2, 2, 3, size))
-    Y = np.zeros((2, 2, 3, size))
-    p1, p2 = pi[0], pi[1]
+    shift = lat.shift
+    smin, smax = int(shift.min()), int(shift.max())
+    st = [lat.start[a][b][0] for a in (0, 1) for b in (0, 1)]
+    xmin = min(st) + (n - 2) * smin
+    xmax = max(st) + (n - 2) * smax
+    pad = smax - smin + 2
+    size = xmax - xmin + 1 + 2 * pad
+    n_labels = len(lat.start_labels)
+    buffers = (np.zeros((2, 2, n_labels, size)), np.zeros((2, 2, n_labels, size)))
+    X = buffers[0]
+    lo, hi = size, 0
     for a in (0, 1):
         for b in (0, 1):
-            e1 = (1 if a else -1) if b else 0
-            X[a, b, e1 + 1, mid] = 2.0**SCALE_BITS * (p1 if a else 1.0 - p1) * (p2 if b else 1.0 - p2)
-    lo, hi = mid, mid + 1  # live window [lo, hi): zero outside it in X and Y
-    for i in range(2, n):
-        pc, qc = pi[i], 1.0 - pi[i]
-        lo, hi = max(1, lo - 1), min(size - 1, hi + 1)
-        w = slice(lo, hi)
-        # next decision absent: no term change; the middle taxel's term is 0 unless both
-        # neighbours are present
-        np.add(X[0, :, :, w], X[1, :, :, w], out=Y[:, 0, :, w])
-        Y[:, 0, :, w] *= qc
-        # next present: previous present and middle present -> m + 1; middle absent -> m - 1
-        np.add(X[0, 1, :, w], X[1, 1, :, lo - 1:hi - 1], out=Y[1, 1, :, w])
-        np.add(X[0, 0, :, w], X[1, 0, :, lo + 1:hi + 1], out=Y[0, 1, :, w])
-        Y[:, 1, :, w] *= pc
-        X, Y = Y, X
-        if i % 16 == 0 and hi - lo > 32:  # drop negligible columns at both window ends
-            head = X[:, :, :, lo:lo + 16].max(axis=(0, 1, 2))
-            k = int(np.argmax(head >= TRIM)) if (head >= TRIM).any() else 16
-            if k:
-                X[:, :, :, lo:lo + k] = 0.0
-                Y[:, :, :, lo:lo + k] = 0.0
-                lo += k
-            tail = X[:, :, :, hi - 16:hi].max(axis=(0, 1, 2))[::-1]
-            k = int(np.argmax(tail >= TRIM)) if (tail >= TRIM).any() else 16
-            if k:
-                X[:, :, :, hi - k:hi] = 0.0
-                Y[:, :, :, hi - k:hi] = 0.0
-                hi -= k
-    out = {}
+            steps, label = lat.start[a][b]
+            j = steps - xmin + pad
+            X[a, b, label, j] += 2.0**SCALE_BITS * (pi[0] if a else 1.0 - pi[0]) * (pi[1] if b else 1.0 - pi[1])
+            lo, hi = min(lo, j), max(hi, j + 1)
+    log_two = math.log(2.0)
+    exponent = SCALE_BITS  # stored = probability * 2^exponent / prod(max factors so far)
+    log_max_factors = []
+    log_running = 0.0  # their sum so far (for the trimming threshold; math.fsum at the end)
+    dropped = 0.0
+    groups = []
+    for c in (0, 1):
+        if shift[0, 0, c] == shift[0, 1, c] and shift[1, 0, c] == shift[1, 1, c]:
+            groups.append((slice(None), c, int(shift[0, 0, c]), int(shift[1, 0, c])))
+        else:
+            groups.extend((b, c, int(shift[0, b, c]), int(shift[1, b, c])) for b in (0, 1))
+    present_p = pi.tolist()
+    parity = 0  # buffers[parity] holds the law after the last step
+    for start in range(2, n, TRIM_EVERY):
+        steps = min(n, start + TRIM_EVERY) - start
+        # one window for the whole block (it covers every step's live range), views made once
+        lo, hi = lo + smin * steps, hi + smax * steps
+        views = []
+        for par in (0, 1):
+            source, dest = buffers[par], buffers[1 - par]
+            adds = [(source[0, b, :, lo - s0:hi - s0], source[1, b, :, lo - s1:hi - s1], dest[b, c, :, lo:hi])
+                    for b, c, s0, s1 in groups]
+            views.append((adds, dest[:, 0, :, lo:hi], dest[:, 1, :, lo:hi]))
+        for i in range(start, start + steps):
+            adds, absent, present = views[parity]
+            for in0, in1, out in adds:
+                np.add(in0, in1, out=out)
+            pc = present_p[i]
+            qc = 1.0 - pc
+            if pc >= qc:
+                absent *= qc / pc
+                log_max_factors.append(math.log(pc))
+            else:
+                present *= pc / qc
+                log_max_factors.append(math.log1p(-pc))
+            parity = 1 - parity
+        X = buffers[parity]
+        log_running = sum(log_max_factors[len(log_max_factors) - steps:], log_running)
+        live = X[:, :, :, lo:hi]
+        cols = live.sum(axis=(0, 1, 2))
+        # rescale by a power of two: the largest column back to ~2^SCALE_BITS (exact)
+        k = math.frexp(float(cols.max()))[1] - SCALE_BITS - 1
+        if k:
+            live *= math.ldexp(1.0, -k)
+            cols *= math.ldexp(1.0, -k)
+            dropped = math.ldexp(dropped, -k)
+            exponent -= k
+        if hi - lo > 8:
+            # stored units of TRIM_TAIL: probability 1e-325 * 2^SCALE_BITS
+            tail = TRIM_TAIL * math.exp(exponent * log_two - log_running - _LOG_SCALE)
+            bulk = 1e-24 * float(cols.sum())
+            keep_lo = np.flatnonzero(cols >= (tail if lower_tail else bulk))
+            keep_hi = np.flatnonzero(cols >= (tail if upper_tail else bulk))
+            first = int(keep_lo[0]) if keep_lo.size else hi - lo
+            last = int(keep_hi[-1]) + 1 if keep_hi.size else 0
+            if first < last and (first or last < hi - lo):
+                dropped += float(cols[:first].sum() + cols[last:].sum())
+                for arr in buffers:
+                    arr[:, :, :, lo:lo + first] = 0.0
+                    arr[:, :, :, lo + last:hi] = 0.0
+                lo, hi = lo + first, lo + last
+    X = buffers[parity]
+    scale = (exponent, math.fsum(log_max_factors))
+    laws: dict = {}
+    emin = min(lat.end[a][b][0] for a in (0, 1) for b in (0, 1))
+    emax = max(lat.end[a][b][0] for a in (0, 1) for b in (0, 1))
+    width = hi - lo + emax - emin
     for a in (0, 1):
         for b in (0, 1):
-            en = (1 if b else -1) if a else 0
-            for e1 in (-1, 0, 1):
-                row = X[a, b, e1 + 1, 1:size - 1]  # index m + n
-                out[(e1, en)] = out.get((e1, en), 0.0) + row
+            steps, le = lat.end[a][b]
+            for ls in range(n_labels):
+                row = X[a, b, ls, lo:hi]
+                if not row.any():
+                    continue
+                key = (ls, le)
+                if key not in laws:
+                    laws[key] = np.zeros(width)
+                laws[key][steps - emin:steps - emin + row.size] += row
+    x_first = lo - pad + xmin + emin
+    return {k: (x_first, v) for k, v in laws.items()}, scale, dropped
+
+
+def _mean_steps(pi: np.ndarray, lat: _Lattice) -> float:
+    """E[x] of the lattice form (exact up to rounding): every term's expected lattice steps."""
+    w1, w0 = pi, 1.0 - pi
+    total = 0.0
+    for a in (0, 1):
+        for b in (0, 1):
+            pa, pb = (w1 if a else w0), (w1 if b else w0)
+            total += float(pa[0] * pb[1]) * lat.start[a][b][0] + float(pa[-2] * pb[-1]) * lat.end[a][b][0]
+            for c in (0, 1):
+                s = int(lat.shift[a, b, c])
+                if s:
+                    pc_ = w1 if c else w0
+                    total += s * float(np.sum(pa[:-2] * pb[1:-1] * pc_[2:]))
+    return total
+
+
+def _exact_value(coeffs, p: float, q: float):
+    import mpmath
+
+    a, b, c, d = coeffs
+    big_p, big_q = mpmath.mpf(2) ** mpmath.mpf(p), mpmath.mpf(2) ** mpmath.mpf(q)
+    return a + b * big_p + c * big_q + d * big_p * big_q
+
+
+def _float_value(coeffs, p: float, q: float) -> tuple[float, float]:
+    """(float value, error bound) of a + b 2^p + c 2^q + d 2^(p+q)."""
+    a, b, c, d = coeffs
+    terms = (float(a), b * 2.0**p, c * 2.0**q, d * 2.0 ** (p + q))
+    return math.fsum(terms), 64.0 * _EPS * sum(abs(t) for t in terms)
+
+
+def _at_least(coeffs, edge: float, p: float, q: float) -> bool:
+    """a + b 2^p + c 2^q + d 2^(p+q) >= edge, exactly (mpmath where rounding cannot decide)."""
+    value, err = _float_value(coeffs, p, q)
+    if abs(value - edge) > err + 64.0 * _EPS * abs(edge):
+        return value >= edge
+    import mpmath
+
+    with mpmath.workdps(60):
+        return _exact_value(coeffs, p, q) >= mpmath.mpf(edge)
+
+
+def _first_at_least(lat: _Lattice, base, edge: float, p: float, q: float) -> int:
+    """Smallest integer x with unit * x + base >= edge (exact)."""
+    unit_value = _float_value(lat.unit, p, q)[0]
+    base_value = _float_value(base, p, q)[0]
+    if math.isinf(edge):
+        return -(2**62) if edge < 0 else 2**62
+    x = math.ceil((edge - base_value) / unit_value)
+    coeffs = lambda k: tuple(u * k + b for u, b in zip(lat.unit, base))
+    while _at_least(coeffs(x - 1), edge, p, q):
+        x -= 1
+    while not _at_least(coeffs(x), edge, p, q):
+        x += 1
+    return x
+
+
+def _label_base(lat: _Lattice, ls: int, le: int):
+    return tuple(s + e for s, e in zip(lat.start_labels[ls], lat.end_labels[le]))
+
+
+def _rates_lattice(pi: np.ndarray, lat: _Lattice, low: float, high: float):
+    """Per region (U >= high, low <= U < high, U < low): (ln P or None, below FLOOR), for one
+    hypothesis (taxels present with probabilities ``pi``)."""
+    p, q = lat.p, lat.q
+    if lat.reverse:
+        pi = pi[::-1]
+    pairs = [(ls, le) for ls in range(len(lat.start_labels)) for le in range(len(lat.end_labels))]
+    edges = {key: (_first_at_least(lat, _label_base(lat, *key), low, p, q),
+                   _first_at_least(lat, _label_base(lat, *key), high, p, q)) for key in pairs}
+    mean = _mean_steps(pi, lat)
+    # a side of the bulk holds a region that may be small unless the bulk's own region covers it
+    # (B = x < t_low lies below the mean unless it holds it, A = x >= t_high above it likewise)
+    lower_tail = any(t_low <= mean for t_low, _ in edges.values())
+    upper_tail = any(t_high > mean for _, t_high in edges.values())
+    laws, scale, dropped = _lattice_law(pi, lat, lower_tail=lower_tail, upper_tail=upper_tail)
+    sums = [0.0, 0.0, 0.0]  # H1 decided, undecided, H0 decided
+    for key, (x_first, arr) in laws.items():
+        t_low, t_high = edges[key]
+        i_low = min(max(t_low - x_first, 0), arr.size)
+        i_high = min(max(t_high - x_first, 0), arr.size)
+        sums[0] += float(arr[i_high:].sum())
+        sums[2] += float(arr[:i_low].sum())
+        if i_high > i_low:
+            sums[1] += float(arr[i_low:i_high].sum())
+    # a region without a point of the x range for every label pair is impossible, trimmed or not
+    xmin, xmax = _x_range(lat, pi.size)
+    empty = (all(t_high > xmax for _, t_high in edges.values()),
+             all(max(t_low, xmin) >= min(t_high, xmax + 1) for t_low, t_high in edges.values()),
+             all(t_low <= xmin for t_low, _ in edges.values()))
+    return _scaled_logs(sums, dropped, empty, scale)
+
+
+def _x_range(lat: _Lattice, n: int) -> tuple[int, int]:
+    """Bounds of x over all decision vectors (start steps, n - 2 inner steps, end steps)."""
+    starts = [lat.start[a][b][0] for a in (0, 1) for b in (0, 1)]
+    ends = [lat.end[a][b][0] for a in (0, 1) for b in (0, 1)]
+    smin, smax = int(lat.shift.min()), int(lat.shift.max())
+    return min(starts) + (n - 2) * smin + min(ends), max(starts) + (n - 2) * smax + max(ends)
+
+
+def _log_probability(stored: float, scale=(SCALE_BITS, 0.0)) -> float:
+    """ln of the probability behind a stored value (stored = probability * 2^E / e^L, scale =
+    (E, L)), formed without cancellation: ln(mantissa) + (exponent - E) ln 2 + L."""
+    if stored <= 0.0:
+        return -math.inf
+    mantissa, exp2 = math.frexp(stored)
+    return math.log(mantissa) + (exp2 - scale[0]) * math.log(2.0) + scale[1]
+
+
+def _scaled_logs(sums, dropped: float, empty=(False, False, False), scale=(SCALE_BITS, 0.0)):
+    """Per region, from stored sums (``_log_probability``): (ln P or None, below FLOOR).
+    Exact at or above FLOOR; an empty region, or 0 with nothing trimmed, is an impossible event
+    (None, False); else (None, True): 0 <= P < FLOOR."""
+    out = []
+    for s, none in zip(sums, empty):
+        log = _log_probability(s, scale)
+        if log >= _LOG_FLOOR:
+            out.append((log, False))
+        else:
+            out.append((None, not none and (s > 0.0 or dropped > 0.0)))
     return out
 
 
-def _log_sum(parts) -> float:
-    """ln of the unscaled total of scaled nonnegative parts (-inf for none)."""
-    total = float(np.sum(np.concatenate(parts))) if parts else 0.0
-    return math.log(total) - _LOG_SCALE if total > 0.0 else -math.inf
+def preferential_law(pi, p, q, encoding: str):
+    """The law of U_G (eq 7) for independent taxels present with probabilities ``pi``: (values,
+    ln probabilities), values ascending (floats; equal values merged), every atom of
+    probability >= FLOOR (the rest, < 1e-300 each and < 1e-290 together, left out). Lattice
+    cases only (module doc); None for {0,1} with a non-integer weight."""
+    from .encoding import check_encoding
+    from .rules import check_weight
 
-
-def _rates_chain_pm1(pi: np.ndarray, p: float, q: float, low: float, high: float):
+    p = check_weight("p", p)
+    q = check_weight("q", q)
+    encoding = check_encoding(encoding)
+    pi = _check_probs("pi", pi, np.asarray(pi).size)
     n = pi.size
-    m = np.arange(-n, n + 1)
-    big_p, big_q, pq = 2.0**p, 2.0**q, 2.0 ** (p + q)
-    parts_h1, parts_h0, parts_u = [], [], []
-    for (e1, en), probs in _chain_pm1(pi).items():
-        live = np.flatnonzero(probs)
-        if not live.size:
-            continue
-        values = (big_p * e1 + big_q * en) + pq * m[live]
-        sub = probs[live]
-        above, below = _classify(values, lambda i, e1=e1, en=en: (0, e1, en, int(m[live[i]])), p, q, low, high)
-        parts_h1.append(sub[above])
-        parts_h0.append(sub[below])
-        parts_u.append(sub[~above & ~below])
-    return _log_sum(parts_h1), _log_sum(parts_u), _log_sum(parts_h0)
-
-
-# ------------------------------------------------------------------ integer p, q
-def _factor(state: int, weight: float, encoding: str) -> float:
-    """(1 + u)^w of eq 7 for a neighbour: state 0 absent, 1 present, 2 boundary."""
-    if state == 2:
-        return 1.0
-    if state == 1:
-        return 2.0**weight
-    return (0.0 if weight > 0 else 1.0) if encoding == "pm1" else 1.0
-
-
-def _term(a: int, b: int, c: int, p: float, q: float, encoding: str) -> float:
-    """Term of the middle taxel b (0 absent / 1 present) with previous a and next c (2 = boundary)."""
-    u = 1.0 if b == 1 else (-1.0 if encoding == "pm1" else 0.0)
-    return u * _factor(c, p, encoding) * _factor(a, q, encoding)
-
-
-def _rates_integer(pi: np.ndarray, p: float, q: float, encoding: str, low: float, high: float):
-    n = pi.size
-    g = 1 if n == 1 else int(round(2.0**p + 2.0**q + (n - 2) * 2.0 ** (p + q)))
-    size = 2 * g + 1
-    off = g
     if n == 1:
-        probs = {}
-        for b in (0, 1):
-            v = int(_term(2, b, 2, p, q, encoding))
-            probs[v] = probs.get(v, 0.0) + (pi[0] if b else 1.0 - pi[0])
-        values = np.array(sorted(probs), dtype=float)
-        pr = np.array([probs[int(v)] for v in values]) * 2.0**SCALE_BITS
-        above, below = values >= high, values < low
-        return _log_sum([pr[above]]), _log_sum([pr[~above & ~below]]), _log_sum([pr[below]])
-    A = {}
-    for a in (0, 1):
-        for b in (0, 1):
-            arr = np.zeros(size)
-            t1 = int(_term(2, a, b, p, q, encoding))  # taxel 1: boundary before it
-            arr[off + t1] = 2.0**SCALE_BITS * (pi[0] if a else 1.0 - pi[0]) * (pi[1] if b else 1.0 - pi[1])
-            A[(a, b)] = arr
-    for i in range(2, n):
-        pc = pi[i]
-        new = {(b, c): np.zeros(size) for b in (0, 1) for c in (0, 1)}
-        for a in (0, 1):
-            for b in (0, 1):
-                src = A[(a, b)]
-                for c in (0, 1):
-                    t = int(_term(a, b, c, p, q, encoding))
-                    w = pc if c else 1.0 - pc
-                    if t >= 0:
-                        new[(b, c)][t:] += src[:size - t] * w if t else src * w
-                    else:
-                        new[(b, c)][:t] += src[-t:] * w
-        A = new
-    total = np.zeros(size)
-    for (a, b), arr in A.items():
-        t = int(_term(a, b, 2, p, q, encoding))  # taxel n: boundary after it
-        if t >= 0:
-            total[t:] += arr[:size - t] if t else arr
-        else:
-            total[:t] += arr[-t:]
-    values = np.arange(size, dtype=float) - off
-    above, below = values >= high, values < low
-    return _log_sum([total[above]]), _log_sum([total[~above & ~below]]), _log_sum([total[below]])
-
+        u0 = 0.0 if encoding == "01" else -1.0
+        atoms = {u0: 1.0 - pi[0], 1.0: pi[0]}
+        vals = np.array(sorted(v for v, w in atoms.items() if w >= FLOOR))
+        return vals, np.log([atoms[v] for v in vals])
+    lat = _lattice(p, q, encoding)
+    if lat is None:
+        return None
+    p, q = lat.p, lat.q
+    laws, scale, _ = _lattice_law(pi[::-1] if lat.reverse else pi, lat)
+    unit = _float_value(lat.unit, p, q)[0]
+    vals, weights = [], []
+    for (ls, le), (x_first, arr) in laws.items():
+        base = _float_value(_label_base(lat, ls, le), p, q)[0]
+        live = np.flatnonzero(arr)
+        vals.append(base + unit * (x_first + live))
+        weights.append(arr[live])
+    vals = np.concatenate(vals)
+    weights = np.concatenate(weights)
+    order = np.argsort(vals, kind="stable")
+    vals, weights = vals[order], weights[order]
+    uniq, start = np.unique(vals, return_index=True)
+    merged = np.add.reduceat(weights, start)
+    logs = np.array([_log_probability(w, scale) for w in merged])
+    keep = logs >= _LOG_FLOOR
+    return uniq[keep], logs[keep]
 
 # ------------------------------------------------------------------ generic (exact, sparse)
 def _rates_sparse(pi: np.ndarray, p: float, q: float, encoding: str, low: float, high: float):
@@ -336,7 +643,7 @@ def _rates_sparse(pi: np.ndarray, p: float, q: float, encoding: str, low: float,
     values = np.array([((b * big_p + c * big_q) + d * pq) + a for a, b, c, d in keys])
     probs = np.array([final[k] for k in keys]) * 2.0**SCALE_BITS
     above, below = _classify(values, lambda i: keys[i], p, q, low, high)
-    return _log_sum([probs[above]]), _log_sum([probs[~above & ~below]]), _log_sum([probs[below]])
+    return _scaled_logs([float(probs[above].sum()), float(probs[~above & ~below].sum()), float(probs[below].sum())], 0.0)
 
 
 def _rates_monte_carlo(pi: np.ndarray, p: float, q: float, encoding: str, low: float, high: float,
@@ -378,13 +685,13 @@ def preferential_error_rates(pd, pf, p, q, encoding: str, low: float, high: floa
         n = np.asarray(pd).size if np.asarray(pd).ndim else np.asarray(pf).size
     pd_arr = _check_probs("pd", pd, n)
     pf_arr = _check_probs("pf", pf, n)
-    integer = float(p).is_integer() and float(q).is_integer()
-    if encoding == "pm1" and p > 0 and q > 0 and n >= 2:
-        method = "chain"
-        run = lambda pi: _rates_chain_pm1(pi, p, q, low, high)
-    elif integer:
+    lat = _lattice(p, q, encoding) if n >= 2 else None
+    if n == 1:  # U_G = u_1 (boundary on both sides): an integer
         method = "integer"
-        run = lambda pi: _rates_integer(pi, p, q, encoding, low, high)
+        run = lambda pi: _rates_single(pi[0], encoding, low, high)
+    elif lat is not None:
+        method = lat.method
+        run = lambda pi: _rates_lattice(pi, lat, low, high)
     elif n <= SPARSE_MAX_TAXELS:
         method = "exact-sparse"
         run = lambda pi: _rates_sparse(pi, p, q, encoding, low, high)
@@ -397,8 +704,17 @@ def preferential_error_rates(pd, pf, p, q, encoding: str, low: float, high: floa
               "p_undecided_h0": _wilson(r0[1] * samples, samples), "p_reject": _wilson(r0[2] * samples, samples)}
         logs = [(math.log(x) if x > 0 else None) for x in (*r1, *r0)]
         return PreferentialRates(*logs, method="monte-carlo", samples=samples, ci95=ci)
-    logs = [*run(pd_arr), *run(pf_arr)]
-    return PreferentialRates(*[(x if x > -math.inf else None) for x in logs], method=method)
+    results = [*run(pd_arr), *run(pf_arr)]
+    below = tuple(name for name, (_, low_) in zip(_NAMES, results) if low_)
+    return PreferentialRates(*[log for log, _ in results], method=method, below_floor=below)
+
+
+def _rates_single(pi: float, encoding: str, low: float, high: float):
+    """One taxel: U_G = u_1 in {-1, 1} or {0, 1} (eq 7 with u_0 = u_2 = 0)."""
+    sums = [0.0, 0.0, 0.0]
+    for value, w in ((1.0, pi), (-1.0 if encoding == "pm1" else 0.0, 1.0 - pi)):
+        sums[0 if value >= high else (2 if value < low else 1)] += w * 2.0**SCALE_BITS
+    return _scaled_logs(sums, 0.0)
 
 
 # ------------------------------------------------------------------ kinds: LLR and N-P

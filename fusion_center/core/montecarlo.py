@@ -391,9 +391,8 @@ def _exact_other(name, setup, taxel_pf, pd_patterns, weights):
     if name == "preferential":
         p, q, tm = setup.preferential
         n = taxel_pf.size
-        if not (setup.encoding == "pm1" and p > 0 and q > 0) and not (float(p).is_integer() and float(q).is_integer()) \
-                and n > exact_rates.SPARSE_MAX_TAXELS:
-            return None, None
+        if exact_rates._lattice(p, q, setup.encoding) is None and n > exact_rates.SPARSE_MAX_TAXELS:
+            return None, None  # {0,1} with a non-integer weight beyond the exact sparse DP
 
         def fn(probs):
             return exact_rates.preferential_error_rates(probs, probs, p, q, setup.encoding, tm, tm).p_detect
