@@ -184,11 +184,13 @@ class LssMaster:
 
 
 def assign_node_ids(service, scene: Scene, identity: tuple[int, int, int],
-                    timeout_s: float = RESPONSE_TIMEOUT_S) -> LssReport:
+                    timeout_s: float | None = None) -> LssReport:
     """Find the non-configured nodes of every channel by Fastscan and give each the node-ID
     the scene lists for its LSS address (``identity``: the EDS's 0x1018:1-3). ``service``: the
     :class:`~fusion_center.service.fusion_service.FusionService` (its event stream sends, its
     notifiers receive)."""
+    if timeout_s is None:
+        timeout_s = RESPONSE_TIMEOUT_S  # read at call time (tests on a virtual bus shorten it)
     report = LssReport()
     start = time.monotonic()
     for channel in range(len(scene.bus.channels)):
