@@ -184,7 +184,8 @@ def test_hand_worked_frames(frame):
 
 def test_field_layout_before_stuffing():
     # FBFF: SOF ID RRS IDE FDF res BRS ESI DLC; FEFF: SOF baseID SRR IDE IDext RRS FDF res BRS ESI DLC
-    assert "".join(map(str, fd_frame_fields(0x7FF, b"", brs=False))) == "0" + "1" * 11 + "00" + "10" + "0" + "0" + "0000"
+    fbff = "".join(map(str, fd_frame_fields(0x7FF, b"", brs=False)))
+    assert fbff == "0" + "1" * 11 + "00" + "10" + "0" + "0" + "0000"
     f = "".join(map(str, fd_frame_fields(0x1ABCDEF0, bytes(64), extended=True)))
     assert f[:41] == "0" + "11010101111" + "11" + "001101111011110000" + "0" + "10" + "1" + "0" + "1111"
     assert len(f) == 41 + 512

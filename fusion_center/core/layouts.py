@@ -229,7 +229,7 @@ def _crc_tables() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         inv = np.empty_like(forward)
         inv[forward] = c
         inverse.append(inv)
-    table = np.zeros((8, 1 << 15), dtype=np.int64)
+    table = np.zeros((8, 1 << 15), dtype=np.int8)
     for s in range(8):
         v = np.full(c.shape, s // 4)
         n = np.full(c.shape, s % 4 + 1)
@@ -256,16 +256,16 @@ def _classic_data_dp(v0: int, n0: int, bits: tuple[int, ...], p_one: float):
     inv0, inv1, _ = _crc_tables()
     inverse = (inv0, inv1)
     size = 1 << 15
-    neg = -(1 << 30)
+    neg = -30000                                  # unreachable (at most 16 data stuff bits)
     prob = np.zeros((8, size))
-    best = np.full((8, size), neg, dtype=np.int64)
+    best = np.full((8, size), neg, dtype=np.int16)
     prob[_state(v0, n0), 0] = 1.0
     best[_state(v0, n0), 0] = 0
     live = {_state(v0, n0)}
     expected = 0.0
     for bit in bits:
         nprob = np.zeros((8, size))
-        nbest = np.full((8, size), neg, dtype=np.int64)
+        nbest = np.full((8, size), neg, dtype=np.int16)
         nlive = set()
         for s in live:
             v, n = divmod(s, 4)
@@ -290,9 +290,8 @@ def _classic_stats(cob_id: int, n_bytes: int, free_mask: int, p_one: float) -> F
     offset = crc15(fields)
     _, _, table = _crc_tables()
     crc_stuff = table[:, np.arange(1 << 15) ^ offset]
-    mean_crc = float((prob * crc_stuff).sum())
-    reach = best >= 0
-    worst_tail = int((best + crc_stuff)[reach].max())
+    mean_crc = float(np.einsum("ij,ij->", prob, crc_stuff))
+    worst_tail = int((best + crc_stuff).max())          # unreachable states stay far below 0
     fixed = _CLASSIC_HEAD + 8 * n_bytes + 15 + head_stuff + TRAILER_BITS + INTERMISSION_BITS
     return FrameStats(float(fixed + expected + mean_crc), 0.0, fixed + worst_tail, 0)
 
