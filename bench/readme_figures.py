@@ -11,7 +11,9 @@ bits per SYNC cycle (``bus_timing.frame_bits``, mean over the scene's cycles), t
 the scene's SYNC period, the highest SYNC rate the worst-case cycle fits and the SYNC ->
 last-frame latency (worst case) at each bit rate, beside the detection error of the rules that
 mode can run (Monte Carlo P_D, P_F, total error with its 95 % Wilson interval vs the scene's
-ground truth; exact Poisson-binomial values for count rules). ``--from-json`` prints the table
+ground truth; the exact values of every decision rule: Poisson-binomial for the count rules and
+N-P on the count, the DP over the chain for the preferential rule, kinds of equal declared rates
+for LLR / N-P on eq 32's statistic). ``--from-json`` prints the table
 from an existing report.json without re-running the report.
 """
 
@@ -72,7 +74,7 @@ def table(data: dict) -> str:
     bitrates = list(data["bandwidth_by_bitrate"])
     kb = " / ".join(f"{int(b) // 1000}k" for b in bitrates)
     head = ["mode", "bits/cycle", f"bus load ({kb})", f"max SYNC rate ({kb})", f"SYNC → last frame ({kb})",
-            "rule", "P_D", "P_F", "total error [95 % CI]", "exact (count rules)"]
+            "rule", "P_D", "P_F", "total error [95 % CI]", "exact total error (P_D, P_F)"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     decision_rules = [r for r in data["rules"] if not r.startswith("centralised")]
     central = [r for r in data["rules"] if r.startswith("centralised")]

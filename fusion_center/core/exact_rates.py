@@ -70,6 +70,8 @@ __all__ = [
     "llr_error_rates",
     "np_kinds_fusion",
     "KIND_ATOMS_MAX",
+    "linear_statistic_law",
+    "roc_from_laws",
 ]
 
 SPARSE_MAX_TAXELS = 60
@@ -863,33 +865,122 @@ def np_kinds_fusion(pd, pf, false_alarm: float) -> dict:
             "detection_probability": detection, "kinds": int(len(size_k)), "method": "kinds"}
 
 
-def linear_statistic_tail(a, b, probs, threshold: float, gamma: float = 0.0, tol: float = 1e-9) -> float | None:
-    """P(S > threshold) + gamma P(S = threshold) for S = sum_i (a_i if taxel i present else b_i),
-    taxel i present with probability probs_i, independent (eq 31/32 statistics; ties within
-    tol relative). Exact: taxels with equal (a_i, b_i, probs_i) form kinds and every tuple of
-    per-kind counts is an atom (product of binomials); None when there are more than
-    KIND_ATOMS_MAX tuples."""
-    from scipy.special import gammaln, xlog1py, xlogy
+def _linear_statistic_atoms(a, b, probs):
+    """(S, ln P) of every atom of S = sum_i (a_i if taxel i present else b_i), taxel i present
+    with probability probs_i, independent; None beyond KIND_ATOMS_MAX atoms. Taxels with equal
+    (a_i, b_i) form a kind, S depends on the present count per kind only, and each kind's count
+    has the Poisson-binomial law of its taxels' probabilities (log domain, exact for unequal
+    probabilities within a kind); the atoms are the tuples of per-kind counts."""
+    from .poisson_binomial import log_pmf
 
     a = np.asarray(a, float)
     b = np.asarray(b, float)
     probs = np.asarray(probs, float)
-    groups = {}
-    for key in zip(a, b, probs):
-        groups[key] = groups.get(key, 0) + 1
-    sizes = np.array(list(groups.values()), dtype=np.int64)
-    if float(np.prod(sizes + 1.0)) > KIND_ATOMS_MAX:
+    groups: dict = {}
+    for i, key in enumerate(zip(a, b)):
+        groups.setdefault(key, []).append(i)
+    if float(np.prod([len(v) + 1.0 for v in groups.values()])) > KIND_ATOMS_MAX:
         return None
     stat = np.zeros(1)
     logp = np.zeros(1)
-    for (ai, bi, pi), m in groups.items():
+    for (ai, bi), members in groups.items():
+        m = len(members)
         k = np.arange(m + 1)
+        with np.errstate(divide="ignore"):
+            lp = log_pmf(probs[members])
         s = k * ai + (m - k) * bi
-        with np.errstate(divide="ignore"):  # pi = 0 or 1: xlogy keeps 0 log 0 = 0
-            lp = (gammaln(m + 1) - gammaln(k + 1) - gammaln(m - k + 1)
-                  + xlogy(k, pi) + xlog1py(m - k, -pi))
         stat = (stat[:, None] + s[None, :]).ravel()
         logp = (logp[:, None] + lp[None, :]).ravel()
+    live = np.isfinite(logp)
+    return stat[live], logp[live]
+
+
+def linear_statistic_law(a, b, probs, tol: float = 1e-9):
+    """The law of S (:func:`_linear_statistic_atoms`) as (values ascending, ln P), atoms within
+    ``tol`` (relative) of each other merged; None beyond KIND_ATOMS_MAX atoms."""
+    atoms = _linear_statistic_atoms(a, b, probs)
+    if atoms is None:
+        return None
+    stat, logp = atoms
+    order = np.argsort(stat, kind="stable")
+    stat, logp = stat[order], logp[order]
+    gap = np.diff(stat) > tol * np.maximum(1.0, np.abs(stat[1:]))
+    start = np.flatnonzero(np.r_[True, gap])
+    values = stat[start]
+    merged = np.array([_logsumexp(logp[s:e]) for s, e in zip(start, np.r_[start[1:], stat.size])])
+    return values, merged
+
+
+def _logsumexp(x) -> float:
+    x = np.asarray(x, float)
+    top = float(x.max())
+    return top + math.log(float(np.exp(x - top).sum())) if math.isfinite(top) else -math.inf
+
+
+def roc_from_laws(law_h0, laws_h1, weights, points: int = 400) -> dict:
+    """Exact ROC of "H1 iff statistic >= t" from the law under H0 and the laws under the H1
+    patterns (mixed with ``weights``), t over every attainable value: P_F(t) and P_D(t) as
+    tails summed from the top in the log domain. Returns thresholds, pf, pd, log10_pf and
+    log10_pm (P_M = 1 - P_D from the lower tails, exact also where they underflow), auc (trapezoid over all thresholds, linear axes) and at most
+    about ``points`` + 2 per decade of pf of them for plotting."""
+    values = np.unique(np.concatenate([law_h0[0], *[law[0] for law in laws_h1]]))[::-1]
+
+    def log_tail(law):
+        vals, logp = law
+        order = np.argsort(vals)[::-1]
+        vals, logp = vals[order], logp[order]
+        cum = np.logaddexp.accumulate(logp)  # ln P(stat >= vals[j])
+        idx = np.searchsorted(-vals, -values, side="right") - 1  # last law value >= t
+        out = np.full(values.size, -np.inf)
+        ok = idx >= 0
+        out[ok] = cum[idx[ok]]
+        return out
+
+    def log_below(law):  # ln P(stat < t): the atoms below each t, summed from the bottom
+        vals, logp = law
+        order = np.argsort(vals)
+        vals, logp = vals[order], logp[order]
+        cum = np.logaddexp.accumulate(logp)
+        idx = np.searchsorted(vals, values, side="left") - 1  # last law value < t
+        out = np.full(values.size, -np.inf)
+        ok = idx >= 0
+        out[ok] = cum[idx[ok]]
+        return out
+
+    log_pf = log_tail(law_h0)
+    pd = np.zeros(values.size)
+    log_pm = np.full(values.size, -np.inf)
+    for law, w in zip(laws_h1, weights):
+        pd += w * np.exp(log_tail(law))
+        if w > 0:
+            log_pm = np.logaddexp(log_pm, math.log(w) + log_below(law))
+    pf = np.exp(log_pf)
+    pf_all = np.r_[0.0, pf, 1.0]
+    pd_all = np.r_[0.0, pd, 1.0]
+    auc = float(np.trapezoid(pd_all, pf_all))
+    # thinning for the plot: the first threshold of every half decade of pf and of every
+    # 1/points step of pd, and both ends
+    with np.errstate(divide="ignore", invalid="ignore"):
+        decade = np.where(np.isfinite(log_pf), np.floor(2.0 * log_pf / math.log(10.0)), -1e9)
+    step = np.floor(pd * points)
+    keep = np.union1d(np.unique(decade, return_index=True)[1], np.unique(step, return_index=True)[1])
+    keep = np.union1d(keep, [0, values.size - 1]).astype(int)
+    log10_pf = log_pf / math.log(10.0)
+    log10_pm = log_pm / math.log(10.0)
+    finite = lambda arr: [None if not math.isfinite(x) else float(x) for x in arr[keep]]
+    return {"thresholds": values[keep].tolist(), "pf": pf[keep].tolist(), "pd": pd[keep].tolist(),
+            "log10_pf": finite(log10_pf), "log10_pm": finite(log10_pm), "auc": auc, "method": "exact"}
+
+
+def linear_statistic_tail(a, b, probs, threshold: float, gamma: float = 0.0, tol: float = 1e-9) -> float | None:
+    """P(S > threshold) + gamma P(S = threshold) for S = sum_i (a_i if taxel i present else b_i),
+    taxel i present with probability probs_i, independent (eq 31/32 statistics; ties within
+    tol relative). Exact over the atoms of :func:`_linear_statistic_atoms` (kinds of equal
+    (a_i, b_i), a Poisson-binomial count per kind); None beyond KIND_ATOMS_MAX atoms."""
+    atoms = _linear_statistic_atoms(a, b, probs)
+    if atoms is None:
+        return None
+    stat, logp = atoms
     scale = np.maximum(1.0, np.abs(stat))
     above = stat - threshold > tol * scale
     tie = np.abs(stat - threshold) <= tol * scale

@@ -451,20 +451,43 @@ def empirical_roc(stat_h0: np.ndarray, stat_h1: np.ndarray, points: int = 200) -
     pd = 1.0 - np.searchsorted(s1, ts, side="left") / s1.size
     pf = np.concatenate([[1.0], pf, [0.0]])
     pd = np.concatenate([[1.0], pd, [0.0]])
-    return {"thresholds": ts.tolist(), "pf": pf.tolist(), "pd": pd.tolist()}
+    return {"thresholds": ts.tolist(), "pf": pf.tolist(), "pd": pd.tolist(), "auc": mann_whitney_auc(s0, s1)}
+
+
+def mann_whitney_auc(stat_h0, stat_h1) -> float:
+    """Area under the empirical ROC of "H1 iff statistic >= t" over every threshold:
+    P(S1 > S0) + P(S1 = S0)/2 over all pairs of the two samples (the Mann-Whitney statistic),
+    from the ranks of the pooled sample -- exact for the samples, unlike a trapezoid over a
+    grid of thresholds."""
+    from scipy.stats import rankdata
+
+    s0 = np.asarray(stat_h0, float)
+    s1 = np.asarray(stat_h1, float)
+    ranks = rankdata(np.concatenate([s0, s1]))  # ties get their mean rank
+    r1 = float(ranks[s0.size:].sum())
+    return (r1 - s1.size * (s1.size + 1) / 2.0) / (s0.size * s1.size)
 
 
 def exact_count_roc(taxel_pf, pd_patterns, weights) -> dict:
-    """Exact ROC of every count rule "K >= m", m = 0..n+1 (Poisson-binomial)."""
+    """Exact ROC of every count rule "K >= m", m = 0..n+1 (Poisson-binomial): pf, pd, and
+    log10_pf = log10 P(K >= m | H0), log10_pm = log10 P(K < m | H1) summed in the log domain
+    (exact where pf or 1 - pd underflow; None for an impossible event)."""
     n = taxel_pf.size
     ms = np.arange(n + 2)
-    pmf0 = np.append(poisson_binomial.pmf(taxel_pf), 0.0)
-    pf = pmf0[::-1].cumsum()[::-1]
+    lp0 = np.append(poisson_binomial.log_pmf(taxel_pf), -np.inf)
+    log_pf = np.logaddexp.accumulate(lp0[::-1])[::-1]  # ln P(K >= m)
+    pf = np.exp(log_pf)
     pd = np.zeros(n + 2)
+    log_pm = np.full(n + 2, -np.inf)
     for row, w in zip(pd_patterns, weights):
-        pmf1 = np.append(poisson_binomial.pmf(row), 0.0)
-        pd += w * pmf1[::-1].cumsum()[::-1]
-    return {"min_present_count": ms.tolist(), "pf": pf.tolist(), "pd": pd.tolist()}
+        lp1 = np.append(poisson_binomial.log_pmf(row), -np.inf)
+        pd += w * np.exp(np.logaddexp.accumulate(lp1[::-1])[::-1])
+        below = np.r_[-np.inf, np.logaddexp.accumulate(lp1[:-1])]  # ln P(K < m) = ln P(K <= m - 1)
+        if w > 0:
+            log_pm = np.logaddexp(log_pm, math.log(w) + below)
+    log10 = lambda x: [None if not math.isfinite(v) else float(v / math.log(10.0)) for v in x]
+    return {"min_present_count": ms.tolist(), "pf": pf.tolist(), "pd": pd.tolist(),
+            "log10_pf": log10(log_pf), "log10_pm": log10(log_pm), "method": "exact"}
 
 
 def area_under_roc(pf, pd) -> float:

@@ -118,28 +118,51 @@ def achieved_levels(scene, mc: montecarlo.MonteCarloResult, rng) -> dict:
             ach.append(1.0 - pd)
         out["multiplicative"] = {"requested": req, "achieved": ach, "source": "exact Poisson-binomial (P_M)"}
     if setup.preferential is not None and "preferential" in mc.statistics_h0:
-        req, ach = [], []
+        from ..core import exact_rates
+
+        p, q, _ = setup.preferential
+        req, ach, log10 = [], [], []
         stat = mc.statistics_h0["preferential"]
+        exact = exact_rates._lattice(p, q, setup.encoding) is not None or scene.n <= exact_rates.SPARSE_MAX_TAXELS
         for a in ALPHA_GRID:
             try:
                 tm = evaluation.preferential_threshold_mean(scene, alpha=a)
             except ParameterError:
                 continue
             req.append(a)
-            ach.append(float(np.mean(stat >= tm)))
-        out["preferential"] = {"requested": req, "achieved": ach, "source": f"MC, {n0} H0 trials"}
+            if exact:  # U_G >= lambda_mean under H0, by the DP over the chain
+                r = exact_rates.preferential_error_rates(mc.taxel_pf, mc.taxel_pf, p, q, setup.encoding, tm, tm)
+                ach.append(r.p_false_alarm)
+                log10.append(None if r.log_p_false_alarm is None else r.log_p_false_alarm / math.log(10.0))
+            else:
+                ach.append(float(np.mean(stat >= tm)))
+        out["preferential"] = {"requested": req, "achieved": ach,
+                               "source": "exact (DP over the chain)" if exact else f"MC, {n0} H0 trials"}
+        if exact:
+            out["preferential"]["log10_achieved"] = log10
     if setup.np_rule is not None:
         pd_dec, pf_dec = evaluation.declared_pd_pf(scene)
         req, ach = [], []
+        np_by_mc = False
         for a in ALPHA_GRID:
             r = baselines.neyman_pearson_fusion(pd_dec, pf_dec, a)
             if r.statistic == "present_count":
                 ach.append(montecarlo._exact_randomised_count(r, mc.taxel_pf, mc.taxel_pd_patterns, mc.pattern_weights)[1])
             else:
-                s = mc.statistics_h0["np"]
-                ach.append(float(np.mean(s > r.log_threshold) + r.gamma * np.mean(np.isclose(s, r.log_threshold))))
+                from ..core import exact_rates
+
+                a_ = np.log(r.pd) - np.log(r.pf)
+                b_ = np.log1p(-r.pd) - np.log1p(-r.pf)
+                value = exact_rates.linear_statistic_tail(a_, b_, mc.taxel_pf, r.log_threshold, r.gamma,
+                                                          tol=baselines.LLR_TIE_TOLERANCE)
+                if value is None:
+                    np_by_mc = True
+                    s_ = mc.statistics_h0["np"]
+                    value = float(np.mean(s_ > r.log_threshold) + r.gamma * np.mean(np.isclose(s_, r.log_threshold)))
+                ach.append(value)
             req.append(a)
-        src = "exact Poisson-binomial" if setup.np_rule.statistic == "present_count" else f"MC, {n0} H0 trials"
+        src = ("exact Poisson-binomial" if setup.np_rule.statistic == "present_count"
+               else f"MC, {n0} H0 trials" if np_by_mc else "exact (kinds of equal declared rates)")
         out["np"] = {"requested": req, "achieved": ach, "source": src}
     if "centralised_glrt" in setup.central and "centralised_glrt" in mc.statistics_h0:
         params = setup.central["centralised_glrt"]
@@ -153,6 +176,39 @@ def achieved_levels(scene, mc: montecarlo.MonteCarloResult, rng) -> dict:
             ach.append(float(np.mean(stat > tau)))
         out["centralised_glrt"] = {"requested": req, "achieved": ach,
                                    "source": f"threshold from 5e4 H0 draws, checked on {n0} independent ones"}
+    return out
+
+
+# --------------------------------------------------------------------------- exact ROC curves
+def exact_rocs(setup: montecarlo.RuleSetup, mc: montecarlo.MonteCarloResult) -> dict:
+    """Exact ROC curves of the statistics beyond the present count: the preferential U_G (eq 7,
+    its law by the lattice DP of exact_rates) and the eq 31/32 log-likelihood ratio with the
+    declared pd/pf (kinds of equal declared rates, a Poisson-binomial count per kind), under H0
+    and the H1 patterns of the scene (mixed by their weights). Keys ``<rule>_exact``; a rule
+    whose law is out of exact reach is left out (its Monte Carlo curve stays)."""
+    from ..core import exact_rates
+
+    out = {}
+    rows, weights = mc.taxel_pd_patterns, mc.pattern_weights
+    if setup.preferential is not None:
+        p, q, _ = setup.preferential
+        law0 = exact_rates.preferential_law(mc.taxel_pf, p, q, setup.encoding)
+        laws1 = [exact_rates.preferential_law(row, p, q, setup.encoding) for row in rows] if law0 is not None else []
+        if law0 is not None and all(law is not None for law in laws1):
+            out["preferential_exact"] = exact_rates.roc_from_laws(law0, laws1, weights)
+    stats = []
+    if setup.llr is not None:
+        pd, pf = setup.llr[0], setup.llr[1]
+        stats.append(("llr_exact", pd, pf))
+    if setup.np_rule is not None and setup.np_rule.statistic == "llr":
+        stats.append(("np_exact", setup.np_rule.pd, setup.np_rule.pf))
+    for key, pd, pf in stats:
+        a = np.log(pd) - np.log(pf)
+        b = np.log1p(-np.asarray(pd)) - np.log1p(-np.asarray(pf))
+        law0 = exact_rates.linear_statistic_law(a, b, mc.taxel_pf)
+        laws1 = [exact_rates.linear_statistic_law(a, b, row) for row in rows] if law0 is not None else []
+        if law0 is not None and all(law is not None for law in laws1):
+            out[key] = exact_rates.roc_from_laws(law0, laws1, weights)
     return out
 
 
@@ -288,11 +344,14 @@ def build_report(scene, out_dir: Path, trials: int, seed: int, bitrate=None,
     roc = {}
     if mc.taxel_pd_patterns.shape[0]:
         roc["count_exact"] = montecarlo.exact_count_roc(mc.taxel_pf, mc.taxel_pd_patterns, mc.pattern_weights)
+        roc.update(exact_rocs(setup, mc))
         for key in ("preferential", "llr", "np", "centralised_known", "centralised_glrt"):  # bayes: same ROC as known
             if key in mc.statistics_h0 and key in mc.statistics_h1:
                 roc[key] = montecarlo.empirical_roc(mc.statistics_h0[key], mc.statistics_h1[key])
+                roc[key]["method"] = f"Monte Carlo, {mc.statistics_h0[key].size} trials per hypothesis"
     for key, r in roc.items():
-        r["auc"] = montecarlo.area_under_roc(r["pf"], r["pd"])
+        if "auc" not in r:
+            r["auc"] = montecarlo.area_under_roc(r["pf"], r["pd"])
     achieved = achieved_levels(scene, mc, np.random.default_rng([seed, 3]))
 
     step("solver work-precision (mpmath reference, 80 digits)")
@@ -354,17 +413,19 @@ def build_report(scene, out_dir: Path, trials: int, seed: int, bitrate=None,
     plots.error_vs_runtime(points, floor, out_dir / "error_vs_runtime.png", bitrates)
     plots.roc_curves(roc, {k: (v.pf.estimate, None if v.pd is None else v.pd.estimate,
                                (v.pf.exact, None if v.pd is None else v.pd.exact)) for k, v in mc.rules.items()},
-                            out_dir / "roc.png")
+                            out_dir / "roc.png", trials=trials)
     plots.achieved_vs_requested(achieved, out_dir / "achieved_alpha.png")
     plots.work_precision(wp, out_dir / "work_precision.png")
     plots.probability_curves(pcurves, out_dir / "probability_curves.png")
-    title = f"{scene.name}: cycle {cycle}, {int(active.sum())} active taxels"
+    title = f"{scene.name}: cycle {cycle}, {int(active.sum())} of {scene.n} taxels active"
     if not has_xy:
         xy_plot = np.column_stack([np.arange(scene.n, dtype=float), np.zeros(scene.n)])
         title += " (no coordinates: taxels in fusion order)"
     else:
         xy_plot = xy
-    plots.taxel_map(xy_plot, active, hull, title, out_dir / "taxel_map.png")
+    plots.taxel_map(xy_plot, active, hull, title, out_dir / "taxel_map.png",
+                    node_ids=[t.node_id for t in scene.taxels],
+                    unit="fusion index" if not has_xy else "layout units (scene CSV)")
     (out_dir / "report.json").write_text(json.dumps(data, indent=1, default=_json_default))
     return data
 

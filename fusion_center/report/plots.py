@@ -28,111 +28,260 @@ def _save(fig, path) -> None:
 
 
 _BITRATE_MARKERS = "os^Dv<>p"
-_LOG_FLOOR = 1e-300  # exact values are drawn down to here (log axes)
+_LOG_FLOOR = 1e-300  # exact values are drawn down to here (log axes); below: a "< 1e-300" marker
+
+
+def _exact_y(value):
+    """(y to draw, below the floor?) of an exact value on a log axis."""
+    return (_LOG_FLOOR, True) if value is None or value < _LOG_FLOOR else (value, False)
+
+
+def _log_axis_floor(ax, values, mc_floor=None) -> None:
+    """Bottom of a log y axis at a third of the smallest positive value drawn (exact values
+    included, down to 1e-300), so nothing sits on an unlabelled clip."""
+    low = min([v for v in values if v is not None and v > 0] + ([mc_floor] if mc_floor else []) + [1.0])
+    ax.set_ylim(bottom=max(low / 3.0, _LOG_FLOOR / 3.0))
 
 
 def error_vs_runtime(points: list[dict], floor: float, path, bitrates=None) -> None:
-    """Total error (with 95 % CI, exact value as a hollow diamond) vs bus time per cycle (one
-    marker shape per bit rate, the same rule joined by a dotted line) and vs CPU time per
-    decision, one colour per rule / test."""
+    """Total error (Monte Carlo with 95 % CI; the exact value of every rule as a hollow diamond,
+    drawn where it is, down to 1e-300, and as a down triangle at 1e-300 when below) against bus
+    time per cycle (one marker shape per bit rate, the same rule joined by a dotted line) and
+    against CPU time per decision, one colour per rule / test. A Monte Carlo estimate of 0 (no
+    error event in its trials) is drawn on the labelled floor line 1/(2 trials)."""
     from matplotlib.lines import Line2D
 
     bitrates = [str(b) for b in (bitrates or [])]
-    fig, axes = plt.subplots(1, 2, figsize=(12, 5), sharey=True)
-    ax = axes[0]
-    for p in points:
+    fig, axes = plt.subplots(1, 2, figsize=(13, 5.5), sharey=True)
+    drawn = []
+
+    def draw(ax, p, xs, markers):
         err = p["total_error"]
         est, lo, hi = (max(v, floor) for v in (err["estimate"], *err["ci95"]))
         c = _COLOURS.get(p["rule"], "tab:cyan")
-        by = p.get("bus_time_per_cycle_ms_by_bitrate") or {}
-        xs = [by[b] for b in bitrates if b in by] or [p["bus_time_per_cycle_ms"]]
         if len(xs) > 1:
             ax.plot(xs, [est] * len(xs), ":", color=c, lw=0.8)
-        for j, x in enumerate(xs):
-            ax.errorbar([x], [est], yerr=[[est - lo], [hi - est]], fmt=_BITRATE_MARKERS[j % len(_BITRATE_MARKERS)],
-                        color=c, capsize=3)
-            if err.get("exact") is not None:
-                ax.plot([x], [max(err["exact"], _LOG_FLOOR)], marker="D", mfc="none", color=c, ms=10)
-            if err["estimate"] == 0.0:  # Monte Carlo saw no error event: its value is only a bound
-                ax.annotate("MC: no event", (x, est), fontsize=6, xytext=(4, 4), textcoords="offset points", color=c)
-    if len(bitrates) > 1:
-        handles = [Line2D([], [], marker=_BITRATE_MARKERS[j % len(_BITRATE_MARKERS)], ls="none", color="k",
-                          label=f"{int(b) // 1000} kbit/s") for j, b in enumerate(bitrates)]
-        ax.legend(handles=handles, fontsize=8, loc="best", title="bit rate")
+        exact = err.get("exact")
+        for x, marker in zip(xs, markers):
+            ax.errorbar([x], [est], yerr=[[est - lo], [hi - est]], fmt=marker, color=c, capsize=3, ms=6)
+            if exact is not None:
+                y, below = _exact_y(exact)
+                ax.plot([x], [y], marker="v" if below else "D", mfc="none", color=c, ms=10, mew=1.5)
+                drawn.append(y)
+            if err["estimate"] == 0.0:
+                ax.annotate("MC: no event", (x, est), fontsize=7, xytext=(5, -11), textcoords="offset points",
+                            color=c)
+        drawn.extend([est, lo])
+
+    ax = axes[0]
+    for p in points:
+        by = p.get("bus_time_per_cycle_ms_by_bitrate") or {}
+        xs = [by[b] for b in bitrates if b in by] or [p["bus_time_per_cycle_ms"]]
+        draw(ax, p, xs, [_BITRATE_MARKERS[j % len(_BITRATE_MARKERS)] for j in range(len(xs))])
+    handles = [Line2D([], [], marker=_BITRATE_MARKERS[j % len(_BITRATE_MARKERS)], ls="none", color="k",
+                      label=f"{int(b) // 1000} kbit/s") for j, b in enumerate(bitrates)] if len(bitrates) > 1 else []
+    handles += [Line2D([], [], marker="D", mfc="none", ls="none", color="k", ms=9, label="exact"),
+                Line2D([], [], ls=":", color="k", lw=0.8, label=f"MC floor 1/(2 trials) = {floor:.1g}")]
+    if any(p["total_error"].get("exact") is not None and p["total_error"]["exact"] < _LOG_FLOOR for p in points):
+        handles.append(Line2D([], [], marker="v", mfc="none", ls="none", color="k", ms=9, label="exact < 1e-300"))
+    ax.legend(handles=handles, fontsize=8, loc="best")
     ax.set_xlabel("bus time per SYNC cycle [ms]" + (" (decision_sync / raw)" if bitrates else ""))
     ax = axes[1]
     for p in points:
-        err = p["total_error"]
-        est, lo, hi = (max(v, floor) for v in (err["estimate"], *err["ci95"]))
-        c = _COLOURS.get(p["rule"], "tab:cyan")
-        ax.errorbar([p["cpu_time_per_decision_us"]], [est], yerr=[[est - lo], [hi - est]], fmt="o", color=c,
-                    capsize=3, label=f"{p['rule']} ({p['mode']})")
-        if err.get("exact") is not None:
-            ax.plot([p["cpu_time_per_decision_us"]], [max(err["exact"], _LOG_FLOOR)], marker="D", mfc="none",
-                    color=c, ms=10)
+        draw(ax, p, [p["cpu_time_per_decision_us"]], ["o"])
+    rule_handles = [Line2D([], [], marker="o", ls="none", color=_COLOURS.get(p["rule"], "tab:cyan"),
+                           label=f"{p['rule']} ({p['mode']})") for p in points]
+    ax.legend(handles=rule_handles, fontsize=7, loc="best")
     ax.set_xlabel("CPU time per decision [µs]")
     for ax in axes:
         ax.set_xscale("log")
         ax.set_yscale("log")
-        ax.grid(True, which="both", alpha=0.3)
-    axes[0].set_ylabel("total error vs ground truth (MC, 95 % CI; ◇ exact, every rule)")
-    axes[0].axhline(floor, ls=":", color="k", lw=0.8)
-    axes[1].legend(fontsize=7, loc="best")
+        ax.grid(True, which="major", alpha=0.3)
+        ax.axhline(floor, ls=":", color="k", lw=0.8)
+    _log_axis_floor(axes[0], drawn, floor)
+    axes[0].set_ylabel("total error vs ground truth (o MC with 95 % CI, ◇ exact)")
     fig.suptitle("detection error vs run time (decision mode vs centralised raw-data test)")
     _save(fig, path)
 
 
-def roc_curves(roc: dict, operating: dict, path) -> None:
-    """ROC curves: exact for the count rules, empirical for the others; rule operating points."""
-    fig, ax = plt.subplots(figsize=(7, 6))
-    if "count_exact" in roc:
-        r = roc["count_exact"]
-        ax.plot(np.maximum(r["pf"], 1e-12), r["pd"], "-", color="tab:blue", label="count rules (exact, K >= m)")
-    for name, r in roc.items():
-        if name == "count_exact":
+def _dense_exact_roc(r, per_segment: int = 24):
+    """An exact ROC (atoms: thresholds from the top) densified for log axes: between two
+    attainable thresholds the randomised test moves on the straight line in (P_F, P_D), which
+    is sampled at P_F spaced evenly in log. Returns log10 P_F, P_D and log10 P_M arrays (exact
+    in the log domain; None entries of the atoms = probability 0 are dropped)."""
+    ln10 = math.log(10.0)
+    lpf = [None if v is None else v * ln10 for v in r["log10_pf"]]
+    lpm = r.get("log10_pm") or [None] * len(lpf)
+    lpm = [None if v is None else v * ln10 for v in lpm]
+    pd = list(r["pd"])
+    out_f, out_d, out_m = [], [], []
+    for j in range(len(lpf)):
+        if lpf[j] is None:
             continue
-        ax.plot(np.maximum(r["pf"], 1e-12), r["pd"], "-", color=_COLOURS.get(name, "tab:cyan"), label=f"{name} (MC)")
-    low = 1e-12
+        if out_f and j > 0 and lpf[j - 1] is not None and lpf[j] > lpf[j - 1]:
+            a_f, b_f = lpf[j - 1], lpf[j]
+            a_m = lpm[j - 1] if lpm[j - 1] is not None else -math.inf
+            b_m = lpm[j] if lpm[j] is not None else -math.inf
+            for k in range(1, per_segment):
+                f = a_f + (b_f - a_f) * k / per_segment  # ln P_F, evenly spaced
+                # t = (P_F - P_F(a)) / (P_F(b) - P_F(a)), formed without overflow or cancellation
+                t = math.exp(a_f - b_f) * math.expm1(f - a_f) / -math.expm1(a_f - b_f)
+                t = min(max(t, 1e-300), 1.0 - 1e-16)
+                out_f.append(f)
+                out_d.append(pd[j - 1] + t * (pd[j] - pd[j - 1]))
+                out_m.append(np.logaddexp(math.log1p(-t) + a_m, math.log(t) + b_m))
+        out_f.append(lpf[j])
+        out_d.append(pd[j])
+        out_m.append(lpm[j] if lpm[j] is not None else (math.log1p(-pd[j]) if pd[j] < 1.0 else -math.inf))
+    return np.array(out_f) / ln10, np.array(out_d), np.array(out_m) / ln10
+
+
+def _auc(auc: float) -> str:
+    return f"1 - {1.0 - auc:.2g}" if 0.9999 < auc < 1.0 else f"{auc:.6f}"
+
+
+def _dense_linear(pf: np.ndarray, pd: np.ndarray, per_segment: int = 24):
+    """Points (P_F ascending, > 0) joined by straight lines in (P_F, P_D), sampled at P_F evenly
+    spaced in log: (log10 P_F, P_D)."""
+    out_f, out_d = [], []
+    for j in range(pf.size):
+        if j and pf[j] > pf[j - 1]:
+            a, b = math.log10(pf[j - 1]), math.log10(pf[j])
+            f = np.linspace(a, b, per_segment + 1)[1:-1]
+            t = (10.0**f - pf[j - 1]) / (pf[j] - pf[j - 1])
+            out_f.extend(f)
+            out_d.extend(pd[j - 1] + t * (pd[j] - pd[j - 1]))
+        out_f.append(math.log10(pf[j]))
+        out_d.append(pd[j])
+    return np.array(out_f), np.array(out_d)
+
+
+def roc_curves(roc: dict, operating: dict, path, trials: int | None = None) -> None:
+    """ROC, two panels. Left, the range the Monte Carlo can see (P_F down to a hundredth of its
+    floor 1/(2 trials)): the exact curves (solid) of the count rules, the preferential U_G and
+    the eq 31/32 statistic beside the Monte Carlo curves (dashed, the cross-check), each with its
+    AUC; a Monte Carlo P_F of 0 sits on the labelled floor line. Right, the exact curves over
+    their whole range as P_M = 1 - P_D against P_F, both on log axes down to the smallest exact
+    value (1e-300 at most). Between two attainable thresholds an exact curve is the randomised
+    test's straight line in (P_F, P_D). Operating points of the configured rules: o Monte
+    Carlo, ◇ exact (▽ at 1e-300: an exact P_F below it)."""
+    from matplotlib.lines import Line2D
+
+    fig, axes = plt.subplots(1, 2, figsize=(14, 6.4))
+    mc_floor = 0.5 / trials if trials else 1e-7
+    low_f = low_m = 1e-3
+    handles = []
+    beyond: dict = {}
+    for name, r in roc.items():
+        exact = name.endswith("_exact") or name == "count_exact"
+        rule = "count rules, K >= m" if name == "count_exact" else (name[:-6] if name.endswith("_exact") else name)
+        colour = "tab:blue" if name == "count_exact" else _COLOURS.get(rule, "tab:cyan")
+        if exact and r.get("log10_pf"):
+            lf, pd, lm = _dense_exact_roc(r)
+            lf_draw = np.maximum(lf, -300.0)
+            style = dict(ls="-", lw=1.8, color=colour)
+            axes[0].plot(10.0**lf_draw, pd, **style)
+            ok = np.isfinite(lm)
+            axes[1].plot(10.0 ** lf_draw[ok], 10.0 ** np.maximum(lm[ok], -300.0), **style)
+            if lf.size:
+                low_f = min(low_f, 10.0 ** float(lf_draw.min()))
+            if ok.any():
+                low_m = min(low_m, 10.0 ** max(float(lm[ok].min()), -300.0))
+            label = f"{rule}: exact, AUC {_auc(r['auc'])}"
+        else:
+            pf = np.asarray(r["pf"], float)
+            pd = np.asarray(r["pd"], float)
+            style = dict(ls="--", lw=1.2, color=colour)
+            # the same straight lines between thresholds as the exact curves; a P_F of 0 on the floor
+            order = np.lexsort((pd, pf))
+            lf, dense_pd = _dense_linear(np.maximum(pf[order], mc_floor), pd[order])
+            axes[0].plot(10.0**lf, dense_pd, **style)
+            axes[0].plot(np.maximum(pf, mc_floor), pd, ".", color=colour, ms=4)
+            label = f"{rule}: Monte Carlo, AUC {_auc(r['auc'])}"
+        handles.append(Line2D([], [], label=label, **style))
     for name, point in operating.items():
         pf, pd = point[0], point[1]
         exact = point[2] if len(point) > 2 else None
         if pd is None:
             continue
         colour = _COLOURS.get(name, "tab:cyan")
-        ax.plot([max(pf, 1e-12)], [pd], "o", color=colour, ms=8, mec="k")
-        label = name + (" (MC: no false alarm)" if pf == 0.0 else "")
-        ax.annotate(label, (max(pf, 1e-12), pd), fontsize=7, xytext=(4, -10), textcoords="offset points")
+        axes[0].plot([pf if pf > 0 else mc_floor], [pd], "o", color=colour, ms=8, mec="k")
+        if 0.0 < pf and pd < 1.0:
+            axes[1].plot([pf], [1.0 - pd], "o", color=colour, ms=8, mec="k")
         if exact is not None and exact[0] is not None and exact[1] is not None:
-            epf = max(exact[0], _LOG_FLOOR)
-            low = min(low, epf)
-            ax.plot([epf], [exact[1]], "D", mfc="none", color=colour, ms=10)  # exact operating point
-    ax.set_xscale("log")
-    ax.set_xlim(low, 1.0)
-    ax.set_xlabel("P_F (system false alarm)")
-    ax.set_ylabel("P_D (system detection)")
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=7, loc="lower right")
-    ax.set_title("ROC: operating points of the configured rules (o MC, ◇ exact)")
-    _save(fig, path)
+            epf, below = _exact_y(exact[0])
+            low_f = min(low_f, epf)
+            marker = "v" if below else "D"
+            axes[0].plot([epf], [exact[1]], marker, mfc="none", color=colour, ms=11, mew=1.5)
+            pm = 1.0 - exact[1]
+            if pm > 0.0:
+                low_m = min(low_m, pm)
+                axes[1].plot([epf], [pm], marker, mfc="none", color=colour, ms=11, mew=1.5)
+                if epf < mc_floor:  # beyond the Monte Carlo's reach: say which rule and where
+                    key = (f"{epf:.2g}", f"{pm:.2g}")
+                    beyond.setdefault(key, [epf, pm, below, []])[3].append(name)
+    for j, (epf, pm, below, rules_here) in enumerate(sorted(beyond.values(), key=lambda v: v[0])):
+        right = math.log10(epf) > 0.2 * math.log10(max(low_f / 10.0, _LOG_FLOOR / 10.0))  # near the right edge
+        axes[1].annotate(f"{', '.join(rules_here)}\nP_F {'< 1e-300' if below else f'{epf:.2g}'}", (epf, pm),
+                         fontsize=7, xytext=(-8 if right else 7, -22 - 22 * (j % 2)), textcoords="offset points",
+                         ha="right" if right else "left")
+    handles += [Line2D([], [], marker="o", ls="none", color="gray", mec="k", ms=8, label="operating point, Monte Carlo"),
+                Line2D([], [], marker="D", ls="none", mfc="none", color="gray", ms=9, label="operating point, exact"),
+                Line2D([], [], ls=":", color="k", lw=0.8,
+                       label=f"MC floor 1/(2 trials) = {mc_floor:.1g}: no false alarm seen" if trials else "P_F = 0")]
+    axes[0].axvline(mc_floor, ls=":", color="k", lw=0.8)
+    axes[0].set_xlim(mc_floor / 100.0, 1.5)
+    axes[0].set_ylim(-0.02, 1.02)
+    axes[0].set_ylabel("P_D (system detection)")
+    axes[0].set_title("where the Monte Carlo can see: exact and Monte Carlo", fontsize=10)
+    axes[1].set_xlim(max(low_f / 10.0, _LOG_FLOOR / 10.0), 1.5)
+    axes[1].set_ylim(max(low_m / 10.0, _LOG_FLOOR / 10.0), 1.5)
+    axes[1].set_yscale("log")
+    axes[1].set_ylabel("P_M = 1 - P_D (system miss)")
+    axes[1].set_title("exact curves over their whole range (log-log)", fontsize=10)
+    for ax in axes:
+        ax.set_xscale("log")
+        ax.set_xlabel("P_F (system false alarm)")
+        ax.grid(True, which="major", alpha=0.3)
+    fig.legend(handles=handles, fontsize=7, loc="lower center", ncol=3, frameon=False)
+    fig.suptitle("ROC: exact (solid) and Monte Carlo (dashed) curves; operating points of the configured rules")
+    fig.tight_layout(rect=(0, 0.06 + 0.025 * math.ceil(len(handles) / 3), 1, 1))
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
 
 
 def achieved_vs_requested(data: dict, path) -> None:
     """Achieved P_F vs requested alpha (additive, preferential, N-P, centralised) and achieved
-    P_M vs requested beta (multiplicative)."""
-    fig, axes = plt.subplots(1, 2, figsize=(12, 5))
+    P_M vs requested beta (multiplicative). Exact values are drawn where they are (log axis down
+    to the smallest, 1e-300 at most, a down triangle below it); a Monte Carlo 0 on a labelled
+    floor."""
+    fig, axes = plt.subplots(1, 2, figsize=(13, 5.5))
     ax = axes[0]
     grid = np.logspace(-4, 0, 50)
     ax.plot(grid, grid, "k:", label="achieved = requested")
+    values = []
+    mc_zero = False
     for name, d in data.items():
         if name == "multiplicative":
             continue
-        ach = np.maximum(np.asarray(d["achieved"], float), 1e-16)
-        ax.plot(d["requested"], ach, "o-", color=_COLOURS.get(name, "tab:cyan"), label=f"{name} ({d['source']})")
+        ach = np.asarray(d["achieved"], float)
+        log10 = d.get("log10_achieved")
+        if log10:
+            ach = np.array([10.0 ** max(v, -300.0) if v is not None else _LOG_FLOOR for v in log10])
+        mc = d["source"].startswith("MC")
+        if mc and np.any(ach == 0.0):
+            mc_zero = True
+        shown = np.where(ach > 0, np.maximum(ach, _LOG_FLOOR), np.nan)
+        values.extend(shown[np.isfinite(shown)].tolist())
+        ax.plot(d["requested"], shown, "o-", color=_COLOURS.get(name, "tab:cyan"), label=f"{name} ({d['source']})")
     ax.set_xscale("log")
     ax.set_yscale("log")
+    _log_axis_floor(ax, values)
+    if mc_zero:
+        ax.annotate("Monte Carlo saw no false alarm: not drawn", (0.02, 0.02), xycoords="axes fraction", fontsize=7)
     ax.set_xlabel("requested alpha (HEBTEM eqs 17-18) / false-alarm rate (N-P, centralised)")
     ax.set_ylabel("achieved system P_F")
-    ax.grid(True, which="both", alpha=0.3)
+    ax.grid(True, which="major", alpha=0.3)
     ax.legend(fontsize=7)
     ax = axes[1]
     if "multiplicative" in data:
@@ -156,9 +305,12 @@ def work_precision(rows: list[dict], path) -> None:
         pts = [r for r in rows if r["solver"] == s]
         ax.plot([r["time_us"] for r in pts], [max(r["relative_error"], 1e-18) for r in pts],
                 markers[j % len(markers)], label=s, ms=8)
-        for r in pts:
-            ax.annotate(f"n={r['n']}", (r["time_us"], max(r["relative_error"], 1e-18)), fontsize=7,
-                        xytext=(4, 2), textcoords="offset points")
+        seen: dict = {}
+        for r in pts:  # labels of points at one place stacked, not overprinted
+            y = max(r["relative_error"], 1e-18)
+            key = (round(math.log10(r["time_us"]), 1), round(math.log10(y), 1))
+            k = seen[key] = seen.get(key, -1) + 1
+            ax.annotate(f"n={r['n']}", (r["time_us"], y), fontsize=7, xytext=(4, 2 + 9 * k), textcoords="offset points")
     ax.set_xscale("log")
     ax.set_yscale("log")
     ax.set_xlabel("time per solve [µs]")
@@ -195,17 +347,40 @@ def probability_curves(curves: dict, path) -> None:
     _save(fig, path)
 
 
-def taxel_map(xy: np.ndarray, active: np.ndarray, hull: np.ndarray | None, title: str, path) -> None:
-    """Taxel layout, active taxels (u_i = +1) and their convex hull (eq 35)."""
-    fig, ax = plt.subplots(figsize=(6, 6))
-    ax.scatter(xy[~active, 0], xy[~active, 1], s=30, facecolors="none", edgecolors="gray", label="absent")
-    ax.scatter(xy[active, 0], xy[active, 1], s=50, color="tab:red", label="present (u_i = +1)")
+def taxel_map(xy: np.ndarray, active: np.ndarray, hull: np.ndarray | None, title: str, path,
+              node_ids=None, unit: str = "scene units") -> None:
+    """Taxel layout with each taxel's node-ID, the active taxels (u_i = +1) and their convex hull
+    (eq 35). Taxels sharing one location (two per R-cell strut on the matrix sensor) are drawn
+    side by side, so every taxel is visible."""
+    n = xy.shape[0]
+    ids = list(node_ids) if node_ids is not None else list(range(1, n + 1))
+    span = float(np.nanmax(xy) - np.nanmin(xy)) if n else 1.0
+    offset = 0.018 * (span or 1.0)
+    draw = xy.astype(float).copy()
+    sites: dict = {}
+    for i, (x, y) in enumerate(xy):
+        sites.setdefault((float(x), float(y)), []).append(i)
+    shared = 0
+    for members in sites.values():
+        if len(members) > 1:
+            shared += 1
+            for j, i in enumerate(members):
+                draw[i, 0] += (j - (len(members) - 1) / 2) * 2 * offset
+    fig, ax = plt.subplots(figsize=(7.5, 8.2))
+    ax.scatter(draw[~active, 0], draw[~active, 1], s=36, facecolors="none", edgecolors="gray", label="absent (u_i = -1)")
+    ax.scatter(draw[active, 0], draw[active, 1], s=56, color="tab:red", label="present (u_i = +1)", zorder=3)
     if hull is not None and len(hull) >= 2:
         closed = np.vstack([hull, hull[:1]])
-        ax.plot(closed[:, 0], closed[:, 1], "-", color="tab:red", lw=1.5, label="convex hull")
+        ax.plot(closed[:, 0], closed[:, 1], "-", color="tab:red", lw=1.5, label="convex hull (eq 35)")
+    for i in range(n):
+        ax.annotate(str(ids[i]), (draw[i, 0], draw[i, 1]), fontsize=7, xytext=(0, 5), textcoords="offset points",
+                    ha="center", color="tab:red" if active[i] else "dimgray")
+    if shared:
+        ax.plot([], [], " ", label=f"{shared} sites with two taxels: drawn side by side")
     ax.set_aspect("equal")
-    ax.set_xlabel("x")
-    ax.set_ylabel("y")
-    ax.legend(fontsize=8)
-    ax.set_title(title, fontsize=9)
+    ax.margins(0.06)
+    ax.set_xlabel(f"x [{unit}]")
+    ax.set_ylabel(f"y [{unit}]")
+    ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.09), ncol=2, frameon=False)
+    ax.set_title(title + "; labels: node-IDs", fontsize=10)
     _save(fig, path)
