@@ -7,14 +7,21 @@ integral equation, mean form, refined by mp.findroot), the number of function ev
 the time per solve, prints a table and writes a log-log PNG (error vs time per solve).
 
     .venv/bin/python bench/threshold_precision.py [--out out/threshold_precision.png]
+    .venv/bin/python bench/threshold_precision.py --against /tmp/before [--rounds 3]
 
-Runtime: well under a minute on one core.
+Runtime: well under a minute on one core. ``--against OTHER_CHECKOUT`` (``git worktree add
+/tmp/before <commit>``) instead times only our solvers at full accuracy (default arguments),
+case by case, in both trees -- each in its own interpreter, alternately, best of ``--rounds`` --
+and prints the times side by side with the ratio this/before.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import math
+import subprocess
+import sys
 import time
 import warnings
 from pathlib import Path
@@ -106,29 +113,91 @@ def _err(values, ref):
     return max((abs(v - r) / abs(r) if r else abs(v)) for v, r in zip(values, ref)) if ref else 0.0
 
 
+CASES = [
+    ("multiplicative", dict(n=57, xi=0.003, level=0.83)),
+    ("multiplicative", dict(n=354, xi=0.003, level=0.3)),
+    ("multiplicative", dict(n=355, xi=0.003, level=0.3)),
+    ("multiplicative", dict(n=1_000_000, xi=1e-12, level=0.03)),
+    ("additive", dict(n=57, xi=0.003, level=0.03)),
+    ("additive", dict(n=57, xi=0.003, level=0.473)),
+    ("additive", dict(n=57, xi=1e-12, level=0.03)),
+    ("additive", dict(n=1_000_000, xi=1e-300, level=0.03)),
+    ("additive", dict(n=57, xi=0.999999, level=0.38)),
+    ("additive", dict(n=57, xi=0.999999, level=0.36)),  # ran to the 100-iteration limit before
+    ("additive", dict(n=57, xi=0.9554284882838996, level=0.4039508811908412)),  # near-tangent
+    ("additive-01", dict(n=57, xi=0.003, level=0.03)),
+    ("preferential", dict(n=18, xi=0.003, level=0.48)),
+    ("preferential", dict(n=1_000_000, xi=0.5, level=0.03)),
+    ("preferential", dict(n=1_000_000, xi=0.5, level=0.03, p=0.5, q=2.0, tuple="01")),
+    ("preferential", dict(n=57, xi=0.003, level=0.3, p=0.0, q=1.5)),
+]
+
+PROBE = r'''
+import json, math, sys, time
+root, cases = sys.argv[1], json.loads(sys.argv[2])
+sys.path.insert(0, root)
+import fusion_center.core.thresholds as th
+def best(fn, budget=0.004, rounds=5):
+    fn()
+    out = math.inf
+    for _ in range(rounds):
+        reps, start = 0, time.perf_counter()
+        while True:
+            fn()
+            reps += 1
+            elapsed = time.perf_counter() - start
+            if elapsed > budget or reps >= 20000:
+                break
+        out = min(out, elapsed / reps)
+    return out
+us = []
+for rule, c in cases:
+    n, xi, level = c["n"], c["xi"], c["level"]
+    if rule == "multiplicative":
+        fn = lambda: th.multiplicative_threshold(n, xi, level)
+    elif rule.startswith("additive"):
+        fn = lambda: th.additive_threshold(n, xi, level, "01" if rule.endswith("01") else "pm1")
+    else:
+        fn = lambda: th.preferential_threshold(n, xi, level, c.get("p", 1.0), c.get("q", 1.0), c.get("tuple", "pm1"))
+    us.append(1e6 * best(fn))
+print(json.dumps({"module": th.__file__, "us": us}))
+'''
+
+
+def against(other: Path, rounds: int) -> int:
+    """Our solvers at full accuracy in two trees, side by side (module doc)."""
+    root = Path(__file__).resolve().parent.parent
+    trees = {"before": other.resolve(), "this": root}
+    best: dict[str, list[float]] = {}
+    for _ in range(rounds):
+        for name, tree in trees.items():
+            res = subprocess.run([sys.executable, "-c", PROBE, str(tree), json.dumps(CASES)], capture_output=True,
+                                 text=True, cwd=tree, timeout=600)
+            if res.returncode != 0:
+                raise SystemExit(f"{tree}: {res.stderr.strip().splitlines()[-1]}")
+            out = json.loads(res.stdout)
+            if not out["module"].startswith(str(tree)):
+                raise SystemExit(f"{tree}: imported {out['module']} instead")
+            best[name] = [min(a, b) for a, b in zip(best.get(name, out["us"]), out["us"])]
+    print(f"{'rule':<15} {'case':<48} {'before us':>10} {'this us':>8} {'ratio':>6}")
+    for (rule, c), b, t in zip(CASES, best["before"], best["this"]):
+        label = f"n={c['n']:g} xi={c['xi']:.7g} level={c['level']:.4g}"
+        if "p" in c:
+            label += f" p={c['p']:g} q={c['q']:g} {c.get('tuple', 'pm1')}"
+        print(f"{rule:<15} {label:<48} {b:>10.2f} {t:>8.2f} {t / b:>6.2f}")
+    return 0
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", default="out/threshold_precision.png", help="PNG path (log-log error vs time)")
+    parser.add_argument("--against", type=Path, help="another checkout: time our solvers side by side (module doc)")
+    parser.add_argument("--rounds", type=int, default=3, help="with --against: alternating runs per tree")
     args = parser.parse_args(argv)
+    if args.against is not None:
+        return against(args.against, args.rounds)
 
-    cases = [
-        ("multiplicative", dict(n=57, xi=0.003, level=0.83)),
-        ("multiplicative", dict(n=354, xi=0.003, level=0.3)),
-        ("multiplicative", dict(n=355, xi=0.003, level=0.3)),
-        ("multiplicative", dict(n=1_000_000, xi=1e-12, level=0.03)),
-        ("additive", dict(n=57, xi=0.003, level=0.03)),
-        ("additive", dict(n=57, xi=0.003, level=0.473)),
-        ("additive", dict(n=57, xi=1e-12, level=0.03)),
-        ("additive", dict(n=1_000_000, xi=1e-300, level=0.03)),
-        ("additive", dict(n=57, xi=0.999999, level=0.38)),
-        ("additive", dict(n=57, xi=0.999999, level=0.36)),  # ran to the 100-iteration limit before
-        ("additive", dict(n=57, xi=0.9554284882838996, level=0.4039508811908412)),  # near-tangent
-        ("additive-01", dict(n=57, xi=0.003, level=0.03)),
-        ("preferential", dict(n=18, xi=0.003, level=0.48)),
-        ("preferential", dict(n=1_000_000, xi=0.5, level=0.03)),
-        ("preferential", dict(n=1_000_000, xi=0.5, level=0.03, p=0.5, q=2.0, tuple="01")),
-        ("preferential", dict(n=57, xi=0.003, level=0.3, p=0.0, q=1.5)),
-    ]
+    cases = CASES
     rows = []  # (rule, case, method, tol, err, evals, seconds, note)
     for rule, c in cases:
         n, xi, level = c["n"], c["xi"], c["level"]
