@@ -190,7 +190,9 @@ def test_default_readings_come_from_scene_physics():
 
     from node_sim import physics
 
-    scene = replace(scene, bus=replace(scene.bus, channels=(ch,), heartbeat_producer_ms=0, sync_counter=0))  # untagged INTEGER8 u_i
+    # untagged INTEGER8 u_i; no synchronous window: a SYNC handled late on a loaded host is still answered
+    scene = replace(scene, bus=replace(scene.bus, channels=(ch,), heartbeat_producer_ms=0, sync_counter=0,
+                                       sync_window_us=0))
     rec = Recorder(ch)
     try:
         with Rig(scene, seed=11) as rig:

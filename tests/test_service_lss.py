@@ -90,8 +90,8 @@ def test_centre_assigns_the_scene_node_ids_by_fastscan_then_runs(name, tmp_path)
 
 def test_a_node_the_scene_does_not_list_is_left_unconfigured(tmp_path, monkeypatch):
     # finding an unexpected device probes its 128 address bits, one unanswered request per
-    # bit that does not match: on a virtual bus 0.15 s is ample (canopen's 0.5 s costs ~15 s)
-    monkeypatch.setattr("fusion_center.service.lss.RESPONSE_TIMEOUT_S", 0.15)
+    # bit that does not match: on a virtual bus 0.3 s is ample (canopen's 0.5 s costs ~15 s)
+    monkeypatch.setattr("fusion_center.service.lss.RESPONSE_TIMEOUT_S", 0.3)
     scene = lss_scene("matrix57")
     # the twins run a scene with one more taxel (node-ID 100): its serial is not expected
     extra = dataclasses.replace(scene.taxels[0], node_id=100)
@@ -112,7 +112,7 @@ def test_a_node_the_scene_does_not_list_is_left_unconfigured(tmp_path, monkeypat
 
 
 def test_absent_and_already_configured_nodes(tmp_path, monkeypatch):
-    monkeypatch.setattr("fusion_center.service.lss.RESPONSE_TIMEOUT_S", 0.15)  # see above
+    monkeypatch.setattr("fusion_center.service.lss.RESPONSE_TIMEOUT_S", 0.3)  # see above
     scene = lss_scene("matrix57")
     service = FusionService(scene, interface="virtual", channels=list(scene.bus.channels))
     # the twins of taxels 0 and 1 are not there; the rest run twice: the second boot finds them
