@@ -74,12 +74,19 @@ class BusSpec:
         return self.mode == "decision" and self.sync_counter > 0
 
 
+MASTER_NODE_ID_DEFAULT = 127
+MASTER_HEARTBEAT_MAX_MS = 0xFFFF // 3  # the nodes watch it for 3 x its period in 0x1016 (16 bits of ms)
+
+
 @dataclass(frozen=True)
 class MasterSpec:
     restart: str = "always"           # "always": NMT-start a live node found not operational | "never"
     assign_ids: str = "scene"         # "scene": nodes have the scene's node-IDs | "lss": they start
                                       # non-configured (0xFF) and the centre assigns each the scene's
                                       # node-ID for its serial number (0x1018:4) by LSS Fastscan (CiA 305)
+    node_id: int = MASTER_NODE_ID_DEFAULT  # the master's node-ID (CiA 302): its heartbeat is 0x700+node_id
+    heartbeat_ms: int | None = None   # the master's heartbeat period (its 0x1017), 0 = off;
+                                      # None = the bus's heartbeat_producer_ms (Scene.master_heartbeat_ms)
 
 
 @dataclass(frozen=True)
@@ -162,6 +169,13 @@ class Scene:
     def n(self) -> int:
         return len(self.taxels)
 
+    @property
+    def master_heartbeat_ms(self) -> int:
+        """The master's heartbeat period in ms (0 = off): ``[master] heartbeat_ms``, by default
+        the bus's ``heartbeat_producer_ms``."""
+        hb = self.master.heartbeat_ms
+        return int(self.bus.heartbeat_producer_ms if hb is None else hb)
+
 
 # ----------------------------------------------------------------------------------------
 # Loader
@@ -195,7 +209,7 @@ _OBJECT_KEYS = ("model", "x", "y", "radius", "present", "velocity", "slip_onset_
                 "tangential_force", "readings_mv", "readings_are")
 _FUSION_KEYS = ("rules", "decide_with", "tuple", "xi", "alpha", "beta", "additive_root", "p", "q",
                 "k", "np_false_alarm", "prior_h1", "costs")
-_MASTER_KEYS = ("restart", "assign_ids")
+_MASTER_KEYS = ("restart", "assign_ids", "node_id", "heartbeat_ms")
 RESTART_POLICIES = ("always", "never")
 ASSIGN_IDS = ("scene", "lss")
 SYNC_PERIOD_MIN_MS = 1.0          # the SYNC producer's resolution (a 57-node cycle needs ~3.5 ms at 1 Mbit/s)
@@ -409,12 +423,35 @@ def load_scene(path) -> Scene:
     outs = _table(top, "outputs", doc.get("outputs", {}), _OUTPUTS_KEYS)
     stages = _distinct_strings(ow, "stages", outs.get("stages", ["fusion"]), STAGES)
     faults = _load_faults(sp, top, doc.get("faults", []), taxels)
-    mt = _table(top, "master", doc.get("master", {}), _MASTER_KEYS)
-    restart = _str(_Where(sp, "master"), "restart", mt.get("restart", MasterSpec.restart), RESTART_POLICIES)
-    assign_ids = _str(_Where(sp, "master"), "assign_ids", mt.get("assign_ids", MasterSpec.assign_ids), ASSIGN_IDS)
+    master = _load_master(sp, top, doc.get("master", {}), bus, taxels)
     return Scene(path=sp, name=name, description=description, seed=seed, cycles=cycles, bus=bus,
                  taxels=taxels, object=obj, fusion=fusion, forces=forces, stages=tuple(stages),
-                 faults=faults, master=MasterSpec(restart=restart, assign_ids=assign_ids))
+                 faults=faults, master=master)
+
+
+def _load_master(sp: str, top: _Where, raw, bus: BusSpec, taxels: tuple[TaxelSpec, ...]) -> MasterSpec:
+    mt = _table(top, "master", raw, _MASTER_KEYS)
+    w = _Where(sp, "master")
+    restart = _str(w, "restart", mt.get("restart", MasterSpec.restart), RESTART_POLICIES)
+    assign_ids = _str(w, "assign_ids", mt.get("assign_ids", MasterSpec.assign_ids), ASSIGN_IDS)
+    node_id = _int(w, "node_id", mt.get("node_id", MASTER_NODE_ID_DEFAULT), 1, 127,
+                   "CANopen node-ID must lie in 1..127")
+    given = "heartbeat_ms" in mt
+    heartbeat = mt["heartbeat_ms"] if given else bus.heartbeat_producer_ms
+    _int(w, "heartbeat_ms", heartbeat, 0, MASTER_HEARTBEAT_MAX_MS,
+         f"must lie in 0..{MASTER_HEARTBEAT_MAX_MS} ms (0 = off; the nodes' consumer time 0x1016, 3 x the "
+         "period, has 16 bits)" + ("" if given else "; default: bus.heartbeat_producer_ms"))
+    if heartbeat:  # the master's heartbeat 0x700+node_id must not be a taxel's
+        used = {t.node_id for t in taxels}
+        if node_id in used:
+            channels = sorted({t.channel for t in taxels if t.node_id == node_id})
+            free = next((i for i in range(127, 0, -1) if i not in used), None)
+            w.fail("node_id", node_id,
+                   f"is a taxel's node-ID (channel {', '.join(map(str, channels))}): the master's heartbeat "
+                   "0x700+node_id needs a node-ID no taxel uses on any channel"
+                   + (f" (free: e.g. {free})" if free else "") + ", or master.heartbeat_ms = 0")
+    return MasterSpec(restart=restart, assign_ids=assign_ids, node_id=node_id,
+                      heartbeat_ms=heartbeat if given else None)
 
 
 def _load_bus(sp: str, top: _Where, raw) -> BusSpec:

@@ -382,3 +382,59 @@ def test_lss_frames_are_counted_as_lss_not_as_malformed():
     a.feed(1, 0, 0x7E4, bytes([0x11, 0, 0, 0, 0, 0, 0, 0]))       # a slave's answer
     a.feed(2, 0, 0x7E5, bytes([0x04, 0x01]))                       # LSS is always 8 bytes
     assert a.counters()["lss"] == 2 and a.counters()["bad_dlc"] == 1 and a.counters()["unknown_cob_id"] == 0
+
+
+def test_the_masters_heartbeat_is_counted_as_such_and_changes_no_node():
+    """0x700 + [master] node_id (default 127): the master's own heartbeat, counted
+    master_heartbeat (never unknown_cob_id, never a node's heartbeat); wrong length / state bad."""
+    sc = scene()
+    a = CycleAssembler(sc)
+    boot_all(a, sc)
+    states = a.state.copy()
+    heard = a.last_heard.copy()
+    a.feed(1 * MS, 0, 0x77F, b"\x05")
+    a.feed(2 * MS, 0, 0x77F, b"\x05\x00")                          # heartbeats are 1 byte
+    a.feed(3 * MS, 0, 0x77F, b"\x06")                               # no NMT state 6
+    c = a.counters()
+    assert (c["master_heartbeat"], c["bad_dlc"], c["bad_value"], c["heartbeat"], c["unknown_cob_id"]) == (1, 1, 1, 0, 0)
+    assert (a.state == states).all() and (a.last_heard == heard).all()
+    assert sum(a.counts) == a.events == len(sc.taxels) + 1 + 3
+    # another node-ID for the master; with its heartbeat off, 0x77F belongs to nobody
+    import dataclasses
+    from taxel_net.scene import MasterSpec
+    b = CycleAssembler(dataclasses.replace(sc, master=MasterSpec(node_id=5)))
+    b.feed(0, 0, 0x705, b"\x05")
+    b.feed(1, 0, 0x77F, b"\x05")
+    assert (b.counters()["master_heartbeat"], b.counters()["unknown_cob_id"]) == (1, 1)
+    off = CycleAssembler(dataclasses.replace(sc, master=MasterSpec(heartbeat_ms=0)))
+    off.feed(0, 0, 0x77F, b"\x05")
+    assert (off.counters()["master_heartbeat"], off.counters()["unknown_cob_id"]) == (0, 1)
+
+
+def test_a_taxel_with_the_masters_node_id_keeps_its_heartbeat():
+    """A scene built in code (the loader refuses it) with a taxel at node-ID 127: 0x77F is the taxel's."""
+    sc = Scene(path="<test>", name="t", bus=BusSpec(), taxels=(TaxelSpec(node_id=127, kind="R"),), fusion=FusionSpec())
+    a = CycleAssembler(sc)
+    a.feed(0, 0, 0x77F, b"\x7F")
+    assert a.counters()["heartbeat"] == 1 and a.counters()["master_heartbeat"] == 0 and a.state[0] == 0x7F
+
+
+def test_the_masters_heartbeat_is_held_like_its_sync_while_a_window_is_open():
+    """Bus order: the master's heartbeat sent after SYNC 2 while cycle 0's window is open waits
+    behind SYNC 2; a node's answer to SYNC 1 handled after both still counts in cycle 0."""
+    sc = windowed()
+    a = CycleAssembler(sc)
+    boot_all(a, sc)
+    a.feed(0, 0, 0x80, b"\x01")
+    a.feed(1 * MS, 0, *tagged(10, 1, 1))
+    a.feed(2 * MS, 0, *tagged(11, -1, 1))
+    a.feed(3 * MS, 0, 0x77F, b"\x05")                              # no hold yet: fed at once
+    assert a.counters()["master_heartbeat"] == 1
+    assert a.feed_all(10 * MS, 0, 0x80, b"\x02") == []             # SYNC 2 held
+    assert a.feed_all(10 * MS + 5, 0, 0x77F, b"\x05") == []        # the heartbeat after it: held
+    assert a.counters()["held"] == 2 and a.counters()["master_heartbeat"] == 1
+    closed = a.feed_all(4 * MS, 0, *tagged(12, 1, 1))
+    assert [(c.cycle, c.closed_by) for c in closed] == [(0, "complete")]
+    assert closed[0].decisions.tolist() == [1, -1, 1]
+    assert a.cycle == 1 and not a.held and a.counters()["master_heartbeat"] == 2
+    assert sum(a.counts) == a.events

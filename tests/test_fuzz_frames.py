@@ -14,7 +14,7 @@ FRAMES = 100_000
 
 def random_frames(rng, scene, count):
     node_ids = np.array([t.node_id for t in scene.taxels])
-    bases = np.array([0x000, 0x080, 0x100, 0x180, 0x280, 0x580, 0x600, 0x700])
+    bases = np.array([0x000, 0x080, 0x100, 0x180, 0x280, 0x580, 0x600, 0x700, 0x77F])  # 0x77F: the master's heartbeat
     t = 1_700_000_000.0
     for i in range(count):
         r = rng.random()
@@ -22,7 +22,7 @@ def random_frames(rng, scene, count):
             can_id = int(rng.integers(0, 0x800))
         else:         # aimed at the scene's COB-IDs (valid or not)
             base = int(rng.choice(bases))
-            can_id = base + (int(rng.choice(node_ids)) if base not in (0x000, 0x080, 0x100) else 0)
+            can_id = base + (int(rng.choice(node_ids)) if base not in (0x000, 0x080, 0x100, 0x77F) else 0)
         dlc = int(rng.integers(0, 9)) if rng.random() < 0.6 else int(rng.choice([0, 1, 2, 8]))
         data = rng.integers(0, 256, dlc, dtype=np.uint8).tobytes()
         if rng.random() < 0.5 and dlc == 1:
@@ -49,7 +49,7 @@ def test_fuzzed_frames_are_all_accounted_for_and_cycles_evaluate():
     assert sum(counters.values()) == FRAMES
     assert counters["internal_error"] == 0
     # the fuzz reached the interesting paths
-    for name in ("sync", "tpdo1", "late", "heartbeat", "bootup", "emcy", "nmt", "bad_dlc", "bad_value",
+    for name in ("sync", "tpdo1", "late", "heartbeat", "bootup", "master_heartbeat", "emcy", "nmt", "bad_dlc", "bad_value",
                  "unknown_cob_id", "remote_frame", "error_frame", "extended_id"):
         assert counters[name] > 0, name
     assert len(records) > 10

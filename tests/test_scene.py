@@ -306,8 +306,15 @@ def test_more_than_127_taxels_need_channels(tmp_path):
         load_scene(p)
     assert e.value.field == "line 129, column channel"
     p.write_text(CSV_SCENE.replace("[scene]", '[bus]\nchannels = ["c0", "c1"]\n[scene]'))
+    # node-IDs 1..127 all taken on channel 0: none is left for the master's heartbeat
+    with pytest.raises(SceneError) as e:
+        load_scene(p)
+    assert e.value.field == "master.node_id" and e.value.value == 127
+    assert "no taxel uses" in e.value.problem and "heartbeat_ms = 0" in e.value.problem
+    assert "\n" not in str(e.value)
+    p.write_text(CSV_SCENE.replace("[scene]", '[bus]\nchannels = ["c0", "c1"]\n[master]\nheartbeat_ms = 0\n[scene]'))
     s = load_scene(p)
-    assert s.n == 200 and {t.channel for t in s.taxels} == {0, 1}
+    assert s.n == 200 and {t.channel for t in s.taxels} == {0, 1} and s.master_heartbeat_ms == 0
 
 
 # ---------------------------------------------------------------- the project's scenes
@@ -395,3 +402,46 @@ def test_matrix57_chapter_replays_printed_readings_and_no_zeta_gives_the_printed
     # the scene's per-kind zeta (R 12, C 17.5, P 7.5 mV): R present 5 (15.6), 8 (18.0),
     # 18 (19.3), 19 (14.6); no C reaches 17.5; P cells 31 and 40 read 7.5, cells 1 and 57 less
     assert (np.flatnonzero(u == 1) + 1).tolist() == [5, 8, 18, 19, 31, 40]
+
+
+# ---------------------------------------------------------------- [master] node_id, heartbeat_ms
+
+def test_master_node_id_and_heartbeat_defaults_and_keys(tmp_path):
+    s = load_text(tmp_path, BASE)
+    assert s.master.node_id == 127 and s.master.heartbeat_ms is None
+    assert s.master_heartbeat_ms == s.bus.heartbeat_producer_ms == 100   # default: the bus's
+    s = load_text(tmp_path, BASE + "\n[master]\nnode_id = 3\nheartbeat_ms = 250\n")
+    assert (s.master.node_id, s.master_heartbeat_ms) == (3, 250)
+    s = load_text(tmp_path, BASE.replace("sync_period_ms = 5.0", "sync_period_ms = 5.0\nheartbeat_producer_ms = 40"))
+    assert s.master_heartbeat_ms == 40
+
+
+@pytest.mark.parametrize("master,field,value,words", [
+    ("node_id = 0", "master.node_id", 0, "1..127"),
+    ("node_id = 128", "master.node_id", 128, "1..127"),
+    ("node_id = 2", "master.node_id", 2, "channel 0"),      # taxel 2 on channel 0
+    ("node_id = 1", "master.node_id", 1, "channel 0, 1"),   # node 1 on both channels
+    ("heartbeat_ms = -1", "master.heartbeat_ms", -1, "0..21845"),
+    ("heartbeat_ms = 21846", "master.heartbeat_ms", 21846, "0x1016"),
+    ("heartbeat_ms = 1.5", "master.heartbeat_ms", 1.5, "integer"),
+])
+def test_master_node_id_and_heartbeat_errors_name_field_value_and_what_is_allowed(tmp_path, master, field, value,
+                                                                                  words):
+    with pytest.raises(SceneError) as e:
+        load_text(tmp_path, BASE + f"\n[master]\n{master}\n")
+    assert (e.value.field, e.value.value) == (field, value)
+    assert words in e.value.problem and "\n" not in str(e.value)
+
+
+def test_master_node_id_of_a_taxel_is_allowed_without_heartbeat(tmp_path):
+    s = load_text(tmp_path, BASE + "\n[master]\nnode_id = 2\nheartbeat_ms = 0\n")
+    assert s.master.node_id == 2 and s.master_heartbeat_ms == 0
+
+
+def test_master_heartbeat_default_from_a_bus_period_too_long_for_0x1016(tmp_path):
+    text = BASE.replace("sync_period_ms = 5.0", "sync_period_ms = 5.0\nheartbeat_producer_ms = 30000")
+    with pytest.raises(SceneError) as e:
+        load_text(tmp_path, text)
+    assert (e.value.field, e.value.value) == ("master.heartbeat_ms", 30000)
+    assert "default: bus.heartbeat_producer_ms" in e.value.problem
+    assert load_text(tmp_path, text + "\n[master]\nheartbeat_ms = 1000\n").master_heartbeat_ms == 1000

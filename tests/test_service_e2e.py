@@ -258,7 +258,7 @@ def test_master_frames_reach_a_virtual_bus_as_python_can_would_copy_them():
 
 
 def test_trace_marks_the_centres_own_frames_tx_and_the_master_writes_no_rtr_cob_ids(tmp_path):
-    """In an .asc trace the master's SYNC, NMT and SDO requests are "Tx", the nodes' frames "Rx"
+    """In an .asc trace the master's SYNC, NMT, SDO requests and heartbeat are "Tx", the nodes' frames "Rx"
     (python-can's ASCReader reads the direction back); the TPDO COB-IDs the master writes keep
     bit 30 (no RTR), as the EDS defaults and the twins' start-up values have it."""
     from fusion_center.commands.demo import run_demo
@@ -268,10 +268,11 @@ def test_trace_marks_the_centres_own_frames_tx_and_the_master_writes_no_rtr_cob_
     trace = tmp_path / "t.asc"
     run_demo(scene, 5, json_lines=tmp_path / "t.jsonl", trace=trace)
     frames = list(can.ASCReader(str(trace)))
-    master = [m for m in frames if m.arbitration_id in (0x000, 0x080) or 0x601 <= m.arbitration_id <= 0x67F]
+    # the master's own frames: NMT, SYNC, SDO requests and its heartbeat (0x700 + 127)
+    master = [m for m in frames if m.arbitration_id in (0x000, 0x080, 0x77F) or 0x601 <= m.arbitration_id <= 0x67F]
     nodes = [m for m in frames if 0x181 <= m.arbitration_id <= 0x1FF or 0x581 <= m.arbitration_id <= 0x5FF
-             or 0x701 <= m.arbitration_id <= 0x77F]
-    assert master and nodes
+             or 0x701 <= m.arbitration_id <= 0x77E]
+    assert master and nodes and any(m.arbitration_id == 0x77F for m in master)
     assert all(not m.is_rx for m in master) and all(m.is_rx for m in nodes)
     for index, taxel in enumerate(scene.taxels):
         cob_writes = [v for obj, sub, v in node_configuration(scene, index) if (obj, sub) == (0x1800, 1)]

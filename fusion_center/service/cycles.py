@@ -87,6 +87,7 @@ from .decoder import (
     K_SDO_RESPONSE,
     K_SYNC,
     K_LSS,
+    K_MASTER_HEARTBEAT,
     K_TIME,
     K_TPDO1,
     K_TPDO2,
@@ -130,6 +131,7 @@ COUNTER_NAMES: tuple[str, ...] = (
     "late",            # PDO for a closed cycle / duplicate / no cycle open: dropped
     "heartbeat",       # heartbeat (state != boot-up)
     "bootup",          # boot-up message (heartbeat state 0)
+    "master_heartbeat",  # the master's own heartbeat (0x700 + [master] node_id, CiA 302)
     "emcy",            # emergency message
     "nmt",             # NMT module control (the master's own, or another master's)
     "sdo",             # SDO request or response
@@ -153,6 +155,7 @@ C_BAD_DLC, C_BAD_VALUE, C_UNKNOWN = _C["bad_dlc"], _C["bad_value"], _C["unknown_
 C_REMOTE, C_ERROR, C_EXTENDED, C_INTERNAL = (
     _C["remote_frame"], _C["error_frame"], _C["extended_id"], _C["internal_error"])
 C_FD = _C["fd_frame"]
+C_MASTER_HEARTBEAT = _C["master_heartbeat"]
 MALFORMED = ("bad_dlc", "bad_value", "unknown_cob_id", "remote_frame", "error_frame", "extended_id", "fd_frame")
 _MALFORMED_IDX = frozenset(_C[name] for name in MALFORMED)
 
@@ -507,6 +510,13 @@ class CycleAssembler:
             if size != 8:
                 return self._bad(C_BAD_DLC)
             counts[C_LSS] += 1
+            return None
+        if kind == K_MASTER_HEARTBEAT:  # the master's own (or one claiming its node-ID)
+            if size != 1:
+                return self._bad(C_BAD_DLC)
+            if data[0] not in HEARTBEAT_STATES:
+                return self._bad(C_BAD_VALUE)
+            counts[C_MASTER_HEARTBEAT] += 1
             return None
         # K_TIME
         if size != 6:

@@ -19,6 +19,8 @@ SDO server → client   0x580+id    8 bytes (byte 0 = 0x80: abort, bytes 4..7 ab
 SDO client → server   0x600+id    8 bytes
 NMT error control     0x700+id    1 byte NMT state (0 boot-up, 4 stopped, 5 operational,
                                   127 pre-operational)
+master heartbeat      0x700+m     the same, of the master itself (``[master] node_id`` m,
+                                  CiA 302; only while its heartbeat is on)
 ====================  ==========  ==================================================
 """
 
@@ -39,6 +41,7 @@ K_SYNC = 7
 K_NMT = 8
 K_TIME = 9
 K_LSS = 10  # CiA 305 LSS: 0x7E5 master -> slaves, 0x7E4 slave -> master
+K_MASTER_HEARTBEAT = 11  # the master's own heartbeat, 0x700 + [master] node_id (CiA 302)
 
 COB_NMT = 0x000
 COB_SYNC = 0x080
@@ -81,14 +84,20 @@ _EMCY = struct.Struct("<HB5s")
 def build_cob_tables(scene: Scene) -> list[dict[int, tuple[int, int]]]:
     """One dict per scene channel: COB-ID -> (frame kind, taxel index in fusion order).
 
-    Channel-wide objects (NMT, SYNC, TIME, LSS) map to taxel index -1. COB-IDs of node-IDs the
-    scene does not name are absent: the assembler counts them as ``unknown_cob_id``.
+    Channel-wide objects (NMT, SYNC, TIME, LSS, the master's heartbeat 0x700 + ``[master]
+    node_id`` while it is on) map to taxel index -1. COB-IDs of node-IDs the scene does not name
+    are absent: the assembler counts them as ``unknown_cob_id``. A taxel's own COB-IDs win over
+    the master's heartbeat (the scene loader refuses that collision; a scene built in code may
+    still have it).
     """
     tables: list[dict[int, tuple[int, int]]] = [
         {COB_NMT: (K_NMT, -1), COB_SYNC: (K_SYNC, -1), COB_TIME: (K_TIME, -1),
          COB_LSS_SLAVE: (K_LSS, -1), COB_LSS_MASTER: (K_LSS, -1)}
         for _ in scene.bus.channels
     ]
+    if scene.master_heartbeat_ms > 0:
+        for table in tables:
+            table[BASE_HEARTBEAT + scene.master.node_id] = (K_MASTER_HEARTBEAT, -1)
     for index, taxel in enumerate(scene.taxels):
         table = tables[taxel.channel]
         nid = taxel.node_id

@@ -213,6 +213,7 @@ class FusionService:
     def close(self) -> None:
         if self.master is not None:
             self.master.stop()
+            self.master.stop_heartbeat()  # the master's heartbeat ends with the centre
         for notifier in self.notifiers:
             try:
                 notifier.stop(timeout=2)

@@ -24,11 +24,12 @@ from rich.text import Text
 from ..core.bus_timing import worst_case_frame_bits
 
 # data bytes per counted event (classic CAN 2.0A); bus load uses the worst-case frame length
-_DATA_BYTES = {"sync": 0, "tpdo1": 1, "tpdo2": 4, "late": 1, "heartbeat": 1, "bootup": 1, "emcy": 8,
+_DATA_BYTES = {"sync": 0, "tpdo1": 1, "tpdo2": 4, "late": 1, "heartbeat": 1, "bootup": 1, "master_heartbeat": 1, "emcy": 8,
                "nmt": 2, "sdo": 8, "sdo_abort": 8, "time": 6}
 _DECISION_STYLE = {"H1": "bold green", "H0": "cyan", "undecided": "yellow"}
 _HISTORY = 76  # decisions shown: one line at 80 columns with its indent
-_FRAMES = ("sync", "tpdo1", "tpdo2", "late", "heartbeat", "bootup", "nmt", "emcy", "sdo", "sdo_abort")
+_FRAMES = ("sync", "tpdo1", "tpdo2", "late", "heartbeat", "bootup", "master_heartbeat", "nmt", "emcy", "sdo",
+           "sdo_abort")
 _MALFORMED = ("bad_dlc", "bad_value", "unknown_cob_id", "remote_frame", "error_frame", "extended_id", "fd_frame",
               "internal_error")
 # nodes that did not take part, by the record's nodes_by_state (docs/service.md, Supervision)

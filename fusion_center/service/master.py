@@ -15,6 +15,10 @@ index     sub  value
 0x6126    1    calibration slope m (eq 23), only when the scene gives one
 0x6127    1    calibration intercept c (eq 23), only when the scene gives one
 0x1017    0    heartbeat producer time (ms)
+0x1016    1    heartbeat consumer: master node-ID << 16 | 3 x the master's heartbeat period
+                (at least 300 ms), so a node whose master died reports EMCY 0x8130 and takes
+                the state of its 0x1029:1 (default: pre-operational); 0 when the master
+                sends no heartbeat
 0x1800    1-5  TPDO1: COB-ID invalid -> transmission type, inhibit time, event timer
                 -> COB-ID 0x180+id valid (CiA 301: sub 3 only while the PDO is invalid);
                 left invalid in raw mode: the node sends its reading *instead of* u_i
@@ -23,6 +27,11 @@ index     sub  value
 
 SDO aborts and time-outs are logged and counted (``sdo_aborts``, ``sdo_timeouts``), never
 raised: a node whose configuration failed still takes part with its stored values.
+
+The master's own heartbeat (CiA 301 0x1017 of the master, CiA 302): ``0x700 + [master] node_id``
+with state 0x05 (operational) every ``Scene.master_heartbeat_ms`` on every channel, through the
+stream, from :meth:`Master.start_heartbeat` (the start of the boot) until
+:meth:`Master.stop_heartbeat` (the service closes), on a monotonic-clock thread of its own.
 """
 
 from __future__ import annotations
@@ -42,8 +51,10 @@ import numpy as np
 from .cycles import C_BOOTUP
 from .stream import RateLimitedLog
 from .decoder import (
+    STATE_OPERATIONAL,
     STATE_PRE_OPERATIONAL,
     STATE_STOPPED,
+    BASE_HEARTBEAT,
     BASE_TPDO1,
     BASE_TPDO2,
     COB_NMT,
@@ -60,6 +71,8 @@ COB_INVALID = 0x8000_0000
 COB_NO_RTR = 0x4000_0000  # TPDO COB-ID bit 30 (CiA 301): no remote transmission request
 BOOT_QUIET_S = 0.05  # after the reset at start: no new boot-up for this long before configuring
 HEARTBEAT_PRODUCER = 0x1017
+CONSUMER_HEARTBEAT = 0x1016
+CONSUMER_TIME_MIN_MS = 300  # the nodes' consumer time for the master: 3 x its period, at least this
 TPDO_COMM = (0x1800, 0x1801)
 TPDO_MAP = (0x1A00, 0x1A01)
 SYNC_WINDOW = 0x1007
@@ -89,6 +102,7 @@ def node_configuration(scene: Scene, index: int) -> list[tuple[int, int, object]
     if t.intercept is not None:
         writes.append((AI_SCALING_OFFSET, 1, float(t.intercept)))
     writes.append((HEARTBEAT_PRODUCER, 0, int(bus.heartbeat_producer_ms)))
+    writes.append((CONSUMER_HEARTBEAT, 1, master_consumer_entry(scene)))
     writes.append((SYNC_OVERFLOW, 0, int(bus.sync_counter)))
     writes.append((SYNC_WINDOW, 0, int(bus.sync_window)))
     for comm, base, enabled in ((TPDO_COMM[0], BASE_TPDO1, bus.mode != "raw"),
@@ -106,6 +120,16 @@ def node_configuration(scene: Scene, index: int) -> list[tuple[int, int, object]
         if enabled:
             writes.append((comm, 1, cob))
     return writes
+
+
+def master_consumer_entry(scene: Scene) -> int:
+    """0x1016:1 of every node: ``master node-ID << 16 | consumer time ms`` with a generous
+    consumer time (3 x the master's heartbeat period, at least :data:`CONSUMER_TIME_MIN_MS`;
+    the scene loader keeps it within 16 bits), or 0 (off) when the master sends no heartbeat."""
+    period = scene.master_heartbeat_ms
+    if period <= 0:
+        return 0
+    return scene.master.node_id << 16 | min(0xFFFF, max(CONSUMER_TIME_MIN_MS, 3 * period))
 
 
 class Master:
@@ -133,6 +157,9 @@ class Master:
         self._stats_lock = threading.Lock()
         self._stop = threading.Event()
         self._sync_thread: threading.Thread | None = None
+        self._heartbeat_stop = threading.Event()
+        self._heartbeat_thread: threading.Thread | None = None
+        self.heartbeats_sent = 0  # heartbeat instants (one frame per channel each)
         self._reconfigure: set[int] = set()
         self.restart = scene.master.restart == "always"
         self._log = RateLimitedLog(logger, 2.0)
@@ -162,6 +189,7 @@ class Master:
         neither by a boot-up nor otherwise since the reset at ``timeout_s`` is missing (and is
         configured and started later if it ever boots).
         """
+        self.start_heartbeat()  # CiA 302: the master's heartbeat from its boot on
         if self.scene.master.assign_ids == "lss":
             self.assign_node_ids()
         assembler = self.stream.assembler
@@ -274,6 +302,46 @@ class Master:
                     self._reconfigure.discard(index)
 
         threading.Thread(target=work, name=f"recover-{index}", daemon=True).start()
+
+    # ------------------------------------------------------------------ heartbeat
+    def start_heartbeat(self) -> None:
+        """Start the master's heartbeat producer (idempotent; nothing when it is off)."""
+        period_ms = self.scene.master_heartbeat_ms
+        if period_ms <= 0 or (self._heartbeat_thread is not None and self._heartbeat_thread.is_alive()):
+            return
+        self._heartbeat_stop.clear()
+        self._heartbeat_thread = threading.Thread(target=self._heartbeat_loop, args=(period_ms / 1000.0,),
+                                                  name="master-heartbeat", daemon=True)
+        self._heartbeat_thread.start()
+
+    def stop_heartbeat(self) -> None:
+        self._heartbeat_stop.set()
+        if self._heartbeat_thread is not None:
+            self._heartbeat_thread.join(5)
+            self._heartbeat_thread = None
+
+    def _heartbeat_loop(self, period: float) -> None:
+        """0x700 + node-ID [0x05] on every channel every ``period`` s: the next beat one period
+        after the planned time (no drift); one that fell behind by more than a period is re-phased
+        (no burst of catch-up beats)."""
+        cob = BASE_HEARTBEAT + self.scene.master.node_id
+        frames = [(ch, cob, bytes((STATE_OPERATIONAL,))) for ch in range(len(self.networks))]
+        next_at = time.monotonic()
+        try:
+            while True:
+                delay = next_at - time.monotonic()
+                if delay > 0:
+                    if self._heartbeat_stop.wait(delay):
+                        return
+                elif self._heartbeat_stop.is_set():
+                    return
+                elif delay < -period:
+                    next_at = time.monotonic()
+                self.stream.transmit_all(frames)
+                self.heartbeats_sent += 1
+                next_at += period
+        except Exception:  # noqa: BLE001 - e.g. the bus went away: stop beating, never hang
+            logger.exception("master heartbeat stopped")
 
     # ------------------------------------------------------------------ SYNC
     def start_sync(self, cycles: int, before_sync: Callable[[int], None] | None = None) -> None:

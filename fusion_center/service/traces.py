@@ -192,6 +192,8 @@ def check_trace(scene: Scene, trace_path) -> dict:
     for t in scene.taxels:
         nodes[t.channel].add(t.node_id)
     bases = (BASE_EMCY, BASE_TPDO1, BASE_TPDO2, BASE_SDO_RESPONSE, BASE_SDO_REQUEST, BASE_HEARTBEAT)
+    # the master's own heartbeat (CiA 302), when the scene's master produces one
+    master_heartbeat = BASE_HEARTBEAT + scene.master.node_id if scene.master_heartbeat_ms > 0 else COB_NMT
     frames = 0
     off_channel: dict[int, int] = {}
     foreign_nodes: dict[int, int] = {}
@@ -208,7 +210,7 @@ def check_trace(scene: Scene, trace_path) -> dict:
             if msg.is_error_frame or msg.is_extended_id:
                 continue  # counted as malformed by the replay itself, as live
             cob = msg.arbitration_id
-            if cob in (COB_NMT, COB_SYNC, COB_TIME):
+            if cob in (COB_NMT, COB_SYNC, COB_TIME, master_heartbeat):
                 continue
             base, node = cob & 0x780, cob & 0x7F
             if base not in bases or node == 0:

@@ -1,0 +1,145 @@
+"""The centre's own heartbeat (CiA 301 0x1017 of the master, CiA 302) and the twins watching it
+(0x1016, 0x1029): every frame through the stream, on every channel, counted as
+``master_heartbeat``; when it stops (the centre died), every twin reports EMCY 0x8130 and goes
+pre-operational. End to end on a private virtual bus."""
+
+import dataclasses
+import uuid
+from pathlib import Path
+
+import can
+import pytest
+
+from fusion_center.service import FusionService
+from fusion_center.service.master import master_consumer_entry, node_configuration
+from node_sim.rig import Rig
+from taxel_net.scene import MasterSpec, load_scene
+
+ROOT = Path(__file__).resolve().parent.parent
+MATRIX = ROOT / "scenes" / "matrix57.toml"
+
+TWO_CHANNELS = """
+[scene]
+name = "hb2"
+cycles = 10
+[bus]
+channels = ["a", "b"]
+sync_period_ms = 20.0
+heartbeat_producer_ms = 50
+[master]
+node_id = 100
+[[taxels]]
+node_id = 1
+kind = "R"
+[[taxels]]
+node_id = 2
+kind = "R"
+channel = 1
+[fusion]
+tuple = "pm1"
+"""
+
+
+def test_node_configuration_points_every_consumer_at_the_master():
+    scene = load_scene(MATRIX)
+    assert master_consumer_entry(scene) == 127 << 16 | 300           # 3 x 100 ms
+    for i in (0, 30, scene.n - 1):
+        writes = node_configuration(scene, i)
+        assert writes.count((0x1016, 1, 127 << 16 | 300)) == 1
+        # written after the node's own producer time, before the PDOs are validated
+        assert writes.index((0x1016, 1, 127 << 16 | 300)) == writes.index((0x1017, 0, 100)) + 1
+    short = dataclasses.replace(scene, master=MasterSpec(node_id=99, heartbeat_ms=40))
+    assert master_consumer_entry(short) == 99 << 16 | 300              # at least 300 ms
+    long = dataclasses.replace(scene, master=MasterSpec(heartbeat_ms=1000))
+    assert master_consumer_entry(long) == 127 << 16 | 3000
+    off = dataclasses.replace(scene, master=MasterSpec(heartbeat_ms=0))
+    assert (0x1016, 1, 0) in node_configuration(off, 0)                # consumer off, written all the same
+
+
+def test_the_heartbeat_goes_through_the_stream_on_every_channel(tmp_path):
+    scene_path = tmp_path / "hb2.toml"
+    scene_path.write_text(TWO_CHANNELS)
+    scene = load_scene(scene_path)
+    tag = uuid.uuid4().hex[:8]
+    channels = [f"hb-a-{tag}", f"hb-b-{tag}"]
+    trace = tmp_path / "t.log"
+    rig = Rig(scene, channel=channels)
+    listeners = [can.Bus(interface="virtual", channel=c) for c in channels]
+    try:
+        with FusionService(scene, channels=channels, trace=trace) as service:
+            rig.start()
+            service.boot(3.0)
+            service.run(12)
+            sent = service.master.heartbeats_sent
+            counters = service.stream.counters()
+        on_bus = [0, 0]
+        for k, bus in enumerate(listeners):
+            while (msg := bus.recv(0)) is not None:
+                if msg.arbitration_id == 0x700 + 100:
+                    assert bytes(msg.data) == b"\x05"                   # operational
+                    on_bus[k] += 1
+        for node_id, ch in ((1, 0), (2, 1)):
+            assert rig.node(node_id, ch).read(0x1016, 1) == 100 << 16 | 300
+    finally:
+        for bus in listeners:
+            bus.shutdown()
+        rig.stop()
+    assert sent >= 2
+    # one frame per channel and beat, each sent through the stream: traced (Tx) and counted
+    assert on_bus == [sent, sent]
+    assert counters["master_heartbeat"] == 2 * sent and counters["unknown_cob_id"] == 0
+    traced = [line for line in trace.read_text().splitlines() if " 764#05" in line]  # 0x764 = 0x700 + 100
+    assert len(traced) == 2 * sent
+    assert {line.split()[1] for line in traced} == {"can0", "can1"}
+
+
+@pytest.mark.parametrize("stop_at", [10])
+def test_when_the_centre_dies_the_twins_report_emcy_8130_and_go_pre_operational(stop_at):
+    """The centre's heartbeat stops (as when its process dies) while the SYNCs go on; the
+    twins watched it (0x1016:1 written at configuration, 0x1029:1 = 0): each sends EMCY 0x8130
+    and leaves operational; restart = "never" so the centre does not start them again."""
+    scene = load_scene(MATRIX)
+    scene = dataclasses.replace(
+        scene, bus=dataclasses.replace(scene.bus, sync_period_ms=20.0),
+        master=dataclasses.replace(scene.master, restart="never"))
+    channel = f"hb-{uuid.uuid4().hex[:8]}"
+    service = FusionService(scene, channels=[channel])
+    rig = Rig(scene, channel=[channel])
+    consumer = 127 << 16 | 300
+    stopped = {}
+
+    def before_sync(k):
+        if k == stop_at:
+            # every twin is operational and watching the master (monitoring runs: its timer is set)
+            stopped["states"] = {nid: n.state for (_, nid), n in rig.nodes.items()}
+            stopped["watching"] = all(127 in n.heartbeat_consumer._timers for n in rig.nodes.values())
+            stopped["emcy_before"] = service.stream.counters()["emcy"]
+            service.master.stop_heartbeat()
+
+    try:
+        with service:
+            rig.start()
+            service.boot(3.0)
+            assert all(n.read(0x1016, 1) == consumer for n in rig.nodes.values())
+            service.run(stop_at + 40, before_sync=before_sync)   # 40 x 20 ms after the stop > 300 ms
+            counters = service.stream.counters()
+            records = list(service.records)
+        states = {nid: n.state for (_, nid), n in rig.nodes.items()}
+        errors = {nid: (n.read(0x1001), n.read(0x1003, 1)) for (_, nid), n in rig.nodes.items()}
+    finally:
+        rig.stop()
+    assert set(stopped["states"].values()) == {0x05} and stopped["watching"]
+    assert stopped["emcy_before"] == 0
+    # the loss: every twin pre-operational (0x1029:1 = 0), error register 0x11, 0x1003:1 = 0x8130
+    assert set(states.values()) == {0x7F}
+    assert set(errors.values()) == {(0x11, 0x8130)}
+    assert counters["emcy"] == scene.n
+    codes = [e["code"] for r in records for e in r["emcy"]]
+    dropped = sum(r.get("emcy_dropped", 0) for r in records)
+    assert set(codes) == {"0x8130"} and len(codes) + dropped == scene.n
+    first = min(r["cycle"] for r in records if r["emcy"])
+    # not before the consumer time ran out: 300 ms after the last beat, sent <= 100 ms before the stop
+    assert first >= stop_at + (300 - 100) // 20
+    # the centre saw them leave operational: the last records are fused without them
+    last = records[-1]
+    assert last["nodes_by_state"].get("pre-operational") and last["n_received"] == 0
