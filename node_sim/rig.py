@@ -59,7 +59,7 @@ from typing import Callable, Mapping, Sequence
 import can
 import numpy as np
 
-from taxel_net.canmsg import TxMessage
+from taxel_net.canmsg import TxMessage, raise_receive_buffer
 from taxel_net.errors import ParameterError
 from taxel_net.scene import TAXEL_KINDS, Scene
 
@@ -349,6 +349,7 @@ class Rig:
                     raise ParameterError("channel", name,
                                          f"cannot be opened with python-can interface {self.interface!r}: "
                                          f"{type(exc).__name__}: {exc}") from None
+                raise_receive_buffer(bus)  # udp_multicast: room for bursts (57 SDO clients at once)
                 self._channels.append(_Channel(self, index, name, bus))
             unconfigured = self.scene.master.assign_ids == "lss"
             identity, bit_rates = self._lss_device()

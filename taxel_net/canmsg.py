@@ -7,11 +7,22 @@ bytearray (~5 µs a frame: most of a node twin's cost per frame, and on the mast
 This copy builds the same ``can.Message`` directly (the data copied into a new bytearray; the
 channel is a str, int or None, immutable); every other field is copied as python-can does.
 Other interfaces never copy.
+
+:func:`raise_receive_buffer` gives a ``udp_multicast`` bus a socket receive buffer large enough
+for bursts (python-can leaves the kernel default, 208 KiB on Linux: 57 concurrent SDO clients
+made the kernel drop datagrams of the node-sim process, and with them transfers).
 """
 
 from __future__ import annotations
 
+import logging
+import socket
+
 import can
+
+logger = logging.getLogger(__name__)
+
+UDP_RECEIVE_BUFFER = 4 * 1024 * 1024  # bytes asked for (Linux reports and allots twice this)
 
 
 class TxMessage(can.Message):
@@ -26,3 +37,33 @@ class TxMessage(can.Message):
             is_error_frame=self.is_error_frame, channel=self.channel, dlc=self.dlc,
             data=bytearray(self.data), is_fd=self.is_fd, is_rx=self.is_rx,
             bitrate_switch=self.bitrate_switch, error_state_indicator=self.error_state_indicator)
+
+
+def raise_receive_buffer(bus: can.BusABC, size: int = UDP_RECEIVE_BUFFER) -> int | None:
+    """Raise the receive buffer (SO_RCVBUF) of a python-can ``udp_multicast`` bus's socket to
+    ``size`` bytes and return the effective size read back (Linux doubles the value asked for,
+    for its bookkeeping); None for any other bus. Never lowers it. The kernel caps SO_RCVBUF at
+    ``net.core.rmem_max``; a process allowed to (CAP_NET_ADMIN) gets ``size`` anyway through
+    SO_RCVBUFFORCE. Never raises: a buffer that cannot be raised stays as it was (logged, INFO)."""
+    sock = getattr(getattr(bus, "_multicast", None), "_socket", None)  # python-can 4.x UdpMulticastBus
+    if not isinstance(sock, socket.socket):
+        return None
+    try:
+        before = sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF)
+        if before < size:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, size)
+            force = getattr(socket, "SO_RCVBUFFORCE", None)
+            if force is not None and sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF) < size:
+                try:  # beyond net.core.rmem_max: only with CAP_NET_ADMIN
+                    sock.setsockopt(socket.SOL_SOCKET, force, size)
+                except OSError:
+                    pass
+        effective = sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF)
+    except OSError as exc:
+        logger.warning("udp_multicast: cannot raise the socket receive buffer: %s", exc)
+        return None
+    # INFO, not WARNING: a capped buffer still works (it only drops under bursts), and command
+    # output must not depend on the host's sysctl
+    logger.info("udp_multicast: socket receive buffer %d bytes (was %d, asked for %d%s)", effective, before,
+                size, "" if effective >= size else "; capped: raise net.core.rmem_max")
+    return effective

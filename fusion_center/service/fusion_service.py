@@ -30,6 +30,7 @@ from typing import Callable, Sequence
 
 import can
 
+from taxel_net.canmsg import raise_receive_buffer
 from taxel_net.errors import UsageError
 from taxel_net.resources import eds_path
 from taxel_net.scene import Scene
@@ -203,12 +204,14 @@ class FusionService:
         if self.bitrate is not None:
             kwargs["bitrate"] = self.bitrate
         try:
-            return can.Bus(interface=self.interface, channel=name, **kwargs)
+            bus = can.Bus(interface=self.interface, channel=name, **kwargs)
         except can.exceptions.CanInterfaceNotImplementedError as exc:
             raise UsageError(f"--interface {self.interface!r}: not usable by python-can ({exc})") from None
         except Exception as exc:  # noqa: BLE001 - any backend failure: cannot open
             raise UsageError(f"--channel {name!r} cannot be opened with interface {self.interface!r}: "
                              f"{type(exc).__name__}: {exc}") from None
+        raise_receive_buffer(bus)  # udp_multicast: room for bursts (taxel_net.canmsg)
+        return bus
 
     def close(self) -> None:
         if self.master is not None:
