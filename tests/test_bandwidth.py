@@ -184,6 +184,18 @@ def test_cli_json_and_bad_bitrate(tiny, capsys):
     out = json.loads(capsys.readouterr().out)
     assert set(out["modes"]) == {"raw", "decision_sync", "decision_event"}
     assert out["bitrate"] == 500000
-    assert cli.main(["bandwidth", "--scene", scene.path, "--bitrate", "2000000"]) == 2
+    assert cli.main(["bandwidth", "--scene", scene.path, "--bitrate", "500k", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out) == out  # 500k as python-can's tools write it
+    with pytest.raises(SystemExit) as exit_:
+        cli.main(["bandwidth", "--scene", scene.path, "--bitrate", "2000000"])
+    assert exit_.value.code == 2
     err = capsys.readouterr().err
-    assert "bitrate=2000000" in err and len(err.strip().splitlines()) == 1
+    assert "'2000000'" in err and "1..1000000" in err and len(err.strip().splitlines()) == 1
+
+
+def test_report_into_a_directory_that_cannot_be_made_exits_2(tiny, tmp_path, capsys):
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    assert cli.main(["report", "--scene", tiny().path, "--out", str(blocker / "x"), "--trials", "10"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--out" in err[0] and "Not a directory" in err[0]

@@ -13,13 +13,23 @@ from pathlib import Path
 from taxel_net.scene import load_scene
 
 from ..report.bandwidth import bandwidth_figures
+from .report import parse_bitrates
+
+
+def parse_bitrates_one(text: str) -> int:
+    """argparse type of ``--bitrate``: one classic CAN bit rate (``500k``, ``1M``, ``125000``)."""
+    values = parse_bitrates(text)
+    if len(values) != 1:
+        raise argparse.ArgumentTypeError(f"{text!r}: one bit rate")
+    return values[0]
 
 HELP = "bus cost per cycle of raw-data vs decision streaming (exact CAN bits, load, max rate, latency)"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--scene", required=True, help="scene file (TOML, docs/scene-format.md)")
-    parser.add_argument("--bitrate", type=int, help="bit/s (default: the scene's bus.bitrate)")
+    parser.add_argument("--bitrate", type=parse_bitrates_one, help="bit/s, e.g. 500000, 500k or 1M "
+                        "(default: the scene's bus.bitrate)")
     parser.add_argument("--cycles", type=int, help="cycles simulated (default: the scene's cycles)")
     parser.add_argument("--json", action="store_true", help="print the figures as JSON")
 

@@ -9,7 +9,10 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from taxel_net.errors import ParameterError
 from taxel_net.scene import load_scene
+
+from . import parse_bitrate
 
 from ..report.build import DEFAULT_TRIALS, build_report
 
@@ -28,19 +31,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def parse_bitrates(text: str) -> list[int]:
-    """``"125000,500000,1000000"`` -> [125000, 500000, 1000000] (argparse type)."""
+    """``"125000,500k,1M"`` -> [125000, 500000, 1000000] (argparse type; each item as ``-b``)."""
     out = []
     for given in text.split(","):
-        item = given.strip().lower().replace("_", "")
-        scale = 1000 if item.endswith("k") else 1_000_000 if item.endswith("m") else 1
-        try:
-            value = float(item.rstrip("km")) * scale
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{given!r} is not a bit rate (e.g. 500000 or 500k)") from None
-        if value != int(value) or not 1 <= value <= 1_000_000:
+        value = parse_bitrate(given)
+        if not 1 <= value <= 1_000_000:
             raise argparse.ArgumentTypeError(f"{given!r}: bit rate must be a whole number in 1..1000000 bit/s "
                                              "(classic CAN)")
-        out.append(int(value))
+        out.append(value)
     return out
 
 
@@ -49,6 +47,12 @@ def run(args) -> int:
 
     scene = load_scene(Path(args.scene))
     seed = scene.seed if args.seed is None else args.seed
+    out = Path(args.out)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ParameterError("--out", args.out, f"an output directory that can be created "
+                                                f"({exc.strerror or type(exc).__name__})") from None
     with Progress(TextColumn("{task.description}"), BarColumn(), TimeElapsedColumn()) as bar:
         task = bar.add_task("report", total=1.0)
 
