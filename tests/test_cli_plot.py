@@ -84,6 +84,32 @@ def test_plot_draws_the_log(tmp_path, monkeypatch):
     assert gaps[4] == pytest.approx(12.0) and gaps[5] == pytest.approx(8.0) and gaps[0] == pytest.approx(10.0)
 
 
+def test_plot_shows_the_decision_latency_and_takes_an_output_directory(tmp_path, monkeypatch):
+    """``closed_after_ms`` (SYNC to the cycle's close) per cycle by ``closed_by``, and its
+    histogram in an inset; ``--out DIR`` writes DIR/RUN.png."""
+    import fusion_center.report.plots as report_plots
+
+    figures = []
+    real_save = report_plots._save
+    monkeypatch.setattr(report_plots, "_save", lambda fig, path: (figures.append(fig), real_save(fig, path)))
+    recs = records()
+    for r in recs:
+        r["closed_after_ms"] = 3.25 if r["closed_by"] == "complete" else 8.0
+    log = write_log(tmp_path / "lat.jsonl", recs)
+    outdir = tmp_path / "figs"
+    outdir.mkdir()
+    assert cli.main(["plot", str(log), "--out", str(outdir)]) == 0
+    assert (outdir / "lat.png").read_bytes()[:4] == b"\x89PNG"
+    fig = figures[0]
+    timing = fig.axes[3]
+    inset, = timing.child_axes
+    lines = {line.get_label(): line for line in timing.get_lines()}
+    assert list(lines["SYNC to close, complete (20)"].get_ydata()) == [3.25] * 20
+    assert list(lines["SYNC to close, window (10)"].get_xdata()) == list(range(20, 30))
+    assert sum(p.get_height() for p in inset.patches) == 30
+    assert "p50 3.25" in inset.get_title() and "p99 8.00" in inset.get_title()
+
+
 def test_plot_default_output_next_to_the_log(tmp_path, capsys):
     log = write_log(tmp_path / "r.jsonl", records(5))
     assert cli.main(["plot", str(log)]) == 0

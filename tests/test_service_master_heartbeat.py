@@ -70,8 +70,9 @@ def test_the_heartbeat_goes_through_the_stream_on_every_channel(tmp_path):
             rig.start()
             service.boot(3.0)
             service.run(12)
-            sent = service.master.heartbeats_sent
-            counters = service.stream.counters()
+        # read once the service has closed: its heartbeat thread beats until then
+        sent = service.master.heartbeats_sent
+        counters = service.stream.counters()
         on_bus = [0, 0]
         for k, bus in enumerate(listeners):
             while (msg := bus.recv(0)) is not None:

@@ -1,4 +1,4 @@
-"""``fusion-center plot RUN.jsonl -o OUT.png``: one figure of a run's decision log.
+"""``fusion-center plot RUN.jsonl [-o OUT.png | --out DIR]``: one figure of a run's decision log.
 
 Four panels over the SYNC cycle, read from the per-cycle records (``--json-lines`` of ``run``,
 ``demo`` or ``replay``; docs/service.md, *The decision log*):
@@ -9,8 +9,10 @@ Four panels over the SYNC cycle, read from the per-cycle records (``--json-lines
 2. the nodes that did not take part, by state (missing, silent, pre-operational, stopped,
    resetting, unknown: ``nodes_by_state``);
 3. late and malformed frames per cycle (``late_frames``, ``bad_frames``);
-4. the time from one SYNC to the next (from ``t``) and how each cycle closed (``closed_by``).
-   The SYNC -> record latency is not in the decision log: the run's summary gives its p50/p99.
+4. the decision latency on the bus: SYNC to the event that closed each cycle
+   (``closed_after_ms``) by how it closed (``closed_by``), its histogram (inset, p50/p99), and
+   the time from one SYNC to the next (from ``t``). The evaluation time after the close is the
+   run summary's ``latency_ms``.
 
 The figure is written to ``OUT.partial.png`` and renamed when complete: a failed plot leaves
 no complete-looking file. A log that cannot be read (missing, not JSON lines, not decision
@@ -37,8 +39,9 @@ MARKERS_MAX = 20_000  # decision markers drawn per kind (a longer log is thinned
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("log", metavar="RUN.jsonl", help="decision log written by --json-lines")
-    parser.add_argument("-o", "--out", metavar="OUT.png", default=None,
-                        help="figure to write (.png, .pdf or .svg; default: RUN.png next to the log)")
+    parser.add_argument("-o", "--out", metavar="OUT.png|DIR", default=None,
+                        help="figure to write (.png, .pdf or .svg), or a directory for DIR/RUN.png "
+                             "(default: RUN.png next to the log)")
 
 
 def read_log(path: Path) -> dict:
@@ -48,7 +51,8 @@ def read_log(path: Path) -> dict:
     name = str(path)
     if not path.is_file():
         raise UsageError(f"decision log {name!r} not found")
-    keys = ("cycle", "t", "U_G", "threshold", "decision", "truth", "closed_by", "late_frames", "bad_frames")
+    keys = ("cycle", "t", "U_G", "threshold", "decision", "truth", "closed_by", "closed_after_ms", "late_frames",
+            "bad_frames")
     series: dict = {key: [] for key in keys}
     series["states"] = {state: [] for state in STATES}
     series["errors"] = 0
@@ -189,20 +193,32 @@ def draw(series: dict, title: str, out: Path) -> None:
     ax = axes[3]
     t = np.array([_number(v) for v in series["t"]])
     gap = np.diff(t) * 1e3
-    closed = np.array([c if isinstance(c, str) else "?" for c in series["closed_by"]])[1:]
     if gap.size:
-        ax.plot(cycle[1:], gap, "-", color="0.6", lw=0.8)
+        ax.plot(cycle[1:], gap, "-", color="0.6", lw=0.8, label="SYNC to next SYNC")
+    after = np.array([_number(v) for v in series["closed_after_ms"]])
+    closed = np.array([c if isinstance(c, str) else "?" for c in series["closed_by"]])
+    if np.isfinite(after).any():  # the decision latency on the bus (logs before it: SYNC gaps only)
         for kind, col in CLOSED_BY.items():
-            pick = np.flatnonzero(closed == kind)[::step]
+            pick = np.flatnonzero((closed == kind) & np.isfinite(after))[::step]
+            if pick.size:
+                ax.plot(cycle[pick], after[pick], ls="none", marker=".", ms=4, color=col,
+                        label=f"SYNC to close, {kind} ({int((closed == kind).sum())})")
+        finite = after[np.isfinite(after)]
+        inset = ax.inset_axes([1.03, 0.0, 0.15, 0.78])  # right of the panel, clear of the data
+        inset.hist(finite, bins=40, color="tab:blue", log=True)
+        inset.set_title(f"SYNC to close (ms)\np50 {np.percentile(finite, 50):.2f}, p99 {np.percentile(finite, 99):.2f}",
+                        fontsize=7)
+        inset.tick_params(labelsize=6)
+        inset.set_ylabel("cycles", fontsize=6)
+    elif gap.size:
+        for kind, col in CLOSED_BY.items():
+            pick = np.flatnonzero(closed[1:] == kind)[::step]
             if pick.size:
                 ax.plot(cycle[1:][pick], gap[pick], ls="none", marker=".", ms=4, color=col,
-                        label=f"cycle closed by {kind} ({int((closed == kind).sum())})")
-        finite = gap[np.isfinite(gap)]
-        if finite.size:
-            ax.axhline(float(np.median(finite)), color="black", lw=0.8, ls=":",
-                       label=f"median {float(np.median(finite)):.2f} ms")
-        _legend(ax, ncol=4)
-    ax.set_ylabel("SYNC to next\nSYNC (ms)")
+                        label=f"cycle closed by {kind} ({int((closed[1:] == kind).sum())})")
+    if gap.size or np.isfinite(after).any():
+        _legend(ax, ncol=3)
+    ax.set_ylabel("SYNC to close /\nnext SYNC (ms)")
     ax.set_xlabel("SYNC cycle")
     _save(fig, out)
 
@@ -212,6 +228,10 @@ def run(args) -> int:
 
     log = Path(args.log)
     out = Path(args.out) if args.out else log.with_suffix(".png")
+    if args.out and (out.is_dir() or args.out.endswith(("/", os.sep))):
+        if not out.is_dir():
+            raise UsageError(f"--out {args.out!r}: directory does not exist")
+        out = out / (log.stem + ".png")  # --out DIR: DIR/RUN.png
     if out.suffix.lower() not in FORMATS:
         raise UsageError(f"--out {str(out)!r}: unknown figure format {out.suffix!r} (use {', '.join(FORMATS)})")
     if not out.parent.is_dir():

@@ -130,6 +130,9 @@ class CyclePipeline:
             "t": round(closed.sync_us * 1e-6, 6),
             "sync_counter": closed.sync_counter,
             "closed_by": closed.closed_by,
+            # SYNC -> the event that closed the cycle, on the stream's time stamps (replayable):
+            # the decision latency on the bus, before evaluation
+            "closed_after_ms": round((closed.close_us - closed.sync_us) * 1e-3, 3),
             "n_expected": self.n,
             "n_live": self.n - int(np.count_nonzero(missing)),
             "n_received": n_received,
