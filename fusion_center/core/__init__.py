@@ -38,7 +38,7 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(
     __name__,
     submodules=["encoding", "rules", "curves", "thresholds", "certify", "baselines", "poisson_binomial",
                 "exact_rates", "centralised", "montecarlo", "forces", "units", "geometry", "contact", "slip",
-                "bus_timing", "layouts"],
+                "bus_timing", "layouts", "mean_deficit", "preferential_band"],
     submod_attrs={
         "encoding": ["local_decision", "present_count", "to_pm1", "to_01"],
         "rules": ["additive", "multiplicative", "preferential", "preferential_sister", "k_of_n", "g_of_n"],
@@ -79,6 +79,8 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(
         "units": ["convert_force"],
         "exact_rates": [
             "preferential_error_rates", "llr_error_rates", "np_kinds_fusion", "PreferentialRates", "KindRates",
+            "preferential_law", "linear_statistic_law", "linear_statistic_tail", "roc_from_laws",
         ],
+        "preferential_band": ["band_decision", "max_preferential_value"],
     },
 )
