@@ -100,10 +100,10 @@ class Detector:
         self._cfg_store: dict | None = None
         # EDS encodings of the values sample() writes (INTEGER8 u_i, REAL32 X_i, U8 status)
         self._u_bytes = {u: objects.variable(LOCAL_DECISION, 0).encode_raw(u) for u in (1, -1)}
-        # 0x2003 per (u_i, counter modulo 64): 128 one-byte values
+        # 0x2003 per u_i and counter modulo 64: 2 x 64 one-byte values
         tagged = objects.variable(TAGGED_DECISION, 0)
-        self._tagged_bytes = {(u, c): tagged.encode_raw(tagged_decision(u, c))
-                              for u in (1, -1) for c in range(TAG_MASK + 1)}
+        self._tagged_bytes = {u: [tagged.encode_raw(tagged_decision(u, c)) for c in range(TAG_MASK + 1)]
+                              for u in (1, -1)}
         self._pv_is_real32 = objects.variable(AI_INPUT_PV, 1).data_type == datatypes.REAL32
         self._status_bytes: dict[int, bytes] = {}
         self.reset()
@@ -177,7 +177,7 @@ class Detector:
         # straight into the data store, EDS encodings (what NodeObjects.store / encode_raw would write)
         (store.get(LOCAL_DECISION) or store.setdefault(LOCAL_DECISION, {}))[0] = self._u_bytes[decision]
         (store.get(TAGGED_DECISION) or store.setdefault(TAGGED_DECISION, {}))[0] = \
-            self._tagged_bytes[decision, (counter or 0) & TAG_MASK]
+            self._tagged_bytes[decision][counter & TAG_MASK if counter else 0]
         if self._pv_is_real32:
             (store.get(AI_INPUT_PV) or store.setdefault(AI_INPUT_PV, {}))[1] = raw
         else:
