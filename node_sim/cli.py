@@ -16,8 +16,8 @@ has sent its boot-up, then runs until SIGINT/SIGTERM and shuts down cleanly (exi
 scene, an unknown interface, a bit rate out of range, a channel that cannot be opened or a
 missing EDS exit 2 with one line.
 
-The fusion centre's commands share this plumbing (``fusion_center.commands``); the twins
-import nothing from the centre, so the few lines below are their own.
+The bit-rate parsing and the adding-up ``-c`` come from ``taxel_net.buscli``, which the fusion
+centre's commands use too (the twins import nothing from the centre).
 """
 
 from __future__ import annotations
@@ -30,6 +30,7 @@ import threading
 
 import can
 
+from taxel_net.buscli import BITRATE_RANGE, DATA_BITRATE_MAX, ChannelsAction, parse_bitrate
 from taxel_net.errors import ParameterError, SceneError
 
 from . import od as odx
@@ -49,31 +50,6 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message}\n")
 
 
-BITRATE_RANGE = (125_000, 1_000_000)  # classic CAN nominal bit rates (CiA 301: 125k..1M)
-DATA_BITRATE_MAX = 8_000_000
-
-
-def _bitrate(text: str) -> int:
-    """``500000``, ``500k``, ``1M`` -> bit/s (the range is checked after parsing)."""
-    item = str(text).strip().lower().replace("_", "")
-    scale = 1000 if item.endswith("k") else 1_000_000 if item.endswith("m") else 1
-    try:
-        value = float(item.rstrip("km")) * scale
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a bit rate (e.g. 500000, 500k or 1M)") from None
-    if value != int(value):
-        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number of bit/s")
-    return int(value)
-
-
-class _Channels(argparse.Action):
-    """``-c`` given again adds a channel (``-c a -c b`` = ``-c a,b``)."""
-
-    def __call__(self, parser, namespace, values, option_string=None):
-        before = getattr(namespace, self.dest, None)
-        setattr(namespace, self.dest, values if before is None else f"{before},{values}")
-
-
 def build_parser() -> argparse.ArgumentParser:
     import can.cli
 
@@ -83,11 +59,11 @@ def build_parser() -> argparse.ArgumentParser:
     can.cli.add_bus_arguments(p)
     for action in p._actions:  # noqa: SLF001 - adjust python-can's actions in place
         if action.dest == "channel":
-            action.__class__ = _Channels
+            action.__class__ = ChannelsAction
             action.help = ("bus channel, e.g. can0, 239.74.163.2 (udp_multicast); one per scene channel: "
                            "-c can0,can1 (default: python-can's configuration, else the scene's channel names)")
         elif action.dest in ("bitrate", "data_bitrate"):
-            action.type = _bitrate
+            action.type = parse_bitrate
             if action.dest == "bitrate":
                 action.help = (f"nominal bit rate {BITRATE_RANGE[0]}..{BITRATE_RANGE[1]} bit/s: 125k, 250k, 500k, "
                                "800k, 1M or a number (default: python-can's configuration, else the interface's)")
@@ -101,7 +77,7 @@ def build_parser() -> argparse.ArgumentParser:
 def _check_bitrate(value, source: str) -> int:
     if isinstance(value, str):
         try:
-            value = _bitrate(value)
+            value = parse_bitrate(value)
         except argparse.ArgumentTypeError as exc:
             raise ParameterError(source, value, str(exc)) from None
     if isinstance(value, bool) or not isinstance(value, (int, float)) or value != int(value) \

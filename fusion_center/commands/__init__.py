@@ -21,33 +21,10 @@ import argparse
 import os
 from dataclasses import dataclass, field
 
-BITRATE_RANGE = (125_000, 1_000_000)  # classic CAN nominal bit rates taken (CiA 301: 125k..1M)
-DATA_BITRATE_MAX = 8_000_000          # CAN FD data phase (--fd --data-bitrate)
+from taxel_net.buscli import BITRATE_RANGE, DATA_BITRATE_MAX, ChannelsAction, parse_bitrate  # noqa: F401
 CONFIG_HELP = ("-i/--interface (e.g. -i socketcan -c can0), or python-can's configuration: "
                "CAN_INTERFACE/CAN_CHANNEL/CAN_BITRATE, or an [default] section with interface = ... "
                "in ~/.canrc")
-
-
-def parse_bitrate(text: str) -> int:
-    """argparse type of ``-b``: ``500000``, ``500k``, ``1M``, ``1_000_000`` -> bit/s (an int;
-    the range is checked later, with the flag's name in the message)."""
-    item = str(text).strip().lower().replace("_", "")
-    scale = 1000 if item.endswith("k") else 1_000_000 if item.endswith("m") else 1
-    try:
-        value = float(item.rstrip("km")) * scale
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a bit rate (e.g. 500000, 500k or 1M)") from None
-    if value != int(value):
-        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number of bit/s")
-    return int(value)
-
-
-class _Channels(argparse.Action):
-    """``-c``: given again, the channels add up (``-c a -c b`` = ``-c a,b``)."""
-
-    def __call__(self, parser, namespace, values, option_string=None):
-        before = getattr(namespace, self.dest, None)
-        setattr(namespace, self.dest, values if before is None else f"{before},{values}")
 
 
 def add_bus_arguments(parser: argparse.ArgumentParser) -> None:
@@ -57,7 +34,7 @@ def add_bus_arguments(parser: argparse.ArgumentParser) -> None:
     can.cli.add_bus_arguments(parser)
     for action in parser._actions:  # noqa: SLF001 - adjust python-can's actions in place
         if action.dest == "channel":
-            action.__class__ = _Channels
+            action.__class__ = ChannelsAction
             action.help = ("bus channel, e.g. can0 (socketcan), PCAN_USBBUS1 (pcan), 239.74.163.2 (udp_multicast); "
                            "a scene with several channels takes one per scene channel: -c can0,can1 "
                            "(default: python-can's configuration, else the scene's channel names)")
