@@ -43,13 +43,12 @@ def test_demo_end_to_end_matches_the_physics(matrix, tmp_path):
     n = matrix.n
     zeta = np.array([t.zeta_mv for t in matrix.taxels])
     noise = np.array([t.noise_mv for t in matrix.taxels])
-    # A 1-byte TPDO carries no cycle tag: a frame delayed past the next SYNC (a loaded
-    # machine) lands in the next cycle. When cycle k-1 closed "complete" every node's answer
-    # to SYNC k-1 was inside it, so cycle k holds only answers to SYNC k: those cycles must
-    # match the physics exactly, and on an idle machine they are (nearly) all of them.
-    clean = [r for prev, r in zip([None] + records, records)
-             if r["closed_by"] == "complete" and (prev is None or prev["closed_by"] == "complete")]
-    assert len(clean) >= 0.7 * cycles, [r["closed_by"] for r in records]
+    # TPDO1 carries its SYNC's counter (the cycle tag): a cycle that closed "complete" holds
+    # exactly the answers to its own SYNC, so it must match the physics exactly. How many cycles
+    # complete depends on the host's load (the suite shares 2 cores between two workers).
+    assert matrix.bus.cycle_tag
+    clean = [r for r in records if r["closed_by"] == "complete"]
+    assert len(clean) >= 5, [r["closed_by"] for r in records]
     for r in clean:
         # independent reference: the node twins' canonical readings, decided here (eqs 1-4)
         x = physics.sample_readings(matrix, r["cycle"])
@@ -60,7 +59,7 @@ def test_demo_end_to_end_matches_the_physics(matrix, tmp_path):
         assert r["rules"]["multiplicative"]["ln_U_G"] == float(u.sum())  # eq 5: ln e^(n-2k)
         assert r["truth"] == ("H1" if physics.object_present(matrix, r["cycle"]) else "H0")
         assert r["decision"] == r["rules"][matrix.fusion.decide_with]["decision"]
-        assert r["late_frames"] == 0 and r["bad_frames"] == 0
+        assert r["bad_frames"] == 0  # (late_frames: stragglers of earlier SYNCs, never counted here)
         assert "fusion" in r["stages_run"]
     # inside the contact window 6 taxels are pressed (scene comment): present_count >= 6
     assert all(r["present_count"] >= 6 for r in clean if 20 <= r["cycle"] < 40)
