@@ -73,7 +73,6 @@ before writing the trace).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -106,108 +105,47 @@ from .decoder import (
     decode_real32,
 )
 
+from .cycle_records import (  # noqa: F401 - re-exported: the assembler's vocabulary
+    COUNTER_NAMES,
+    C_BAD_DLC,
+    C_BAD_VALUE,
+    C_BOOTUP,
+    C_EMCY,
+    C_ERROR,
+    C_EXTENDED,
+    C_FD,
+    C_HEARTBEAT,
+    C_INTERNAL,
+    C_LATE,
+    C_LSS,
+    C_MASTER_HEARTBEAT,
+    C_NMT,
+    C_REMOTE,
+    C_SDO,
+    C_SDO_ABORT,
+    C_SYNC,
+    C_TIME,
+    C_TPDO1,
+    C_TPDO2,
+    C_UNKNOWN,
+    ClosedCycle,
+    EMCY_PER_CYCLE,
+    EmcyEvent,
+    FLAG_ERROR,
+    FLAG_EXTENDED,
+    FLAG_FD,
+    FLAG_REMOTE,
+    MALFORMED,
+    STATE_RESETTING,
+    STATE_UNKNOWN,
+    TAG_MASK,
+    _MALFORMED_IDX,
+    quantise_timestamp,
+)
+
 NODE_KINDS = frozenset({K_TPDO1, K_TPDO2, K_HEARTBEAT, K_EMCY, K_SDO_RESPONSE})  # frames a node sends
 
-# event flags
-FLAG_EXTENDED = 1
-FLAG_REMOTE = 2
-FLAG_ERROR = 4
-FLAG_FD = 8
-
-STATE_UNKNOWN = -1
-STATE_RESETTING = -2  # NMT reset sent: silent until its boot-up
-
-TAG_MASK = 0x3F  # the cycle tag of object 0x2003 (bits 2-7): the SYNC counter modulo 64
-
 HOLD_MAX = 4096  # master / other frames held at most while a window is open (then released)
-
-EMCY_PER_CYCLE = 16  # EMCY entries a record carries at most (the rest are counted: emcy_dropped)
-
-# one disposition per event fed (their sum == number of events)
-COUNTER_NAMES: tuple[str, ...] = (
-    "sync",            # valid SYNC (opened a cycle)
-    "tpdo1",           # TPDO1 accepted into the open cycle
-    "tpdo2",           # TPDO2 accepted into the open cycle
-    "late",            # PDO for a closed cycle / duplicate / no cycle open: dropped
-    "heartbeat",       # heartbeat (state != boot-up)
-    "bootup",          # boot-up message (heartbeat state 0)
-    "master_heartbeat",  # the master's own heartbeat (0x700 + [master] node_id, CiA 302)
-    "emcy",            # emergency message
-    "nmt",             # NMT module control (the master's own, or another master's)
-    "sdo",             # SDO request or response
-    "sdo_abort",       # SDO abort transfer (server -> client, command byte 0x80)
-    "time",            # TIME stamp object
-    "lss",             # CiA 305 layer setting service frame (0x7E4 / 0x7E5, 8 bytes)
-    "bad_dlc",         # known COB-ID, wrong data length
-    "bad_value",       # known COB-ID, value outside its domain (u_i not ±1, state, counter...)
-    "unknown_cob_id",  # COB-ID of no node/object in the scene
-    "remote_frame",    # RTR frame (CiA 301 discourages RTR; not used by the taxel nodes)
-    "error_frame",     # CAN error frame reported by the interface
-    "extended_id",     # 29-bit identifier (CANopen uses 11-bit COB-IDs)
-    "fd_frame",        # CAN FD frame (the scene's buses are classic CAN)
-    "internal_error",  # an exception inside the receive path (counted, never raised)
-)
-_C = {name: i for i, name in enumerate(COUNTER_NAMES)}
-C_SYNC, C_TPDO1, C_TPDO2, C_LATE = _C["sync"], _C["tpdo1"], _C["tpdo2"], _C["late"]
-C_HEARTBEAT, C_BOOTUP, C_EMCY, C_NMT = _C["heartbeat"], _C["bootup"], _C["emcy"], _C["nmt"]
-C_SDO, C_SDO_ABORT, C_TIME, C_LSS = _C["sdo"], _C["sdo_abort"], _C["time"], _C["lss"]
-C_BAD_DLC, C_BAD_VALUE, C_UNKNOWN = _C["bad_dlc"], _C["bad_value"], _C["unknown_cob_id"]
-C_REMOTE, C_ERROR, C_EXTENDED, C_INTERNAL = (
-    _C["remote_frame"], _C["error_frame"], _C["extended_id"], _C["internal_error"])
-C_FD = _C["fd_frame"]
-C_MASTER_HEARTBEAT = _C["master_heartbeat"]
-MALFORMED = ("bad_dlc", "bad_value", "unknown_cob_id", "remote_frame", "error_frame", "extended_id", "fd_frame")
-_MALFORMED_IDX = frozenset(_C[name] for name in MALFORMED)
-
-
-def quantise_timestamp(timestamp: float | None) -> int:
-    """Seconds (python-can ``Message.timestamp``) -> integer microseconds."""
-    if timestamp is None or not math.isfinite(timestamp):
-        return 0
-    return int(round(timestamp * 1e6))
-
-
-@dataclass(frozen=True)
-class EmcyEvent:
-    node: int | str       # node label (node-ID, or "channel:node-ID" off channel 0)
-    taxel: int            # index in fusion order
-    code: int             # emergency error code (CiA 301 table 21), 0x0000 = error reset
-    register: int         # error register 0x1001
-    manufacturer: str     # 5 manufacturer-specific bytes, hex
-    t_us: int             # microseconds since the first event of the stream
-
-    def as_record(self) -> dict:
-        return {
-            "node": self.node,
-            "code": f"0x{self.code:04X}",
-            "register": f"0x{self.register:02X}",
-            "manufacturer": self.manufacturer,
-            "t": round(self.t_us * 1e-6, 6),
-        }
-
-
-@dataclass(frozen=True)
-class ClosedCycle:
-    """Everything the stream said about one SYNC cycle (input of the per-cycle pipeline)."""
-
-    cycle: int                 # 0-based index of the opening SYNC in the stream
-    sync_us: int               # SYNC time, µs since the first event of the stream
-    close_us: int              # time of the closing event
-    sync_counter: int | None   # SYNC counter byte (0x1019 > 0), else None
-    closed_by: str             # "complete" | "sync" | "nmt"
-    decisions: np.ndarray      # int8 per taxel: wire u_i in {-1,+1} if TPDO1 arrived, else 0
-    readings: np.ndarray       # float64 per taxel: X_i (mV) if TPDO2 arrived, else NaN
-    received: np.ndarray       # bool per taxel: primary PDO arrived in this cycle
-    expected: np.ndarray       # bool per taxel: live and operational at the SYNC
-    missing: np.ndarray        # bool per taxel: heartbeat consumer time expired / never heard
-    held_decisions: np.ndarray  # int8: last u_i ever received per taxel (0 = never)
-    held_readings: np.ndarray   # float64: last X_i ever received (NaN = never)
-    late_frames: int           # late PDOs counted since the previous closed cycle
-    bad_frames: int            # malformed frames since the previous closed cycle
-    emcy: tuple[EmcyEvent, ...]  # EMCY frames since the previous closed cycle (at most EMCY_PER_CYCLE)
-    states: np.ndarray = None  # int16 per taxel: NMT state at the SYNC (STATE_*, -1 unknown, -2 resetting)
-    duplicates: tuple[int, ...] = ()  # taxel indexes with duplicate node-ID evidence since the previous cycle
-    emcy_dropped: int = 0      # EMCY frames since the previous cycle beyond EMCY_PER_CYCLE (counted only)
 
 
 class CycleAssembler:
@@ -325,14 +263,15 @@ class CycleAssembler:
         stop / pre-operational / reset, or :data:`HOLD_MAX` held events.
         """
         t, raw, channel, can_id, data, flags = event
+        entry = self._entry(channel, can_id, flags)  # the one COB-ID lookup of the event
         if self.is_open and self.window_us:
-            kind = self._kind(channel, can_id, flags)
+            kind = entry[0] if entry is not None else None
             if kind in NODE_KINDS:
                 if raw > self.sync_raw + self.window_us:
                     self._release(out)
                     self._route(out, event)
                     return
-                self._push(out, self._feed(t, raw, channel, can_id, data, flags))
+                self._push(out, self._feed(t, raw, channel, data, flags, entry))
                 if self.held and not self.is_open:  # it completed the cycle: feed what was held
                     self._release(out)
                 return
@@ -345,36 +284,36 @@ class CycleAssembler:
                     self._release(out)
                     self._route(out, event)
                 else:
-                    self.held.append(event)
+                    self.held.append((t, raw, channel, data, flags, entry))
                 return
             if kind == K_SYNC and channel == 0:
-                self.held.append(event)  # SYNC k+1 while k's window is open: hold it
+                self.held.append((t, raw, channel, data, flags, entry))  # SYNC k+1 while k's window is open
                 return
-        self._push(out, self._feed(t, raw, channel, can_id, data, flags))
+        self._push(out, self._feed(t, raw, channel, data, flags, entry))
 
     def _release(self, out: list) -> None:
         """Close the open cycle at its window's end, then feed the held events in order."""
         if self.is_open:
             out.append(self._close("window", self.sync_us + self.window_us))
         held, self.held = self.held, []
-        for t, raw, channel, can_id, data, flags in held:
-            self._push(out, self._feed(t, raw, channel, can_id, data, flags))
+        for t, raw, channel, data, flags, entry in held:
+            self._push(out, self._feed(t, raw, channel, data, flags, entry))
 
     @staticmethod
     def _push(out: list, closed) -> None:
         if closed is not None:
             out.append(closed)
 
-    def _kind(self, channel: int, can_id: int, flags: int) -> int | None:
+    def _entry(self, channel: int, can_id: int, flags: int) -> tuple[int, int] | None:
+        """(frame kind, taxel index) of a COB-ID on a channel; None: flagged, unknown or no such channel."""
         if flags:
             return None
         try:
-            entry = self.tables[channel].get(can_id)
+            return self.tables[channel].get(can_id)
         except (IndexError, TypeError, AttributeError):
             return None
-        return entry[0] if entry is not None else None
 
-    def _feed(self, t: int, raw: int, channel: int, can_id: int, data: bytes, flags: int):
+    def _feed(self, t: int, raw: int, channel: int, data: bytes, flags: int, entry: tuple[int, int] | None):
         counts = self.counts
         if flags:
             if flags & FLAG_ERROR:
@@ -387,11 +326,6 @@ class CycleAssembler:
                 counts[C_FD] += 1
             self.bad_since += 1
             return None
-        try:
-            table = self.tables[channel]
-        except (IndexError, TypeError):
-            table = None
-        entry = table.get(can_id) if table is not None else None
         if entry is None:
             counts[C_UNKNOWN] += 1
             self.bad_since += 1
