@@ -31,6 +31,7 @@ sys.path.insert(0, str(ROOT))
 
 from fusion_center.core.encoding import local_decision  # noqa: E402
 from fusion_center.service import FusionService  # noqa: E402
+from fusion_center.service.cycle_records import MALFORMED  # noqa: E402
 from node_sim import physics  # noqa: E402
 from taxel_net.scene import load_scene  # noqa: E402
 
@@ -90,7 +91,7 @@ def run_once(scene, cycles: int, rate: float) -> dict:
 def check(scene, records, sent, counters) -> dict:
     figures = check_records(scene, records)
     return {"junk": sent[0], "junk_rate": sent[0] / sent[1] if sent[1] else 0.0, **figures,
-            "late": counters.get("late", 0)}
+            "late": counters.get("late", 0), "malformed": sum(counters.get(name, 0) for name in MALFORMED)}
 
 
 def check_records(scene, records) -> dict:
