@@ -15,6 +15,8 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from taxel_net.errors import SceneError
+from taxel_net.patches import COB_ID_FIRST, COB_ID_LAST, PATCH_TAXELS_MAX, RAW_FORMATS
+from taxel_net.patches import devices as patch_devices
 
 # 0x2001:3 taxel kind codes (UNSIGNED8); 0 is "unset" and refused by the node.
 TAXEL_KINDS: dict[str, int] = {"R": 1, "C": 2, "P": 3, "LC": 4, "TBS": 5, "IR": 6}
@@ -59,6 +61,15 @@ class BusSpec:
     channels: tuple[str, ...] = ("taxel0",)
     sync_window_us: int = 0           # 0x1007 synchronous window length (µs), 0: off (CiA 301 default);
                                       # -1: 80 % of the SYNC period (what a scene file gets by default)
+    patch_nodes: bool = False         # taxels sharing a node-ID on a channel form one patch node with
+                                      # packed PDOs (taxel_net.patches); False: one node per taxel
+    fd: bool = False                  # PDOs as CAN FD frames (up to 64 bytes, bit-rate switch); SDO, NMT,
+                                      # heartbeat, SYNC and EMCY stay classic
+    data_bitrate: int = 5_000_000     # CAN FD data-phase bit rate (with fd only)
+    raw_format: str = "real32"        # raw mode: "real32" (one-taxel nodes, TPDO2) | "int16" | "int8"
+                                      # (patch nodes: packed counts of raw_lsb_mv)
+    raw_lsb_mv: float = 0.01          # mV per count of the packed raw readings
+    tpdo_cob_id_base: int = 0x181     # patch nodes: first COB-ID of a channel's TPDOs
 
     @property
     def sync_window(self) -> int:
@@ -184,6 +195,7 @@ class Scene:
 # CAN classic bit-rate range accepted in a scene (CiA 301 bit-timing table: 10 kbit/s .. 1 Mbit/s)
 BITRATE_MIN = 10_000
 BITRATE_MAX = 1_000_000
+DATA_BITRATE_MAX = 15_000_000   # CAN FD data phase (transceivers: 2, 5, 8 Mbit/s are common)
 FOOTPRINT_MODELS = ("point", "small", "large", "slipping")
 JAWS = ("left", "right")
 AXES = ("x", "y")
@@ -204,7 +216,8 @@ _TOP_KEYS = ("scene", "bus", "kinds", "taxels", "taxels_file", "per_taxel", "obj
 _SCENE_KEYS = ("name", "description", "seed", "cycles")
 _BUS_KEYS = ("bitrate", "sync_period_ms", "sync_counter", "heartbeat_producer_ms",
              "heartbeat_consumer_ms", "mode", "transmission_type", "inhibit_time_100us",
-             "event_timer_ms", "channels", "sync_window_us")
+             "event_timer_ms", "channels", "sync_window_us", "patch_nodes", "fd", "data_bitrate",
+             "raw_format", "raw_lsb_mv", "tpdo_cob_id_base")
 _OBJECT_KEYS = ("model", "x", "y", "radius", "present", "velocity", "slip_onset_cycle",
                 "tangential_force", "readings_mv", "readings_are")
 _FUSION_KEYS = ("rules", "decide_with", "tuple", "xi", "alpha", "beta", "additive_root", "p", "q",
@@ -278,6 +291,12 @@ def _num(w: _Where, key: str, v, lo: float | None = None, hi: float | None = Non
         ub = "inf" if hi is None else f"{hi:g}"
         w.fail(key, v, f"must lie in {'(' if lo_open or lo is None else '['}{lb}, "
                        f"{ub}{')' if hi_open or hi is None else ']'}")
+    return v
+
+
+def _bool(w: _Where, key: str, v) -> bool:
+    if not isinstance(v, bool):
+        w.fail(key, v, "must be true or false")
     return v
 
 
@@ -424,6 +443,13 @@ def load_scene(path) -> Scene:
     stages = _distinct_strings(ow, "stages", outs.get("stages", ["fusion"]), STAGES)
     faults = _load_faults(sp, top, doc.get("faults", []), taxels)
     master = _load_master(sp, top, doc.get("master", {}), bus, taxels)
+    if bus.patch_nodes:
+        if master.assign_ids == "lss":
+            _Where(sp, "master").fail("assign_ids", "lss", "patch nodes are not assigned by LSS yet: \"scene\"")
+        try:
+            patch_devices(Scene(path=sp, name=name, bus=bus, taxels=taxels))
+        except ValueError as exc:
+            _Where(sp, "bus").fail("tpdo_cob_id_base", f"0x{bus.tpdo_cob_id_base:03X}", str(exc))
     return Scene(path=sp, name=name, description=description, seed=seed, cycles=cycles, bus=bus,
                  taxels=taxels, object=obj, fusion=fusion, forces=forces, stages=tuple(stages),
                  faults=faults, master=master)
@@ -483,10 +509,30 @@ def _load_bus(sp: str, top: _Where, raw) -> BusSpec:
     if window >= period_us:
         w.fail("sync_window_us", window, f"0x1007 must be shorter than the SYNC period ({period_us} µs), "
                                          "or 0 (no window)")
+    patch = _bool(w, "patch_nodes", b.get("patch_nodes", d.patch_nodes))
+    fd = _bool(w, "fd", b.get("fd", d.fd))
+    if "data_bitrate" in b and not fd:
+        w.fail("data_bitrate", b["data_bitrate"], "only with fd = true (classic CAN has one bit rate)")
+    data_bitrate = _int(w, "data_bitrate", b.get("data_bitrate", d.data_bitrate), bitrate, DATA_BITRATE_MAX,
+                        f"CAN FD data bit rate must lie in bus.bitrate..{DATA_BITRATE_MAX} bit/s")
+    raw_format = _str(w, "raw_format", b.get("raw_format", "int16" if patch else "real32"), RAW_FORMATS)
+    if patch and raw_format == "real32":
+        w.fail("raw_format", raw_format, "patch nodes pack their readings: int16 or int8")
+    if not patch and raw_format != "real32":
+        w.fail("raw_format", raw_format, "one-taxel nodes send REAL32 (TPDO2); int16 / int8 need patch_nodes = true")
+    lsb = _num(w, "raw_lsb_mv", b.get("raw_lsb_mv", d.raw_lsb_mv), lo=0.0, lo_open=True)
+    if "raw_lsb_mv" in b and not patch:
+        w.fail("raw_lsb_mv", lsb, "only with patch_nodes = true (one-taxel nodes send REAL32 mV)")
+    if "tpdo_cob_id_base" in b and not patch:
+        w.fail("tpdo_cob_id_base", b["tpdo_cob_id_base"], "only with patch_nodes = true (one-taxel nodes use "
+                                                          "the predefined 0x180 / 0x280 + node-ID)")
+    cob_base = _int(w, "tpdo_cob_id_base", b.get("tpdo_cob_id_base", d.tpdo_cob_id_base), COB_ID_FIRST,
+                    COB_ID_LAST, f"must lie in 0x{COB_ID_FIRST:03X}..0x{COB_ID_LAST:03X} (TPDO/RPDO range)")
     return BusSpec(bitrate=bitrate, sync_period_ms=sync, sync_counter=counter,
                    heartbeat_producer_ms=hb_p, heartbeat_consumer_ms=hb_c, mode=mode,
                    transmission_type=tt, inhibit_time_100us=inhibit, event_timer_ms=ev,
-                   channels=tuple(channels), sync_window_us=window)
+                   channels=tuple(channels), sync_window_us=window, patch_nodes=patch, fd=fd,
+                   data_bitrate=data_bitrate, raw_format=raw_format, raw_lsb_mv=lsb, tpdo_cob_id_base=cob_base)
 
 
 def _load_taxels(path: Path, top: _Where, doc: dict, bus: BusSpec) -> tuple[TaxelSpec, ...]:
@@ -525,6 +571,7 @@ def _load_taxels(path: Path, top: _Where, doc: dict, bus: BusSpec) -> tuple[Taxe
 
     taxels = []
     seen: dict[tuple[int, int], str] = {}
+    hosted: dict[tuple[int, int], int] = {}
     for i, (w, t) in enumerate(rows):
         for req in ("node_id", "kind"):
             if req not in t:
@@ -534,9 +581,15 @@ def _load_taxels(path: Path, top: _Where, doc: dict, bus: BusSpec) -> tuple[Taxe
         channel = _int(w, "channel", t.get("channel", 0), 0, len(bus.channels) - 1,
                        f"must index bus.channels (0..{len(bus.channels) - 1})")
         key = (channel, node_id)
-        if key in seen:
-            w.fail("node_id", node_id, f"duplicate node-ID on channel {channel} (also at {seen[key]})")
-        seen[key] = w.name("node_id")
+        if key in seen and not bus.patch_nodes:
+            w.fail("node_id", node_id, f"duplicate node-ID on channel {channel} (also at {seen[key]}; "
+                                       "taxels share a node only with bus.patch_nodes = true)")
+        hosted[key] = hosted.get(key, 0) + 1
+        if hosted[key] > PATCH_TAXELS_MAX:
+            w.fail("node_id", node_id, f"a patch node hosts at most {PATCH_TAXELS_MAX} taxels (CiA 301 arrays "
+                                       f"have sub-indices 1..254); this is taxel {hosted[key]} of node "
+                                       f"{node_id} on channel {channel}")
+        seen.setdefault(key, w.name("node_id"))
         vals: dict = {}
         for k in ("x", "y"):
             if k in t:
