@@ -1,0 +1,472 @@
+"""The preferential rule's dynamic programme over the chain (eq 7): U_G's law for independent
+taxels, the lattice forms that make it a DP over one integer coordinate, and the exact
+comparison of U_G with the band edges (eq 20). Used by :mod:`.preferential_rates`."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from fractions import Fraction
+
+import numpy as np
+
+_EPS = 2.220446049250313e-16
+
+
+# ------------------------------------------------------------------ value classification
+def _classify(values: np.ndarray, coeffs, p: float, q: float, low: float, high: float) -> tuple[np.ndarray, np.ndarray]:
+    """(>= high, < low) for float values, exact: entries within rounding of an edge are
+    re-evaluated in mpmath from their integer coefficients (callable coeffs(index) ->
+    (a, b, c, d): value = a + b 2^p + c 2^q + d 2^(p+q))."""
+    scale = np.abs(values) + abs(high) + abs(low) + 1.0
+    err = 64.0 * _EPS * scale
+    above = values >= high
+    below = values < low
+    doubtful = np.flatnonzero((np.abs(values - high) <= err) | (np.abs(values - low) <= err))
+    if doubtful.size:
+        import mpmath
+
+        with mpmath.workdps(60):
+            big_p, big_q = mpmath.mpf(2) ** mpmath.mpf(p), mpmath.mpf(2) ** mpmath.mpf(q)
+            for i in doubtful:
+                a, b, c, d = coeffs(int(i))
+                exact = a + b * big_p + c * big_q + d * big_p * big_q
+                above[i] = exact >= mpmath.mpf(high)
+                below[i] = exact < mpmath.mpf(low)
+    return above, below
+
+
+
+# ------------------------------------------------------------------ lattice DP (chain, integer)
+# U_G is a sum of one term per taxel (eq 7), the term of taxel i a function of u_(i-1), u_i,
+# u_(i+1). Where every inner term is an integer multiple of one unit (2^(p+q) on {-1,+1} with
+# p, q > 0; 2^p or 2^q when the other weight is 0; 1 for integer p, q) U_G is
+#
+#     U_G = unit * x + (label of taxel 1's term) + (label of taxel n's term),   x an integer,
+#
+# and its law follows from a DP along the chain whose state is (u_(i-1), u_i), the start label
+# and x: an array over x per state and label. Every DP starts from total mass 2^SCALE_BITS (an
+# exact power of two), so probabilities far below the double range stay normal numbers; logs
+# are unscaled at the end. The live window of x is trimmed every TRIM_EVERY steps (module doc,
+# "Accuracy").
+SCALE_BITS = 900
+_LOG_SCALE = SCALE_BITS * math.log(2.0)
+FLOOR = 1e-300
+"""Rates below FLOOR are not reported (``below_floor``); rates at or above it are exact."""
+_LOG_FLOOR = math.log(FLOOR)
+# a tail side is trimmed at 1e-325 of probability (scaled), far below FLOOR: the mass so
+# dropped over the whole run is < n W 1e-325 (W the window) -- below 1e-300 * 1e-13 for any
+# n W up to 1e12; the side of the bulk only, where no small region lies, at 1e-24 of the mass
+TRIM_TAIL = math.exp(-325.0 * math.log(10.0) + _LOG_SCALE)
+TRIM_BULK = 1e-24 * 2.0**SCALE_BITS
+TRIM_EVERY = 8
+_BASIS = ("1", "2^p", "2^q", "2^(p+q)")
+
+
+def _term(prev: int, own: int, nxt: int, p: float, q: float, encoding: str) -> tuple[int, int, int, int]:
+    """Integer coefficients (of 1, 2^p, 2^q, 2^(p+q)) of the eq 7 term u_i (1 + u_(i+1))^p
+    (1 + u_(i-1))^q of a taxel with own decision ``own`` (1 present, 0 absent) and neighbours
+    ``prev``/``nxt`` (1 present, 0 absent, 2 boundary u = 0). 0^0 = 1."""
+    u = 1 if own == 1 else (-1 if encoding == "pm1" else 0)
+    if u == 0:
+        return (0, 0, 0, 0)
+
+    def factor(state, weight):  # "x": 2^weight, 1, or 0
+        if state == 1:
+            return "x"
+        if state == 2 or encoding == "01" or weight == 0.0:
+            return 1
+        return 0
+
+    fp, fq = factor(nxt, p), factor(prev, q)
+    if fp == 0 or fq == 0:
+        return (0, 0, 0, 0)
+    if fp == "x" and fq == "x":
+        return (0, 0, 0, u)
+    if fp == "x":
+        return (0, u, 0, 0)
+    if fq == "x":
+        return (0, 0, u, 0)
+    return (u, 0, 0, 0)
+
+
+@dataclass(frozen=True)
+class _Lattice:
+    """U_G = unit * x + start label + end label (section comment), for the taxels in order
+    (``reverse`` False) or reversed (True: U_G of the reversed vector with p and q swapped is
+    the same value, eq 7). ``p``, ``q`` are the weights of that orientation, coefficients are
+    of (1, 2^p, 2^q, 2^(p+q)) in it. shift[a, b, c] is the lattice step of the middle taxel's
+    term; start[a][b] / end[a][b] = (steps, label index) of the first / last taxel's term
+    (a, b the present bits of the first two / last two taxels)."""
+
+    method: str
+    reverse: bool
+    p: float
+    q: float
+    unit: tuple[int, int, int, int]
+    shift: np.ndarray
+    start: tuple
+    end: tuple
+    start_labels: tuple
+    end_labels: tuple
+
+    def cost(self) -> int:
+        """Work per taxel, relative: labels carried through the DP times the spread of a step."""
+        return len(self.start_labels) * max(1, int(self.shift.max() - self.shift.min()))
+
+
+def _lattice_form(p: float, q: float, encoding: str, unit_index: int, method: str, reverse: bool) -> _Lattice | None:
+    """U_G in the lattice of basis element ``unit_index`` (0: 1, 1: 2^p, 2: 2^q, 3: 2^(p+q));
+    None if an inner term is not an integer multiple of it."""
+    # equal basis elements merged first: 2^0 = 1
+    def merge(c):
+        a, b, cq, d = c
+        if p == 0.0:
+            a, b, cq, d = a + b, 0, cq + d, 0
+        if q == 0.0:
+            a, b, cq, d = a + cq, b + d, 0, 0
+        return a, b, cq, d
+
+    # basis element j is 2^k times the unit when its exponent (0, p, q, p + q) exceeds the unit's
+    # by an integer k >= 0, decided exactly on the float inputs
+    exponents = [Fraction(0), Fraction(p), Fraction(q), Fraction(p) + Fraction(q)]
+    mult = []
+    for j in range(4):
+        k = exponents[j] - exponents[unit_index]
+        mult.append(2 ** int(k) if k.denominator == 1 and 0 <= k <= 8 else None)
+
+    def fold(c):
+        c = merge(c)
+        steps = sum(v * m for v, m in zip(c, mult) if m is not None)
+        label = tuple(0 if m is not None else v for v, m in zip(c, mult))
+        return steps, label
+
+    shift = np.zeros((2, 2, 2), dtype=np.int64)
+    for a in (0, 1):
+        for b in (0, 1):
+            for c in (0, 1):
+                steps, label = fold(_term(a, b, c, p, q, encoding))
+                if any(label):
+                    return None
+                shift[a, b, c] = steps
+    start_labels, end_labels, start, end = [], [], [[None, None], [None, None]], [[None, None], [None, None]]
+    for a in (0, 1):
+        for b in (0, 1):
+            steps, label = fold(_term(2, a, b, p, q, encoding))  # first taxel: boundary before it
+            if label not in start_labels:
+                start_labels.append(label)
+            start[a][b] = (steps, start_labels.index(label))
+            steps, label = fold(_term(a, b, 2, p, q, encoding))  # last taxel: boundary after it
+            if label not in end_labels:
+                end_labels.append(label)
+            end[a][b] = (steps, end_labels.index(label))
+    unit = tuple(1 if j == unit_index else 0 for j in range(4))
+    return _Lattice(method, reverse, p, q, unit, shift, tuple(map(tuple, start)), tuple(map(tuple, end)),
+                    tuple(start_labels), tuple(end_labels))
+
+
+def _lattice(p: float, q: float, encoding: str) -> _Lattice | None:
+    """The cheapest lattice form of U_G for these weights (over both orientations and every
+    unit that makes the inner terms integer multiples), None where U_G needs more than one
+    integer coordinate ({0,1} with a non-integer weight)."""
+    integer = float(p).is_integer() and float(q).is_integer()
+    if encoding == "pm1" and p > 0 and q > 0:
+        method = "chain"  # inner terms 0 or +-2^(p+q): units 2^(p+q), or 2^p when 2^q is an integer
+    elif encoding == "pm1" and (p == 0) != (q == 0) and not integer:
+        method = "lattice"  # a zero weight: inner terms 0 or +-2^p (+-2^q), an end taxel +-1
+    elif integer:
+        method = "integer"
+    else:
+        return None
+    forms = []
+    for reverse in (False, True):
+        pp, qq = (q, p) if reverse else (p, q)
+        for unit_index in range(4):
+            form = _lattice_form(pp, qq, encoding, unit_index, method, reverse)
+            if form is not None:
+                forms.append(form)
+    return min(forms, key=lambda f: (f.cost(), f.reverse, f.unit)) if forms else None
+
+
+def _lattice_law(pi: np.ndarray, lat: _Lattice, lower_tail: bool = True, upper_tail: bool = True):
+    """Law of (start label, end label, x) for n = pi.size >= 2 taxels in stored units:
+    ({(ls, le): (x_first, array over x from x_first)}, (E, L), dropped) with stored =
+    probability * 2^E / e^L, and ``dropped`` the stored mass removed by trimming (0.0 if
+    none). A side with ``*_tail`` True is trimmed at TRIM_TAIL (exact down to FLOOR), otherwise
+    at TRIM_BULK of the mass (the side where only the bulk's own region lies).
+
+    One step per taxel: Y[b, c] = P(c) (X[0, b] moved by shift[0, b, c] + X[1, b] moved by
+    shift[1, b, c]), four vector additions over the live window (three where the shifts of
+    both b agree) and one multiplication: the branch of the more likely decision is not
+    multiplied (its factor max(pc, 1 - pc) goes into L), the other by the ratio.
+    Every TRIM_EVERY steps the mass is rescaled by a power of two (to ~2^SCALE_BITS) and the
+    window trimmed."""
+    n = pi.size
+    shift = lat.shift
+    smin, smax = int(shift.min()), int(shift.max())
+    st = [lat.start[a][b][0] for a in (0, 1) for b in (0, 1)]
+    xmin = min(st) + (n - 2) * smin
+    xmax = max(st) + (n - 2) * smax
+    pad = smax - smin + 2
+    size = xmax - xmin + 1 + 2 * pad
+    n_labels = len(lat.start_labels)
+    buffers = (np.zeros((2, 2, n_labels, size)), np.zeros((2, 2, n_labels, size)))
+    X = buffers[0]
+    lo, hi = size, 0
+    for a in (0, 1):
+        for b in (0, 1):
+            steps, label = lat.start[a][b]
+            j = steps - xmin + pad
+            X[a, b, label, j] += 2.0**SCALE_BITS * (pi[0] if a else 1.0 - pi[0]) * (pi[1] if b else 1.0 - pi[1])
+            lo, hi = min(lo, j), max(hi, j + 1)
+    log_two = math.log(2.0)
+    exponent = SCALE_BITS  # stored = probability * 2^exponent / prod(max factors so far)
+    log_max_factors = []
+    log_running = 0.0  # their sum so far (for the trimming threshold; math.fsum at the end)
+    dropped = 0.0
+    groups = []
+    for c in (0, 1):
+        if shift[0, 0, c] == shift[0, 1, c] and shift[1, 0, c] == shift[1, 1, c]:
+            groups.append((slice(None), c, int(shift[0, 0, c]), int(shift[1, 0, c])))
+        else:
+            groups.extend((b, c, int(shift[0, b, c]), int(shift[1, b, c])) for b in (0, 1))
+    present_p = pi.tolist()
+    parity = 0  # buffers[parity] holds the law after the last step
+    for start in range(2, n, TRIM_EVERY):
+        steps = min(n, start + TRIM_EVERY) - start
+        # one window for the whole block (it covers every step's live range), views made once
+        lo, hi = lo + smin * steps, hi + smax * steps
+        views = []
+        for par in (0, 1):
+            source, dest = buffers[par], buffers[1 - par]
+            adds = [(source[0, b, :, lo - s0:hi - s0], source[1, b, :, lo - s1:hi - s1], dest[b, c, :, lo:hi])
+                    for b, c, s0, s1 in groups]
+            views.append((adds, dest[:, 0, :, lo:hi], dest[:, 1, :, lo:hi]))
+        for i in range(start, start + steps):
+            adds, absent, present = views[parity]
+            for in0, in1, out in adds:
+                np.add(in0, in1, out=out)
+            pc = present_p[i]
+            qc = 1.0 - pc
+            if pc >= qc:
+                absent *= qc / pc
+                log_max_factors.append(math.log(pc))
+            else:
+                present *= pc / qc
+                log_max_factors.append(math.log1p(-pc))
+            parity = 1 - parity
+        X = buffers[parity]
+        log_running = sum(log_max_factors[len(log_max_factors) - steps:], log_running)
+        live = X[:, :, :, lo:hi]
+        cols = live.sum(axis=(0, 1, 2))
+        # rescale by a power of two: the largest column back to ~2^SCALE_BITS (exact)
+        k = math.frexp(float(cols.max()))[1] - SCALE_BITS - 1
+        if k:
+            live *= math.ldexp(1.0, -k)
+            cols *= math.ldexp(1.0, -k)
+            dropped = math.ldexp(dropped, -k)
+            exponent -= k
+        if hi - lo > 8:
+            # stored units of TRIM_TAIL: probability 1e-325 * 2^SCALE_BITS
+            tail = TRIM_TAIL * math.exp(exponent * log_two - log_running - _LOG_SCALE)
+            bulk = 1e-24 * float(cols.sum())
+            keep_lo = np.flatnonzero(cols >= (tail if lower_tail else bulk))
+            keep_hi = np.flatnonzero(cols >= (tail if upper_tail else bulk))
+            first = int(keep_lo[0]) if keep_lo.size else hi - lo
+            last = int(keep_hi[-1]) + 1 if keep_hi.size else 0
+            if first < last and (first or last < hi - lo):
+                dropped += float(cols[:first].sum() + cols[last:].sum())
+                for arr in buffers:
+                    arr[:, :, :, lo:lo + first] = 0.0
+                    arr[:, :, :, lo + last:hi] = 0.0
+                lo, hi = lo + first, lo + last
+    X = buffers[parity]
+    scale = (exponent, math.fsum(log_max_factors))
+    laws: dict = {}
+    emin = min(lat.end[a][b][0] for a in (0, 1) for b in (0, 1))
+    emax = max(lat.end[a][b][0] for a in (0, 1) for b in (0, 1))
+    width = hi - lo + emax - emin
+    for a in (0, 1):
+        for b in (0, 1):
+            steps, le = lat.end[a][b]
+            for ls in range(n_labels):
+                row = X[a, b, ls, lo:hi]
+                if not row.any():
+                    continue
+                key = (ls, le)
+                if key not in laws:
+                    laws[key] = np.zeros(width)
+                laws[key][steps - emin:steps - emin + row.size] += row
+    x_first = lo - pad + xmin + emin
+    return {k: (x_first, v) for k, v in laws.items()}, scale, dropped
+
+
+def _mean_steps(pi: np.ndarray, lat: _Lattice) -> float:
+    """E[x] of the lattice form (exact up to rounding): every term's expected lattice steps."""
+    w1, w0 = pi, 1.0 - pi
+    total = 0.0
+    for a in (0, 1):
+        for b in (0, 1):
+            pa, pb = (w1 if a else w0), (w1 if b else w0)
+            total += float(pa[0] * pb[1]) * lat.start[a][b][0] + float(pa[-2] * pb[-1]) * lat.end[a][b][0]
+            for c in (0, 1):
+                s = int(lat.shift[a, b, c])
+                if s:
+                    pc_ = w1 if c else w0
+                    total += s * float(np.sum(pa[:-2] * pb[1:-1] * pc_[2:]))
+    return total
+
+
+def _exact_value(coeffs, p: float, q: float):
+    import mpmath
+
+    a, b, c, d = coeffs
+    big_p, big_q = mpmath.mpf(2) ** mpmath.mpf(p), mpmath.mpf(2) ** mpmath.mpf(q)
+    return a + b * big_p + c * big_q + d * big_p * big_q
+
+
+def _float_value(coeffs, p: float, q: float) -> tuple[float, float]:
+    """(float value, error bound) of a + b 2^p + c 2^q + d 2^(p+q)."""
+    a, b, c, d = coeffs
+    terms = (float(a), b * 2.0**p, c * 2.0**q, d * 2.0 ** (p + q))
+    return math.fsum(terms), 64.0 * _EPS * sum(abs(t) for t in terms)
+
+
+def _at_least(coeffs, edge: float, p: float, q: float) -> bool:
+    """a + b 2^p + c 2^q + d 2^(p+q) >= edge, exactly (mpmath where rounding cannot decide)."""
+    value, err = _float_value(coeffs, p, q)
+    if abs(value - edge) > err + 64.0 * _EPS * abs(edge):
+        return value >= edge
+    import mpmath
+
+    with mpmath.workdps(60):
+        return _exact_value(coeffs, p, q) >= mpmath.mpf(edge)
+
+
+def _first_at_least(lat: _Lattice, base, edge: float, p: float, q: float) -> int:
+    """Smallest integer x with unit * x + base >= edge (exact)."""
+    unit_value = _float_value(lat.unit, p, q)[0]
+    base_value = _float_value(base, p, q)[0]
+    if math.isinf(edge):
+        return -(2**62) if edge < 0 else 2**62
+    x = math.ceil((edge - base_value) / unit_value)
+    coeffs = lambda k: tuple(u * k + b for u, b in zip(lat.unit, base))
+    while _at_least(coeffs(x - 1), edge, p, q):
+        x -= 1
+    while not _at_least(coeffs(x), edge, p, q):
+        x += 1
+    return x
+
+
+def _label_base(lat: _Lattice, ls: int, le: int):
+    return tuple(s + e for s, e in zip(lat.start_labels[ls], lat.end_labels[le]))
+
+
+def _rates_lattice(pi: np.ndarray, lat: _Lattice, low: float, high: float):
+    """Per region (U >= high, low <= U < high, U < low): (ln P or None, below FLOOR), for one
+    hypothesis (taxels present with probabilities ``pi``)."""
+    p, q = lat.p, lat.q
+    if lat.reverse:
+        pi = pi[::-1]
+    pairs = [(ls, le) for ls in range(len(lat.start_labels)) for le in range(len(lat.end_labels))]
+    edges = {key: (_first_at_least(lat, _label_base(lat, *key), low, p, q),
+                   _first_at_least(lat, _label_base(lat, *key), high, p, q)) for key in pairs}
+    mean = _mean_steps(pi, lat)
+    # a side of the bulk holds a region that may be small unless the bulk's own region covers it
+    # (B = x < t_low lies below the mean unless it holds it, A = x >= t_high above it likewise)
+    lower_tail = any(t_low <= mean for t_low, _ in edges.values())
+    upper_tail = any(t_high > mean for _, t_high in edges.values())
+    laws, scale, dropped = _lattice_law(pi, lat, lower_tail=lower_tail, upper_tail=upper_tail)
+    sums = [0.0, 0.0, 0.0]  # H1 decided, undecided, H0 decided
+    for key, (x_first, arr) in laws.items():
+        t_low, t_high = edges[key]
+        i_low = min(max(t_low - x_first, 0), arr.size)
+        i_high = min(max(t_high - x_first, 0), arr.size)
+        sums[0] += float(arr[i_high:].sum())
+        sums[2] += float(arr[:i_low].sum())
+        if i_high > i_low:
+            sums[1] += float(arr[i_low:i_high].sum())
+    # a region without a point of the x range for every label pair is impossible, trimmed or not
+    xmin, xmax = _x_range(lat, pi.size)
+    empty = (all(t_high > xmax for _, t_high in edges.values()),
+             all(max(t_low, xmin) >= min(t_high, xmax + 1) for t_low, t_high in edges.values()),
+             all(t_low <= xmin for t_low, _ in edges.values()))
+    return _scaled_logs(sums, dropped, empty, scale)
+
+
+def _x_range(lat: _Lattice, n: int) -> tuple[int, int]:
+    """Bounds of x over all decision vectors (start steps, n - 2 inner steps, end steps)."""
+    starts = [lat.start[a][b][0] for a in (0, 1) for b in (0, 1)]
+    ends = [lat.end[a][b][0] for a in (0, 1) for b in (0, 1)]
+    smin, smax = int(lat.shift.min()), int(lat.shift.max())
+    return min(starts) + (n - 2) * smin + min(ends), max(starts) + (n - 2) * smax + max(ends)
+
+
+def _log_probability(stored: float, scale=(SCALE_BITS, 0.0)) -> float:
+    """ln of the probability behind a stored value (stored = probability * 2^E / e^L, scale =
+    (E, L)), formed without cancellation: ln(mantissa) + (exponent - E) ln 2 + L."""
+    if stored <= 0.0:
+        return -math.inf
+    mantissa, exp2 = math.frexp(stored)
+    return math.log(mantissa) + (exp2 - scale[0]) * math.log(2.0) + scale[1]
+
+
+def _scaled_logs(sums, dropped: float, empty=(False, False, False), scale=(SCALE_BITS, 0.0)):
+    """Per region, from stored sums (``_log_probability``): (ln P or None, below FLOOR).
+    Exact at or above FLOOR; an empty region, or 0 with nothing trimmed, is an impossible event
+    (None, False); else (None, True): 0 <= P < FLOOR."""
+    out = []
+    for s, none in zip(sums, empty):
+        log = _log_probability(s, scale)
+        if log >= _LOG_FLOOR:
+            out.append((log, False))
+        else:
+            out.append((None, not none and (s > 0.0 or dropped > 0.0)))
+    return out
+
+
+# ------------------------------------------------------------------ generic (exact, sparse)
+def _rates_sparse(pi: np.ndarray, p: float, q: float, encoding: str, low: float, high: float):
+    n = pi.size
+    # (the eq 7 term of the middle taxel of (a, b, c): the one chain step, _term)
+    coeff = lambda a, b, c: _term(a, b, c, p, q, encoding)
+
+    def add(x, y):
+        return (x[0] + y[0], x[1] + y[1], x[2] + y[2], x[3] + y[3])
+
+    if n == 1:
+        states = {(2, b): {coeff(2, b, 2): (pi[0] if b else 1.0 - pi[0])} for b in (0, 1)}
+        final = {}
+        for d in states.values():
+            for k, v in d.items():
+                final[k] = final.get(k, 0.0) + v
+    else:
+        states = {}
+        for a in (0, 1):
+            for b in (0, 1):
+                states[(a, b)] = {coeff(2, a, b): (pi[0] if a else 1.0 - pi[0]) * (pi[1] if b else 1.0 - pi[1])}
+        for i in range(2, n):
+            pc = pi[i]
+            new = {(b, c): {} for b in (0, 1) for c in (0, 1)}
+            for (a, b), dist in states.items():
+                for c in (0, 1):
+                    t = coeff(a, b, c)
+                    w = pc if c else 1.0 - pc
+                    target = new[(b, c)]
+                    for k, v in dist.items():
+                        key = add(k, t)
+                        target[key] = target.get(key, 0.0) + v * w
+            states = new
+        final = {}
+        for (a, b), dist in states.items():
+            t = coeff(a, b, 2)
+            for k, v in dist.items():
+                key = add(k, t)
+                final[key] = final.get(key, 0.0) + v
+    keys = list(final)
+    big_p, big_q, pq = 2.0**p, 2.0**q, 2.0 ** (p + q)
+    values = np.array([((b * big_p + c * big_q) + d * pq) + a for a, b, c, d in keys])
+    probs = np.array([final[k] for k in keys]) * 2.0**SCALE_BITS
+    above, below = _classify(values, lambda i: keys[i], p, q, low, high)
+    return _scaled_logs([float(probs[above].sum()), float(probs[~above & ~below].sum()), float(probs[below].sum())], 0.0)
+

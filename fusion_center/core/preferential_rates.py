@@ -1,0 +1,161 @@
+"""Exact system error rates of the preferential rule (eq 7 with the band of eq 20).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from taxel_net.errors import ParameterError
+
+from .chain_dp import (FLOOR, SCALE_BITS, _float_value, _label_base, _lattice, _lattice_law, _log_probability,
+                       _LOG_FLOOR, _rates_lattice, _rates_sparse, _scaled_logs)
+from .rate_sampling import monte_carlo_band_rates, wilson
+
+SPARSE_MAX_TAXELS = 60
+
+
+def _log(x: float) -> float | None:
+    return math.log(x) if x > 0.0 else None
+
+
+_NAMES = ("p_detect", "p_undecided_h1", "p_miss", "p_false_alarm", "p_undecided_h0", "p_reject")
+
+
+@dataclass(frozen=True)
+class PreferentialRates:
+    """System rates of the preferential band decision. Under H1: p_detect = P(H1 decided),
+    p_undecided_h1, p_miss = P(H0 decided); under H0: p_false_alarm = P(H1 decided),
+    p_undecided_h0, p_reject = P(H0 decided). log_*: natural logarithms, exact down to FLOOR
+    (1e-300, below the double range of the plain values too); None for an impossible event, or
+    for a rate below FLOOR -- those are named in ``below_floor`` (0 <= rate < 1e-300). The plain
+    values are exp of the logs (0.0 below ~1e-308). method: "chain", "lattice", "integer",
+    "exact-sparse" (exact) or "monte-carlo" (estimate, with ``ci95`` per rate and ``samples``)."""
+
+    log_p_detect: float | None
+    log_p_undecided_h1: float | None
+    log_p_miss: float | None
+    log_p_false_alarm: float | None
+    log_p_undecided_h0: float | None
+    log_p_reject: float | None
+    method: str
+    samples: int | None = None
+    ci95: dict | None = None
+    below_floor: tuple = ()
+
+    def __getattr__(self, name):
+        if name in _NAMES:
+            log = object.__getattribute__(self, "log_" + name)
+            return 0.0 if log is None else math.exp(log)
+        raise AttributeError(name)
+
+    def logs(self) -> dict:
+        return {f"log_{k}": getattr(self, "log_" + k) for k in _NAMES}
+
+    def as_dict(self) -> dict:
+        out = {k: getattr(self, k) for k in _NAMES}
+        out.update(self.logs())
+        return out
+
+
+def _check_probs(name: str, values, n: int) -> np.ndarray:
+    arr = np.asarray(values, dtype=float)
+    if arr.ndim == 0:
+        arr = np.full(n, float(arr))
+    if arr.shape != (n,) or not np.all(np.isfinite(arr)) or np.any(arr < 0.0) or np.any(arr > 1.0):
+        raise ParameterError(name, values if arr.ndim == 0 else "a list", f"must be one or n={n} probabilities in [0, 1]")
+    return arr
+
+
+
+def preferential_law(pi, p, q, encoding: str):
+    """The law of U_G (eq 7) for independent taxels present with probabilities ``pi``: (values,
+    ln probabilities), values ascending (floats; equal values merged), every atom of
+    probability >= FLOOR (the rest, < 1e-300 each and < 1e-290 together, left out). Lattice
+    cases only (module doc); None for {0,1} with a non-integer weight."""
+    from .encoding import check_encoding
+    from .rules import check_weight
+
+    p = check_weight("p", p)
+    q = check_weight("q", q)
+    encoding = check_encoding(encoding)
+    pi = _check_probs("pi", pi, np.asarray(pi).size)
+    n = pi.size
+    if n == 1:
+        u0 = 0.0 if encoding == "01" else -1.0
+        atoms = {u0: 1.0 - pi[0], 1.0: pi[0]}
+        vals = np.array(sorted(v for v, w in atoms.items() if w >= FLOOR))
+        return vals, np.log([atoms[v] for v in vals])
+    lat = _lattice(p, q, encoding)
+    if lat is None:
+        return None
+    p, q = lat.p, lat.q
+    laws, scale, _ = _lattice_law(pi[::-1] if lat.reverse else pi, lat)
+    unit = _float_value(lat.unit, p, q)[0]
+    vals, weights = [], []
+    for (ls, le), (x_first, arr) in laws.items():
+        base = _float_value(_label_base(lat, ls, le), p, q)[0]
+        live = np.flatnonzero(arr)
+        vals.append(base + unit * (x_first + live))
+        weights.append(arr[live])
+    vals = np.concatenate(vals)
+    weights = np.concatenate(weights)
+    order = np.argsort(vals, kind="stable")
+    vals, weights = vals[order], weights[order]
+    uniq, start = np.unique(vals, return_index=True)
+    merged = np.add.reduceat(weights, start)
+    logs = np.array([_log_probability(w, scale) for w in merged])
+    keep = logs >= _LOG_FLOOR
+    return uniq[keep], logs[keep]
+
+
+def preferential_error_rates(pd, pf, p, q, encoding: str, low: float, high: float, n: int | None = None,
+                             *, samples: int = 100_000, rng: np.random.Generator | None = None) -> PreferentialRates:
+    """Exact system rates of "H1 iff U_G >= high, H0 iff U_G < low" (eq 7, eq 20 band) for
+    independent taxels with P(present) = pd_i under H1 and pf_i under H0 (module doc).
+
+    ``pd``, ``pf``: one value or n values in [0, 1]; ``n`` required when both are scalars.
+    """
+    from .encoding import check_encoding
+    from .rules import check_weight
+
+    p = check_weight("p", p)
+    q = check_weight("q", q)
+    encoding = check_encoding(encoding)
+    if n is None:
+        n = np.asarray(pd).size if np.asarray(pd).ndim else np.asarray(pf).size
+    pd_arr = _check_probs("pd", pd, n)
+    pf_arr = _check_probs("pf", pf, n)
+    lat = _lattice(p, q, encoding) if n >= 2 else None
+    if n == 1:  # U_G = u_1 (boundary on both sides): an integer
+        method = "integer"
+        run = lambda pi: _rates_single(pi[0], encoding, low, high)
+    elif lat is not None:
+        method = lat.method
+        run = lambda pi: _rates_lattice(pi, lat, low, high)
+    elif n <= SPARSE_MAX_TAXELS:
+        method = "exact-sparse"
+        run = lambda pi: _rates_sparse(pi, p, q, encoding, low, high)
+    else:
+        rng = rng if rng is not None else np.random.default_rng(0)
+        r1 = monte_carlo_band_rates(pd_arr, p, q, encoding, low, high, samples, rng)
+        r0 = monte_carlo_band_rates(pf_arr, p, q, encoding, low, high, samples, rng)
+        ci = {"p_detect": wilson(r1[0] * samples, samples), "p_undecided_h1": wilson(r1[1] * samples, samples),
+              "p_miss": wilson(r1[2] * samples, samples), "p_false_alarm": wilson(r0[0] * samples, samples),
+              "p_undecided_h0": wilson(r0[1] * samples, samples), "p_reject": wilson(r0[2] * samples, samples)}
+        logs = [(math.log(x) if x > 0 else None) for x in (*r1, *r0)]
+        return PreferentialRates(*logs, method="monte-carlo", samples=samples, ci95=ci)
+    results = [*run(pd_arr), *run(pf_arr)]
+    below = tuple(name for name, (_, low_) in zip(_NAMES, results) if low_)
+    return PreferentialRates(*[log for log, _ in results], method=method, below_floor=below)
+
+
+def _rates_single(pi: float, encoding: str, low: float, high: float):
+    """One taxel: U_G = u_1 in {-1, 1} or {0, 1} (eq 7 with u_0 = u_2 = 0)."""
+    sums = [0.0, 0.0, 0.0]
+    for value, w in ((1.0, pi), (-1.0 if encoding == "pm1" else 0.0, 1.0 - pi)):
+        sums[0 if value >= high else (2 if value < low else 1)] += w * 2.0**SCALE_BITS
+    return _scaled_logs(sums, 0.0)
+
