@@ -121,7 +121,7 @@ def test_junk_flood_never_misattributes():
     # host whose other test worker holds a core still decides cycles to check (at 20k/s and 10 ms
     # one got none: every twin answered after its window and sent nothing)
     assert sc.bus.cycle_tag
-    sc = dataclasses.replace(sc, bus=dataclasses.replace(sc.bus, sync_period_ms=40.0))
+    sc = dataclasses.replace(sc, bus=dataclasses.replace(sc.bus, sync_period_ms=40.0, sync_window_us=32000))
     figures = junk_flood.run_once(sc, 80, 5000.0)
     print(figures)
     assert figures["junk"] > 1000

@@ -116,13 +116,16 @@ def test_duplicate_node_id_is_flagged():
 
 
 def test_no_duplicate_and_no_state_entries_on_a_healthy_run():
+    # a 40 ms SYNC (32 ms window): complete cycles to check even on a host whose other test
+    # worker holds a core (at 10 ms a loaded 2-core run got none complete)
     scene = load_scene(MATRIX)
+    scene = dataclasses.replace(scene, bus=dataclasses.replace(scene.bus, sync_period_ms=40.0, sync_window_us=32000))
     service, _ = _run(scene, 30, {})
     assert not service.assembler.duplicates
     assert service.master.restarts == 0
     # node states come from heartbeats (every 100 ms here): a node heard pre-operational before the
     # NMT start that follows the reset at start-up is listed until its next heartbeat, so the
-    # steady state begins two heartbeat periods (20 SYNC cycles of 10 ms) after the start
+    # steady state begins two heartbeat periods (5 SYNC cycles of 40 ms) after the start
     periods = 2 * scene.bus.heartbeat_producer_ms / scene.bus.sync_period_ms
     steady = [r for r in service.records if r["closed_by"] == "complete" and r["cycle"] >= periods]
     assert steady and all(r["nodes_by_state"] == {} for r in steady), [r["nodes_by_state"] for r in steady]
