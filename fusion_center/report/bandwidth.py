@@ -175,3 +175,87 @@ def bandwidth_figures(scene, bitrate: int | None = None, cycles: int | None = No
         "modes": modes,
         "raw_over_decision_sync": modes["raw"]["bits_per_cycle"] / modes["decision_sync"]["bits_per_cycle"],
     }
+
+
+# --------------------------------------------------------------------------- layouts compared
+LAYOUT_RAW_PAYLOADS = ("raw8", "raw16", "real32")
+DEFAULT_PATCH = 192
+DEFAULT_DATA_BITRATE = 5_000_000
+DEFAULT_P_CHANGE = 0.01
+
+
+def layout_figures(n_taxels: int, *, nominal_bitrate: int, data_bitrate: int = DEFAULT_DATA_BITRATE,
+                   sync_period_ms: float = 10.0, heartbeat_ms: float | None = 100.0, patch: int = DEFAULT_PATCH,
+                   raw: str = "raw8", p_change: float = DEFAULT_P_CHANGE, p_one: float = 0.5,
+                   channels: int | None = None, sync_counter: int = 0) -> dict:
+    """What decisions save over raw data for ``n_taxels`` taxels, layout by layout (JSON-ready).
+
+    Layouts (``fusion_center.core.layouts``): one-taxel nodes (``per-taxel``) and patch nodes of
+    ``patch`` taxels, decisions packed one bit per taxel against ``raw`` readings, classic CAN at
+    ``nominal_bitrate`` against CAN FD at ``nominal_bitrate`` / ``data_bitrate`` (BRS), every
+    TPDO every SYNC (``sync``) and, for decisions, event-driven (``event``: each taxel's
+    decision changes with probability ``p_change`` per cycle; raw readings, noisy, change every
+    cycle, so event-driven raw data is the synchronous row). With a SYNC counter
+    (``sync_counter`` 2..240) every SYNC carries its counter byte and every patch PDO leads with
+    the cycle tag byte (``tag_bytes=1``); one-taxel nodes keep one byte per frame. Channels:
+    ``channels`` (a scene's), raised to the fewest that hold the layout (<= 127 nodes, <= 1023
+    PDO COB-IDs per channel) and lowered to one node per channel. Per row: exact bits per cycle
+    over all channels (mean over payloads with P(bit = 1) = ``p_one``, and worst case), the
+    busiest channel's load (heartbeats every ``heartbeat_ms`` included) and worst-case load, the
+    highest SYNC rate every channel's worst-case cycle fits, the latency (SYNC start to the end
+    of the channel's last PDO, worst case) of the slowest channel, and every channel's figures.
+    ``ratios``: raw / decision bus time per synchronous cycle over all channels (mean, worst).
+    """
+    from ..core.layouts import layout_bus_use, skin_layout
+
+    if raw not in LAYOUT_RAW_PAYLOADS:
+        raise ParameterError("raw", raw, f"must be one of {', '.join(LAYOUT_RAW_PAYLOADS)}")
+    period_s = sync_period_ms / 1000.0
+    hb_s = heartbeat_ms / 1000.0 if heartbeat_ms else None
+    label = {1: "per-taxel"}
+    label.setdefault(patch, f"patch{patch}")
+    rows, seconds = [], {}
+    for per_node in dict.fromkeys((1, patch)):
+        tag = 1 if sync_counter and per_node > 1 else 0
+        for payload in ("decision", raw):
+            for fd in (False, True):
+                kw = dict(taxels_per_node=per_node, payload=payload, fd=fd, tag_bytes=tag)
+                layout = skin_layout(n_taxels, **kw)
+                if channels is not None and channels > len(layout.channels):
+                    layout = skin_layout(n_taxels, channels=min(channels, layout.n_nodes), **kw)
+                rates = dict(nominal_bitrate=nominal_bitrate, data_bitrate=data_bitrate if fd else None,
+                             sync_period_s=period_s, heartbeat_period_s=hb_s, p_one=p_one,
+                             sync_counter=sync_counter)
+                for mode in ("sync", "event") if payload == "decision" else ("sync",):
+                    use = layout_bus_use(layout, p_change=p_change if mode == "event" else None, **rates)
+                    if mode == "sync":
+                        seconds[label[per_node], payload, fd] = (use.mean_cycle_s,
+                                                                 sum(c.worst_cycle_s for c in use.channels))
+                    busiest = use.busiest
+                    rows.append({
+                        "layout": label[per_node], "taxels_per_node": per_node, "payload": payload,
+                        "bus": "FD" if fd else "classic", "mode": mode, "tag_bytes": tag,
+                        "channels": len(layout.channels), "nodes": layout.n_nodes,
+                        "pdo_frames_per_cycle": sum(c.bits.expected_frames for c in use.channels),
+                        "bits_per_cycle": use.mean_bits, "bits_per_cycle_worst": use.worst_bits,
+                        "busiest_channel": busiest.bits.channel,
+                        "bus_load": busiest.load, "bus_load_worst": max(c.worst_load for c in use.channels),
+                        "max_sync_hz": use.max_sync_hz, "latency_ms": 1000.0 * use.latency_s,
+                        "per_channel": [{
+                            "channel": c.bits.channel, "nodes": c.bits.nodes, "taxels": c.bits.taxels,
+                            "pdo_frames": c.bits.frames, "bits_per_cycle": c.bits.mean_bits,
+                            "bits_per_cycle_worst": c.bits.worst_bits, "bus_load": c.load,
+                            "bus_load_worst": c.worst_load, "max_sync_hz": c.max_sync_hz,
+                            "latency_ms": 1000.0 * c.latency_s} for c in use.channels],
+                    })
+    ratios = {}
+    for name in dict.fromkeys(label[k] for k in (1, patch)):
+        for fd in (False, True):
+            r, d = seconds[name, raw, fd], seconds[name, "decision", fd]
+            ratios[f"{name} {'FD' if fd else 'classic'}"] = {"mean": r[0] / d[0], "worst": r[1] / d[1]}
+    return {
+        "taxels": n_taxels, "nominal_bitrate": int(nominal_bitrate), "data_bitrate": int(data_bitrate),
+        "sync_period_ms": sync_period_ms, "heartbeat_ms": heartbeat_ms, "sync_counter": sync_counter,
+        "patch": patch, "raw": raw, "p_change": p_change, "p_one": p_one, "channels_asked": channels,
+        "rows": rows, "raw_over_decision": ratios,
+    }
