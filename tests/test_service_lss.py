@@ -15,6 +15,7 @@ from fusion_center.service import FusionService
 from fusion_center.service.lss import expected_serial
 from fusion_center.service.traces import trace_channel
 from node_sim.rig import Rig, identity_serial
+from taxel_net.patches import devices
 from taxel_net.scene import MasterSpec, load_scene
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -32,7 +33,7 @@ def test_the_centre_computes_the_serials_the_twins_carry(name):
     scene = load_scene(ROOT / "scenes" / f"{name}.toml")
     serials = [expected_serial(scene, t) for t in scene.taxels]
     assert serials == [identity_serial(scene, t) for t in scene.taxels]
-    assert len(set(serials)) == scene.n  # one LSS address per node
+    assert len(set(serials)) == len(devices(scene))  # one LSS address per node (a patch node: its taxels)
 
 
 def test_lss_scene_key():

@@ -45,7 +45,8 @@ COUNTER_NAMES: tuple[str, ...] = (
     "remote_frame",    # RTR frame (CiA 301 discourages RTR; not used by the taxel nodes)
     "error_frame",     # CAN error frame reported by the interface
     "extended_id",     # 29-bit identifier (CANopen uses 11-bit COB-IDs)
-    "fd_frame",        # CAN FD frame (the scene's buses are classic CAN)
+    "fd_frame",        # CAN FD frame where the scene has classic CAN (any FD frame without [bus] fd; with
+                       # it, an FD frame on a COB-ID that is no PDO) or a classic frame on an FD PDO's COB-ID
     "internal_error",  # an exception inside the receive path (counted, never raised)
 )
 _C = {name: i for i, name in enumerate(COUNTER_NAMES)}
@@ -71,7 +72,7 @@ def quantise_timestamp(timestamp: float | None) -> int:
 @dataclass(frozen=True)
 class EmcyEvent:
     node: int | str       # node label (node-ID, or "channel:node-ID" off channel 0)
-    taxel: int            # index in fusion order
+    taxel: int            # index in fusion order (a patch node: its first taxel)
     code: int             # emergency error code (CiA 301 table 21), 0x0000 = error reset
     register: int         # error register 0x1001
     manufacturer: str     # 5 manufacturer-specific bytes, hex
@@ -88,6 +89,16 @@ class EmcyEvent:
 
 
 @dataclass(frozen=True)
+class DeviceCycle:
+    """Per device (CANopen node; ``taxel_net.patches.devices`` order) of a cycle of a patch scene."""
+
+    expected: np.ndarray       # bool: live and operational at the SYNC
+    missing: np.ndarray        # bool: heartbeat consumer time expired / never heard
+    states: np.ndarray         # int16: NMT state at the SYNC
+    complete: np.ndarray       # bool: every TPDO of the device arrived in the cycle
+
+
+@dataclass(frozen=True)
 class ClosedCycle:
     """Everything the stream said about one SYNC cycle (input of the per-cycle pipeline)."""
 
@@ -99,13 +110,14 @@ class ClosedCycle:
     decisions: np.ndarray      # int8 per taxel: wire u_i in {-1,+1} if TPDO1 arrived, else 0
     readings: np.ndarray       # float64 per taxel: X_i (mV) if TPDO2 arrived, else NaN
     received: np.ndarray       # bool per taxel: primary PDO arrived in this cycle
-    expected: np.ndarray       # bool per taxel: live and operational at the SYNC
-    missing: np.ndarray        # bool per taxel: heartbeat consumer time expired / never heard
+    expected: np.ndarray       # bool per taxel: its node live and operational at the SYNC
+    missing: np.ndarray        # bool per taxel: its node's heartbeat consumer time expired / never heard
     held_decisions: np.ndarray  # int8: last u_i ever received per taxel (0 = never)
     held_readings: np.ndarray   # float64: last X_i ever received (NaN = never)
     late_frames: int           # late PDOs counted since the previous closed cycle
     bad_frames: int            # malformed frames since the previous closed cycle
     emcy: tuple[EmcyEvent, ...]  # EMCY frames since the previous closed cycle (at most EMCY_PER_CYCLE)
     states: np.ndarray = None  # int16 per taxel: NMT state at the SYNC (STATE_*, -1 unknown, -2 resetting)
-    duplicates: tuple[int, ...] = ()  # taxel indexes with duplicate node-ID evidence since the previous cycle
+    duplicates: tuple[int, ...] = ()  # node (device) indexes with duplicate node-ID evidence since the previous cycle
     emcy_dropped: int = 0      # EMCY frames since the previous cycle beyond EMCY_PER_CYCLE (counted only)
+    devices: DeviceCycle | None = None  # patch scenes: the nodes' view (one-taxel scenes: node = taxel)

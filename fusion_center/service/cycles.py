@@ -76,6 +76,7 @@ import math
 
 import numpy as np
 
+from taxel_net.patches import ENC_BITS, PatchFrameError, devices as scene_devices, unpack
 from taxel_net.scene import Scene
 from .decoder import (
     HEARTBEAT_STATES,
@@ -87,6 +88,7 @@ from .decoder import (
     K_SYNC,
     K_LSS,
     K_MASTER_HEARTBEAT,
+    K_PATCH,
     K_TIME,
     K_TPDO1,
     K_TPDO2,
@@ -129,6 +131,7 @@ from .cycle_records import (  # noqa: F401 - re-exported: the assembler's vocabu
     C_TPDO2,
     C_UNKNOWN,
     ClosedCycle,
+    DeviceCycle,
     EMCY_PER_CYCLE,
     EmcyEvent,
     FLAG_ERROR,
@@ -143,7 +146,9 @@ from .cycle_records import (  # noqa: F401 - re-exported: the assembler's vocabu
     quantise_timestamp,
 )
 
-NODE_KINDS = frozenset({K_TPDO1, K_TPDO2, K_HEARTBEAT, K_EMCY, K_SDO_RESPONSE})  # frames a node sends
+NODE_KINDS = frozenset({K_TPDO1, K_TPDO2, K_PATCH, K_HEARTBEAT, K_EMCY, K_SDO_RESPONSE})  # frames a node sends
+PDO_KINDS = frozenset({K_TPDO1, K_TPDO2, K_PATCH})  # CAN FD frames on a scene with [bus] fd
+K_FORMAT = -1  # a classic frame on a COB-ID whose PDO is a CAN FD frame: counted as fd_frame
 
 HOLD_MAX = 4096  # master / other frames held at most while a window is open (then released)
 
@@ -155,18 +160,37 @@ class CycleAssembler:
         self.scene = scene
         n = scene.n
         self.n = n
-        self.tables = build_cob_tables(scene)
-        self.labels: list[int | str] = [
-            t.node_id if t.channel == 0 else f"{t.channel}:{t.node_id}" for t in scene.taxels
-        ]
-        self.index_by_node: list[dict[int, int]] = [dict() for _ in scene.bus.channels]
-        for i, t in enumerate(scene.taxels):
-            self.index_by_node[t.channel][t.node_id] = i
-        self.channel_members = [
-            np.array([i for i, t in enumerate(scene.taxels) if t.channel == c], dtype=np.intp)
-            for c in range(len(scene.bus.channels))
-        ]
         bus = scene.bus
+        # devices (CANopen nodes): node states, liveness and SDO bookkeeping are per device;
+        # decisions and readings per taxel. One-taxel scenes: device index == taxel index.
+        self.devices = devs = scene_devices(scene)
+        nd = self.n_devices = len(devs)
+        self.patch = bool(bus.patch_nodes)
+        self.fd = bool(bus.fd)
+        self.tables = build_cob_tables(scene, devs)
+        self.labels: list[int | str] = [
+            d.node_id if d.channel == 0 else f"{d.channel}:{d.node_id}" for d in devs
+        ]  # device labels (one-taxel scenes: the taxels' node labels)
+        self.taxel_device = np.zeros(n, dtype=np.intp)  # device index of every taxel
+        for d, dev in enumerate(devs):
+            self.taxel_device[list(dev.taxels)] = d
+        self.index_by_node: list[dict[int, int]] = [dict() for _ in bus.channels]  # node-ID -> device
+        for d, dev in enumerate(devs):
+            self.index_by_node[dev.channel][dev.node_id] = d
+        self.channel_members = [
+            np.array([d for d, dev in enumerate(devs) if dev.channel == c], dtype=np.intp)
+            for c in range(len(bus.channels))
+        ]
+        # patch TPDOs: one slot each, numbered over the devices in order (decoder.build_cob_tables)
+        self.slot_tpdo = [tpdo for dev in devs for tpdo in dev.tpdos] if self.patch else []
+        self.slot_device = np.array([d for d, dev in enumerate(devs) for _ in dev.tpdos] if self.patch else [],
+                                    dtype=np.intp)
+        self.slot_taxels = [self._taxel_index(dev.taxels[t.first:t.first + t.count])
+                            for dev in devs for t in dev.tpdos] if self.patch else []
+        self.slot_is_bits = [t.encoding == ENC_BITS for t in self.slot_tpdo]
+        self.device_slots = np.array([len(dev.tpdos) for dev in devs], dtype=np.int64)  # TPDOs per device
+        self.slot_got = np.zeros(len(self.slot_tpdo), dtype=bool)
+        self.lsb_mv = float(bus.raw_lsb_mv)
         self.primary = K_TPDO2 if bus.mode == "raw" else K_TPDO1
         self.synchronous_every_sync = bus.transmission_type == 1
         self.consumer_us = int(bus.heartbeat_consumer_ms) * 1000
@@ -178,10 +202,12 @@ class CycleAssembler:
         self.counts = [0] * len(COUNTER_NAMES)
         self.t0_us: int | None = None
         self.last_us = 0
-        self.last_heard = np.full(n, -1, dtype=np.int64)  # relative µs, -1 = never
-        self.bootup_seq = np.full(n, -1, dtype=np.int64)  # events fed before its last boot-up, -1 = none
-        self.reset_seq = np.full(n, -1, dtype=np.int64)   # events fed before the last NMT reset to it
-        self.state = np.full(n, STATE_UNKNOWN, dtype=np.int16)
+        # per device:
+        self.last_heard = np.full(nd, -1, dtype=np.int64)  # relative µs, -1 = never
+        self.bootup_seq = np.full(nd, -1, dtype=np.int64)  # events fed before its last boot-up, -1 = none
+        self.reset_seq = np.full(nd, -1, dtype=np.int64)   # events fed before the last NMT reset to it
+        self.state = np.full(nd, STATE_UNKNOWN, dtype=np.int16)
+        # per taxel:
         self.decisions = np.zeros(n, dtype=np.int8)
         self.readings = np.full(n, np.nan)
         self.got1 = np.zeros(n, dtype=bool)
@@ -189,9 +215,9 @@ class CycleAssembler:
         self.got2_any = False  # a TPDO2 was accepted since the last SYNC
         self.held_decisions = np.zeros(n, dtype=np.int8)
         self.held_readings = np.full(n, np.nan)
-        self.expected = np.zeros(n, dtype=bool)
+        self.expected = np.zeros(nd, dtype=bool)  # per device
         self.sync_state = self.state.copy()
-        self.missing = np.ones(n, dtype=bool)
+        self.missing = np.ones(nd, dtype=bool)    # per device
         self.pending = 0
         self.is_open = False
         self.cycle = -1
@@ -202,11 +228,11 @@ class CycleAssembler:
         self.bad_since = 0
         self.emcy_since: list[EmcyEvent] = []
         self.emcy_dropped = 0
-        self.bootups: list[int] = []  # taxel indexes that sent boot-up (drained by the master)
+        self.bootups: list[int] = []  # device indexes that sent boot-up (drained by the master)
         # duplicate node-ID evidence (two devices answering for one node-ID):
-        self.sdo_outstanding = np.zeros(n, dtype=bool)  # an SDO request is waiting for its answer
+        self.sdo_outstanding = np.zeros(nd, dtype=bool)  # an SDO request is waiting for its answer
         self.duplicate_since: set[int] = set()          # evidence since the previous closed cycle
-        self.duplicates: set[int] = set()               # every node-ID ever flagged (taxel indexes)
+        self.duplicates: set[int] = set()               # every node-ID ever flagged (device indexes)
         self.solicited = [False] * len(scene.bus.channels)  # last SDO answer fed per channel was awaited
 
     # ------------------------------------------------------------------ queries
@@ -221,6 +247,12 @@ class CycleAssembler:
         if self.held:
             counters["held"] = len(self.held)
         return counters
+
+    def _taxel_index(self, taxels: tuple[int, ...]):
+        """A slice when the taxels are consecutive (cheap views), else an index array."""
+        if taxels and list(taxels) == list(range(taxels[0], taxels[0] + len(taxels))):
+            return slice(taxels[0], taxels[0] + len(taxels))
+        return np.array(taxels, dtype=np.intp)
 
     def malformed(self) -> int:
         return sum(self.counts[i] for i in _MALFORMED_IDX)
@@ -305,17 +337,22 @@ class CycleAssembler:
             out.append(closed)
 
     def _entry(self, channel: int, can_id: int, flags: int) -> tuple[int, int] | None:
-        """(frame kind, taxel index) of a COB-ID on a channel; None: flagged, unknown or no such channel."""
-        if flags:
+        """(frame kind, device index or patch slot) of a COB-ID on a channel; None: flagged,
+        unknown or no such channel. With ``[bus] fd`` a CAN FD frame (no other flag) on a
+        PDO's COB-ID is that PDO, and a classic frame there is ``(K_FORMAT, -1)``."""
+        if flags and not (flags == FLAG_FD and self.fd):
             return None
         try:
-            return self.tables[channel].get(can_id)
+            entry = self.tables[channel].get(can_id)
         except (IndexError, TypeError, AttributeError):
             return None
+        if self.fd and entry is not None and (entry[0] in PDO_KINDS) != bool(flags):
+            return (K_FORMAT, -1) if not flags else None  # classic PDO / FD frame on another object
+        return entry
 
     def _feed(self, t: int, raw: int, channel: int, data: bytes, flags: int, entry: tuple[int, int] | None):
         counts = self.counts
-        if flags:
+        if flags and entry is None:
             if flags & FLAG_ERROR:
                 counts[C_ERROR] += 1
             elif flags & FLAG_REMOTE:
@@ -332,6 +369,12 @@ class CycleAssembler:
             return None
         kind, idx = entry
         size = len(data)
+        if kind == K_PATCH:
+            return self._patch(t, raw, idx, data)
+        if kind == K_FORMAT:
+            counts[C_FD] += 1
+            self.bad_since += 1
+            return None
         if kind == K_TPDO1:
             if size != 1:
                 return self._bad(C_BAD_DLC)
@@ -415,7 +458,8 @@ class CycleAssembler:
             code, register, manufacturer = decode_emcy(data)
             self.last_heard[idx] = t
             if len(self.emcy_since) < EMCY_PER_CYCLE:
-                self.emcy_since.append(EmcyEvent(self.labels[idx], idx, code, register, manufacturer.hex(), t))
+                self.emcy_since.append(EmcyEvent(self.labels[idx], self.devices[idx].taxels[0], code, register,
+                                                 manufacturer.hex(), t))
             else:
                 self.emcy_dropped += 1
             counts[C_EMCY] += 1
@@ -458,6 +502,49 @@ class CycleAssembler:
         counts[C_TIME] += 1
         return None
 
+    def _patch(self, t: int, raw: int, slot: int, data: bytes):
+        """A TPDO of a patch node (``taxel_net.patches``): packed decisions or readings behind
+        the cycle tag (the full counter of the sampling SYNC), counted only in that SYNC's cycle."""
+        counts = self.counts
+        tpdo = self.slot_tpdo[slot]
+        try:
+            tag, values = unpack(tpdo, data, self.lsb_mv)
+        except PatchFrameError as exc:
+            return self._bad(C_BAD_DLC if exc.reason == "bad_dlc" else C_BAD_VALUE)
+        if tag is not None:
+            if not 1 <= tag <= self.sync_overflow:
+                return self._bad(C_BAD_VALUE)  # no SYNC carries this counter
+            stale = self.sync_counter is None or tag != self.sync_counter
+        else:
+            stale = raw < self.sync_raw
+        d = self.slot_device[slot]
+        self.last_heard[d] = t
+        self.state[d] = STATE_OPERATIONAL
+        taxels = self.slot_taxels[slot]
+        bits = self.slot_is_bits[slot]
+        if bits:
+            self.held_decisions[taxels] = values
+        else:
+            self.held_readings[taxels] = values
+        got = self.slot_got
+        if tag is not None and self.is_open and not stale and got[slot] and self.synchronous_every_sync:
+            self._duplicate(int(d))  # a second frame of this TPDO tagged with this cycle's SYNC
+        if not self.is_open or got[slot] or stale:
+            counts[C_LATE] += 1
+            self.late_since += 1
+            return None
+        got[slot] = True
+        if bits:
+            self.decisions[taxels] = values
+            self.got1[taxels] = True
+            counts[C_TPDO1] += 1
+        else:
+            self.readings[taxels] = values
+            self.got2[taxels] = True
+            self.got2_any = True
+            counts[C_TPDO2] += 1
+        return self._delivered(d, t)
+
     # ------------------------------------------------------------------ helpers
     def _duplicate(self, idx: int) -> None:
         self.duplicate_since.add(idx)
@@ -496,11 +583,18 @@ class CycleAssembler:
         self.missing = ~live  # new arrays at every SYNC (never changed in place: _close hands them over)
         self.expected = live & (self.state == STATE_OPERATIONAL)
         self.sync_state = self.state.copy()  # replaced, never changed in place (handed over at the close)
-        self.pending = int(np.count_nonzero(self.expected)) if self.synchronous_every_sync else -1
+        if not self.synchronous_every_sync:
+            self.pending = -1
+        elif self.patch:  # every TPDO of every expected device
+            self.pending = int(self.device_slots[self.expected].sum())
+        else:
+            self.pending = int(np.count_nonzero(self.expected))
         if self.pending == 0:
             self.pending = -1  # nothing to wait for: close at the next SYNC only
         self.decisions.fill(0)
         self.got1.fill(False)
+        if self.patch:
+            self.slot_got.fill(False)
         if self.got2_any:  # only TPDO2s (raw mode, or stray frames) touch these
             self.readings.fill(np.nan)
             self.got2.fill(False)
@@ -546,6 +640,15 @@ class CycleAssembler:
 
     def _close(self, closed_by: str, t: int) -> ClosedCycle:
         primary_got = self.got2 if self.primary == K_TPDO2 else self.got1
+        expected, missing, states = self.expected, self.missing, self.sync_state
+        if self.patch:  # per device -> per taxel; a device is complete with all its TPDOs
+            device = DeviceCycle(expected=expected, missing=missing, states=states,
+                                 complete=np.bincount(self.slot_device, weights=self.slot_got,
+                                                      minlength=self.n_devices) == self.device_slots)
+            td = self.taxel_device
+            expected, missing, states = expected[td], missing[td], states[td]
+        else:
+            device = None
         closed = ClosedCycle(
             cycle=self.cycle,
             sync_us=self.sync_us,
@@ -555,16 +658,17 @@ class CycleAssembler:
             decisions=self.decisions.copy(),
             readings=self.readings.copy(),
             received=primary_got.copy(),
-            expected=self.expected,  # replaced, not modified, at the next SYNC: no copy needed
-            missing=self.missing,
+            expected=expected,  # replaced, not modified, at the next SYNC: no copy needed
+            missing=missing,
             held_decisions=self.held_decisions.copy(),
             held_readings=self.held_readings.copy(),
             late_frames=self.late_since,
             bad_frames=self.bad_since,
             emcy=tuple(self.emcy_since),
-            states=self.sync_state,
+            states=states,
             duplicates=tuple(sorted(self.duplicate_since)),
             emcy_dropped=self.emcy_dropped,
+            devices=device,
         )
         self.is_open = False
         self.late_since = 0

@@ -42,6 +42,7 @@ K_NMT = 8
 K_TIME = 9
 K_LSS = 10  # CiA 305 LSS: 0x7E5 master -> slaves, 0x7E4 slave -> master
 K_MASTER_HEARTBEAT = 11  # the master's own heartbeat, 0x700 + [master] node_id (CiA 302)
+K_PATCH = 12  # a TPDO of a patch node (taxel_net.patches): the table's index is its slot, not a node
 
 COB_NMT = 0x000
 COB_SYNC = 0x080
@@ -81,8 +82,14 @@ _REAL32 = struct.Struct("<f")
 _EMCY = struct.Struct("<HB5s")
 
 
-def build_cob_tables(scene: Scene) -> list[dict[int, tuple[int, int]]]:
+def build_cob_tables(scene: Scene, devices=None) -> list[dict[int, tuple[int, int]]]:
     """One dict per scene channel: COB-ID -> (frame kind, taxel index in fusion order).
+
+    Patch scenes (``[bus] patch_nodes``, ``devices`` = ``taxel_net.patches.devices(scene)``):
+    the node's own COB-IDs (heartbeat, EMCY, SDO) map to the *device* index, and every TPDO of
+    the devices to ``(K_PATCH, slot)``, slots numbered over the devices' TPDOs in order (no
+    predefined TPDO1/TPDO2 per node-ID: the patches' TPDOs use those identifiers). In the
+    chapter's one-taxel layout the device index is the taxel index.
 
     Channel-wide objects (NMT, SYNC, TIME, LSS, the master's heartbeat 0x700 + ``[master]
     node_id`` while it is on) map to taxel index -1. COB-IDs of node-IDs the scene does not name
@@ -98,6 +105,23 @@ def build_cob_tables(scene: Scene) -> list[dict[int, tuple[int, int]]]:
     if scene.master_heartbeat_ms > 0:
         for table in tables:
             table[BASE_HEARTBEAT + scene.master.node_id] = (K_MASTER_HEARTBEAT, -1)
+    if scene.bus.patch_nodes:
+        if devices is None:
+            from taxel_net.patches import devices as scene_devices
+
+            devices = scene_devices(scene)
+        slot = 0
+        for index, dev in enumerate(devices):
+            table = tables[dev.channel]
+            nid = dev.node_id
+            table[BASE_HEARTBEAT + nid] = (K_HEARTBEAT, index)
+            table[BASE_EMCY + nid] = (K_EMCY, index)
+            table[BASE_SDO_RESPONSE + nid] = (K_SDO_RESPONSE, index)
+            table[BASE_SDO_REQUEST + nid] = (K_SDO_REQUEST, index)
+            for tpdo in dev.tpdos:
+                table[tpdo.cob_id] = (K_PATCH, slot)
+                slot += 1
+        return tables
     for index, taxel in enumerate(scene.taxels):
         table = tables[taxel.channel]
         nid = taxel.node_id

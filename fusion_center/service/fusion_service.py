@@ -32,7 +32,7 @@ import can
 
 from taxel_net.canmsg import raise_receive_buffer
 from taxel_net.errors import UsageError
-from taxel_net.resources import eds_path
+from taxel_net.resources import eds_path, patch_eds_path
 from taxel_net.scene import Scene
 from .aggregates import LatencyHistogram, RunAggregates
 from .cycles import MALFORMED, ClosedCycle, CycleAssembler
@@ -104,6 +104,8 @@ class FusionService:
         self.bus_kwargs = dict(bus_kwargs or {})
         self.json_lines = json_lines
         self.trace_path = trace
+        if scene.bus.patch_nodes and Path(eds_path) == DEFAULT_EDS:
+            eds_path = patch_eds_path()  # patch nodes: their own object dictionary (eds/taxel_patch.eds)
         self.eds_path = Path(eds_path)
         self.keep_records = keep_records
         self.on_record: list[Callable[[dict], None]] = [on_record] if on_record else []
@@ -161,7 +163,7 @@ class FusionService:
                              + " ".join(f"{type(exc).__name__}: {exc}".split())) from None
         from .master import node_configuration
 
-        for index in range(self.scene.n):  # every object the SDO configuration writes
+        for index in range(0 if self.scene.bus.patch_nodes else self.scene.n):  # every object the SDO configuration writes
             for obj, sub, _ in node_configuration(self.scene, index):
                 try:
                     entry = od[obj]
@@ -249,10 +251,11 @@ class FusionService:
     def boot(self, timeout_s: float = 3.0, configure: bool = True) -> list[int]:
         """Wait for the boot-ups, configure the nodes heard over SDO, NMT-start them.
 
-        Returns the taxel indexes that never booted (missing from the first cycle)."""
+        Returns the node (device) indexes that never booted (missing from the first cycle;
+        one-taxel scenes: taxel indexes)."""
         missing = self.master.wait_for_boot(timeout_s)
         self.missing_at_boot = missing
-        present = [i for i in range(self.scene.n) if i not in set(missing)]
+        present = [i for i in range(self.assembler.n_devices) if i not in set(missing)]
         if configure:
             with self.stream.lock:
                 mark = self.assembler.events

@@ -25,6 +25,18 @@ index     sub  value
 0x1801    1-5  TPDO2: the same; left invalid unless the scene is in raw mode
 ========  ===  =====================================================================
 
+Patch nodes (``[bus] patch_nodes``, ``eds/taxel_patch.eds``, :func:`patch_configuration`): one
+node per device of :func:`taxel_net.patches.devices`, configured with the same heartbeat,
+0x1016, 0x1019 and 0x1007 entries, then every TPDO k of the device as its
+:class:`~taxel_net.patches.Tpdo` says, in CiA 301's order: 0x1800+k:1 invalid (bit 31, bit 30
+no RTR), :2 transmission type, :3 inhibit time, :5 event timer, 0x1A00+k:0 = 0, the mapping
+entries (0x2021:00 the UNSIGNED8 cycle tag when tagged, then 0x2020:sub UNSIGNED8 decision
+bytes, or 0x2030:sub INTEGER8 / 0x2031:sub INTEGER16 readings, one per taxel), 0x1A00+k:0 = n,
+0x1800+k:1 valid; in raw mode 0x2032 (mV per count) first. The per-taxel detector arrays
+(0x2010 ζ, 0x2011 N_i: two SDO writes per taxel, 8,192 for skin4096) are written only with
+``detector=True``: by default the node keeps its stored values (commissioned, e.g. from the
+DCF ``fusion-center dcf`` writes; the twins take them from the scene), docs/service.md.
+
 SDO aborts and time-outs are logged and counted (``sdo_aborts``, ``sdo_timeouts``), never
 raised: a node whose configuration failed still takes part with its stored values.
 
@@ -38,6 +50,7 @@ from __future__ import annotations
 
 import logging
 import math
+import struct
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -45,6 +58,7 @@ from typing import Callable
 
 import canopen
 
+from taxel_net import patches
 from taxel_net.scene import TAXEL_KINDS, Scene
 import numpy as np
 
@@ -122,6 +136,55 @@ def node_configuration(scene: Scene, index: int) -> list[tuple[int, int, object]
     return writes
 
 
+def patch_configuration(scene: Scene, device: patches.Device, *, detector: bool = False
+                        ) -> list[tuple[int, int, int | float, str]]:
+    """The SDO downloads ``(index, subindex, value, struct format)`` that configure the patch
+    node ``device`` (module docstring): communication objects, then every TPDO's parameters
+    and mapping as its :class:`~taxel_net.patches.Tpdo` describes. ``detector``: also ζ and
+    N_i of every taxel (0x2010 / 0x2011 sub k + 1 for the device's taxel k)."""
+    bus = scene.bus
+    writes: list[tuple[int, int, int | float, str]] = []
+    if detector:
+        for k, i in enumerate(device.taxels):
+            t = scene.taxels[i]
+            writes.append((patches.PATCH_ZETA, k + 1, float(t.zeta_mv), "f"))
+            writes.append((patches.PATCH_NOISE, k + 1, float(t.noise_mv), "f"))
+    if bus.mode == "raw":
+        writes.append((patches.PATCH_RAW_LSB, 0, float(bus.raw_lsb_mv), "f"))
+    writes.append((HEARTBEAT_PRODUCER, 0, int(bus.heartbeat_producer_ms), "H"))
+    writes.append((CONSUMER_HEARTBEAT, 1, master_consumer_entry(scene), "I"))
+    writes.append((SYNC_OVERFLOW, 0, int(bus.sync_counter), "B"))
+    writes.append((SYNC_WINDOW, 0, int(bus.sync_window), "I"))
+    for tpdo in device.tpdos:
+        comm, mapping = 0x1800 + tpdo.number, 0x1A00 + tpdo.number
+        cob = COB_NO_RTR | tpdo.cob_id
+        writes.append((comm, 1, cob | COB_INVALID, "I"))
+        writes.append((comm, 2, int(bus.transmission_type), "B"))
+        writes.append((comm, 3, int(bus.inhibit_time_100us), "H"))
+        writes.append((comm, 5, int(bus.event_timer_ms), "H"))
+        entries = patch_mapping(tpdo)
+        writes.append((mapping, 0, 0, "B"))
+        writes += [(mapping, sub, entry, "I") for sub, entry in enumerate(entries, start=1)]
+        writes.append((mapping, 0, len(entries), "B"))
+        writes.append((comm, 1, cob, "I"))
+    return writes
+
+
+def patch_mapping(tpdo: patches.Tpdo) -> list[int]:
+    """The PDO mapping entries (index << 16 | sub << 8 | bits) of a patch TPDO."""
+    entries = [patches.PATCH_CYCLE_TAG << 16 | 8] if tpdo.tagged else []
+    if tpdo.encoding == patches.ENC_BITS:
+        first = tpdo.first // 8  # a decision frame starts on a byte of the array
+        entries += [patches.PATCH_DECISIONS << 16 | (first + j + 1) << 8 | 8 for j in range(tpdo.payload_bytes)]
+    elif tpdo.encoding == patches.ENC_INT8:
+        entries += [patches.PATCH_READINGS_I8 << 16 | (tpdo.first + j + 1) << 8 | 8 for j in range(tpdo.count)]
+    elif tpdo.encoding == patches.ENC_INT16:
+        entries += [patches.PATCH_READINGS_I16 << 16 | (tpdo.first + j + 1) << 8 | 16 for j in range(tpdo.count)]
+    else:
+        raise ValueError(f"TPDO 0x{tpdo.cob_id:03X}: {tpdo.encoding} is not a patch encoding")
+    return entries
+
+
 def master_consumer_entry(scene: Scene) -> int:
     """0x1016:1 of every node: ``master node-ID << 16 | consumer time ms`` with a generous
     consumer time (3 x the master's heartbeat period, at least :data:`CONSUMER_TIME_MIN_MS`;
@@ -140,11 +203,15 @@ class Master:
         self.stream = service.stream
         self.scene = scene
         self.networks = networks
+        self.patch = bool(scene.bus.patch_nodes)
+        self.detector_writes = False  # patch nodes: also write 0x2010/0x2011 per taxel (slow; docs)
+        self.devices = patches.devices(scene)  # the CANopen nodes (one-taxel scenes: one per taxel)
+        n_devices = len(self.devices)
         self.nodes: list[canopen.RemoteNode] = []
-        for t in scene.taxels:
-            node = canopen.RemoteNode(t.node_id, od)
+        for dev in self.devices:
+            node = canopen.RemoteNode(dev.node_id, od)
             node.sdo.RESPONSE_TIMEOUT = 0.5
-            networks[t.channel].add_node(node)
+            networks[dev.channel].add_node(node)
             self.nodes.append(node)
         self.sdo_writes = 0
         self.sdo_aborts = 0
@@ -164,8 +231,8 @@ class Master:
         self.restart = scene.master.restart == "always"
         self._log = RateLimitedLog(logger, 2.0)
         self.restarts = 0                # NMT start commands sent to nodes found not operational
-        self._off_since = np.full(scene.n, -1, dtype=np.int64)  # SYNC index a node was first seen off
-        self._last_start = np.full(scene.n, -10**9, dtype=np.int64)  # SYNC index of its last restart
+        self._off_since = np.full(n_devices, -1, dtype=np.int64)  # SYNC index a node was first seen off
+        self._last_start = np.full(n_devices, -10**9, dtype=np.int64)  # SYNC index of its last restart
         hb = max(scene.bus.heartbeat_producer_ms, scene.bus.sync_period_ms)
         self._restart_every = max(2, int(hb / scene.bus.sync_period_ms))  # SYNCs between two restarts of a node
         # SYNCs a node must look off before it is restarted: a bit more than one heartbeat period
@@ -213,11 +280,11 @@ class Master:
                 return []
             if not reset_sent and now - start >= min(listen_s, timeout_s / 2):
                 for i in silent:
-                    t = self.scene.taxels[i]
+                    t = self.devices[i]
                     self.stream.transmit(t.channel, COB_NMT, bytes((NMT_RESET_COMMUNICATION, t.node_id)))
                 reset_sent = True
             if now >= deadline:
-                heard = set(range(self.scene.n)) - set(self.service.never_heard())
+                heard = set(range(len(self.devices))) - set(self.service.never_heard())
                 silent = [i for i in silent if i not in heard]  # heard, no boot-up: present
                 for i in silent:
                     logger.warning("node %s never booted within %.1f s: missing", self.service.labels[i], timeout_s)
@@ -238,14 +305,24 @@ class Master:
         return report
 
     # ------------------------------------------------------------------ SDO
+    def configuration(self, index: int) -> list[tuple[int, int, object, str | None]]:
+        """(index, sub, value, struct format or None: typed by the EDS) of node ``index``."""
+        if self.patch:
+            return patch_configuration(self.scene, self.devices[index], detector=self.detector_writes)
+        return [(idx, sub, value, None) for idx, sub, value in node_configuration(self.scene, index)]
+
     def configure_node(self, index: int) -> bool:
+        """Configure node (device) ``index`` over SDO (one-taxel scenes: device = taxel)."""
         node = self.nodes[index]
         label = self.service.labels[index]
         ok = True
-        for idx, sub, value in node_configuration(self.scene, index):
+        for idx, sub, value, fmt in self.configuration(index):
             try:
-                var = node.sdo[idx][sub] if sub or not _is_variable(node, idx) else node.sdo[idx]
-                var.raw = value
+                if fmt is not None:  # typed here: expedited download of the encoded value
+                    node.sdo.download(idx, sub, struct.pack("<" + fmt, value))
+                else:
+                    var = node.sdo[idx][sub] if sub or not _is_variable(node, idx) else node.sdo[idx]
+                    var.raw = value
                 with self._stats_lock:
                     self.sdo_writes += 1
             except canopen.SdoAbortedError as exc:
@@ -292,7 +369,7 @@ class Master:
         def work():
             try:
                 self.configure_node(index)
-                t = self.scene.taxels[index]
+                t = self.devices[index]
                 self.stream.transmit(t.channel, COB_NMT, bytes((NMT_START, t.node_id)))
                 logger.info("node %s booted again: reconfigured and started", self.service.labels[index])
             except Exception:  # noqa: BLE001
@@ -439,7 +516,7 @@ class Master:
             i = int(i)
             if i in busy:
                 continue
-            t = self.scene.taxels[i]
+            t = self.devices[i]
             self._last_start[i] = k
             self.restarts += 1
             self.stream.transmit(t.channel, COB_NMT, bytes((NMT_START, t.node_id)))

@@ -50,6 +50,32 @@ STATE_NAMES = {**_DECODER_STATE_NAMES, STATE_RESETTING: "resetting"}
 TRUTH_PRECOMPUTED = 4096  # cycles whose ground truth is computed when the pipeline is built
 
 
+def node_labels(scene: Scene) -> list:
+    """Label of every CANopen node (``taxel_net.patches.devices`` order): its node-ID on channel
+    0, ``"C:ID"`` on channel C; in a one-taxel scene the node of taxel i is node i."""
+    if not scene.bus.patch_nodes:
+        return [t.node_id if t.channel == 0 else f"{t.channel}:{t.node_id}" for t in scene.taxels]
+    from taxel_net.patches import devices
+
+    return [d.node_id if d.channel == 0 else f"{d.channel}:{d.node_id}" for d in devices(scene)]
+
+
+def taxel_labels(scene: Scene) -> list:
+    """Label of every taxel in records (``present_nodes``, forces per taxel): its node's label
+    in a one-taxel scene; ``"ID/k"`` (``"C:ID/k"`` off channel 0) for taxel k (0-based, the
+    patch's own order) of patch node ID."""
+    if not scene.bus.patch_nodes:
+        return node_labels(scene)
+    from taxel_net.patches import devices
+
+    labels: list = [None] * scene.n
+    for d in devices(scene):
+        node = str(d.node_id) if d.channel == 0 else f"{d.channel}:{d.node_id}"
+        for k, i in enumerate(d.taxels):
+            labels[i] = f"{node}/{k}"
+    return labels
+
+
 class _Pattern(NamedTuple):
     """Everything of a record that depends only on the cycle's decision vector (cached per vector)."""
 
@@ -73,7 +99,8 @@ class CyclePipeline:
         fusion = scene.fusion
         self.decide_with = fusion.decide_with
         taxels = scene.taxels
-        self.labels = [t.node_id if t.channel == 0 else f"{t.channel}:{t.node_id}" for t in taxels]
+        self.labels = taxel_labels(scene)
+        self.node_labels = node_labels(scene)  # per device (CANopen node): nodes_by_state & co
         self.n = scene.n
         self.zeta = np.array([t.zeta_mv for t in taxels], dtype=float)
         self.noise = np.array([t.noise_mv for t in taxels], dtype=float)
@@ -157,6 +184,10 @@ class CyclePipeline:
         record["p_h1"] = main["p_h1"] if main else None
         record["decide_with"] = self.decide_with
         record["degraded"] = n_received < self.n
+        device = closed.devices
+        if device is not None:  # patch scene: the nodes' own view (labels of devices)
+            labels = self.node_labels
+            missing, silent = device.missing, device.expected & ~device.complete
         record["missing_nodes"] = [labels[i] for i in np.flatnonzero(missing)] if missing.any() else []
         record["silent_nodes"] = [labels[i] for i in np.flatnonzero(silent)] if silent.any() else []
         record["nodes_by_state"] = self._nodes_by_state(closed, missing, silent)
@@ -197,15 +228,18 @@ class CyclePipeline:
         the live nodes that were not operational at the SYNC by their NMT state (``stopped``,
         ``pre-operational``, ``resetting``, ``unknown``). Empty when every node took part."""
         out: dict[str, list] = {}
-        off = ~closed.expected & ~missing
+        labels, expected, states = self.labels, closed.expected, closed.states
+        if closed.devices is not None:
+            labels, expected, states = self.node_labels, closed.devices.expected, closed.devices.states
+        off = ~expected & ~missing
         if missing.any():
-            out["missing"] = [self.labels[i] for i in np.flatnonzero(missing)]
+            out["missing"] = [labels[i] for i in np.flatnonzero(missing)]
         if silent.any():
-            out["silent"] = [self.labels[i] for i in np.flatnonzero(silent)]
-        if off.any() and closed.states is not None:
+            out["silent"] = [labels[i] for i in np.flatnonzero(silent)]
+        if off.any() and states is not None:
             for i in np.flatnonzero(off):
-                name = STATE_NAMES.get(int(closed.states[i]), "unknown")
-                out.setdefault(name, []).append(self.labels[i])
+                name = STATE_NAMES.get(int(states[i]), "unknown")
+                out.setdefault(name, []).append(labels[i])
         return out
 
     def truth(self, cycle: int) -> str:
