@@ -17,7 +17,11 @@ this sensor at this bit rate, and what error does it cost?". Writes to ``--out``
   eq 18, N-P, centralised) and achieved P_M vs requested beta (multiplicative eq 16);
 * ``work_precision.png`` - threshold solvers (eqs 16-18) against an mpmath reference;
 * ``probability_curves.png`` - the chapter's figs 2-7 (eqs 10-14) with their thresholds;
-* ``taxel_map.png`` - taxels, the active ones of a present cycle and their convex hull (eq 35).
+* ``taxel_map.png`` - taxels, the active ones of a present cycle and their convex hull (eq 35);
+* ``bits_vs_taxels.png`` - bits per SYNC cycle against 16..8192 taxels for every layout (one-taxel
+  vs patch nodes x decisions vs raw readings x classic vs FD) with the capacity of the buses;
+* ``error_vs_taxels.png`` - exact detection error of every rule against 8..4096 identical taxels
+  (:mod:`.scaling` defines both).
 """
 
 from __future__ import annotations
@@ -40,7 +44,7 @@ DEFAULT_TRIALS = 200_000
 ALPHA_GRID = (0.001, 0.003, 0.01, 0.03, 0.1, 0.2, 0.3, 0.473, 0.6)
 BETA_GRID = (0.05, 0.1, 0.2, 0.3, 0.5, 0.7, 0.83, 0.9)
 PNG_FILES = ("error_vs_runtime.png", "roc.png", "achieved_alpha.png", "work_precision.png",
-             "probability_curves.png", "taxel_map.png")
+             "probability_curves.png", "taxel_map.png", "bits_vs_taxels.png", "error_vs_taxels.png")
 
 
 # --------------------------------------------------------------------------- CPU time
@@ -375,6 +379,10 @@ def build_report(scene, out_dir: Path, trials: int, seed: int, bitrate=None,
 
         hull = convex_hull(xy[active])
     floor = 0.5 / trials
+    step("scale: layouts and rules against the number of taxels")
+    from . import scaling
+
+    scale = scaling.scale_figures(scene, bitrates)
 
     data = {
         "scene": scene.name,
@@ -407,6 +415,7 @@ def build_report(scene, out_dir: Path, trials: int, seed: int, bitrate=None,
                       "hull": None if hull is None else np.asarray(hull).tolist(),
                       "has_coordinates": has_xy},
         "taxel_decisions_simulated": mc.taxel_decisions,
+        "scale": scale,
         "files": ["report.json", *PNG_FILES],
     }
     step("plots")
@@ -426,6 +435,8 @@ def build_report(scene, out_dir: Path, trials: int, seed: int, bitrate=None,
     plots.taxel_map(xy_plot, active, hull, title, out_dir / "taxel_map.png",
                     node_ids=[t.node_id for t in scene.taxels],
                     unit="fusion index" if not has_xy else "layout units (scene CSV)")
+    plots.bits_vs_taxels(scale["layouts"], out_dir / "bits_vs_taxels.png", bitrates)
+    plots.error_vs_taxels(scale["rules"], out_dir / "error_vs_taxels.png", scene_n=scene.n, caption=scale["caption"])
     (out_dir / "report.json").write_text(json.dumps(data, indent=1, default=_json_default))
     return data
 

@@ -384,3 +384,118 @@ def taxel_map(xy: np.ndarray, active: np.ndarray, hull: np.ndarray | None, title
     ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.09), ncol=2, frameon=False)
     ax.set_title(title + "; labels: node-IDs", fontsize=10)
     _save(fig, path)
+
+
+_LAYOUT_STYLE = {"per-taxel decision": ("tab:blue", "o"), "per-taxel raw": ("tab:cyan", "s"),
+                 "patch decision": ("tab:red", "^"), "patch raw": ("tab:orange", "D")}
+
+
+def bits_vs_taxels(data: dict, path, bitrates=None) -> None:
+    """Bits per SYNC cycle against the number of taxels (log-log) of every layout, mean (line)
+    and worst case (band), summed over the channels each layout needs; CAN FD in nominal bit
+    times (``scaling.layout_bits_vs_taxels``). Horizontal lines: the bits one bus carries in one
+    SYNC period at each bit rate, and 8 buses at the first."""
+    fig, ax = plt.subplots(figsize=(11, 7))
+    period_ms = data["sync_period_ms"]
+    f0 = data["nominal_bitrate"]
+    for key, curve in data["curves"].items():
+        kind = ("per-taxel" if curve["taxels_per_node"] == 1 else "patch") + (
+            " decision" if curve["payload"] == "decision" else " raw")
+        colour, marker = _LAYOUT_STYLE[kind]
+        pts = curve["points"]
+        x = [p["taxels"] for p in pts]
+        y = [p["nominal_bit_times"] for p in pts]
+        yw = [p["nominal_bit_times_worst"] for p in pts]
+        ls = "--" if curve["fd"] else "-"
+        ax.plot(x, y, ls, marker=marker, color=colour, ms=4, mfc="none" if curve["fd"] else colour,
+                label=f"{key}" + (f" ({pts[-1]['channels']} ch at {x[-1]})" if pts[-1]["channels"] > 1 else ""))
+        ax.fill_between(x, y, yw, color=colour, alpha=0.12, lw=0)
+    rates = sorted({int(b) for b in (bitrates or [f0])} | {int(f0)})
+    for j, b in enumerate(rates):
+        cap = b * period_ms / 1000.0
+        ax.axhline(cap, color="k", ls=":", lw=1.0)
+        ax.annotate(f"1 bus @ {b // 1000} kbit/s: {cap:,.0f} bits / {period_ms:g} ms", (16, cap),
+                    xytext=(2, 2), textcoords="offset points", fontsize=7)
+    cap8 = 8 * f0 * period_ms / 1000.0
+    ax.axhline(cap8, color="k", ls="-.", lw=1.0)
+    ax.annotate(f"8 buses @ {int(f0) // 1000} kbit/s: {cap8:,.0f} bits", (16, cap8), xytext=(2, 2),
+                textcoords="offset points", fontsize=7)
+    ax.set_xscale("log", base=2)
+    ax.set_yscale("log")
+    ax.set_xlabel("taxels")
+    ax.set_ylabel(f"bits per SYNC cycle, all channels (FD: nominal bit times at {int(f0) // 1000} kbit/s)")
+    ax.grid(True, which="major", alpha=0.3)
+    ax.legend(fontsize=7, loc="upper left", ncol=2)
+    fd_rate = data["data_bitrate"]
+    fig.suptitle("bus cost per SYNC cycle against skin size, exact (line: mean over uniform payloads; band: up to "
+                 "the worst case)")
+    fig.text(0.01, 0.005, _wrap(f"Solid: classic CAN; dashed: CAN FD {int(f0) // 1000}k/{fd_rate / 1e6:g}M, drawn as bus time "
+             f"x {int(f0) // 1000} kbit/s (nominal bits + data-phase bits x {f0 / 1e6:g}/{fd_rate / 1e6:g}) so the "
+             "same limit lines hold. Bits summed over the channels a layout needs (<= 127 nodes each): "
+             "a curve above '1 bus' fits k buses if it is below k x that line (one channel must carry its share). "
+             "SYNC per channel included, heartbeats not. Patch = packed in patch nodes; raw = 8-bit readings "
+             "unless the legend says otherwise.", 150), fontsize=7, va="bottom")
+    fig.tight_layout(rect=(0, 0.07, 1, 1))
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+_RULE_LABEL = {"additive": "additive (HEBTEM eq 17)", "multiplicative": "multiplicative (HEBTEM eq 16)",
+               "preferential": "preferential (HEBTEM eq 18)", "k-of-n": "k-of-n", "llr": "Chair-Varshney LLR (eq 31)",
+               "np": "N-P (eq 32)"}
+_ERROR_FLOOR = 1e-30
+_RULE_MARKS = {"additive": ("o", "-", 10), "multiplicative": ("s", "--", 8), "preferential": ("^", "-.", 7),
+               "k-of-n": ("D", "-", 5), "llr": ("P", ":", 6), "np": ("X", "-", 5)}
+
+
+def _wrap(text: str, width: int) -> str:
+    import textwrap
+
+    return "\n".join(textwrap.fill(part, width) for part in text.split("\n"))
+
+
+def error_vs_taxels(panels: list[dict], path, scene_n: int | None = None, caption: str = "") -> None:
+    """Bayes error at prior 0.5, (P_F + P_M) / 2, of every rule against the number of taxels,
+    one panel per H1 model (``scaling.rule_error_vs_taxels``). Exact values; below 1e-30 a down
+    triangle on the floor; 0.5 = the rule answers the same whatever the truth. The legend gives
+    the first n where a rule's error reaches 0.1."""
+    fig, axes = plt.subplots(1, len(panels), figsize=(7.5 * len(panels), 6.2), sharey=True, squeeze=False)
+    for ax, panel in zip(axes[0], panels):
+        for rule, rec in panel["rules"].items():
+            colour = _COLOURS.get(rule, "tab:cyan")
+            xs = [n for n, e in zip(rec["taxels"], rec["error"]) if e is not None]
+            es = [e for e in rec["error"] if e is not None]
+            if not xs:
+                continue
+            ys = [max(e, _ERROR_FLOOR) for e in es]
+            fails = next((n for n, e in zip(xs, es) if e >= 0.1), None)
+            label = _RULE_LABEL.get(rule, rule) + (f": error >= 0.1 from n = {fails}" if fails is not None
+                                                   else ": error < 0.1 at every n")
+            if rec.get("stopped_at") is not None:
+                label += f" (computed up to n = {rec['stopped_at']})"
+            marker, ls, ms = _RULE_MARKS.get(rule, ("o", "-", 5))
+            ax.plot(xs, ys, ls, color=colour, lw=1.3, marker=marker, ms=ms, mfc="none", mew=1.2, label=label)
+            below = [(x, y) for x, e, y in zip(xs, es, ys) if e < _ERROR_FLOOR]
+            if below:
+                ax.plot(*zip(*below), "v", color=colour, ms=7)
+        ax.axhline(0.5, color="k", ls=":", lw=1.0)
+        ax.annotate("0.5: the same answer whatever the truth (hollow markers of several rules overlap there)",
+                    (min(panel["sizes"]), 0.5), xytext=(2, -10), textcoords="offset points", fontsize=7)
+        if scene_n is not None:
+            ax.axvline(scene_n, color="gray", ls="--", lw=0.8)
+            ax.annotate(f"scene: n = {scene_n}", (scene_n, _ERROR_FLOOR * 10), xytext=(3, 0),
+                        textcoords="offset points", fontsize=7, color="gray")
+        ax.set_xscale("log", base=2)
+        ax.set_yscale("log")
+        ax.set_ylim(_ERROR_FLOOR / 3, 2.0)
+        ax.set_xlabel("taxels n (identical)")
+        ax.set_title(panel["title"], fontsize=9)
+        ax.grid(True, which="major", alpha=0.3)
+        ax.legend(fontsize=7, loc="lower right")
+    axes[0][0].set_ylabel("Bayes error at prior 0.5 = (P_F + P_M) / 2, exact (▽: below 1e-30)")
+    fig.suptitle("where each fusion rule stops working as the skin grows")
+    if caption:
+        fig.text(0.01, 0.005, _wrap(caption, 215), fontsize=7, va="bottom")
+    fig.tight_layout(rect=(0, 0.08 if caption else 0, 1, 1))
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
