@@ -332,8 +332,9 @@ def log_chain_reference(pi, p, q, low, high):
 
 def test_deep_tails_vs_a_log_domain_reference():
     """n = 400, the chapter's band (xi = 0.003, alpha = 0.48): under H1 undecided ~1e-3 and a
-    miss ~1e-8, under H0 undecided ~1e-272 and a false alarm ~1e-371; every rate >= 1e-300
-    agrees with an untrimmed log-domain DP to 1e-11 (relative), the rates below are named."""
+    miss ~1e-8, under H0 undecided ~1e-272 and a false alarm ~1e-371; every rate agrees with an
+    untrimmed log-domain DP to 1e-11 (relative, on the log), the ones below 1e-300 included
+    (exact logs from the tilted DP, named in below_floor, with a proven error bound)."""
     from fusion_center.core.thresholds import preferential_threshold
 
     rng = np.random.default_rng(11)
@@ -350,22 +351,48 @@ def test_deep_tails_vs_a_log_domain_reference():
             ref = log_chain_reference(probs, p, q, low, high)
             for name, r in zip(names, ref):
                 got = getattr(ours, "log_" + name)
-                if r is not None and r >= math.log(1e-300):
-                    assert got is not None and abs(got - r) <= 1e-11 * max(1.0, abs(r)), (p, q, name, got, r)
-                    assert name not in ours.below_floor
-                else:
-                    assert got is None and name in ours.below_floor, (name, got, r)
+                assert got is not None and abs(got - r) <= 1e-11 * max(1.0, abs(r)), (p, q, name, got, r)
+                assert (name in ours.below_floor) == (r < math.log(1e-300)), name
+                if r < math.log(1e-300):
+                    assert ours.deep_error_bounds[name] < -13
         assert ours.below_floor  # this band puts the H0 rates of H1-or-undecided far below 1e-300
+        shallow = preferential_error_rates(pd, pf, p, q, "pm1", low, high, deep=False)
+        assert all(getattr(shallow, "log_" + k) is None for k in shallow.below_floor)
 
 
 def test_floor_and_impossible_events():
     """A zero-width band holds no value: impossible (None, not below the floor); a far tail
-    below 1e-300 is named in below_floor."""
+    below 1e-300 is named in below_floor and its log is exact (1e-600: all 200 present)."""
     n = 200
     ours = preferential_error_rates(0.9, 1e-3, 1, 1, "pm1", 10.5, 10.5, n=n)
     assert ours.log_p_undecided_h1 is None and ours.log_p_undecided_h0 is None
     assert "p_undecided_h1" not in ours.below_floor and "p_undecided_h0" not in ours.below_floor
     g = 4.0 * n - 4.0
     far = preferential_error_rates(0.5, 1e-3, 1, 1, "pm1", g - 1, g - 0.5, n=n)  # H1 needs all 200 present
-    assert far.log_p_false_alarm is None and "p_false_alarm" in far.below_floor  # 1e-600
+    assert "p_false_alarm" in far.below_floor and far.p_false_alarm == 0.0  # 1e-600 underflows ...
+    assert math.isclose(far.log_p_false_alarm, n * math.log(1e-3), rel_tol=1e-13)  # ... its log is exact
     assert math.isclose(far.log_p_detect, n * math.log(0.5), rel_tol=1e-13)  # 2^-200, exact
+
+
+@pytest.mark.parametrize("encoding, p, q", [("pm1", 1.0, 1.0), ("pm1", 1.5, 0.5), ("pm1", 0.0, 1.5), ("01", 1.0, 2.0)])
+def test_rates_below_1e300_vs_mpmath(encoding, p, q):
+    """Rates of 1e-330 .. 1e-500 (heterogeneous pf ~ 1e-8, the band near the top of U_G's
+    range, n = 60): their logs against the mpmath chain DP (40 digits), to 1e-12 relative;
+    the plain values underflow to 0."""
+    rng = np.random.default_rng(7)
+    n = 60
+    pi = 10.0 ** rng.uniform(-9.0, -7.0, n)
+    top = 2.0**p + 2.0**q + (n - 2) * 2.0 ** (p + q)  # g(n), eq 15
+    low, high = 0.6 * top, 0.9 * top
+    ours = preferential_error_rates(pi, pi, p, q, encoding, low, high)
+    ref = mp_chain_dp(list(pi), p, q, encoding, low, high)
+    for name, r in zip(("p_false_alarm", "p_undecided_h0", "p_reject"), ref):
+        got = getattr(ours, "log_" + name)
+        if r == 0:
+            assert got is None
+            continue
+        lr = float(mp.log(r))
+        assert got is not None and abs(got - lr) <= 1e-12 * max(1.0, abs(lr)), (name, got, lr)
+        if lr < math.log(1e-300):
+            assert name in ours.below_floor and getattr(ours, name) <= 1e-300
+    assert any(float(mp.log(r)) < -330 * math.log(10.0) for r in ref[:2] if r > 0)

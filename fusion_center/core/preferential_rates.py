@@ -13,6 +13,7 @@ from taxel_net.errors import ParameterError
 from .chain_dp import (FLOOR, SCALE_BITS, _float_value, _label_base, _lattice, _lattice_law, _log_probability,
                        _LOG_FLOOR, _rates_lattice, _rates_sparse, _scaled_logs)
 from .rate_sampling import monte_carlo_band_rates, wilson
+from .tilted_dp import lattice_band_logs
 
 SPARSE_MAX_TAXELS = 60
 
@@ -26,13 +27,15 @@ _NAMES = ("p_detect", "p_undecided_h1", "p_miss", "p_false_alarm", "p_undecided_
 
 @dataclass(frozen=True)
 class PreferentialRates:
-    """System rates of the preferential band decision. Under H1: p_detect = P(H1 decided),
-    p_undecided_h1, p_miss = P(H0 decided); under H0: p_false_alarm = P(H1 decided),
-    p_undecided_h0, p_reject = P(H0 decided). log_*: natural logarithms, exact down to FLOOR
-    (1e-300, below the double range of the plain values too); None for an impossible event, or
-    for a rate below FLOOR -- those are named in ``below_floor`` (0 <= rate < 1e-300). The plain
-    values are exp of the logs (0.0 below ~1e-308). method: "chain", "lattice", "integer",
-    "exact-sparse" (exact) or "monte-carlo" (estimate, with ``ci95`` per rate and ``samples``)."""
+    """System rates of the preferential band decision (eq 7, eq 20 band). Under H1: p_detect =
+    P(H1 decided), p_undecided_h1, p_miss = P(H0 decided); under H0: p_false_alarm = P(H1
+    decided), p_undecided_h0, p_reject = P(H0 decided). log_*: natural logarithms; None for an
+    impossible event. ``below_floor`` names the rates below FLOOR = 1e-300: their plain value
+    underflows (exp of the log, 0.0 below ~1e-308) and their log is exact too in the lattice
+    cases (the tilted DP, ``deep_error_bounds``: log10 of each one's proven relative error
+    bound), None where it was not computed (``deep=False``; the counts DP of {0,1} with a
+    non-integer weight). method: "chain", "lattice", "integer", "exact-sparse" (exact) or
+    "monte-carlo" (estimate, with ``ci95`` per rate and ``samples``)."""
 
     log_p_detect: float | None
     log_p_undecided_h1: float | None
@@ -44,6 +47,7 @@ class PreferentialRates:
     samples: int | None = None
     ci95: dict | None = None
     below_floor: tuple = ()
+    deep_error_bounds: dict | None = None
 
     def __getattr__(self, name):
         if name in _NAMES:
@@ -112,11 +116,14 @@ def preferential_law(pi, p, q, encoding: str):
 
 
 def preferential_error_rates(pd, pf, p, q, encoding: str, low: float, high: float, n: int | None = None,
-                             *, samples: int = 100_000, rng: np.random.Generator | None = None) -> PreferentialRates:
+                             *, samples: int = 100_000, rng: np.random.Generator | None = None,
+                             deep: bool = True) -> PreferentialRates:
     """Exact system rates of "H1 iff U_G >= high, H0 iff U_G < low" (eq 7, eq 20 band) for
     independent taxels with P(present) = pd_i under H1 and pf_i under H0 (module doc).
 
     ``pd``, ``pf``: one value or n values in [0, 1]; ``n`` required when both are scalars.
+    ``deep``: compute the logs of the rates below FLOOR too (lattice cases: the tilted DP of
+    :mod:`.tilted_dp`, extra time only when such rates exist); False leaves them None.
     """
     from .encoding import check_encoding
     from .rules import check_weight
@@ -147,9 +154,21 @@ def preferential_error_rates(pd, pf, p, q, encoding: str, low: float, high: floa
               "p_undecided_h0": wilson(r0[1] * samples, samples), "p_reject": wilson(r0[2] * samples, samples)}
         logs = [(math.log(x) if x > 0 else None) for x in (*r1, *r0)]
         return PreferentialRates(*logs, method="monte-carlo", samples=samples, ci95=ci)
-    results = [*run(pd_arr), *run(pf_arr)]
-    below = tuple(name for name, (_, low_) in zip(_NAMES, results) if low_)
-    return PreferentialRates(*[log for log, _ in results], method=method, below_floor=below)
+    results = [list(run(pd_arr)), list(run(pf_arr))]
+    bounds = {}
+    if deep and lat is not None:
+        # the rates below FLOOR: exact logs from the tilted DP (tilted_dp), with their error bound
+        for h, pi in enumerate((pd_arr, pf_arr)):
+            wanted = [r for r, (log, under) in enumerate(results[h]) if under]
+            if wanted:
+                for r, got in enumerate(lattice_band_logs(pi, lat, low, high, only=wanted)):
+                    if got is not None:
+                        results[h][r] = (got[0] if got[0] > -math.inf else None, True)
+                        bounds[_NAMES[3 * h + r]] = got[1]
+    flat = [*results[0], *results[1]]
+    below = tuple(name for name, (_, low_) in zip(_NAMES, flat) if low_)
+    return PreferentialRates(*[log for log, _ in flat], method=method, below_floor=below,
+                             deep_error_bounds=bounds or None)
 
 
 def _rates_single(pi: float, encoding: str, low: float, high: float):
