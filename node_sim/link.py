@@ -87,7 +87,12 @@ class Scheduler:
 
 
 class NodeLink:
-    """What a node needs from its channel: ``send(can_id, data)``, a :class:`Scheduler`.
+    """What a node needs from its channel: ``send(can_id, data, fd=False)``, a :class:`Scheduler`.
+
+    ``fd``: a CAN FD frame with bit-rate switch (the PDOs of a scene with ``[bus] fd = true``;
+    SDO, NMT, heartbeat and EMCY stay classic). An FD frame is handed on as ``(can_id, data,
+    True)``: the channel's ``send(can_id, data, True)`` / in a burst a 3-tuple; a classic one as
+    before (``send(can_id, data)``, a 2-tuple), so a channel that never sends FD needs no change.
 
     Bursts: between :meth:`hold` and :meth:`release` (the channel processing one SYNC for all
     its nodes, lock held) frames are queued and then sent back to back in the order they were
@@ -96,17 +101,19 @@ class NodeLink:
     """
 
     def __init__(self, send: Callable[[int, bytes], None], scheduler: Scheduler,
-                 send_many: Callable[[list[tuple[int, bytes]]], None] | None = None):
+                 send_many: Callable[[list[tuple]], None] | None = None):
         self._send_now = send
         self._send_many = send_many   # optional: a whole burst in one call, same order
         self.scheduler = scheduler
-        self._held: list[tuple[int, bytes]] | None = None
+        self._held: list[tuple] | None = None
         self._held_tx: list[_TpdoRuntime] = []
 
-    def send(self, can_id: int, data: bytes) -> None:
+    def send(self, can_id: int, data: bytes, fd: bool = False) -> None:
         held = self._held
         if held is not None:
-            held.append((can_id, data))
+            held.append((can_id, data, True) if fd else (can_id, data))
+        elif fd:
+            self._send_now(can_id, data, True)
         else:
             self._send_now(can_id, data)
 
@@ -128,8 +135,8 @@ class NodeLink:
             self._send_many(held)
         else:
             send = self._send_now
-            for can_id, data in held:
-                send(can_id, data)
+            for frame in held:
+                send(*frame)
         if self._held_tx:
             now = time.monotonic()
             for rt in self._held_tx:

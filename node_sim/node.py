@@ -71,7 +71,7 @@ class TaxelNode:
     """
 
     def __init__(self, node_id: int, link: NodeLink, od=None, eds_path=odx.EDS_PATH, *,
-                 lss=None, renumber=None):
+                 lss=None, renumber=None, fd: bool = False):
         self.node_id = node_id
         self.link = link
         self.silent = False
@@ -89,22 +89,34 @@ class TaxelNode:
         self.heartbeat = HeartbeatProducer(node_id, self.nmt, objects, self._send, link.scheduler)
         self.emcy = EmcyProducer(self.nmt, objects, self._send)
         self.heartbeat_consumer = HeartbeatConsumer(self.nmt, objects, link.scheduler, self._heartbeat_event)
-        self.detector = Detector(objects, self.emcy.fault_changed)
-        self.pdo = TpdoEngine(self, self.nmt, objects, link)
-        self.sync = SyncConsumer(self, self.nmt, objects, self.detector.sample, self.pdo.on_sync)
+        self.detector = self._new_detector()
+        self.pdo = self._new_pdo(fd)
+        self.sync = SyncConsumer(self, self.nmt, objects, self.detector.sample, self.pdo.on_sync,
+                                 scalar=self.SCALAR_READING)
         self.sdo = SdoServer(node_id, self.nmt, objects, self._send, link.scheduler)
         # each object's write rules and side effects, from the service that owns it
         sdo = self.sdo
+        pdo_objects = self.pdo.comm + self.pdo.mapping
         sdo.add_check((odx.ERROR_FIELD, odx.COB_ID_EMCY), self.emcy.check_write)
         sdo.add_check((odx.COB_ID_SYNC, odx.SYNC_OVERFLOW), self.sync.check_write)
-        sdo.add_check(odx.TPDO_COMM + odx.TPDO_MAP, self.pdo.check_write)
-        sdo.add_check((odx.DETECTOR, odx.FAULT_DETECTION), self.detector.check_write)
+        sdo.add_check(pdo_objects, self.pdo.check_write)
+        sdo.add_check(self.APPLICATION_OBJECTS, self.detector.check_write)
         sdo.add_written(None, self.detector.invalidate)  # any write: parameters re-read at the next SYNC
         sdo.add_written((odx.ERROR_FIELD,), self.emcy.written)
-        sdo.add_written(odx.TPDO_COMM + odx.TPDO_MAP, self.pdo.written)
+        sdo.add_written(pdo_objects, self.pdo.written)
         sdo.add_written((odx.HEARTBEAT_PRODUCER,), self.heartbeat.written)
         sdo.add_check((odx.CONSUMER_HEARTBEAT,), self.heartbeat_consumer.check_write)
         sdo.add_written((odx.CONSUMER_HEARTBEAT,), self.heartbeat_consumer.written)
+
+    # the application (a subclass, node_sim.patch.PatchNode, hosts many taxels)
+    SCALAR_READING = True                     # on_sync gets one reading (False: an array)
+    APPLICATION_OBJECTS = (odx.DETECTOR, odx.FAULT_DETECTION)   # the detector's write rules
+
+    def _new_detector(self):
+        return Detector(self.objects, self.emcy.fault_changed)
+
+    def _new_pdo(self, fd: bool) -> TpdoEngine:
+        return TpdoEngine(self, self.nmt, self.objects, self.link, fd=fd)
 
     # ------------------------------------------------------------------ OD access
     def read(self, index: int, subindex: int = 0):

@@ -24,6 +24,14 @@ valid, entries only while sub 0 is 0, each entry an existing, readable, PDO-mapp
 of exactly its size, at most 8 entries and 64 bits. A write to 0x180x/0x1A0x restarts the
 event machinery with the new values once they are stored.
 
+Generalised for patch nodes (:mod:`node_sim.patch`): ``TpdoEngine(..., comm=, mapping=,
+max_mapped=, max_bits=, fd=)`` serves any number of TPDO pairs (the one-taxel node: 0x1800/0x1801,
+8 entries, 64 bits), mapping records of up to ``max_mapped`` entries (64 on CAN FD) and
+``max_bits`` bits (512 on CAN FD); with ``fd`` every TPDO leaves as a CAN FD frame with bit-rate
+switch (the patch node pads its data with 0 to the next valid FD length, 12..64). A subclass may replace
+:meth:`TpdoEngine._compile` / :meth:`TpdoEngine._payload` (the patch node packs from its process
+image) and :meth:`TpdoEngine._check_mappable`.
+
 Hot path (one SYNC, every node): the valid, mapped TPDOs with their configuration and run-time
 state are kept as one tuple, rebuilt only after a change; the payload is read from the data
 store - no canopen PDO or ODVariable call per SYNC.
@@ -61,6 +69,7 @@ class _TpdoConfig:
     event_timer_s: float
     sync_start: int
     mapping: list[tuple[int, int, int]]  # (index, subindex, bits)
+    plan: object = None                  # what _compile made of the mapping (subclasses)
 
 
 @dataclass
@@ -78,14 +87,22 @@ class TpdoEngine:
     """The TPDOs of one node (see module docstring): owns their configuration, run-time state
     and timers. ``node`` is asked only whether it is silent."""
 
-    def __init__(self, node: "TaxelNode", nmt: NmtSlave, objects: NodeObjects, link: NodeLink):
+    def __init__(self, node: "TaxelNode", nmt: NmtSlave, objects: NodeObjects, link: NodeLink, *,
+                 comm: tuple[int, ...] = TPDO_COMM, mapping: tuple[int, ...] = TPDO_MAP,
+                 max_mapped: int | tuple[int, ...] = MAX_MAPPED, max_bits: int = 64, fd: bool = False):
         self._node = node
         self._nmt = nmt
         self._objects = objects
         self._local = objects.local
         self._link = link
-        self._cfg: list[_TpdoConfig | None] = [None] * N_TPDOS
-        self._rt = [_TpdoRuntime() for _ in range(N_TPDOS)]
+        self.comm = tuple(comm)
+        self.mapping = tuple(mapping)
+        self.n_tpdos = n = len(self.comm)
+        self.max_mapped = (max_mapped,) * n if isinstance(max_mapped, int) else tuple(max_mapped)
+        self.max_bits = max_bits
+        self.fd = fd
+        self._cfg: list[_TpdoConfig | None] = [None] * n
+        self._rt = [_TpdoRuntime() for _ in range(n)]
         self._active: tuple[tuple[int, _TpdoConfig, _TpdoRuntime], ...] | None = None
         self.frames_sent = 0
 
@@ -95,7 +112,7 @@ class TpdoEngine:
         cfg = self._cfg[pdo]
         if cfg is None:
             read = self._objects.read
-            comm, mapping = TPDO_COMM[pdo], TPDO_MAP[pdo]
+            comm, mapping = self.comm[pdo], self.mapping[pdo]
             cob = read(comm, 1)
             entries = []
             for sub in range(1, read(mapping, 0) + 1):
@@ -107,17 +124,22 @@ class TpdoEngine:
                 inhibit_s=read(comm, 3) * 100e-6,
                 event_timer_s=read(comm, 5) / 1000.0,
                 sync_start=read(comm, 6), mapping=entries)
+            cfg.plan = self._compile(cfg)
             self._cfg[pdo] = cfg
         return cfg
 
     def invalidate(self) -> None:
         """The OD may have changed (start-up values, SDO download): re-read the configuration."""
-        self._cfg = [None] * N_TPDOS
+        self._cfg = [None] * self.n_tpdos
         self._active = None
+
+    def _compile(self, cfg: _TpdoConfig) -> object:
+        """What the payload of ``cfg`` is made from (None: the data store, :meth:`_payload`)."""
+        return None
 
     def _activate(self) -> tuple[tuple[int, _TpdoConfig, _TpdoRuntime], ...]:
         active = []
-        for pdo in range(N_TPDOS):
+        for pdo in range(self.n_tpdos):
             cfg = self.config(pdo)
             if cfg.valid and cfg.mapping:
                 active.append((pdo, cfg, self._rt[pdo]))
@@ -129,12 +151,12 @@ class TpdoEngine:
         """Boot (power-on, NMT resets): timers stopped, configuration and state forgotten."""
         self.leave_operational()
         self.invalidate()
-        self._rt = [_TpdoRuntime() for _ in range(N_TPDOS)]
+        self._rt = [_TpdoRuntime() for _ in range(self.n_tpdos)]
 
     def enter_operational(self) -> None:
-        self._rt = [_TpdoRuntime() for _ in range(N_TPDOS)]
+        self._rt = [_TpdoRuntime() for _ in range(self.n_tpdos)]
         self._active = None
-        for pdo in range(N_TPDOS):
+        for pdo in range(self.n_tpdos):
             cfg = self.config(pdo)
             if cfg.valid and cfg.mapping and cfg.transmission_type >= 254:
                 self._event(pdo, cfg, force=True)
@@ -154,6 +176,7 @@ class TpdoEngine:
         if active is None:
             active = self._activate()
         link = self._link
+        fd = self.fd
         for pdo, cfg, rt in active:
             tt = cfg.transmission_type
             if tt >= 254:
@@ -174,7 +197,10 @@ class TpdoEngine:
                 rt.sync_count = 0
                 # _transmit for a synchronous TPDO of a live node, inlined (hot path)
                 payload = self._payload(cfg)
-                link.send(cfg.can_id, payload)
+                if fd:
+                    link.send(cfg.can_id, payload, True)
+                else:
+                    link.send(cfg.can_id, payload)
                 self.frames_sent += 1
                 rt.last_sent = payload
                 link.mark_sent(rt)  # last_tx_time: now, or when the SYNC burst is sent
@@ -205,7 +231,7 @@ class TpdoEngine:
         rt = self._rt[pdo]
         link = self._link
         if not self._node.silent:
-            link.send(cfg.can_id, payload)
+            link.send(cfg.can_id, payload, self.fd)
             self.frames_sent += 1
         rt.last_sent = payload
         link.mark_sent(rt)  # last_tx_time: now, or when the SYNC burst is sent
@@ -260,7 +286,7 @@ class TpdoEngine:
         self.invalidate()
         if self._nmt.state != OPERATIONAL:
             return
-        for pdo in range(N_TPDOS):
+        for pdo in range(self.n_tpdos):
             rt = self._rt[pdo]
             cfg = self.config(pdo)
             if rt.event_timer is not None:
@@ -274,14 +300,14 @@ class TpdoEngine:
 
     def check_write(self, index: int, subindex: int, value, startup: bool) -> None:
         """SDO / start-up write to 0x180x or 0x1A0x (see module docstring)."""
-        if index in TPDO_COMM:
-            self._check_comm_write(TPDO_COMM.index(index), subindex, value, startup)
-        elif index in TPDO_MAP:
-            self._check_map_write(TPDO_MAP.index(index), subindex, value, startup)
+        if index in self.comm:
+            self._check_comm_write(self.comm.index(index), subindex, value, startup)
+        elif index in self.mapping:
+            self._check_map_write(self.mapping.index(index), subindex, value, startup)
 
     def _check_comm_write(self, pdo: int, subindex: int, value: int, startup: bool) -> None:
         read = self._objects.read
-        comm = TPDO_COMM[pdo]
+        comm = self.comm[pdo]
         valid_now = not (read(comm, 1) & COB_INVALID)
         if subindex == 1:
             if value & COB_29BIT:
@@ -298,17 +324,17 @@ class TpdoEngine:
 
     def _check_map_write(self, pdo: int, subindex: int, value: int, startup: bool) -> None:
         read = self._objects.read
-        comm, mapping = TPDO_COMM[pdo], TPDO_MAP[pdo]
+        comm, mapping = self.comm[pdo], self.mapping[pdo]
         if not startup and not (read(comm, 1) & COB_INVALID):
             raise SdoAbortedError(ABORT_UNSUPPORTED_ACCESS)  # mapping only while the PDO is not valid
         if subindex == 0:
-            if value > MAX_MAPPED:
+            if value > self.max_mapped[pdo]:
                 raise SdoAbortedError(ABORT_VALUE_TOO_HIGH)
             bits = 0
             for sub in range(1, value + 1):
                 entry = read(mapping, sub)
                 bits += self._check_mappable(entry)
-            if bits > 64:
+            if bits > self.max_bits:
                 raise SdoAbortedError(ABORT_PDO_LENGTH_EXCEEDED)
         else:
             if not startup and read(mapping, 0) != 0:

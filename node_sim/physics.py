@@ -65,15 +65,31 @@ def _check_cycle(cycle) -> int:
     return int(cycle)
 
 
+_ARRAYS_CACHE: dict[int, tuple[Scene, dict[str, np.ndarray]]] = {}
+_ARRAYS_CACHE_SIZE = 8
+
+
 def taxel_arrays(scene: Scene) -> dict[str, np.ndarray]:
-    """Per-taxel parameters as float arrays (fusion order); missing values are NaN."""
+    """Per-taxel parameters as float arrays (fusion order); missing values are NaN.
+
+    Built once per scene object (a scene is immutable; 4,096 taxels take ~60 ms, once per SYNC
+    too many for a skin rig) and returned read-only."""
+    hit = _ARRAYS_CACHE.get(id(scene))
+    if hit is not None and hit[0] is scene:
+        return dict(hit[1])
     t = scene.taxels
 
     def col(name):
-        return np.array([np.nan if getattr(x, name) is None else getattr(x, name) for x in t], float)
+        a = np.array([np.nan if getattr(x, name) is None else getattr(x, name) for x in t], float)
+        a.setflags(write=False)
+        return a
 
-    return {name: col(name) for name in ("x", "y", "zeta_mv", "noise_mv", "noise_sigma_mv",
-                                         "signal_mv", "slope", "intercept")}
+    arrays = {name: col(name) for name in ("x", "y", "zeta_mv", "noise_mv", "noise_sigma_mv",
+                                           "signal_mv", "slope", "intercept")}
+    if len(_ARRAYS_CACHE) >= _ARRAYS_CACHE_SIZE:
+        _ARRAYS_CACHE.pop(next(iter(_ARRAYS_CACHE)))
+    _ARRAYS_CACHE[id(scene)] = (scene, arrays)
+    return dict(arrays)
 
 
 # ---------------------------------------------------------------- ground truth and geometry

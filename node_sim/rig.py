@@ -59,6 +59,7 @@ from typing import Callable, Mapping, Sequence
 import can
 import numpy as np
 
+from taxel_net import patches
 from taxel_net.canmsg import TxMessage, raise_receive_buffer
 from taxel_net.errors import ParameterError
 from taxel_net.scene import TAXEL_KINDS, Scene
@@ -68,6 +69,7 @@ from . import od as odx
 from .link import NodeLink, Scheduler
 from .node import TaxelNode
 from .od import COB_INVALID
+from .patch import PATCH_EDS_PATH, PatchNode, patch_startup_values
 
 logger = logging.getLogger(__name__)
 
@@ -76,8 +78,9 @@ ReadingSource = Callable[[int], np.ndarray]
 PREFETCH_CYCLES = 16  # physics readings computed ahead per batch (~0.5 ms for 57 taxels)
 
 
-def _virtual_burst_sender(bus: can.BusABC) -> Callable[[list[tuple[int, bytes]]], None] | None:
-    """For python-can's ``virtual`` interface: send a burst of 11-bit data frames doing what
+def _virtual_burst_sender(bus: can.BusABC) -> Callable[[list[tuple]], None] | None:
+    """For python-can's ``virtual`` interface: send a burst of 11-bit data frames (``(can_id,
+    data)``, or ``(can_id, data, True)`` for CAN FD with bit-rate switch) doing what
     ``VirtualBus.send`` does for each (python-can 4.x: per frame one timestamp, ``time.time()``
     unless ``preserve_timestamps``; for each receiving queue of the channel - its own only with
     ``receive_own_messages`` - a new ``Message`` with ``channel`` = the channel id and
@@ -103,11 +106,18 @@ def _virtual_burst_sender(bus: can.BusABC) -> Callable[[list[tuple[int, bytes]]]
         receivers = [(q.put, q is not own) for q in list(bus.channel)
                      if q is not own or bus.receive_own_messages]
         preserve = bus.preserve_timestamps
-        for can_id, data in frames:
+        for frame in frames:
             timestamp = 0.0 if preserve else now()  # 0.0: a new Message's own timestamp
-            for put, is_rx in receivers:
-                put(message(timestamp=timestamp, arbitration_id=can_id, is_extended_id=False,
-                            channel=channel_id, data=data, is_rx=is_rx))
+            if len(frame) == 2:
+                can_id, data = frame
+                for put, is_rx in receivers:
+                    put(message(timestamp=timestamp, arbitration_id=can_id, is_extended_id=False,
+                                channel=channel_id, data=data, is_rx=is_rx))
+            else:  # (can_id, data, True): CAN FD with bit-rate switch (node_sim.link.NodeLink)
+                can_id, data, _ = frame
+                for put, is_rx in receivers:
+                    put(message(timestamp=timestamp, arbitration_id=can_id, is_extended_id=False,
+                                channel=channel_id, data=data, is_rx=is_rx, is_fd=True, bitrate_switch=True))
 
     return send_many
 
@@ -126,7 +136,9 @@ class _Channel(can.Listener):
         self._burst = _virtual_burst_sender(bus)
         self.link = NodeLink(self.send, self.scheduler, self.send_many if self._burst is not None else None)
         self.nodes: dict[int, TaxelNode] = {}
-        self.scene_index: dict[int, int] = {}   # node-ID -> taxel index in scene order
+        self.scene_index: dict[int, object] = {}  # node-ID -> taxel index in scene order (a patch
+                                                  # node: a slice / index array of its taxels)
+        self.patch = False                      # patch nodes: each SYNC hands a node its readings' array
         self.lss: dict[int, lssx.LssSlave] = {}  # taxel index -> its LSS slave (configured or not)
         self.sync_count = 0                     # SYNCs seen (cycle of the next one if no loss)
         self.cycle: int | None = None           # cycle number of the last SYNC fully processed
@@ -234,7 +246,8 @@ class _Channel(can.Listener):
         cycle = self.sync_count + step - 1
         self.lost_syncs += step - 1
         self.sync_count = cycle + 1
-        readings = self.rig._readings(cycle).tolist()  # Python floats, scene order
+        x = self.rig._readings(cycle)
+        readings = x if self.patch else x.tolist()  # an array (patch nodes take a view) / Python floats
         rig = self.rig
         apply_silence = rig._apply_silence if rig._dropped or rig._silent_faults else None
         # the frames of this SYNC (EMCYs, TPDOs) go out back to back once every node has
@@ -255,7 +268,7 @@ class _Channel(can.Listener):
         # TPDOs (and the read-ahead of the next readings is scheduled)
         self.cycle = cycle
 
-    def send_many(self, frames: list[tuple[int, bytes]]) -> None:
+    def send_many(self, frames: list[tuple]) -> None:
         """A SYNC burst, in order (virtual bus: :func:`_virtual_burst_sender`)."""
         with self.send_lock:
             try:
@@ -264,8 +277,8 @@ class _Channel(can.Listener):
             except can.CanError as exc:
                 logger.warning("node-sim channel %s: sending %d frames failed: %s", self.name, len(frames), exc)
 
-    def send(self, can_id: int, data: bytes) -> None:
-        msg = TxMessage(arbitration_id=can_id, data=data, is_extended_id=False)
+    def send(self, can_id: int, data: bytes, fd: bool = False) -> None:
+        msg = TxMessage(arbitration_id=can_id, data=data, is_extended_id=False, is_fd=fd, bitrate_switch=fd)
         with self.send_lock:
             try:
                 self.bus.send(msg)
@@ -292,7 +305,8 @@ class Rig:
 
     def __init__(self, scene: Scene, interface: str = "virtual", channel: str | Sequence[str] | None = None,
                  bitrate: int | None = None, reading_source: ReadingSource | None = None,
-                 seed: int | None = None, eds_path=odx.EDS_PATH, bus_kwargs: Mapping | None = None):
+                 seed: int | None = None, eds_path=odx.EDS_PATH, bus_kwargs: Mapping | None = None,
+                 patch_eds_path=PATCH_EDS_PATH):
         if not isinstance(scene, Scene):
             raise ParameterError("scene", type(scene).__name__, "must be a taxel_net.scene.Scene")
         if scene.n == 0:
@@ -314,6 +328,9 @@ class Rig:
         self.bitrate = bitrate
         self.bus_kwargs = dict(bus_kwargs or {})
         self.eds_path = odx.check_eds(eds_path)
+        # patch nodes (issue 14): one twin per device of taxel_net.patches.devices
+        self.devices = patches.devices(self.scene) if scene.bus.patch_nodes else None
+        self.patch_eds_path = odx.check_eds(patch_eds_path) if self.devices is not None else None
         self._reading_source = reading_source
         self._channels: list[_Channel] = []
         self._dropped: set[tuple[int, int]] = set()
@@ -343,6 +360,8 @@ class Rig:
                 kwargs = dict(self.bus_kwargs)
                 if self.bitrate is not None:
                     kwargs["bitrate"] = self.bitrate
+                if self.scene.bus.fd:
+                    kwargs.setdefault("fd", True)   # udp_multicast / socketcan refuse FD frames without it
                 try:
                     bus = can.Bus(interface=self.interface, channel=name, **kwargs)
                 except Exception as exc:  # noqa: BLE001 - any backend failure is "cannot open"
@@ -353,7 +372,9 @@ class Rig:
                 self._channels.append(_Channel(self, index, name, bus))
             unconfigured = self.scene.master.assign_ids == "lss"
             identity, bit_rates = self._lss_device()
-            for i, t in enumerate(self.scene.taxels):
+            for device in self.devices or ():   # patch nodes (the scene loader refuses LSS for them)
+                self._new_patch_node(self._channels[device.channel], device)
+            for i, t in enumerate(self.scene.taxels if self.devices is None else ()):
                 ch = self._channels[t.channel]
                 ch.lss[i] = lssx.LssSlave(
                     identity + (identity_serial(self.scene, t),),
@@ -362,6 +383,8 @@ class Rig:
                     call_later=ch.scheduler.call_later)
                 if not unconfigured:
                     self._new_node(ch, i, t.node_id)
+            if self._reading_source is None:
+                self._readings(0)  # the first SYNC's readings (and the scene's arrays) off its path
             for ch in self._channels:
                 ch.notifier = can.Notifier(ch.bus, [ch], timeout=0.05)
             for ch in self._channels:
@@ -402,13 +425,31 @@ class Rig:
     def _new_node(self, ch: _Channel, index: int, node_id: int) -> TaxelNode:
         """The node twin of taxel ``index`` under ``node_id``, configured with its start-up values."""
         node = TaxelNode(node_id, ch.link, eds_path=self.eds_path, lss=ch.lss[index],
-                         renumber=lambda old, new, command: self._renumber(ch, index, old, new, command))
+                         renumber=lambda old, new, command: self._renumber(ch, index, old, new, command),
+                         fd=self.scene.bus.fd)
         node.configure(self._startup_values(self.scene.taxels[index], node_id))
         if node_id in ch.nodes:
             logger.warning("node-sim channel %s: two nodes with node-ID %d: frames to it reach one only",
                            ch.name, node_id)
         ch.nodes[node_id] = node
         ch.scene_index[node_id] = index
+        ch._sync_map = None
+        return node
+
+    def _new_patch_node(self, ch: _Channel, device: patches.Device) -> PatchNode:
+        """The patch node twin of ``device``, configured with its start-up values."""
+        node = PatchNode(device.node_id, ch.link, len(device.taxels), eds_path=self.patch_eds_path,
+                         fd=self.scene.bus.fd)
+        serial = identity_serial(self.scene, self.scene.taxels[device.taxels[0]])
+        node.configure(patch_startup_values(self.scene, device, serial))
+        if device.node_id in ch.nodes:
+            logger.warning("node-sim channel %s: two nodes with node-ID %d", ch.name, device.node_id)
+        taxels = device.taxels
+        contiguous = list(taxels) == list(range(taxels[0], taxels[0] + len(taxels)))
+        ch.nodes[device.node_id] = node
+        ch.scene_index[device.node_id] = (slice(taxels[0], taxels[0] + len(taxels)) if contiguous
+                                          else np.asarray(taxels, dtype=np.intp))
+        ch.patch = True
         ch._sync_map = None
         return node
 

@@ -44,8 +44,10 @@ class SyncConsumer:
     """
 
     def __init__(self, node: "TaxelNode", nmt: NmtSlave, objects: NodeObjects,
-                 sample: Callable[[float], None], tpdos_on_sync: Callable[[int | None], None]):
+                 sample: Callable[[float], None], tpdos_on_sync: Callable[[int | None], None],
+                 scalar: bool = True):
         self._node = node
+        self._scalar = scalar  # False: the readings are an array (a patch node's taxels), passed as given
         self._nmt = nmt
         self._objects = objects
         self._sample = sample
@@ -81,6 +83,6 @@ class SyncConsumer:
             return
         self.last_cycle = cycle
         self.last_counter = counter
-        self._sample(float(reading), counter)
+        self._sample(float(reading) if self._scalar else reading, counter)
         if state == OPERATIONAL:
             self._tpdos_on_sync(counter)
