@@ -181,7 +181,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"node-sim: error: {exc}", file=sys.stderr)
         return 2
     try:
-        print(f"node-sim: ready: {scene.n} nodes of scene {scene.name!r} on {interface} "
+        hosts = f"{len(rig.nodes)} patch nodes ({scene.n} taxels)" if scene.bus.patch_nodes else f"{scene.n} nodes"
+        print(f"node-sim: ready: {hosts} of scene {scene.name!r} on {interface} "
               f"channel(s) {', '.join(rig.channel_names)}", flush=True)
         while not stop.wait(0.2):
             pass
