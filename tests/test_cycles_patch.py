@@ -263,3 +263,39 @@ def test_non_contiguous_patch_taxels():
         closed = a.feed(10 * MS + 1, ch, cob, data)
     assert closed.decisions.tolist() == u.tolist()
     assert a.taxel_device.tolist() == [0, 1, 0, 1, 0]
+
+
+@pytest.mark.parametrize("mode, raw_format, fd, sync_counter", [
+    ("decision", "int16", False, 64), ("decision", "int16", True, 64), ("decision", "int16", False, 0),
+    ("raw", "int8", False, 64), ("raw", "int16", True, 64), ("raw", "int16", False, 0),
+])
+def test_the_assemblers_slot_decoder_is_patches_unpack(mode, raw_format, fd, sync_counter):
+    """The assembler's precomputed decoder gives what taxel_net.patches.unpack gives, refusals included."""
+    from taxel_net.patches import PatchFrameError, unpack
+    from fusion_center.service.cycles import C_BAD_DLC, C_BAD_VALUE, SlotDecoder
+
+    rng = np.random.default_rng(14)
+    sc = patch_scene(sizes=(3, 70, 13), mode=mode, raw_format=raw_format, fd=fd, sync_counter=sync_counter, lsb=0.25)
+    for dev in devices(sc):
+        for t in dev.tpdos:
+            dec = SlotDecoder(t, 0.25)
+            for k in range(60):
+                if k % 3 == 0:  # a valid frame, then maybe a flipped bit anywhere
+                    vals = rng.integers(-200, 200, t.count) if mode == "raw" else rng.choice([-1, 1], t.count)
+                    data = bytearray(pack(t, vals, tag=7 if t.tagged else None))
+                    if k % 2:
+                        bit = rng.integers(0, 8 * len(data))
+                        data[bit // 8] ^= 1 << (bit % 8)
+                else:
+                    data = bytearray(rng.integers(0, 256, t.length + rng.integers(-1, 2), dtype=np.uint8).tobytes())
+                    data[t.length - 1 if len(data) >= t.length else 0:] = bytes(len(data) - (t.length - 1)
+                                                                                if len(data) >= t.length else len(data))
+                data = bytes(data)
+                bad, tag, values = dec.decode(data)
+                try:
+                    ref_tag, ref = unpack(t, data, 0.25)
+                except PatchFrameError as exc:
+                    assert bad == {"bad_dlc": C_BAD_DLC, "bad_value": C_BAD_VALUE}[exc.reason]
+                    continue
+                assert bad is None and tag == ref_tag
+                np.testing.assert_array_equal(values, ref)
