@@ -199,3 +199,48 @@ def test_report_into_a_directory_that_cannot_be_made_exits_2(tiny, tmp_path, cap
     assert cli.main(["report", "--scene", tiny().path, "--out", str(blocker / "x"), "--trials", "10"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--out" in err[0] and "Not a directory" in err[0]
+
+
+def test_patch_scene_priced_on_its_packed_tagged_tpdos(tmp_path):
+    # the two taxels as ONE patch node (node 1) with a SYNC counter 4: its decisions in one TPDO
+    # 0x181 = [tag = SYNC counter, bit 0 = taxel 0, bit 1 = taxel 1]; the SYNC carries 1..4
+    text = TINY.format(inhibit=0).replace("node_id = 2", "node_id = 1").replace(
+        'channels = ["taxel0"]', 'channels = ["taxel0"]\npatch_nodes = true\nsync_counter = 4\nraw_format = "int8"\n'
+                                 'raw_lsb_mv = 0.1')
+    p = tmp_path / "patch.toml"
+    p.write_text(text)
+    fig = bandwidth.bandwidth_figures(load_scene(p))
+    counter = [c % 4 + 1 for c in range(10)]
+    present = [c in (2, 3) for c in range(10)]
+    sync = [reference_frame_bits(0x080, bytes([k])) for k in counter]
+    dec = [reference_frame_bits(0x181, bytes([k, 0b11 if on else 0])) for k, on in zip(counter, present)]
+    hb = reference_frame_bits(0x701, b"\x05") * 0.1  # ONE node: one heartbeat per 100 ms
+    m = fig["modes"]["decision_sync"]
+    assert m["pdo_frames_per_cycle"] == 1 and fig["nodes"] == 1
+    assert m["bits_per_cycle"] == pytest.approx(np.mean([s + d for s, d in zip(sync, dec)]) + hb)
+    assert m["bits_per_cycle_worst"] == pytest.approx(max(s + d for s, d in zip(sync, dec)) + hb)
+    # raw: INTEGER8 counts of 0.1 mV, X = N = 0.5 mV absent (5), X = S + N = 3.5 mV present (35)
+    raw = [reference_frame_bits(0x181, bytes([k, 35, 35] if on else [k, 5, 5])) for k, on in zip(counter, present)]
+    assert fig["modes"]["raw"]["bits_per_cycle"] == pytest.approx(np.mean([s + r for s, r in zip(sync, raw)]) + hb)
+    # event-driven: the TPDO goes out at cycle 0 and when its decisions change (cycles 2 and 4)
+    ev = fig["modes"]["decision_event"]
+    assert ev["pdo_frames_per_cycle"] == pytest.approx(3 / 10)
+    assert ev["bits_per_cycle"] == pytest.approx((sum(sync) + dec[0] + dec[2] + dec[4]) / 10 + hb)
+
+
+def test_fd_scene_frames_priced_in_bit_times_at_both_rates(tmp_path):
+    from fusion_center.core.bus_timing import fd_frame_bits
+
+    text = TINY.format(inhibit=0).replace("node_id = 2", "node_id = 1").replace(
+        'channels = ["taxel0"]', 'channels = ["taxel0"]\npatch_nodes = true\nfd = true\ndata_bitrate = 2000000')
+    p = tmp_path / "fd.toml"
+    p.write_text(text)
+    fig = bandwidth.bandwidth_figures(load_scene(p))
+    present = [c in (2, 3) for c in range(10)]
+    def fd_time(data):
+        nominal, data_phase = fd_frame_bits(0x181, data, brs=True)
+        return nominal + data_phase * 125000 / 2000000
+    dec = [fd_time(bytes([0b11 if on else 0])) for on in present]  # untagged, one byte
+    sync = reference_frame_bits(0x080, b"")
+    hb = reference_frame_bits(0x701, b"\x05") * 0.1
+    assert fig["modes"]["decision_sync"]["bits_per_cycle"] == pytest.approx(sync + np.mean(dec) + hb)

@@ -72,13 +72,32 @@ def crc15(bits: Iterable[int]) -> int:
 
     Shift-register form of the spec: CRC_NXT = bit XOR CRC[14]; shift left; XOR 0x4599 if CRC_NXT.
     """
+    return _crc15(_check_bits(bits))
+
+
+def _crc15(bits: list[int]) -> int:
+    """:func:`crc15` of a checked 0/1 list (the frame builders' own bits: no re-check)."""
     crc = 0
-    for b in _check_bits(bits):
+    for b in bits:
         nxt = b ^ ((crc >> 14) & 1)
         crc = (crc << 1) & 0x7FFF
         if nxt:
             crc ^= CRC15_POLY
     return crc
+
+
+def _stuff_count(bits: list[int]) -> int:
+    """:func:`stuff_bits` of a checked 0/1 list, counted without building the stuffed list."""
+    count, run_value, run_len = 0, -1, 0
+    for b in bits:
+        if b == run_value:
+            run_len += 1
+            if run_len == STUFF_RUN:
+                count += 1
+                run_value, run_len = 1 - b, 1  # the stuff bit starts the next run
+        else:
+            run_value, run_len = b, 1
+    return count
 
 
 def stuff_bits(bits: Iterable[int]) -> int:
@@ -158,7 +177,7 @@ def frame_stuffable_bits(can_id: int, data: bytes | Sequence[int] = b"", extende
                          remote: bool = False, dlc: int | None = None) -> list[int]:
     """Unstuffed SOF..CRC sequence: ``frame_fields`` followed by its 15-bit CRC."""
     fields = frame_fields(can_id, data, extended, remote, dlc)
-    return fields + _to_bits(crc15(fields), 15)
+    return fields + _to_bits(_crc15(fields), 15)
 
 
 def frame_bits(can_id: int, data: bytes | Sequence[int] = b"", extended: bool = False,
@@ -170,7 +189,7 @@ def frame_bits(can_id: int, data: bytes | Sequence[int] = b"", extended: bool = 
     frame (the requested length); for a data frame DLC = len(data).
     """
     seq = frame_stuffable_bits(can_id, data, extended, remote, dlc)
-    return len(seq) + stuff_bits(seq) + TRAILER_BITS + (INTERMISSION_BITS if intermission else 0)
+    return len(seq) + _stuff_count(seq) + TRAILER_BITS + (INTERMISSION_BITS if intermission else 0)
 
 
 def _check_dlc(dlc) -> int:

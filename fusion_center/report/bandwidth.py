@@ -16,8 +16,16 @@ CAN bus for the scene's taxels, at a given bit rate. Three modes:
   cycle 0 (its first value). Changes are counted on the scene's simulated decision sequence
   (``node_sim.physics``, canonical readings, eqs 1-4), evaluated once per SYNC period.
 
+The TPDOs are the scene's own (``taxel_net.patches.devices``): with a SYNC counter the
+one-taxel TPDO1 is the tagged byte 0x2003 (u_i in bits 0-1, the counter mod 64 in bits 2-7);
+patch nodes (``[bus] patch_nodes``) send their packed TPDOs (decision bits or INTEGER8/16
+readings behind the one-byte cycle tag), and an event-driven patch TPDO goes out when one of
+the values it carries changed. On CAN FD (``[bus] fd``) a frame's length is given in bit
+times at ``--bitrate``: its nominal bits plus its data-phase bits x bitrate / data_bitrate
+(``bus_timing.fd_frame_bits``), so loads, rates and latencies read as for classic frames.
+
 Every cycle also carries the SYNC frame (COB-ID 0x080, no data, or one counter byte when
-``sync_counter`` > 0) on each channel; every node's heartbeat (0x700 + node-ID, one byte,
+``sync_counter`` > 0: the counter 1..overflow of that cycle) on each channel; every node's heartbeat (0x700 + node-ID, one byte,
 0x05 = operational) every ``heartbeat_producer_ms`` is counted pro rata per cycle.
 
 Figures per mode, per channel (each channel is its own bus at ``--bitrate``) and for the
@@ -32,11 +40,12 @@ one frame of blocking, reported separately as ``blocking_ms``).
 
 from __future__ import annotations
 
+import dataclasses
 import struct
 
 import numpy as np
 
-from ..core.bus_timing import frame_bits
+from ..core.bus_timing import fd_frame_bits, frame_bits
 from ..core.encoding import local_decision
 from taxel_net.errors import ParameterError
 
@@ -96,7 +105,8 @@ def _channel_figures(frames_per_cycle: list[list[int]], sync_bits: int, heartbea
     hb_per_cycle = hb_bits_per_s * period_s
     pdo_bits = np.array([sum(f) for f in frames_per_cycle], dtype=float)
     frames = np.array([len(f) for f in frames_per_cycle], dtype=float)
-    cycle_bits = pdo_bits + sync_bits
+    sync_per_cycle = np.broadcast_to(np.asarray(sync_bits, dtype=float), pdo_bits.shape)
+    cycle_bits = pdo_bits + sync_per_cycle
     worst = float(cycle_bits.max())
     mean_bits = float(cycle_bits.mean() + hb_per_cycle)
     active = cycle_bits[frames > 0]
@@ -106,21 +116,80 @@ def _channel_figures(frames_per_cycle: list[list[int]], sync_bits: int, heartbea
         "pdo_frames_per_cycle": float(frames.mean()),
         "bits_per_cycle": mean_bits,
         "bits_per_cycle_worst": worst + hb_per_cycle,
-        "sync_bits": sync_bits,
+        "sync_bits": float(sync_per_cycle.max()),
         "heartbeat_bits_per_cycle": hb_per_cycle,
         "bus_time_per_cycle_ms": 1000.0 * mean_bits / bitrate,
         "bus_load": mean_bits / (period_s * bitrate),
         "bus_load_worst": (worst + hb_per_cycle) / (period_s * bitrate),
         "max_cycle_rate_hz": capacity / worst if capacity > 0 else 0.0,
         "latency_ms": 1000.0 * worst / bitrate,
-        "latency_mean_ms": 1000.0 * float(active.mean()) / bitrate if active.size else 1000.0 * sync_bits / bitrate,
+        "latency_mean_ms": 1000.0 * float((active if active.size else sync_per_cycle).mean()) / bitrate,
         "blocking_ms": 1000.0 * (max(heartbeat_bits) if heartbeat_bits else 0) / bitrate,
     }
+
+
+def _frame_time_bits(can_id: int, data: bytes, fd: bool, bitrate: int, data_bitrate: int) -> float:
+    """A frame's length in bit times at ``bitrate``: exact bits of a classic frame; of a CAN FD
+    frame (bit-rate switch on) its nominal bits plus its data-phase bits x bitrate / data_bitrate."""
+    if not fd:
+        return float(frame_bits(can_id, data))
+    nominal, data_phase = fd_frame_bits(can_id, data, brs=True)
+    return nominal + data_phase * bitrate / data_bitrate
+
+
+def _tpdo_bits(scene, mode: str, x: np.ndarray, u: np.ndarray, bitrate: int) -> dict[int, list]:
+    """Per channel: ``[(tpdo, bits, signature)]`` in CAN-ID priority order - the exact length of
+    every TPDO of every device (taxel_net.patches.devices) in every simulated cycle (``bits``,
+    shape (cycles,)) and what its values are (``signature``: changes when a value it carries
+    changes - the event-driven trigger). ``mode``: ``raw`` or ``decision``."""
+    from taxel_net.patches import (ENC_BITS, ENC_INTEGER8, ENC_REAL32, ENC_TAGGED, devices, pack,
+                                   readings_to_counts)
+
+    bus = dataclasses.replace(scene.bus, mode=mode)
+    cycles = x.shape[0]
+    counters = (np.arange(cycles) % bus.sync_counter + 1) if bus.sync_counter > 0 else np.zeros(cycles, int)
+    rate = (bitrate, bus.data_bitrate)
+    out: dict[int, list] = {}
+    cache: dict[tuple[int, bytes], float] = {}
+
+    def bits_of(tpdo, data: bytes) -> float:
+        key = (tpdo.cob_id, data)
+        if key not in cache:
+            cache[key] = _frame_time_bits(tpdo.cob_id, data, tpdo.fd, *rate)
+        return cache[key]
+
+    for dev in devices(dataclasses.replace(scene, bus=bus)):
+        for tpdo in dev.tpdos:
+            idx = np.asarray(dev.taxels[tpdo.first: tpdo.first + tpdo.count])
+            if tpdo.encoding == ENC_REAL32:
+                datas = [_raw_bytes(x[c, idx[0]]) for c in range(cycles)]
+                signature = x[:, idx[0]]
+            elif tpdo.encoding == ENC_INTEGER8:
+                datas = [_decision_byte(u[c, idx[0]]) for c in range(cycles)]
+                signature = u[:, idx[0]]
+            elif tpdo.encoding == ENC_TAGGED:  # 0x2003: u_i in bits 0-1, counter mod 64 in bits 2-7
+                datas = [bytes(((int(counters[c]) & 0x3F) << 2 | (0b01 if u[c, idx[0]] > 0 else 0b11),))
+                         for c in range(cycles)]
+                signature = u[:, idx[0]]
+            elif tpdo.encoding == ENC_BITS:
+                datas = [pack(tpdo, u[c, idx], int(counters[c]) if tpdo.tagged else None) for c in range(cycles)]
+                signature = np.array([hash(d[int(tpdo.tagged):]) for d in datas])
+            else:  # packed INTEGER8 / INTEGER16 counts
+                datas = [pack(tpdo, readings_to_counts(tpdo, x[c, idx], bus.raw_lsb_mv)[0],
+                              int(counters[c]) if tpdo.tagged else None) for c in range(cycles)]
+                signature = np.array([hash(d[int(tpdo.tagged):]) for d in datas])
+            bits = np.array([bits_of(tpdo, d) for d in datas])
+            out.setdefault(dev.channel, []).append((tpdo, bits, signature))
+    for frames in out.values():
+        frames.sort(key=lambda f: f[0].cob_id)
+    return out
 
 
 def bandwidth_figures(scene, bitrate: int | None = None, cycles: int | None = None,
                       inputs: tuple[np.ndarray, np.ndarray] | None = None) -> dict:
     """The figures of every mode (module docstring); JSON-ready dict with a ``modes`` key."""
+    from taxel_net.patches import devices
+
     bitrate = scene.bus.bitrate if bitrate is None else bitrate
     if isinstance(bitrate, bool) or not isinstance(bitrate, (int, np.integer)) or not 1 <= bitrate <= 1_000_000:
         raise ParameterError("bitrate", bitrate, "must be an integer bit/s in 1..1000000 (classic CAN)")
@@ -129,42 +198,48 @@ def bandwidth_figures(scene, bitrate: int | None = None, cycles: int | None = No
         raise ParameterError("cycles", cycles, "must be an integer >= 1")
     x, u = simulate_bus_inputs(scene, int(cycles)) if inputs is None else inputs
     bus = scene.bus
-    sync_data = bytes([1]) if bus.sync_counter > 0 else b""
-    sync_bits = frame_bits(SYNC_COB_ID, sync_data)
+    if bus.sync_counter > 0:  # the SYNC carries the counter 1..overflow, cycle by cycle
+        sync_per_cycle = np.array([frame_bits(SYNC_COB_ID, bytes((c % bus.sync_counter + 1,)))
+                                   for c in range(int(cycles))], dtype=float)
+    else:
+        sync_per_cycle = np.full(int(cycles), float(frame_bits(SYNC_COB_ID, b"")))
     channels = sorted({t.channel for t in scene.taxels})
-    sends = event_transmissions(u, bus.sync_period_ms, bus.inhibit_time_100us, bus.event_timer_ms)
-    by_id = {}
-    for ch in channels:
-        idx = [i for i, t in enumerate(scene.taxels) if t.channel == ch]
-        by_id[ch] = sorted(idx, key=lambda i: scene.taxels[i].node_id)  # CAN-ID priority order
-    dec_bits = {(i, v): frame_bits(TPDO1_BASE + scene.taxels[i].node_id, _decision_byte(v))
-                for i in range(scene.n) for v in (-1, 1)}
+    heartbeats: dict[int, list[int]] = {}
+    for dev in devices(scene):
+        heartbeats.setdefault(dev.channel, []).append(frame_bits(HEARTBEAT_BASE + dev.node_id,
+                                                                 bytes([NMT_OPERATIONAL])))
+    tpdos = {"raw": _tpdo_bits(scene, "raw", x, u, int(bitrate)),
+             "decision": _tpdo_bits(scene, "decision", x, u, int(bitrate))}
     modes: dict[str, dict] = {}
     for mode in MODES:
         per_channel = []
         for ch in channels:
-            idx = by_id[ch]
-            frames = []
-            for c in range(int(cycles)):
-                if mode == "raw":
-                    frames.append([frame_bits(TPDO2_BASE + scene.taxels[i].node_id, _raw_bytes(x[c, i])) for i in idx])
-                elif mode == "decision_sync":
-                    frames.append([dec_bits[(i, int(u[c, i]))] for i in idx])
-                else:
-                    frames.append([dec_bits[(i, int(u[c, i]))] for i in idx if sends[c, i]])
-            hb = [frame_bits(HEARTBEAT_BASE + scene.taxels[i].node_id, bytes([NMT_OPERATIONAL])) for i in idx]
-            fig = _channel_figures(frames, sync_bits, hb, scene, int(bitrate))
+            frames_of = tpdos["raw" if mode == "raw" else "decision"][ch]
+            bits = np.stack([b for _, b, _ in frames_of], axis=1)          # (cycles, TPDOs)
+            if mode == "decision_event":
+                signatures = np.stack([sig for _, _, sig in frames_of], axis=1)
+                sends = event_transmissions(signatures, bus.sync_period_ms, bus.inhibit_time_100us,
+                                            bus.event_timer_ms)
+            else:
+                sends = np.ones_like(bits, dtype=bool)
+            frames = [bits[c][sends[c]].tolist() for c in range(int(cycles))]
+            fig = _channel_figures(frames, sync_per_cycle, heartbeats.get(ch, []), scene, int(bitrate))
             fig["channel"] = scene.bus.channels[ch] if ch < len(scene.bus.channels) else str(ch)
-            fig["taxels"] = len(idx)
+            fig["taxels"] = sum(t.count for t, _, _ in frames_of)
+            fig["nodes"] = len(heartbeats.get(ch, []))
             per_channel.append(fig)
         busiest = max(per_channel, key=lambda f: f["bits_per_cycle_worst"])
-        summary = {k: v for k, v in busiest.items() if k not in ("channel", "taxels")}
+        summary = {k: v for k, v in busiest.items() if k not in ("channel", "taxels", "nodes")}
         summary["busiest_channel"] = busiest["channel"]
         summary["channels"] = per_channel
         modes[mode] = summary
     return {
         "scene": scene.name,
         "taxels": scene.n,
+        "nodes": len(devices(scene)),
+        "patch_nodes": bus.patch_nodes,
+        "fd": bus.fd,
+        "data_bitrate": bus.data_bitrate if bus.fd else None,
         "bitrate": int(bitrate),
         "sync_period_ms": bus.sync_period_ms,
         "heartbeat_producer_ms": bus.heartbeat_producer_ms,
