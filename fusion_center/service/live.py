@@ -198,7 +198,7 @@ class LiveView:
                   f"pre-operational {off['pre-operational']}", f"stopped {off['stopped']}"]
         counts += [f"{state} {off[state]}" for state in ("resetting", "unknown") if off[state]]
         counts.append(Text(f"missing {missing}", style="bold red" if missing else ""))
-        present = set(map(str, record["present_nodes"]))
+        present = {str(p).split("/")[0] for p in record["present_nodes"]}  # a patch's taxel "ID/k": node ID
         strip = Text("  ")
         for label in self.service.labels:
             key = str(label)
