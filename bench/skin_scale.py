@@ -1,0 +1,117 @@
+"""The centre at skin scale: SYNC -> decision latency and memory at 4,096 taxels (issue 14).
+
+    .venv/bin/python bench/skin_scale.py [--scene scenes/skin4096.toml ...] [--cycles 300]
+                                         [--shards 0]
+
+Runs the scene's node twins and the fusion centre on python-can buses - by default all in
+this process on ``virtual`` buses (one per scene channel: 8 for skin4096), with ``--shards K``
+the twins in K ``node-sim`` processes (each serving a group of channels) and the centre here,
+on ``udp_multicast`` (loopback) - for ``--cycles`` SYNC cycles at the scene's SYNC period
+(100 Hz for skin4096), and prints per scene:
+
+* latency SYNC -> record: from the master's SYNC transmission to the fused record (every
+  stage the scene asks for) - p50, p99, max - and the centre's own part (closing event -> record);
+* records complete / degraded / undecided, late PDOs, and records whose received decisions
+  differ from the physics of their cycle (``misattributed``; goal 0);
+* peak resident memory of this process (``ru_maxrss``; with shards, the twins run elsewhere).
+
+Goal (issue 14): p99 <= 5 ms and <= 300 MB at 4,096 taxels, patch nodes, 8 channels, 100 Hz,
+on the 2-core machine. The figures measure the host as much as the code: run it idle.
+"""
+
+from __future__ import annotations
+
+import argparse
+import resource
+import sys
+import time
+import uuid
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from fusion_center.core.encoding import local_decision  # noqa: E402
+from fusion_center.service import FusionService  # noqa: E402
+from node_sim import physics  # noqa: E402
+from taxel_net.scene import load_scene  # noqa: E402
+
+SCENES = [ROOT / "scenes" / "skin4096.toml"]
+
+
+def check_records(scene, records) -> dict:
+    """Records against the physics of their cycle, per taxel (eqs 1-4): ``misattributed`` counts
+    records whose present taxels differ from the physics of their cycle (complete records), or
+    - degraded ones - whose present taxels of the nodes that answered do."""
+    from fusion_center.service.pipeline import node_labels, taxel_labels
+    from taxel_net.patches import devices
+
+    zeta = np.array([t.zeta_mv for t in scene.taxels])
+    noise = np.array([t.noise_mv for t in scene.taxels])
+    index_of = {label: i for i, label in enumerate(taxel_labels(scene))}
+    taxels_of = {label: d.taxels for label, d in zip(node_labels(scene), devices(scene))}
+    complete = degraded = undecided = wrong = 0
+    for r in records:
+        undecided += r["decision"] == "undecided"
+        if r["n_received"] == 0:
+            continue
+        u = local_decision(physics.sample_readings(scene, r["cycle"]), noise, zeta, "pm1")
+        present = np.zeros(scene.n, dtype=bool)
+        present[[index_of[label] for label in r["present_nodes"]]] = True
+        received = np.ones(scene.n, dtype=bool)
+        for label in list(r.get("silent_nodes", [])) + list(r.get("missing_nodes", [])):
+            received[list(taxels_of[label])] = False
+        if r["n_received"] == scene.n:
+            complete += 1
+        else:
+            degraded += 1
+        wrong += not np.array_equal(present[received], (u == 1)[received])
+    return {"records": len(records), "complete": complete, "degraded": degraded, "undecided": undecided,
+            "misattributed": wrong}
+
+
+def run_in_process(scene, cycles: int) -> tuple[FusionService, object, float]:
+    from node_sim.rig import Rig
+
+    channels = [f"skin-{uuid.uuid4().hex[:6]}-{k}" for k in range(len(scene.bus.channels))]
+    service = FusionService(scene, interface="virtual", channels=channels)
+    rig = Rig(scene, interface="virtual", channel=channels)
+    with service:
+        rig.start()
+        try:
+            t0 = time.perf_counter()
+            service.boot(30.0)
+            boot_s = time.perf_counter() - t0
+            summary = service.run(cycles)
+        finally:
+            rig.stop()
+    return service, summary, boot_s
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scene", nargs="+", type=Path, default=SCENES)
+    ap.add_argument("--cycles", type=int, default=300)
+    args = ap.parse_args(argv)
+    for path in args.scene:
+        scene = load_scene(path)
+        service, summary, boot_s = run_in_process(scene, args.cycles)
+        hist = summary.latency_hist
+        centre = service.centre_latency
+        checked = check_records(scene, service.records)
+        rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+        print(f"{scene.name}: {scene.n} taxels, {len(scene.bus.channels)} channels, SYNC {scene.bus.sync_period_ms:g} ms, "
+              f"{summary.cycles} cycles, boot {boot_s:.1f} s ({summary.sdo_writes} SDO writes)")
+        print(f"  SYNC -> record: p50 {hist.percentile(50):.2f} ms, p99 {hist.percentile(99):.2f} ms "
+              f"(goal <= 5 ms: {hist.percentile(99) / 5.0:.2f}x), max {hist.percentile(100):.2f} ms; "
+              f"centre part p99 {centre.percentile(99):.2f} ms")
+        print(f"  records: {checked['complete']} complete, {checked['degraded']} degraded, {checked['undecided']} "
+              f"undecided, late PDOs {summary.counters.get('late', 0)}, misattributed {checked['misattributed']}")
+        print(f"  peak memory of this process: {rss_mb:.0f} MB (goal <= 300 MB: {rss_mb / 300:.2f}x)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
