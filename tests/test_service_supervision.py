@@ -166,8 +166,14 @@ def test_second_run_against_running_node_sim_decides_as_well_as_the_first(tmp_pa
         pytest.skip(why)
     bus = ["--interface", "udp_multicast", "--channel", GROUP, "--bus-option", f"port={port}",
            "--bus-option", "hop_limit=0"]
+    # matrix57 at a 40 ms SYNC (window 80 %: 32 ms): two processes on a host whose other test
+    # worker holds a core still get PDOs in time (at 10 ms a loaded run saw the contact in 0 cycles)
+    scene_file = tmp_path / "matrix57_40ms.toml"
+    scene_file.write_text(MATRIX.read_text().replace('taxels_file = "data/', f'taxels_file = "{MATRIX.parent}/data/')
+                          .replace("sync_period_ms = 10.0", "sync_period_ms = 40.0"))
+    assert load_scene(scene_file).bus.sync_window == 32000
     sim = subprocess.Popen([sys.executable, "-c", "import sys; from node_sim.cli import main; sys.exit(main())",
-                            "--scene", str(MATRIX)] + bus,
+                            "--scene", str(scene_file)] + bus,
                            cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         assert "ready" in sim.stdout.readline()
@@ -175,7 +181,7 @@ def test_second_run_against_running_node_sim_decides_as_well_as_the_first(tmp_pa
         for k in range(2):
             out = tmp_path / f"run{k}.jsonl"
             done = subprocess.run([sys.executable, "-c", "import sys; from fusion_center.cli import main; "
-                                   "sys.exit(main())", "run", "--scene", str(MATRIX), "--cycles", "150",
+                                   "sys.exit(main())", "run", "--scene", str(scene_file), "--cycles", "100",
                                    "--no-live", "--json-lines", str(out)] + bus,
                                   cwd=ROOT, capture_output=True, text=True, timeout=120)
             assert done.returncode == 0, done.stderr
@@ -190,7 +196,7 @@ def test_second_run_against_running_node_sim_decides_as_well_as_the_first(tmp_pa
     for records in runs:
         decided = [r for r in records if r["decision"] != "undecided"]
         agreement.append(sum(r["decision"] == r["truth"] for r in decided) / max(1, len(decided)))
-        seen.append(sum(r["decision"] == "H1" for r in records))  # the contact of cycles 20..119
+        seen.append(sum(r["decision"] == "H1" for r in records))  # the contact of cycles 20..99
     print(f"agreement with the truth: first run {agreement[0]:.2f}, second run {agreement[1]:.2f}; "
           f"contact seen in {seen} cycles")
     # how many cycles get their PDOs in time depends on the host's load (two processes at 10 ms);
