@@ -396,3 +396,132 @@ def test_rates_below_1e300_vs_mpmath(encoding, p, q):
         if lr < math.log(1e-300):
             assert name in ours.below_floor and getattr(ours, name) <= 1e-300
     assert any(float(mp.log(r)) < -330 * math.log(10.0) for r in ref[:2] if r > 0)
+
+
+def coeff_chain_law(pi):
+    """{0,1} reference: a DP over (u_(i-1), u_i) -> {integer coefficients (a, b, c, d) of U_G =
+    a + b 2^p + c 2^q + d 2^(p+q) so far: probability} (eq 7 term by term: a present taxel
+    contributes 2^p if its successor is present, times 2^q if its predecessor is). Returns the
+    final {coefficients: probability}."""
+    n = len(pi)
+
+    def term(prev, mid, nxt):
+        if not mid:
+            return (0, 0, 0, 0)
+        return ((1, 0, 0, 0), (0, 1, 0, 0), (0, 0, 1, 0), (0, 0, 0, 1))[(nxt == 1) + 2 * (prev == 1)]
+
+    add = lambda x, y: (x[0] + y[0], x[1] + y[1], x[2] + y[2], x[3] + y[3])
+    states = {(a, b): {term(0, a, b): (pi[0] if a else 1 - pi[0]) * (pi[1] if b else 1 - pi[1])}
+              for a in (0, 1) for b in (0, 1)}
+    for i in range(2, n):
+        new = {}
+        for (a, b), dist in states.items():
+            for c in (0, 1):
+                w = pi[i] if c else 1 - pi[i]
+                tgt = new.setdefault((b, c), {})
+                t = term(a, b, c)
+                for k, v in dist.items():
+                    key = add(k, t)
+                    tgt[key] = tgt.get(key, 0.0) + v * w
+        states = new
+    final = {}
+    for (a, b), dist in states.items():
+        for k, v in dist.items():
+            key = add(k, term(a, b, 0))
+            final[key] = final.get(key, 0.0) + v
+    return final
+
+
+def classify_law(final, p, q, low, high):
+    """[P(U >= high), P(low <= U < high), P(U < low)]; values within 1e-9 of an edge in mpmath."""
+    res = [0.0, 0.0, 0.0]
+    P, Q = mp.mpf(2) ** mp.mpf(p), mp.mpf(2) ** mp.mpf(q)
+    for (a, b, c, d), v in final.items():
+        val = a + b * 2.0**p + c * 2.0**q + d * 2.0 ** (p + q)
+        if min(abs(val - low), abs(val - high)) <= 1e-9 * max(1.0, abs(val)):
+            val = a + b * P + c * Q + d * P * Q
+        res[0 if val >= high else (2 if val < low else 1)] += v
+    return res
+
+
+@pytest.mark.parametrize("p, q", [(0.5, 2.0), (1.7, 0.3), (0.0, 1.5)])
+def test_01_non_integer_weights_exact_beyond_60_taxels(p, q):
+    """{0,1} with a non-integer weight: the counts DP (runs of length 1 / longer runs / inner
+    taxels) is exact beyond the old 60-taxel limit (was Monte Carlo); against a DP over the
+    integer coefficients of 1, 2^p, 2^q, 2^(p+q) at n = 72, unequal pi."""
+    rng = np.random.default_rng(9)
+    n = 72
+    pi = rng.uniform(0.05, 0.7, n)
+    g = 2.0**p + 2.0**q + (n - 2) * 2.0 ** (p + q)
+    law = coeff_chain_law(list(pi))
+    for low, high in ((0.1 * g, 0.25 * g), (0.3 * g, 0.5 * g)):
+        ours = preferential_error_rates(pi, pi, p, q, "01", low, high)
+        assert ours.method == "exact-counts"
+        ref = classify_law(law, p, q, low, high)
+        for a, b in zip((ours.p_false_alarm, ours.p_undecided_h0, ours.p_reject), ref):
+            assert abs(a - b) <= 1e-11 * b + 1e-300, (a, b)
+
+
+def test_monte_carlo_band_rates_match_the_rule():
+    """The vectorised Monte Carlo fallback: the same U_G as rules.preferential_value per sample
+    (seeded draws replayed one by one)."""
+    from fusion_center.core.rate_sampling import monte_carlo_band_rates
+    from fusion_center.core.rules import preferential_coefficients, preferential_value
+
+    pi = np.random.default_rng(1).uniform(0.2, 0.8, 15)
+    for encoding, p, q in (("01", 0.5, 2.0), ("pm1", 1.3, 0.0)):
+        low, high = 3.0, 9.0
+        got = monte_carlo_band_rates(pi, p, q, encoding, low, high, 500, np.random.default_rng(4))
+        rng = np.random.default_rng(4)
+        draws = rng.random((500, 15)) < pi
+        counts = np.zeros(3)
+        for row in draws:
+            u = np.where(row, 1, -1 if encoding == "pm1" else 0)
+            v = preferential_value(preferential_coefficients(u, encoding), p, q)
+            counts[0 if v >= high else (2 if v < low else 1)] += 1
+        assert np.array_equal(got, counts / 500)
+
+
+def brute_numpy(pi, p, q, encoding, low, high):
+    """All 2^n vectors in numpy (n <= 16): eq 7 term by term, each vector's probability as a
+    product; values within 1e-9 of an edge re-evaluated in mpmath. [P(>= high), P(mid), P(< low)]."""
+    n = len(pi)
+    bits = ((np.arange(2**n)[:, None] >> np.arange(n)) & 1).astype(bool)
+    absent = -1.0 if encoding == "pm1" else 0.0
+    u = np.where(bits, 1.0, absent)
+    padded = np.pad(u, ((0, 0), (1, 1)))
+    fac = lambda v, w: np.where(v == 1.0, 2.0**w, np.where((v == 0.0) | (absent == 0.0) | (w == 0.0), 1.0, 0.0))
+    terms_p = fac(padded[:, 2:], p)  # (1 + u_(i+1))^p
+    terms_q = fac(padded[:, :-2], q)
+    ug = (u * terms_p * terms_q).sum(axis=1)
+    prob = np.prod(np.where(bits, pi, 1.0 - np.asarray(pi)), axis=1)
+    near = np.flatnonzero(np.minimum(np.abs(ug - low), np.abs(ug - high)) <= 1e-9 * np.maximum(1.0, np.abs(ug)))
+    above, below = ug >= high, ug < low
+    P, Q = mp.mpf(2) ** mp.mpf(p), mp.mpf(2) ** mp.mpf(q)
+    for j in near:
+        val = mp.mpf(0)
+        row = [0] + [1 if b else int(absent) for b in bits[j]] + [0]
+        for i in range(1, n + 1):
+            fp = P if row[i + 1] == 1 else (1 if (row[i + 1] == 0 or absent == 0 or p == 0) else 0)
+            fq = Q if row[i - 1] == 1 else (1 if (row[i - 1] == 0 or absent == 0 or q == 0) else 0)
+            val += row[i] * fp * fq
+        above[j], below[j] = val >= high, val < low
+    return [math.fsum(prob[above]), math.fsum(prob[~above & ~below]), math.fsum(prob[below])]
+
+
+@pytest.mark.parametrize("encoding, p, q", [("pm1", 1.3, 0.18), ("01", 0.5, 2.0), ("01", 1.7, 0.3), ("pm1", 0.0, 1.5),
+                                            ("01", 1.0, 1.0)])
+def test_all_2_16_vectors(encoding, p, q):
+    """n = 16, unequal pd_i / pf_i, three bands (one edge on an attainable value of U_G): every
+    rate against all 2^16 decision vectors."""
+    rng = np.random.default_rng(16)
+    n = 16
+    pd = rng.uniform(0.5, 0.99, n)
+    pf = rng.uniform(0.01, 0.4, n)
+    g = 2.0**p + 2.0**q + (n - 2) * 2.0 ** (p + q)
+    for low, high in ((0.2 * g, 0.45 * g), (-0.1 * g, 0.1 * g), (2.0**p + 2.0**q, 0.7 * g)):
+        ours = preferential_error_rates(pd, pf, p, q, encoding, low, high)
+        for probs, names in ((pd, ("p_detect", "p_undecided_h1", "p_miss")),
+                             (pf, ("p_false_alarm", "p_undecided_h0", "p_reject"))):
+            for name, ref in zip(names, brute_numpy(probs, p, q, encoding, low, high)):
+                assert abs(getattr(ours, name) - ref) <= 1e-12 * ref + 1e-300, (ours.method, name, low, high)

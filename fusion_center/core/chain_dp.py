@@ -425,48 +425,105 @@ def _scaled_logs(sums, dropped: float, empty=(False, False, False), scale=(SCALE
     return out
 
 
-# ------------------------------------------------------------------ generic (exact, sparse)
-def _rates_sparse(pi: np.ndarray, p: float, q: float, encoding: str, low: float, high: float):
+# ------------------------------------------------------------------ {0,1}, any weights: counts DP
+def _rates_counts(pi: np.ndarray, p: float, q: float, low: float, high: float):
+    """Per region (U >= high, low <= U < high, U < low): (ln P or None, below FLOOR), exact, for
+    {0,1} with any p, q (eq 7): on {0,1} an absent taxel and the boundary both give the factor 1,
+    so a run of L present taxels contributes 1 (L = 1) or 2^p + 2^q + (L - 2) 2^(p+q) (its first
+    taxel 2^p, its last 2^q, the inner ones 2^(p+q)), and
+
+        U_G = a + b (2^p + 2^q) + d 2^(p+q),   a = runs of length 1, b = longer runs,
+                                              d = present taxels inside runs.
+
+    The DP runs along the chain with the state "last taxel absent / run of length 1 / run of
+    length >= 2" and a 3-d array over the counts (a, b, d) per state: a step adds one to a
+    (a run of one ends), b (a run reaches length 2) or d (a longer run grows), three shifted
+    vector additions. The counts' box is trimmed every TRIM_EVERY taxels where its slabs carry
+    less than 1e-325 of probability (like the lattice DP: every rate >= FLOOR exact, those below
+    not computed). Polynomial: at most (n/2)(n/3) n counts per state, in practice the box of
+    the law's bulk, O(n^(3/2)) per step for a fixed per-taxel probability; beyond
+    COUNTS_WORK_MAX array elements in total it gives up (None) -- preferential_error_rates then
+    estimates by Monte Carlo."""
     n = pi.size
-    # (the eq 7 term of the middle taxel of (a, b, c): the one chain step, _term)
-    coeff = lambda a, b, c: _term(a, b, c, p, q, encoding)
+    one = 2.0**SCALE_BITS
+    # arrays per state over (a, b, d) from the box origin (a0, b0, d0)
+    shape = (1, 1, 1)
+    s0, s1, s2 = np.full(shape, one), np.zeros(shape), np.zeros(shape)
+    origin = [0, 0, 0]
+    exponent = SCALE_BITS
+    log_factors = []
+    dropped = 0.0
+    work = 0
+    pl = pi.tolist()
+    for i in range(n):
+        pc = pl[i]
+        qc = 1.0 - pc
+        big = max(pc, qc)
+        log_factors.append(math.log(big))
+        fp, fq = pc / big, qc / big
+        na, nb, nd = s0.shape
+        n0 = np.zeros((na + 1, nb, nd))
+        n0[:na] += s0
+        n0[:na] += s2
+        n0[1:] += s1  # a run of length one ends: a + 1
+        n0 *= fq
+        n1 = np.zeros((na + 1, nb, nd))
+        n1[:na] = s0 * fp
+        n2 = np.zeros((na + 1, nb + 1, nd + 1))
+        n2[:na, 1:, :nd] += s1  # a run reaches length two: b + 1
+        n2[:na, :nb, 1:] += s2  # a longer run grows: d + 1
+        n2 *= fp
+        # the three boxes to one shape
+        shape = (na + 1, nb + 1, nd + 1)
+        s0 = np.pad(n0, ((0, 0), (0, 1), (0, 1)))
+        s1 = np.pad(n1, ((0, 0), (0, 1), (0, 1)))
+        s2 = n2
+        work += 3 * s2.size
+        if work + 3 * s2.size * (n - 1 - i) > COUNTS_WORK_MAX:  # the box only grows or is trimmed
+            return None
+        if i % TRIM_EVERY == TRIM_EVERY - 1 or i == n - 1:
+            total = s0 + s1 + s2
+            top = float(total.max())
+            k = math.frexp(top)[1] - SCALE_BITS - 1
+            if k:
+                for arr in (s0, s1, s2):
+                    arr *= math.ldexp(1.0, -k)
+                total *= math.ldexp(1.0, -k)
+                dropped = math.ldexp(dropped, -k)
+                exponent -= k
+            # stored units of 1e-325 of probability
+            tail = TRIM_TAIL * math.exp(exponent * math.log(2.0) - math.fsum(log_factors) - _LOG_SCALE)
+            cuts = []
+            for axis in range(3):
+                other = tuple(j for j in range(3) if j != axis)
+                marg = total.sum(axis=other)
+                keep = np.flatnonzero(marg >= tail)
+                lo_, hi_ = (int(keep[0]), int(keep[-1]) + 1) if keep.size else (0, marg.size)
+                cuts.append((lo_, hi_))
+            if any(lo_ > 0 or hi_ < size for (lo_, hi_), size in zip(cuts, total.shape)):
+                sl = tuple(slice(lo_, hi_) for lo_, hi_ in cuts)
+                dropped += float(total.sum() - total[sl].sum())
+                s0, s1, s2 = s0[sl].copy(), s1[sl].copy(), s2[sl].copy()
+                origin = [o + lo_ for o, (lo_, _) in zip(origin, cuts)]
+    # the last taxel ends its run: state 1 -> a + 1
+    na, nb, nd = s0.shape
+    law = np.zeros((na + 1, nb, nd))
+    law[:na] += s0 + s2
+    law[1:] += s1
+    a = origin[0] + np.arange(na + 1)[:, None, None]
+    b = origin[1] + np.arange(nb)[None, :, None]
+    d = origin[2] + np.arange(nd)[None, None, :]
+    live = law > 0.0
+    av, bv, dv = (np.broadcast_to(x, law.shape)[live] for x in (a, b, d))
+    weights = law[live]
+    values = (av + bv * (2.0**p + 2.0**q)) + dv * 2.0 ** (p + q)
+    above, below = _classify(values, lambda j: (int(av[j]), int(bv[j]), int(bv[j]), int(dv[j])), p, q, low, high)
+    sums = [float(weights[above].sum()), float(weights[~above & ~below].sum()), float(weights[below].sum())]
+    # impossible regions: no count triple of any decision vector lands there -- decided on the
+    # untrimmed reach only where nothing was dropped; otherwise "below FLOOR" is the safe answer
+    return _scaled_logs(sums, dropped, scale=(exponent, math.fsum(log_factors)))
 
-    def add(x, y):
-        return (x[0] + y[0], x[1] + y[1], x[2] + y[2], x[3] + y[3])
 
-    if n == 1:
-        states = {(2, b): {coeff(2, b, 2): (pi[0] if b else 1.0 - pi[0])} for b in (0, 1)}
-        final = {}
-        for d in states.values():
-            for k, v in d.items():
-                final[k] = final.get(k, 0.0) + v
-    else:
-        states = {}
-        for a in (0, 1):
-            for b in (0, 1):
-                states[(a, b)] = {coeff(2, a, b): (pi[0] if a else 1.0 - pi[0]) * (pi[1] if b else 1.0 - pi[1])}
-        for i in range(2, n):
-            pc = pi[i]
-            new = {(b, c): {} for b in (0, 1) for c in (0, 1)}
-            for (a, b), dist in states.items():
-                for c in (0, 1):
-                    t = coeff(a, b, c)
-                    w = pc if c else 1.0 - pc
-                    target = new[(b, c)]
-                    for k, v in dist.items():
-                        key = add(k, t)
-                        target[key] = target.get(key, 0.0) + v * w
-            states = new
-        final = {}
-        for (a, b), dist in states.items():
-            t = coeff(a, b, 2)
-            for k, v in dist.items():
-                key = add(k, t)
-                final[key] = final.get(key, 0.0) + v
-    keys = list(final)
-    big_p, big_q, pq = 2.0**p, 2.0**q, 2.0 ** (p + q)
-    values = np.array([((b * big_p + c * big_q) + d * pq) + a for a, b, c, d in keys])
-    probs = np.array([final[k] for k in keys]) * 2.0**SCALE_BITS
-    above, below = _classify(values, lambda i: keys[i], p, q, low, high)
-    return _scaled_logs([float(probs[above].sum()), float(probs[~above & ~below].sum()), float(probs[below].sum())], 0.0)
-
+COUNTS_WORK_MAX = 400_000_000
+"""Array elements the counts DP may touch in total (a few seconds); it gives up (returns None)
+as soon as the box it holds, kept for the remaining taxels, would exceed this."""

@@ -1,4 +1,21 @@
-"""Exact system error rates of the preferential rule (eq 7 with the band of eq 20).
+"""Exact system error rates of the preferential rule (eq 7 with the band of eq 20): P(H1
+decided), P(H0 decided), P(undecided) under H1 and H0 for independent taxels with any per-taxel
+Pd_i / Pf_i, and U_G's law.
+
+Which DP (:mod:`.chain_dp`, :mod:`.tilted_dp`):
+
+* U_G on a lattice (``_lattice``: {-1,+1} with p, q > 0 -- "chain"; one zero weight --
+  "lattice"; integer p, q on either tuple -- "integer"): the lattice DP over the chain, every
+  rate >= FLOOR = 1e-300 exact (relative ~1e-13); the logs of the rates below FLOOR from the
+  tilted DP (exact, with a proven error bound; ``deep=False`` skips them);
+* {0,1} with a non-integer weight ("exact-counts"): U_G = a + b (2^p + 2^q) + d 2^(p+q) over
+  three integer counts, a DP over them (polynomial; within budget up to SPARSE_MAX_TAXELS for
+  any probabilities), every rate >= FLOOR exact, the logs below not computed; a Monte Carlo
+  estimate with 95 % Wilson intervals beyond the budget ("monte-carlo", said so).
+
+Each comparison of U_G with a band edge is exact (mpmath where rounding cannot decide); the
+three probabilities per hypothesis are sums of positive terms (the tilted DP's bulk region:
+1 minus two rates that sum to at most 1/2, through log1p).
 """
 
 from __future__ import annotations
@@ -11,11 +28,16 @@ import numpy as np
 from taxel_net.errors import ParameterError
 
 from .chain_dp import (FLOOR, SCALE_BITS, _float_value, _label_base, _lattice, _lattice_law, _log_probability,
-                       _LOG_FLOOR, _rates_lattice, _rates_sparse, _scaled_logs)
+                       _LOG_FLOOR, _rates_counts, _rates_lattice, _scaled_logs)
 from .rate_sampling import monte_carlo_band_rates, wilson
 from .tilted_dp import lattice_band_logs
 
-SPARSE_MAX_TAXELS = 60
+SPARSE_MAX_TAXELS = 200
+"""{0,1} with a non-integer weight: up to this many taxels the counts DP (chain_dp._rates_counts)
+stays within its budget for any per-taxel probabilities (200 taxels at pi = 0.5: ~3.5 s), so the
+rates are exact; beyond, exact while the budget holds (the law's box stays small), otherwise a
+Monte Carlo estimate (method "monte-carlo"). The name is kept from the sparse DP it replaced."""
+COUNTS_MAX_TAXELS = SPARSE_MAX_TAXELS
 
 
 def _log(x: float) -> float | None:
@@ -138,23 +160,22 @@ def preferential_error_rates(pd, pf, p, q, encoding: str, low: float, high: floa
     lat = _lattice(p, q, encoding) if n >= 2 else None
     if n == 1:  # U_G = u_1 (boundary on both sides): an integer
         method = "integer"
-        run = lambda pi: _rates_single(pi[0], encoding, low, high)
+        results = [_rates_single(pi[0], encoding, low, high) for pi in (pd_arr, pf_arr)]
     elif lat is not None:
         method = lat.method
-        run = lambda pi: _rates_lattice(pi, lat, low, high)
-    elif n <= SPARSE_MAX_TAXELS:
-        method = "exact-sparse"
-        run = lambda pi: _rates_sparse(pi, p, q, encoding, low, high)
-    else:
-        rng = rng if rng is not None else np.random.default_rng(0)
-        r1 = monte_carlo_band_rates(pd_arr, p, q, encoding, low, high, samples, rng)
-        r0 = monte_carlo_band_rates(pf_arr, p, q, encoding, low, high, samples, rng)
-        ci = {"p_detect": wilson(r1[0] * samples, samples), "p_undecided_h1": wilson(r1[1] * samples, samples),
-              "p_miss": wilson(r1[2] * samples, samples), "p_false_alarm": wilson(r0[0] * samples, samples),
-              "p_undecided_h0": wilson(r0[1] * samples, samples), "p_reject": wilson(r0[2] * samples, samples)}
-        logs = [(math.log(x) if x > 0 else None) for x in (*r1, *r0)]
-        return PreferentialRates(*logs, method="monte-carlo", samples=samples, ci95=ci)
-    results = [list(run(pd_arr)), list(run(pf_arr))]
+        results = [_rates_lattice(pi, lat, low, high) for pi in (pd_arr, pf_arr)]
+    else:  # {0,1} with a non-integer weight: the counts DP (polynomial), Monte Carlo beyond its budget
+        method = "exact-counts"
+        results = [_rates_counts(pd_arr, p, q, low, high)]
+        results.append(_rates_counts(pf_arr, p, q, low, high) if results[0] is not None else None)
+        if results[1] is None:
+            rng = rng if rng is not None else np.random.default_rng(0)
+            r1 = monte_carlo_band_rates(pd_arr, p, q, encoding, low, high, samples, rng)
+            r0 = monte_carlo_band_rates(pf_arr, p, q, encoding, low, high, samples, rng)
+            ci = {name: wilson(x * samples, samples) for name, x in zip(_NAMES, (*r1, *r0))}
+            logs = [(math.log(x) if x > 0 else None) for x in (*r1, *r0)]
+            return PreferentialRates(*logs, method="monte-carlo", samples=samples, ci95=ci)
+    results = [list(r) for r in results]
     bounds = {}
     if deep and lat is not None:
         # the rates below FLOOR: exact logs from the tilted DP (tilted_dp), with their error bound
