@@ -1,7 +1,7 @@
 """``node-sim``: start every taxel node twin of a scene on a CAN bus and run until stopped.
 
     node-sim --scene scenes/matrix57.toml [-i INTERFACE] [-c CH[,CH]] [-b BITRATE]
-             [--bus-kwargs KEY=VALUE ...] [--seed S]
+             [--bus-kwargs KEY=VALUE ...] [--seed S] [--serve 0-3]
 
 The bus flags are python-can's own (``can.cli.add_bus_arguments``: ``-i/--interface``,
 ``-c/--channel``, ``-b/--bitrate``, ``--fd``, ``--data-bitrate``, ``--timing``,
@@ -15,6 +15,12 @@ is the older spelling of ``--bus-kwargs``. Prints one "ready" line on stdout onc
 has sent its boot-up, then runs until SIGINT/SIGTERM and shuts down cleanly (exit 0). A bad
 scene, an unknown interface, a bit rate out of range, a channel that cannot be opened or a
 missing EDS exit 2 with one line.
+
+``--serve`` shards a scene over several processes (or hosts): this one runs only the nodes of
+the listed scene channels (indices into ``bus.channels``, ``0-3`` or ``0,2,5``) and opens only
+their buses; ``-c`` still names one bus channel per scene channel. The readings are the
+scene's (``node_sim.physics``, a function of scene and cycle), so shards agree with each
+other and with a single process.
 
 The bit-rate parsing and the adding-up ``-c`` come from ``taxel_net.buscli``, which the fusion
 centre's commands use too (the twins import nothing from the centre).
@@ -70,6 +76,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--bus-option", action="append", default=[], metavar="KEY=VALUE",
                    help="one can.Bus keyword argument (repeatable): the older spelling of --bus-kwargs")
     p.add_argument("--seed", type=int, default=None, help="noise seed (default: the scene's)")
+    p.add_argument("--serve", type=parse_channel_indices, default=None, metavar="CHANNELS",
+                   help="run only the nodes of these scene channels (indices into bus.channels: 0-3 or 0,2,5); "
+                        "shards one scene over several node-sim processes (default: every channel)")
     p.add_argument("--eds", default=str(odx.EDS_PATH), help=argparse.SUPPRESS)
     return p
 
@@ -151,6 +160,21 @@ def resolve_bus(args, scene) -> tuple[str, list | None, int | None, dict]:
     return interface, channels, bitrate, config
 
 
+def parse_channel_indices(text: str) -> list[int]:
+    """argparse type of ``--serve``: ``0-3``, ``0,2,5`` or a mix (``0-2,7``)."""
+    out: list[int] = []
+    try:
+        for part in text.split(","):
+            lo, _, hi = part.strip().partition("-")
+            first, last = int(lo), int(hi) if hi else int(lo)
+            if first < 0 or last < first:
+                raise ValueError
+            out.extend(range(first, last + 1))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: scene channel indices such as 0-3 or 0,2,5") from None
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     # a bus whose constructor failed is later reported by python-can as "not properly shut
@@ -170,7 +194,7 @@ def main(argv: list[str] | None = None) -> int:
         odx.check_eds(args.eds)
         interface, channels, bitrate, bus_kwargs = resolve_bus(args, scene)
         rig = Rig(scene, interface=interface, channel=channels, bitrate=bitrate, seed=args.seed,
-                  eds_path=args.eds, bus_kwargs=bus_kwargs)
+                  eds_path=args.eds, bus_kwargs=bus_kwargs, serve_channels=args.serve)
         signal.signal(signal.SIGINT, on_signal)
         signal.signal(signal.SIGTERM, on_signal)
         rig.start()
@@ -181,9 +205,11 @@ def main(argv: list[str] | None = None) -> int:
         print(f"node-sim: error: {exc}", file=sys.stderr)
         return 2
     try:
-        hosts = f"{len(rig.nodes)} patch nodes ({scene.n} taxels)" if scene.bus.patch_nodes else f"{scene.n} nodes"
+        served = [rig.channel_names[i] for i in rig.served]
+        taxels = sum(1 for t in scene.taxels if t.channel in rig.served)
+        hosts = f"{len(rig.nodes)} patch nodes ({taxels} taxels)" if scene.bus.patch_nodes else f"{taxels} nodes"
         print(f"node-sim: ready: {hosts} of scene {scene.name!r} on {interface} "
-              f"channel(s) {', '.join(rig.channel_names)}", flush=True)
+              f"channel(s) {', '.join(served)}", flush=True)
         while not stop.wait(0.2):
             pass
     finally:

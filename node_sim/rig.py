@@ -60,7 +60,7 @@ import can
 import numpy as np
 
 from taxel_net import patches
-from taxel_net.canmsg import TxMessage, raise_receive_buffer
+from taxel_net.canmsg import TxMessage, tune_udp_multicast
 from taxel_net.errors import ParameterError
 from taxel_net.scene import TAXEL_KINDS, Scene
 
@@ -301,12 +301,14 @@ class Rig:
     ``channel``: None = the scene's channel names; a string (one scene channel) or a sequence
     (one per scene channel). ``bitrate`` is passed to ``can.Bus`` when given.
     ``bus_kwargs``: extra keyword arguments for every ``can.Bus`` (e.g. ``port`` of udp_multicast).
+    ``serve_channels``: scene channel indices this rig runs (default all): a scene sharded over
+    several rigs (``node-sim --serve``) opens only these buses and creates only their nodes.
     """
 
     def __init__(self, scene: Scene, interface: str = "virtual", channel: str | Sequence[str] | None = None,
                  bitrate: int | None = None, reading_source: ReadingSource | None = None,
                  seed: int | None = None, eds_path=odx.EDS_PATH, bus_kwargs: Mapping | None = None,
-                 patch_eds_path=PATCH_EDS_PATH):
+                 patch_eds_path=PATCH_EDS_PATH, serve_channels: Sequence[int] | None = None):
         if not isinstance(scene, Scene):
             raise ParameterError("scene", type(scene).__name__, "must be a taxel_net.scene.Scene")
         if scene.n == 0:
@@ -325,6 +327,14 @@ class Rig:
             if len(channel) != len(names):
                 raise ParameterError("channel", list(channel), f"need exactly {len(names)} (one per scene channel)")
             self.channel_names = [str(c) for c in channel]
+        if serve_channels is None:
+            self.served = tuple(range(len(names)))
+        else:
+            served = sorted(set(int(c) for c in serve_channels))
+            if not served or any(not 0 <= c < len(names) for c in served):
+                raise ParameterError("serve_channels", list(serve_channels),
+                                     f"scene channel indices 0..{len(names) - 1}, at least one")
+            self.served = tuple(served)
         self.bitrate = bitrate
         self.bus_kwargs = dict(bus_kwargs or {})
         self.eds_path = odx.check_eds(eds_path)
@@ -332,7 +342,8 @@ class Rig:
         self.devices = patches.devices(self.scene) if scene.bus.patch_nodes else None
         self.patch_eds_path = odx.check_eds(patch_eds_path) if self.devices is not None else None
         self._reading_source = reading_source
-        self._channels: list[_Channel] = []
+        self._channels: list[_Channel] = []             # the served channels, in index order
+        self._channel_at: dict[int, _Channel] = {}       # scene channel index -> its channel
         self._dropped: set[tuple[int, int]] = set()
         self._silent_faults = [f for f in getattr(self.scene, "faults", ()) if f.fault == "silent"]
         self._reading_cache: dict[int, np.ndarray] = {}   # cycle -> X (scene order)
@@ -357,6 +368,8 @@ class Rig:
             return self
         try:
             for index, name in enumerate(self.channel_names):
+                if index not in self.served:
+                    continue
                 kwargs = dict(self.bus_kwargs)
                 if self.bitrate is not None:
                     kwargs["bitrate"] = self.bitrate
@@ -368,14 +381,18 @@ class Rig:
                     raise ParameterError("channel", name,
                                          f"cannot be opened with python-can interface {self.interface!r}: "
                                          f"{type(exc).__name__}: {exc}") from None
-                raise_receive_buffer(bus)  # udp_multicast: room for bursts (57 SDO clients at once)
+                tune_udp_multicast(bus)  # udp_multicast: its own group only, room for bursts (57 SDO clients)
                 self._channels.append(_Channel(self, index, name, bus))
+                self._channel_at[index] = self._channels[-1]
             unconfigured = self.scene.master.assign_ids == "lss"
             identity, bit_rates = self._lss_device()
             for device in self.devices or ():   # patch nodes (the scene loader refuses LSS for them)
-                self._new_patch_node(self._channels[device.channel], device)
+                if device.channel in self._channel_at:
+                    self._new_patch_node(self._channel_at[device.channel], device)
             for i, t in enumerate(self.scene.taxels if self.devices is None else ()):
-                ch = self._channels[t.channel]
+                if t.channel not in self._channel_at:
+                    continue
+                ch = self._channel_at[t.channel]
                 ch.lss[i] = lssx.LssSlave(
                     identity + (identity_serial(self.scene, t),),
                     lssx.UNCONFIGURED if unconfigured else t.node_id, self.bitrate or self.scene.bus.bitrate,
@@ -412,6 +429,7 @@ class Rig:
             except Exception:  # noqa: BLE001
                 logger.exception("node-sim: bus shutdown failed")
         self._channels = []
+        self._channel_at = {}
         self.started = False
 
     # ------------------------------------------------------------------ configuration
@@ -576,14 +594,14 @@ class Rig:
     def drop_node(self, node_id: int, channel: int = 0) -> None:
         """Make a node dead (silent) until :meth:`restore_node`."""
         node = self._node(node_id, channel)
-        with self._channels[channel].lock:
+        with self._channel_at[channel].lock:
             self._dropped.add((channel, node_id))
             node.silent = True
 
     def restore_node(self, node_id: int, channel: int = 0) -> None:
         """End a :meth:`drop_node`; the node resumes in the NMT state it had (no new boot-up)."""
         node = self._node(node_id, channel)
-        ch = self._channels[channel]
+        ch = self._channel_at[channel]
         with ch.lock:
             self._dropped.discard((channel, node_id))
             self._apply_silence(channel, node, ch.cycle if ch.cycle is not None else 0)
@@ -592,9 +610,9 @@ class Rig:
     def _node(self, node_id: int, channel: int) -> TaxelNode:
         if not self._channels:
             raise ParameterError("rig", "stopped", "start() the rig first")
-        if not 0 <= channel < len(self._channels):
-            raise ParameterError("channel", channel, f"must lie in 0..{len(self._channels) - 1}")
-        node = self._channels[channel].nodes.get(node_id)
+        if channel not in self._channel_at:
+            raise ParameterError("channel", channel, f"not served by this rig (serves {list(self.served)})")
+        node = self._channel_at[channel].nodes.get(node_id)
         if node is None:
             raise ParameterError("node_id", node_id, f"no such node on channel {channel}")
         return node
@@ -619,10 +637,10 @@ class Rig:
 
     def cycle(self, channel: int = 0) -> int | None:
         """Cycle number of the last SYNC processed on ``channel`` (None before the first)."""
-        return self._channels[channel].cycle
+        return self._channel_at[channel].cycle
 
     def lost_syncs(self, channel: int = 0) -> int:
-        return self._channels[channel].lost_syncs
+        return self._channel_at[channel].lost_syncs
 
     def frames_sent(self) -> int:
         return sum(ch.frames_sent for ch in self._channels)
@@ -632,7 +650,7 @@ class Rig:
         and sent the TPDOs it triggers (test/demo helper). False on timeout."""
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
-            c = self._channels[channel].cycle
+            c = self._channel_at[channel].cycle
             if c is not None and c >= cycle:
                 return True
             time.sleep(0.001)

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import logging
 import socket
+import sys
 
 import can
 
@@ -67,3 +68,39 @@ def raise_receive_buffer(bus: can.BusABC, size: int = UDP_RECEIVE_BUFFER) -> int
     logger.info("udp_multicast: socket receive buffer %d bytes (was %d, asked for %d%s)", effective, before,
                 size, "" if effective >= size else "; capped: raise net.core.rmem_max")
     return effective
+
+
+IP_MULTICAST_ALL = getattr(socket, "IP_MULTICAST_ALL", 49)      # Linux <linux/in.h>
+IPV6_MULTICAST_ALL = getattr(socket, "IPV6_MULTICAST_ALL", 29)  # Linux <linux/in6.h>, kernel >= 4.20
+
+
+def receive_own_groups_only(bus: can.BusABC) -> bool | None:
+    """Make a python-can ``udp_multicast`` bus hear only its own group: True when set, False
+    when the host has no such option (not Linux), None for any other bus.
+
+    python-can binds the socket to ``("", port)``, and Linux then delivers to it every multicast
+    datagram for that port of *any* group some socket of the host joined (``IP_MULTICAST_ALL``,
+    on by default): two scene channels on two groups with one port would hear each other's
+    frames (the centre flags duplicate node-IDs). Turning the option off restricts the socket to
+    the groups it joined itself, as separate CAN buses are."""
+    sock = getattr(getattr(bus, "_multicast", None), "_socket", None)
+    if not isinstance(sock, socket.socket):
+        return None
+    if not sys.platform.startswith("linux"):
+        return False
+    level, option = ((socket.IPPROTO_IPV6, IPV6_MULTICAST_ALL) if sock.family == socket.AF_INET6
+                     else (socket.IPPROTO_IP, IP_MULTICAST_ALL))
+    try:
+        sock.setsockopt(level, option, 0)
+    except OSError as exc:
+        logger.warning("udp_multicast: cannot restrict the socket to its own group: %s", exc)
+        return False
+    return True
+
+
+def tune_udp_multicast(bus: can.BusABC) -> None:
+    """What every ``udp_multicast`` bus of twins and centre gets: its own group only
+    (:func:`receive_own_groups_only`) and a large receive buffer (:func:`raise_receive_buffer`);
+    nothing for other interfaces."""
+    receive_own_groups_only(bus)
+    raise_receive_buffer(bus)

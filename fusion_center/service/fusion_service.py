@@ -30,7 +30,7 @@ from typing import Callable, Sequence
 
 import can
 
-from taxel_net.canmsg import raise_receive_buffer
+from taxel_net.canmsg import tune_udp_multicast
 from taxel_net.errors import UsageError
 from taxel_net.resources import eds_path, patch_eds_path
 from taxel_net.scene import Scene
@@ -212,7 +212,7 @@ class FusionService:
         except Exception as exc:  # noqa: BLE001 - any backend failure: cannot open
             raise UsageError(f"--channel {name!r} cannot be opened with interface {self.interface!r}: "
                              f"{type(exc).__name__}: {exc}") from None
-        raise_receive_buffer(bus)  # udp_multicast: room for bursts (taxel_net.canmsg)
+        tune_udp_multicast(bus)  # udp_multicast: its own group only, room for bursts (taxel_net.canmsg)
         return bus
 
     def close(self) -> None:
