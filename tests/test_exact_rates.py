@@ -354,7 +354,7 @@ def test_deep_tails_vs_a_log_domain_reference():
                 assert got is not None and abs(got - r) <= 1e-11 * max(1.0, abs(r)), (p, q, name, got, r)
                 assert (name in ours.below_floor) == (r < math.log(1e-300)), name
                 if r < math.log(1e-300):
-                    assert ours.deep_error_bounds[name] < -13
+                    assert ours.error_bounds[name] < -13
         assert ours.below_floor  # this band puts the H0 rates of H1-or-undecided far below 1e-300
         shallow = preferential_error_rates(pd, pf, p, q, "pm1", low, high, deep=False)
         assert all(getattr(shallow, "log_" + k) is None for k in shallow.below_floor)

@@ -1,6 +1,38 @@
-"""The preferential rule's dynamic programme over the chain (eq 7): U_G's law for independent
-taxels, the lattice forms that make it a DP over one integer coordinate, and the exact
-comparison of U_G with the band edges (eq 20). Used by :mod:`.preferential_rates`."""
+"""The preferential rule's dynamic programme over the chain (eq 7): the lattice forms of U_G,
+U_G's law for independent taxels, the counts DP of {0,1}, and the exact comparison of U_G
+with the band edges (eq 20). Used by :mod:`.preferential_rates` and :mod:`.tilted_dp`.
+
+With independent taxels (P(u_i present) = pi_i) U_G depends on each taxel and its two
+neighbours only (eq 7: u_i (1 + u_(i+1))^p (1 + u_(i-1))^q, one term per taxel, ``_term``), so
+its law follows from a DP along the chain whose state is the last two decisions (u_(i-1), u_i).
+Wherever every inner taxel's term is an integer multiple of one unit,
+
+    U_G = unit * x + (the first taxel's term) + (the last taxel's term),   x an integer,
+
+and the DP carries one array over x per state and start label (``_lattice``):
+
+* {-1,+1}, p > 0, q > 0 ("chain"): an absent neighbour's factor is 0^p = 0, so an inner taxel
+  contributes u_i 2^(p+q) when both neighbours are present and 0 otherwise: U_G = 2^(p+q) m +
+  2^p e_1 + 2^q e_n, m in -n..n, e_1 = u_1 [u_2 present], e_n = u_n [u_(n-1) present] in {-1,
+  0, 1} (three start labels); where 2^q (or 2^p) is an integer the unit 2^p (2^q) takes e_1
+  into the lattice: one label, e.g. p = q = 1: U_G = 2 (2m + e_1) + 2 e_n. (Reversing the
+  taxel order swaps p and q, eq 7.)
+* {-1,+1} with one zero weight ("lattice"): U_G = 2^p m + u_n (or 2^q m + u_1).
+* integer p, q, either tuple ("integer"): every term is an integer.
+
+{0,1} with a non-integer weight has no such unit: an absent taxel and the boundary both give
+the factor 1, so U_G = a + b (2^p + 2^q) + d 2^(p+q) over three integer counts (runs of one
+present taxel, longer runs, taxels inside runs), and ``_rates_counts`` runs the DP over them
+(polynomial, a box of counts per state).
+
+``_lattice_law`` (used for U_G's whole law, :func:`.preferential_rates.preferential_law`)
+carries probabilities scaled by powers of two (from 2^SCALE_BITS; the likelier branch is never
+multiplied, its factor goes into an exact-sum logarithm) and trims the window where columns
+fall below 1e-325 of probability (TRIM_TAIL), so every atom >= FLOOR = 1e-300 is exact; the
+band rates use the tilted DP of :mod:`.tilted_dp` instead, trimmed by the law tilted towards
+each region. Band comparisons are exact: the edges become integer thresholds on x per pair of
+end labels (``_first_at_least``), decided in mpmath where rounding cannot.
+"""
 
 from __future__ import annotations
 
@@ -301,22 +333,6 @@ def _lattice_law(pi: np.ndarray, lat: _Lattice, lower_tail: bool = True, upper_t
     return {k: (x_first, v) for k, v in laws.items()}, scale, dropped
 
 
-def _mean_steps(pi: np.ndarray, lat: _Lattice) -> float:
-    """E[x] of the lattice form (exact up to rounding): every term's expected lattice steps."""
-    w1, w0 = pi, 1.0 - pi
-    total = 0.0
-    for a in (0, 1):
-        for b in (0, 1):
-            pa, pb = (w1 if a else w0), (w1 if b else w0)
-            total += float(pa[0] * pb[1]) * lat.start[a][b][0] + float(pa[-2] * pb[-1]) * lat.end[a][b][0]
-            for c in (0, 1):
-                s = int(lat.shift[a, b, c])
-                if s:
-                    pc_ = w1 if c else w0
-                    total += s * float(np.sum(pa[:-2] * pb[1:-1] * pc_[2:]))
-    return total
-
-
 def _exact_value(coeffs, p: float, q: float):
     import mpmath
 
@@ -360,38 +376,6 @@ def _first_at_least(lat: _Lattice, base, edge: float, p: float, q: float) -> int
 
 def _label_base(lat: _Lattice, ls: int, le: int):
     return tuple(s + e for s, e in zip(lat.start_labels[ls], lat.end_labels[le]))
-
-
-def _rates_lattice(pi: np.ndarray, lat: _Lattice, low: float, high: float):
-    """Per region (U >= high, low <= U < high, U < low): (ln P or None, below FLOOR), for one
-    hypothesis (taxels present with probabilities ``pi``)."""
-    p, q = lat.p, lat.q
-    if lat.reverse:
-        pi = pi[::-1]
-    pairs = [(ls, le) for ls in range(len(lat.start_labels)) for le in range(len(lat.end_labels))]
-    edges = {key: (_first_at_least(lat, _label_base(lat, *key), low, p, q),
-                   _first_at_least(lat, _label_base(lat, *key), high, p, q)) for key in pairs}
-    mean = _mean_steps(pi, lat)
-    # a side of the bulk holds a region that may be small unless the bulk's own region covers it
-    # (B = x < t_low lies below the mean unless it holds it, A = x >= t_high above it likewise)
-    lower_tail = any(t_low <= mean for t_low, _ in edges.values())
-    upper_tail = any(t_high > mean for _, t_high in edges.values())
-    laws, scale, dropped = _lattice_law(pi, lat, lower_tail=lower_tail, upper_tail=upper_tail)
-    sums = [0.0, 0.0, 0.0]  # H1 decided, undecided, H0 decided
-    for key, (x_first, arr) in laws.items():
-        t_low, t_high = edges[key]
-        i_low = min(max(t_low - x_first, 0), arr.size)
-        i_high = min(max(t_high - x_first, 0), arr.size)
-        sums[0] += float(arr[i_high:].sum())
-        sums[2] += float(arr[:i_low].sum())
-        if i_high > i_low:
-            sums[1] += float(arr[i_low:i_high].sum())
-    # a region without a point of the x range for every label pair is impossible, trimmed or not
-    xmin, xmax = _x_range(lat, pi.size)
-    empty = (all(t_high > xmax for _, t_high in edges.values()),
-             all(max(t_low, xmin) >= min(t_high, xmax + 1) for t_low, t_high in edges.values()),
-             all(t_low <= xmin for t_low, _ in edges.values()))
-    return _scaled_logs(sums, dropped, empty, scale)
 
 
 def _x_range(lat: _Lattice, n: int) -> tuple[int, int]:

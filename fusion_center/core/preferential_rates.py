@@ -28,7 +28,7 @@ import numpy as np
 from taxel_net.errors import ParameterError
 
 from .chain_dp import (FLOOR, SCALE_BITS, _float_value, _label_base, _lattice, _lattice_law, _log_probability,
-                       _LOG_FLOOR, _rates_counts, _rates_lattice, _scaled_logs)
+                       _LOG_FLOOR, _rates_counts, _scaled_logs)
 from .rate_sampling import monte_carlo_band_rates, wilson
 from .tilted_dp import lattice_band_logs
 
@@ -54,10 +54,11 @@ class PreferentialRates:
     decided), p_undecided_h0, p_reject = P(H0 decided). log_*: natural logarithms; None for an
     impossible event. ``below_floor`` names the rates below FLOOR = 1e-300: their plain value
     underflows (exp of the log, 0.0 below ~1e-308) and their log is exact too in the lattice
-    cases (the tilted DP, ``deep_error_bounds``: log10 of each one's proven relative error
-    bound), None where it was not computed (``deep=False``; the counts DP of {0,1} with a
-    non-integer weight). method: "chain", "lattice", "integer", "exact-sparse" (exact) or
-    "monte-carlo" (estimate, with ``ci95`` per rate and ``samples``)."""
+    cases (the tilted DP), None where it was not computed (``deep=False``; the counts DP of
+    {0,1} with a non-integer weight). ``error_bounds`` (lattice cases): log10 of each rate's
+    proven relative error bound (trimming; rounding adds ~1e-13). method: "chain", "lattice",
+    "integer", "exact-counts" (exact) or "monte-carlo" (estimate, with ``ci95`` per rate and
+    ``samples``)."""
 
     log_p_detect: float | None
     log_p_undecided_h1: float | None
@@ -69,7 +70,7 @@ class PreferentialRates:
     samples: int | None = None
     ci95: dict | None = None
     below_floor: tuple = ()
-    deep_error_bounds: dict | None = None
+    error_bounds: dict | None = None
 
     def __getattr__(self, name):
         if name in _NAMES:
@@ -161,9 +162,14 @@ def preferential_error_rates(pd, pf, p, q, encoding: str, low: float, high: floa
     if n == 1:  # U_G = u_1 (boundary on both sides): an integer
         method = "integer"
         results = [_rates_single(pi[0], encoding, low, high) for pi in (pd_arr, pf_arr)]
-    elif lat is not None:
+    elif lat is not None:  # the lattice DP, trimmed by the tilted law (tilted_dp)
         method = lat.method
-        results = [_rates_lattice(pi, lat, low, high) for pi in (pd_arr, pf_arr)]
+        bounds = {}
+        results = []
+        for h, pi in enumerate((pd_arr, pf_arr)):
+            regions = lattice_band_logs(pi, lat, low, high, deep=deep)
+            results.append([(log, under) for log, under, _ in regions])
+            bounds.update({_NAMES[3 * h + r]: b for r, (_, _, b) in enumerate(regions) if b is not None})
     else:  # {0,1} with a non-integer weight: the counts DP (polynomial), Monte Carlo beyond its budget
         method = "exact-counts"
         results = [_rates_counts(pd_arr, p, q, low, high)]
@@ -175,21 +181,10 @@ def preferential_error_rates(pd, pf, p, q, encoding: str, low: float, high: floa
             ci = {name: wilson(x * samples, samples) for name, x in zip(_NAMES, (*r1, *r0))}
             logs = [(math.log(x) if x > 0 else None) for x in (*r1, *r0)]
             return PreferentialRates(*logs, method="monte-carlo", samples=samples, ci95=ci)
-    results = [list(r) for r in results]
-    bounds = {}
-    if deep and lat is not None:
-        # the rates below FLOOR: exact logs from the tilted DP (tilted_dp), with their error bound
-        for h, pi in enumerate((pd_arr, pf_arr)):
-            wanted = [r for r, (log, under) in enumerate(results[h]) if under]
-            if wanted:
-                for r, got in enumerate(lattice_band_logs(pi, lat, low, high, only=wanted)):
-                    if got is not None:
-                        results[h][r] = (got[0] if got[0] > -math.inf else None, True)
-                        bounds[_NAMES[3 * h + r]] = got[1]
     flat = [*results[0], *results[1]]
     below = tuple(name for name, (_, low_) in zip(_NAMES, flat) if low_)
     return PreferentialRates(*[log for log, _ in flat], method=method, below_floor=below,
-                             deep_error_bounds=bounds or None)
+                             error_bounds=bounds if lat is not None else None)
 
 
 def _rates_single(pi: float, encoding: str, low: float, high: float):

@@ -22,18 +22,23 @@ in numpy (log2 n levels, normalised per level). theta = 0 for a region that hold
 Probabilities are carried scaled by powers of two (the largest column at ~2^SCALE_BITS) and
 each step's largest transition weight goes into an exact-sum logarithm, so nothing underflows.
 
-Trimming and the error bound. Every TRIM_EVERY taxels the columns on either side of the window
-below ``trim`` times the largest column are dropped; ``eps`` sums the dropped fraction of the
-tilted mass. A state's future tilted weight differs from another's by at most e^G, G = |theta|
-(2 dS + 2 dE) (dS, dE: spread of an inner / end step; a state's bits enter two terms), so
-the dropped mass changes P_theta(R) by at most eps e^G of the total, and the relative error of
-P(R) is at most
+Trimming and the error bound. Every BLOCK taxels the columns on either side of the window
+below TRIM_REL / S_i times the largest column are dropped, S_i the spread of the states' future
+tilted weights after taxel i (max over states / min over states of h_i(state), the weight of
+all continuations, from one backward pass: ``_future_spread``); eps sums each drop's fraction of
+the tilted mass times S_i. The tilted mass so lost is at most eps of the final total, so the
+relative error of P(R) is at most
 
-    eps e^G max_{x in R} e^(-theta x) / sum_{x in R} P_theta(x) e^(-theta x)
+    eps max_{x in R} e^(-theta x) / sum_{x in R} P_theta(x) e^(-theta x)
 
-(R's reachable x, in the tilted total's units) -- computed for every rate and returned
-(``error_bound``); trim = 1e-40 e^(-G) keeps it below ~1e-25 in every case tested. The region
-that holds the bulk is 1 minus the other two (log1p, exact) when those sum to <= 1/2.
+(R's reachable x, in units of the tilted total) -- computed for every rate and returned
+(``error_bounds`` of :class:`.preferential_rates.PreferentialRates`, log10; ~1e-27 in
+the cases tested). A run tilted between the two regions on one side of the bulk serves both
+when both bounds are below 10^BOUND_OK, else each gets its own. The region that holds the
+bulk is 1 minus the other two (log1p, exact) when those sum to at most 1/2.
+
+Cost: a run is O(n W) with W the tilted law's window, O(sqrt n) columns (n = 10^4, the
+chapter's band: 4800 columns under H1, 11000 under H0 for both far regions in one run).
 """
 
 from __future__ import annotations
@@ -42,17 +47,24 @@ import math
 
 import numpy as np
 
-from .chain_dp import SCALE_BITS, TRIM_EVERY, _first_at_least, _label_base, _Lattice, _x_range
+from .chain_dp import _LOG_FLOOR, SCALE_BITS, _first_at_least, _label_base, _Lattice, _x_range
 
 __all__ = ["lattice_band_logs", "lattice_law_rows", "log_partition", "tilt_for_mean"]
 
 _LN2 = math.log(2.0)
-TRIM_REL = 1e-40
-"""Columns below TRIM_REL e^(-G) of the largest are trimmed (module doc)."""
-BOUND_OK = -15.0
+TRIM_REL = 1e-32
+BLOCK = 32
+"""Taxels per block: the window is trimmed and rescaled once per block (per-block work ~ 15
+numpy calls, so blocks are long; the window grows by at most BLOCK steps meanwhile)."""
+SPAN_MAX = 1200.0
+"""Natural-log span of the untilted values a window may hold before the arithmetic is tilted
+(the doubles hold ~e^1330 below the largest column at 2^SCALE_BITS)."""
+"""Columns below TRIM_REL / spread of the largest are trimmed (module doc)."""
+BOUND_OK = -13.0
 """log10 of the relative error bound accepted from a shared tilted run."""
 G_MAX = 400.0
-"""|theta| is capped so that G <= G_MAX (the trim threshold stays a normal double)."""
+"""|theta| is capped at G_MAX / (2 dS + 2 dE + 1) (dS, dE: spread of an inner / end step), so a
+state's future weight differs from another's by at most ~e^G_MAX and thresholds stay doubles."""
 
 
 # ------------------------------------------------------------------ Lambda(theta)
@@ -103,58 +115,99 @@ def log_partition(pi: np.ndarray, lat: _Lattice, thetas) -> np.ndarray:
         return np.log(vw) + log_acc
 
 
-def tilt_for_mean(pi: np.ndarray, lat: _Lattice, target: float, mean: float) -> float:
-    """theta with Lambda'(theta) = target (within two tilted standard deviations), by Newton's
-    method safeguarded by bisection on [0, theta_max] (or its mirror); Lambda' and Lambda''
-    by central differences. theta_max where the target is out of reach."""
+def tilt_for_mean(pi: np.ndarray, lat: _Lattice, target: float, mean: float, var: float | None = None,
+                  start: float | None = None, stop_below: float = -math.inf,
+                  stop_target: float | None = None) -> tuple[float, float]:
+    """(theta, Lambda(theta)) with Lambda'(theta) = target (within two tilted standard
+    deviations), by Newton's method safeguarded by bisection on [0, theta_max] (or its mirror);
+    Lambda' and Lambda'' by central differences. theta_max where the target is out of reach.
+    First guess: ``start`` (a nearby solution), else (target - mean) / var (one Newton step
+    from 0, var = Lambda''(0)), else 1. Returns at once where the Chernoff bound
+    Lambda(theta) - theta t of P(x beyond t), t = ``stop_target`` (default ``target``), falls
+    below ``stop_below`` (enough to skip a rate)."""
+    stop_target = target if stop_target is None else stop_target
     sign = 1.0 if target > mean else -1.0
     lo, hi = 0.0, theta_max(lat)
-    theta = min(hi, 1.0)
+    if start is not None and start * sign > 0:
+        theta = min(hi, abs(start))
+    else:
+        theta = min(hi, abs(target - mean) / var if var else 1.0, 1.0)
+    grow = True  # doubling until the target is passed (Newton from 0 overshoots far targets)
     at_max = False
     for _ in range(60):
         h = 1e-3
         lam = log_partition(pi, lat, sign * np.array([theta - h, theta, theta + h]))
         d1 = sign * (lam[2] - lam[0]) / (2 * h)  # Lambda'(sign theta)
         d2 = max((lam[2] - 2 * lam[1] + lam[0]) / (h * h), 1e-12)
-        if abs(d1 - target) <= max(1.0, 2.0 * math.sqrt(d2)):
-            return sign * theta
+        if abs(d1 - target) <= max(1.0, 2.0 * math.sqrt(d2)) or lam[1] - sign * theta * stop_target < stop_below:
+            return sign * theta, float(lam[1])
         if sign * (d1 - target) < 0:
             lo = theta
+            if grow and 2 * theta < hi:
+                theta *= 2
+                continue
         else:
             hi = theta
+        grow = False
         step = theta - sign * (d1 - target) / d2
         if step >= hi and not at_max:
             theta, at_max = hi, True  # out of reach? try the cap once
             continue
         if at_max and theta == hi and sign * (d1 - target) < 0:
-            return sign * theta
+            return sign * theta, float(lam[1])
         theta = step if lo < step < hi else 0.5 * (lo + hi)
         if hi - lo < 1e-9 * max(1.0, hi):
             break
-    return sign * theta
+    return sign * theta, float(log_partition(pi, lat, [sign * theta])[0])
 
 
 # ------------------------------------------------------------------ the DP
-def lattice_law_rows(pi: np.ndarray, lat: _Lattice, theta: float = 0.0, trim: float | None = None,
-                     trim_abs: float | None = None):
-    """The tilted law of (u_(n-1), u_n, start label, x) for n = pi.size >= 2 taxels:
-    (rows, log_scale, eps) with rows = [(a, b, ls, x_first, stored array over x)], x the lattice
-    coordinate before the last taxel's term, and P_theta-mass * Z(theta) = stored e^(log_scale)
-    e^(-theta x) ... precisely: P(x, state) = stored e^(log_scale - theta x). ``trim``: relative
-    (module doc; default TRIM_REL e^(-G)), eps = the dropped fraction (summed); ``trim_abs``
-    (theta = 0 only): drop columns of probability below it instead, eps = dropped probability.
+def _future_spread(pi: np.ndarray, lat: _Lattice, theta: float) -> list:
+    """spread[i] = max over states / min over states of h_i(state), the tilted weight of all
+    continuations after taxel i (x before the last taxel's term; h_(n-1) = 1): the factor by
+    which mass dropped in one state can outweigh the same mass elsewhere (module doc)."""
+    n = pi.size
+    w = [math.exp(theta * float(lat.shift[a, b, c])) for a in (0, 1) for b in (0, 1) for c in (0, 1)]
+    w000, w001, w010, w011, w100, w101, w110, w111 = w
+    h0 = h1 = h2 = h3 = 1.0  # h(a, b) at index 2 a + b
+    spread = [1.0] * n
+    pl = pi.tolist()
+    for i in range(n - 1, 1, -1):  # h_(i-1) from h_i: taxel i is added from state (u_(i-2), u_(i-1))
+        pc = pl[i]
+        qc = 1.0 - pc
+        n0 = qc * w000 * h0 + pc * w001 * h1
+        n1 = qc * w010 * h2 + pc * w011 * h3
+        n2 = qc * w100 * h0 + pc * w101 * h1
+        n3 = qc * w110 * h2 + pc * w111 * h3
+        top = max(n0, n1, n2, n3)
+        low = min(n0, n1, n2, n3)
+        h0, h1, h2, h3 = n0 / top, n1 / top, n2 / top, n3 / top
+        spread[i - 1] = top / low if low > 0.0 else math.inf
+    return spread
 
-    One step per taxel: Y[b, c] = P(c) (e^(theta s0) X[0, b] moved by s0 + e^(theta s1) X[1, b]
-    moved by s1), s_a = shift[a, b, c], one vector addition per group of (b, c) with the same
-    shifts and one multiplication per decision branch; the weights of a step are divided by
-    their largest (its log goes into log_scale)."""
+
+def lattice_law_rows(pi: np.ndarray, lat: _Lattice, theta: float = 0.0, trim: float = TRIM_REL):
+    """The law of (u_(n-1), u_n, start label, x) for n = pi.size >= 2 taxels, trimmed by its
+    tilted law (module doc): (rows, log_scale, theta_out, eps) with rows = [(a, b, ls, x_first,
+    stored array over x)], x the lattice coordinate before the last taxel's term, and
+
+        P(x, state) = stored e^(log_scale - theta_out x),
+
+    theta_out 0 while the arithmetic is untilted, theta once it is tilted. eps: the dropped
+    fraction of the tilted mass times the future spread, summed (the error bound's numerator).
+
+    One step per taxel: Y[b, c] = P(c) (X[0, b] moved by s0 + X[1, b] moved by s1), s_a =
+    shift[a, b, c], one vector addition per group of (b, c) with the same shifts and one
+    multiplication for the less likely branch -- the untilted arithmetic, the cheapest. The
+    window is trimmed by the tilted columns (untilted ones times e^(theta x), formed per block);
+    once the window's untilted values would span more than the double range (far tails, large
+    |theta| W), the columns are multiplied by e^(theta (x - x_c)) and the steps carry the tilt:
+    X[1, b] times e^(theta (s1 - s0)) in the group sum, P(c) e^(theta s0) in the branch factor,
+    every step's weights divided by their largest (its log goes into log_scale)."""
     n = pi.size
     shift = lat.shift
     smin, smax = int(shift.min()), int(shift.max())
-    ds, de = _spreads(lat)
-    g = abs(theta) * (2.0 * ds + 2.0 * de)
-    if trim is None and trim_abs is None:
-        trim = TRIM_REL * math.exp(-g)
+    spread = _future_spread(pi, lat, theta)
     st = [lat.start[a][b][0] for a in (0, 1) for b in (0, 1)]
     xmin = min(st) + (n - 2) * smin
     pad = smax - smin + 2
@@ -164,51 +217,49 @@ def lattice_law_rows(pi: np.ndarray, lat: _Lattice, theta: float = 0.0, trim: fl
     buffers = (np.zeros((2, 2, n_labels, size)), np.zeros((2, 2, n_labels, size)))
     x0 = buffers[0]
     lo, hi = size, 0
-    first = []
     for a in (0, 1):
         for b in (0, 1):
             steps, label = lat.start[a][b]
-            first.append((a, b, label, steps - xmin + pad,
-                          math.log(pi[0] if a else 1.0 - pi[0]) if (pi[0] if a else 1.0 - pi[0]) > 0 else -math.inf,
-                          math.log(pi[1] if b else 1.0 - pi[1]) if (pi[1] if b else 1.0 - pi[1]) > 0 else -math.inf,
-                          steps))
-    top = max(la + lb + theta * s for *_, la, lb, s in first)
-    for a, b, label, j, la, lb, s in first:
-        if la + lb > -math.inf:
-            x0[a, b, label, j] += math.ldexp(math.exp(la + lb + theta * s - top), SCALE_BITS)
+            j = steps - xmin + pad
+            x0[a, b, label, j] += math.ldexp((pi[0] if a else 1.0 - pi[0]) * (pi[1] if b else 1.0 - pi[1]), SCALE_BITS)
             lo, hi = min(lo, j), max(hi, j + 1)
-    log_parts = [top]  # log_scale = sum(log_parts) - exponent ln 2
     exponent = SCALE_BITS
+    log_parts = []  # log_scale = fsum(log_parts) - exponent ln 2
     eps = 0.0
-    # per step i: weight of branch c from state (a, b) = P_i(c) e^(theta shift[a, b, c]) / wmax_i
     groups = []
     for c in (0, 1):
         if shift[0, 0, c] == shift[0, 1, c] and shift[1, 0, c] == shift[1, 1, c]:
             groups.append((slice(None), c, int(shift[0, 0, c]), int(shift[1, 0, c])))
         else:
             groups.extend((b, c, int(shift[0, b, c]), int(shift[1, b, c])) for b in (0, 1))
-    # the factor applied to dest[b, c] after the group sum: P(c) e^(theta s0) / wmax; the
-    # group sum carries X[1, b] times e^(theta (s1 - s0)) (a constant)
     with np.errstate(divide="ignore"):
         logp = (np.log1p(-pi), np.log(pi))
-    smax_c = [max(int(shift[a, b, c]) for a in (0, 1) for b in (0, 1)) for c in (0, 1)]
-    smin_c = [min(int(shift[a, b, c]) for a in (0, 1) for b in (0, 1)) for c in (0, 1)]
-    best_c = [logp[c] + theta * (smax_c[c] if theta >= 0 else smin_c[c]) for c in (0, 1)]
-    log_wmax = np.maximum(best_c[0], best_c[1])
-    log_parts.append(math.fsum(log_wmax[2:].tolist()))
-    cum_wmax = np.cumsum(log_wmax)  # for the absolute trimming threshold only
     s0_of = {(b, c): int(shift[0, b, c]) for b in (0, 1) for c in (0, 1)}
-    factors = {}
-    for c in (0, 1):
-        s0s = {s0_of[(0, c)], s0_of[(1, c)]}
-        keys = [(None, s) for s in s0s] if len(s0s) == 1 else [(b, s0_of[(b, c)]) for b in (0, 1)]
-        for b, s0 in keys:
-            f = np.exp(logp[c] + theta * s0 - log_wmax)
-            factors[(b, c)] = f.tolist()
-    ratios = [math.exp(theta * (s1 - s0)) for _, _, s0, s1 in groups]
+
+    def arithmetic(th: float):
+        """Per step i: the branch factors P_i(c) e^(th s0) / wmax_i (keyed (b or None, c)), the
+        group ratios e^(th (s1 - s0)) and ln wmax_i."""
+        smax_c = [max(int(shift[a, b, c]) for a in (0, 1) for b in (0, 1)) for c in (0, 1)]
+        smin_c = [min(int(shift[a, b, c]) for a in (0, 1) for b in (0, 1)) for c in (0, 1)]
+        if th == 0.0:
+            log_wmax = np.maximum(logp[0], logp[1])
+        else:
+            log_wmax = np.maximum(*[logp[c] + th * (smax_c[c] if th >= 0 else smin_c[c]) for c in (0, 1)])
+        factors = {}
+        for c in (0, 1):
+            s0s = {s0_of[(0, c)], s0_of[(1, c)]}
+            keys = [(None, s) for s in s0s] if len(s0s) == 1 else [(b, s0_of[(b, c)]) for b in (0, 1)]
+            for b, s0 in keys:
+                factors[(b, c)] = np.exp(logp[c] + th * s0 - log_wmax).tolist()
+        return factors, [math.exp(th * (s1 - s0)) for _, _, s0, s1 in groups], log_wmax
+
+    tilted = False
+    factors, ratios, log_wmax = arithmetic(0.0)
+    wmax_from = 2  # log_wmax[wmax_from:] not yet in log_parts
     parity = 0
-    for start in range(2, n, TRIM_EVERY):
-        steps = min(n, start + TRIM_EVERY) - start
+    x_of = lambda j: j - pad + xmin  # noqa: E731  the x of buffer column j
+    for start in range(2, n, BLOCK):
+        steps = min(n, start + BLOCK) - start
         lo, hi = lo + smin * steps, hi + smax * steps
         views = []
         for par in (0, 1):
@@ -240,23 +291,43 @@ def lattice_law_rows(pi: np.ndarray, lat: _Lattice, theta: float = 0.0, trim: fl
         if k:
             live *= math.ldexp(1.0, -k)
             cols *= math.ldexp(1.0, -k)
-            peak = math.ldexp(peak, -k)
             exponent -= k
-        if hi - lo > 8:
-            if trim_abs is not None:  # theta = 0: stored = probability 2^exponent / e^(sum log_wmax so far)
-                scale = math.exp(exponent * _LN2 - float(cum_wmax[start + steps - 1] - cum_wmax[1]) - log_parts[0])
-                threshold = trim_abs * scale
-            else:
-                threshold = trim * peak
-            keep = np.flatnonzero(cols >= threshold)
-            f0, l0 = (int(keep[0]), int(keep[-1]) + 1) if keep.size else (0, 0)
-            if f0 or l0 < hi - lo:
-                dropped = float(cols[:f0].sum() + cols[l0:].sum())
-                eps += dropped / scale if trim_abs is not None else dropped / float(cols.sum())
-                for arr in buffers:
-                    arr[:, :, :, lo:lo + f0] = 0.0
-                    arr[:, :, :, lo + l0:hi] = 0.0
-                lo, hi = lo + f0, lo + l0
+        s_i = spread[start + steps - 1]
+        with np.errstate(divide="ignore"):
+            log_cols = np.log(cols)
+        if not tilted and theta != 0.0:
+            log_t = log_cols + theta * np.arange(cols.size)  # tilted, up to a constant
+        else:
+            log_t = log_cols
+        top = float(log_t.max())
+        keep = np.flatnonzero(log_t >= top + math.log(trim / s_i))
+        f0, l0 = int(keep[0]), int(keep[-1]) + 1
+        if f0 or l0 < hi - lo:
+            w = np.exp(log_t - top)
+            eps += float(w[:f0].sum() + w[l0:].sum()) / float(w.sum()) * s_i
+            for arr in buffers:
+                arr[:, :, :, lo:lo + f0] = 0.0
+                arr[:, :, :, lo + l0:hi] = 0.0
+            lo, hi = lo + f0, lo + l0
+            log_cols = log_cols[f0:l0]
+        if not tilted and theta != 0.0 and start + steps < n:
+            span = float(log_cols.max() - log_cols[np.isfinite(log_cols)].min()) if log_cols.size else 0.0
+            if span + abs(theta) * (smax - smin) * 2 * BLOCK > SPAN_MAX:
+                # to tilted arithmetic: stored_t = stored_u e^(theta (x - x_c)), x_c the window's
+                # tilted peak, so P = stored_t e^(scale + theta x_c - theta x)
+                j = np.arange(lo, hi)
+                x_c = x_of(lo + int(np.argmax(log_cols + theta * np.arange(hi - lo))))
+                live = buffers[parity][:, :, :, lo:hi]
+                with np.errstate(divide="ignore"):
+                    logs = np.log(live) + theta * (x_of(j) - x_c)  # in logs: e^(theta dx) alone may overflow
+                m = float(logs.max()) - SCALE_BITS * _LN2
+                np.exp(logs - m, out=live)
+                log_parts.append(math.fsum(log_wmax[wmax_from:start + steps].tolist()))
+                log_parts.append(theta * x_c + m)
+                factors, ratios, log_wmax = arithmetic(theta)
+                wmax_from = start + steps
+                tilted = True
+    log_parts.append(math.fsum(log_wmax[wmax_from:].tolist()))
     x_law = buffers[parity]
     rows = []
     for a in (0, 1):
@@ -264,8 +335,8 @@ def lattice_law_rows(pi: np.ndarray, lat: _Lattice, theta: float = 0.0, trim: fl
             for ls in range(n_labels):
                 row = x_law[a, b, ls, lo:hi]
                 if row.any():
-                    rows.append((a, b, ls, lo - pad + xmin, row.copy()))
-    return rows, math.fsum(log_parts) - exponent * _LN2, eps
+                    rows.append((a, b, ls, x_of(lo), row.copy()))
+    return rows, math.fsum(log_parts) - exponent * _LN2, (theta if tilted else 0.0), eps
 
 
 def _logsumexp(values) -> float:
@@ -276,10 +347,12 @@ def _logsumexp(values) -> float:
     return top + math.log(math.fsum(math.exp(v - top) for v in values))
 
 
-def _region_logs(rows, lat: _Lattice, edges: dict, theta: float, log_scale: float, eps: float,
-                 x_reach: tuple[int, int]):
+def _region_logs(rows, lat: _Lattice, edges: dict, theta: float, theta_out: float, log_scale: float,
+                 eps: float, x_reach: tuple[int, int]):
     """Per region (U >= high, low <= U < high, U < low): (ln P, log10 of the relative error
-    bound) from the rows of a tilted run (module doc)."""
+    bound) from the rows of a run trimmed by the law tilted by ``theta`` (stored values carry
+    e^(theta_out x): lattice_law_rows). With T = sum_x P(x) e^(theta x) the bound is
+    eps T max_{x in R} e^(-theta x) / P(R) (module doc)."""
     parts = [[], [], []]
     total = []
     x_ref = rows[0][3] if rows else 0  # e^(-theta x) = e^(-theta x_ref) e^(-theta (x - x_ref))
@@ -289,8 +362,10 @@ def _region_logs(rows, lat: _Lattice, edges: dict, theta: float, log_scale: floa
         t_low, t_high = edges[(ls, le)]
         x = (x_first - x_ref) + np.arange(arr.size)
         with np.errstate(divide="ignore"):
-            lv = np.log(arr) - theta * x
-        total.append(math.log(float(arr.sum())))
+            lv = np.log(arr) - theta_out * x  # ln P(x) - log_scale + theta_out x_ref
+        lt = lv + theta * x  # tilted, same offset
+        top_t = float(lt.max())
+        total.append(top_t + math.log(float(np.exp(lt - top_t).sum())))
         # region index ranges on x (x + e_steps is the final coordinate)
         i_low = min(max(t_low - e_steps - x_first, 0), arr.size)
         i_high = min(max(t_high - e_steps - x_first, 0), arr.size)
@@ -313,8 +388,6 @@ def _region_logs(rows, lat: _Lattice, edges: dict, theta: float, log_scale: floa
                         worst_untilt[r] = max(worst_untilt[r], -theta * (s - e_steps - x_ref),
                                               -theta * (e - 1 - e_steps - x_ref))
     log_total = _logsumexp(total)
-    ds, de = _spreads(lat)
-    g = abs(theta) * (2.0 * ds + 2.0 * de)
     out = []
     for r in range(3):
         log_sum = _logsumexp(parts[r])
@@ -323,16 +396,17 @@ def _region_logs(rows, lat: _Lattice, edges: dict, theta: float, log_scale: floa
         elif log_sum == -math.inf:
             bound = math.inf
         else:
-            bound = (math.log(eps) + g + log_total + worst_untilt[r] - log_sum) / math.log(10.0)
-        out.append(((log_scale - theta * x_ref) + log_sum, bound))
+            bound = (math.log(eps) + log_total + worst_untilt[r] - log_sum) / math.log(10.0)
+        out.append(((log_scale - theta_out * x_ref) + log_sum, bound))
     return out
 
 
-def lattice_band_logs(pi: np.ndarray, lat: _Lattice, low: float, high: float, only=(0, 1, 2)):
-    """Per region (U_G >= high, low <= U_G < high, U_G < low): (ln P, or -inf for an
-    impossible event; log10 of the relative error bound), for one hypothesis (taxels present
-    with probabilities ``pi``), n = pi.size >= 2, eq 7 and the eq 20 band. ``only``: the
-    regions wanted (the others come back None)."""
+def lattice_band_logs(pi: np.ndarray, lat: _Lattice, low: float, high: float, deep: bool = True):
+    """Per region (U_G >= high, low <= U_G < high, U_G < low), for one hypothesis (taxels present
+    with probabilities ``pi``), n = pi.size >= 2, eq 7 and the eq 20 band: (ln P or None, below
+    FLOOR, log10 of the relative error bound or None). None with below False: an impossible
+    event. ``deep`` False: a region whose Chernoff bound e^(Lambda(theta) - theta t) is below
+    FLOOR is not computed (None, True, None); every rate >= FLOOR is."""
     p, q = lat.p, lat.q
     if lat.reverse:
         pi = pi[::-1]
@@ -347,8 +421,9 @@ def lattice_band_logs(pi: np.ndarray, lat: _Lattice, low: float, high: float, on
                  [(xa, min(t_low, xb + 1)) for t_low, t_high in edges.values()]]
     empty = [all(e <= s for s, e in iv) for iv in intervals]
     h = 1e-3
-    lam = log_partition(pi, lat, [-h, h])
-    mean = float((lam[1] - lam[0]) / (2 * h))
+    lam = log_partition(pi, lat, [-h, 0.0, h])
+    mean = float((lam[2] - lam[0]) / (2 * h))
+    var = max(float((lam[2] - 2 * lam[1] + lam[0]) / (h * h)), 1e-12)
     targets = []
     for r, iv in enumerate(intervals):
         live = [(s, e) for s, e in iv if e > s]
@@ -359,36 +434,65 @@ def lattice_band_logs(pi: np.ndarray, lat: _Lattice, low: float, high: float, on
             targets.append(min(ends, key=lambda x: abs(x - mean)))
     runs: dict = {}
 
-    def run(theta: float):
-        if theta not in runs:
-            rows, log_scale, eps = lattice_law_rows(pi, lat, theta)
-            runs[theta] = _region_logs(rows, lat, edges, theta, log_scale, eps, (xa, xb))
-        return runs[theta]
+    def run(theta: float, trim: float = TRIM_REL):
+        if (theta, trim) not in runs:
+            rows, log_scale, theta_out, eps = lattice_law_rows(pi, lat, theta, trim)
+            runs[(theta, trim)] = _region_logs(rows, lat, edges, theta, theta_out, log_scale, eps, (xa, xb))
+        return runs[(theta, trim)]
 
     out: list = [None, None, None]
+    skipped = []  # ln of the Chernoff bounds of regions not computed (each < ln FLOOR)
     for r in range(3):
         if empty[r]:
             out[r] = (-math.inf, -math.inf)
-    far = [r for r in range(3) if out[r] is None and targets[r] is not None and r in only]
-    if len(far) == 2:
-        # both tails on one side of the bulk (the band beyond it): one run tilted to the middle of
-        # their near edges usually holds both (each checked by its bound), else one run each
-        theta = tilt_for_mean(pi, lat, 0.5 * (targets[far[0]] + targets[far[1]]), mean)
+    far = [r for r in range(3) if out[r] is None and targets[r] is not None]
+    # both tails on one side of the bulk (the band beyond it): one run tilted to the middle of
+    # their near edges usually holds both (each checked by its bound), else one run each
+    shared = len(far) == 2 and (targets[far[0]] > mean) == (targets[far[1]] > mean)
+    # without deep, a search may stop once the Chernoff bound of the nearer edge is below FLOOR
+    stop = -math.inf if deep else _LOG_FLOOR
+    if shared:
+        near = min(targets[far[0]], targets[far[1]], key=lambda t: abs(t - mean))
+        middle = tilt_for_mean(pi, lat, 0.5 * (targets[far[0]] + targets[far[1]]), mean, var,
+                               stop_below=stop, stop_target=near)  # near below FLOOR: the far one too
+    tilts = {}
+    for r in far:
+        theta, lam_t = middle if shared else tilt_for_mean(pi, lat, targets[r], mean, var, stop_below=stop)
+        chernoff = lam_t - theta * targets[r]  # P(R) <= P(x beyond its near edge) <= e^chernoff
+        if not deep and chernoff < _LOG_FLOOR:
+            out[r] = "skipped"
+            skipped.append(chernoff)
+        tilts[r] = None if shared else theta
+    far = [r for r in far if out[r] is None]
+    if shared and far:
         for r in far:
-            if run(theta)[r][1] <= BOUND_OK:
-                out[r] = run(theta)[r]
+            if run(middle[0])[r][1] <= BOUND_OK:
+                out[r] = run(middle[0])[r]
     for r in far:
         if out[r] is None:
-            out[r] = run(tilt_for_mean(pi, lat, targets[r], mean))[r]
+            theta = tilts[r] if tilts[r] is not None else tilt_for_mean(pi, lat, targets[r], mean, var, middle[0])[0]
+            out[r] = run(theta)[r]
+            if out[r][1] > BOUND_OK:  # once more, trimmed 1e15 times less
+                out[r] = run(theta, TRIM_REL * 1e-15)[r]
+    computed = [r for r in range(3) if isinstance(out[r], tuple)]
     bulk = [r for r in range(3) if out[r] is None]
-    if len(bulk) == 1 and bulk[0] in only:
-        others = [out[r][0] for r in range(3) if r != bulk[0]]
-        rest = _logsumexp(others)
-        if rest <= math.log(0.5):
-            # 1 - (the other two): exact in relative terms where they are at most 1/2
-            bound = max(out[r][1] for r in range(3) if r != bulk[0])
-            out[bulk[0]] = (math.log1p(-math.exp(rest)), bound)
+    if len(bulk) == 1:
+        rest = _logsumexp([out[r][0] for r in computed])
+        rest_upper = _logsumexp([rest, *skipped])
+        if rest_upper <= math.log(0.5):
+            # 1 - (the other two): exact in relative terms where they sum to at most 1/2; its
+            # error: theirs, and the skipped regions' mass (< their Chernoff bounds)
+            err = [out[r][0] + out[r][1] * math.log(10.0) for r in computed] + skipped
+            out[bulk[0]] = (math.log1p(-math.exp(rest)), (math.log(2.0) + _logsumexp(err)) / math.log(10.0))
     for r in range(3):
-        if out[r] is None and r in only:
+        if out[r] is None:
             out[r] = run(0.0)[r]
-    return [out[r] if r in only else None for r in range(3)]
+    result = []
+    for r in range(3):
+        if out[r] == "skipped":
+            result.append((None, True, None))
+        elif out[r][0] == -math.inf:
+            result.append((None, not empty[r], None))  # 0 without being empty: below any double
+        else:
+            result.append((out[r][0], out[r][0] < _LOG_FLOOR, out[r][1]))
+    return result
