@@ -525,3 +525,33 @@ def test_all_2_16_vectors(encoding, p, q):
                              (pf, ("p_false_alarm", "p_undecided_h0", "p_reject"))):
             for name, ref in zip(names, brute_numpy(probs, p, q, encoding, low, high)):
                 assert abs(getattr(ours, name) - ref) <= 1e-12 * ref + 1e-300, (ours.method, name, low, high)
+
+
+@pytest.mark.parametrize("seed", range(16))
+def test_random_chain_cases_vs_log_domain_reference(seed):
+    """Random {-1,+1} chains (p, q > 0 non-integer or integer, n 20..160, per-taxel pd/pf from
+    near 0 to near 1, bands anywhere in U_G's range, deep or not): all six logs against the
+    untrimmed log-domain DP to 1e-11 (relative on the log); the rates below 1e-300 too (deep),
+    or None and named (shallow); every proven error bound below 1e-13."""
+    rng = np.random.default_rng(100 + seed)
+    n = int(rng.integers(20, 161))
+    p, q = (float(rng.choice([1.0, 2.0])), float(rng.choice([1.0, 0.5]))) if seed % 3 == 0 else \
+        (float(rng.uniform(0.1, 2.0)), float(rng.uniform(0.1, 2.0)))
+    pd = rng.uniform(*sorted(rng.uniform(0.3, 0.999, 2)), n)
+    pf = 10.0 ** rng.uniform(-4.0, -0.5, n)
+    g = 2.0**p + 2.0**q + (n - 2) * 2.0 ** (p + q)
+    low, high = sorted(rng.uniform(-0.3 * g, 0.95 * g, 2))
+    deep = seed % 2 == 0
+    ours = preferential_error_rates(pd, pf, p, q, "pm1", low, high, deep=deep)
+    for probs, names in ((pd, ("p_detect", "p_undecided_h1", "p_miss")),
+                         (pf, ("p_false_alarm", "p_undecided_h0", "p_reject"))):
+        ref = log_chain_reference(probs, p, q, low, high)
+        for name, r in zip(names, ref):
+            got = getattr(ours, "log_" + name)
+            if r is None:
+                assert got is None and name not in ours.below_floor, name
+            elif r < math.log(1e-300) and not deep:
+                assert got is None and name in ours.below_floor, (name, r)
+            else:
+                assert got is not None and abs(got - r) <= 1e-11 * max(1.0, abs(r)), (seed, name, got, r)
+                assert ours.error_bounds[name] < -13, (name, ours.error_bounds[name])

@@ -15,7 +15,11 @@ Modules (one job each):
   counts and decisions (mpmath where rounding cannot decide)
 * :mod:`.baselines` - Chair-Varshney (eq 31), Neyman-Pearson (eq 32), Bayes threshold (eq 22)
 * :mod:`.poisson_binomial` - the law of the present count, in the log domain
-* :mod:`.exact_rates` - exact system error rates of every rule (preferential DP, LLR/N-P by kinds)
+* :mod:`.exact_rates` - exact system error rates of every rule (preferential DP, LLR/N-P by kinds),
+  gathered from :mod:`.preferential_rates` (the band decision's rates, eq 7 / eq 20),
+  :mod:`.chain_dp` (the DP over the chain), :mod:`.tilted_dp` (its exponentially tilted form:
+  rates down to any depth), :mod:`.kind_laws` (eqs 31-32 on kinds, exact ROC) and
+  :mod:`.rate_sampling` (Monte Carlo / importance-sampling fallbacks)
 * :mod:`.centralised` - the raw-data (centralised) tests
 * :mod:`.montecarlo` - vectorised Monte Carlo of every rule, exact count-rule rates
 * :mod:`.forces`, :mod:`.units` - forces (eqs 23-30, 36)
@@ -38,7 +42,8 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(
     __name__,
     submodules=["encoding", "rules", "curves", "thresholds", "certify", "baselines", "poisson_binomial",
                 "exact_rates", "centralised", "montecarlo", "forces", "units", "geometry", "contact", "slip",
-                "bus_timing", "layouts", "mean_deficit", "preferential_band"],
+                "bus_timing", "layouts", "mean_deficit", "preferential_band", "preferential_rates", "chain_dp",
+                "tilted_dp", "kind_laws", "rate_sampling"],
     submod_attrs={
         "encoding": ["local_decision", "present_count", "to_pm1", "to_01"],
         "rules": ["additive", "multiplicative", "preferential", "preferential_sister", "k_of_n", "g_of_n"],
@@ -79,7 +84,8 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(
         "units": ["convert_force"],
         "exact_rates": [
             "preferential_error_rates", "llr_error_rates", "np_kinds_fusion", "PreferentialRates", "KindRates",
-            "preferential_law", "linear_statistic_law", "linear_statistic_tail", "roc_from_laws",
+            "preferential_law", "linear_statistic_law", "linear_statistic_tail", "roc_from_laws", "kinds_of",
+            "importance_sampling_tail",
         ],
         "preferential_band": ["band_decision", "max_preferential_value"],
     },
