@@ -26,6 +26,7 @@ COMMANDS: dict[str, str] = {
     "scenes": "scenes",
     "dcf": "dcf",
     "plot": "plot",
+    "assemble": "assemble",
 }
 
 

@@ -48,6 +48,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="scene file or bundled scene name (docs/scene-format.md)")
     add_bus_arguments(parser)
     add_common_outputs(parser)
+    parser.add_argument("--assemblers", metavar="HOST:PORT", default=None,
+                        help="listen there for `fusion-center assemble` processes (other processes or hosts) and "
+                             "fuse their cycles instead of assembling them here (docs/service.md)")
 
 
 def setup_logging() -> None:
@@ -189,6 +192,12 @@ def format_summary(summary: dict) -> list[str]:
     if "duplicate_nodes" in summary:
         lines.append(("duplicate_nodes", ", ".join(map(str, summary["duplicate_nodes"]))
                       + " (two devices answer for one node-ID)"))
+    if "assemblers" in summary:
+        a = summary["assemblers"]
+        lines.append(("assemblers", f"{a['parts']} parts ({', '.join(f'{k} {v}' for k, v in a['by_group'].items())}); "
+                                    f"cycles complete {a['complete']}, degraded {a['degraded']} "
+                                    f"({a['parts_missing']} parts missing), late parts {a['late_parts']}, "
+                                    f"unmatched {a['unmatched_parts']}"))
     if "interrupted" in summary:
         lines.append(("interrupted", f"Ctrl-C after {summary['cycles']} of {summary['interrupted']['cycles_asked']} "
                                      "SYNC cycles: a partial summary; every record written is complete"))
@@ -243,10 +252,19 @@ def run(args) -> int:
     scene, cycles = load_run_scene(args)
     check_trace_target(args.log, scene)
     bus = resolve_bus(args, scene)
-    service = FusionService(scene, interface=bus.interface, channels=bus.channels, bitrate=bus.bitrate,
-                            bus_kwargs=bus.kwargs, json_lines=args.json_lines, trace=args.log, keep_records=False)
+    options = dict(interface=bus.interface, channels=bus.channels, bitrate=bus.bitrate, bus_kwargs=bus.kwargs,
+                   json_lines=args.json_lines, trace=args.log, keep_records=False)
+    if getattr(args, "assemblers", None):  # the cycles come from `fusion-center assemble` processes
+        from ..service.assemblers import AssembledFusionService, parse_address
+
+        service = AssembledFusionService(scene, listen=parse_address(args.assemblers, "--assemblers"), **options)
+    else:
+        service = FusionService(scene, **options)
     with service:
         summary = execute(service, cycles, live=not args.no_live, boot_timeout=args.boot_timeout,
                           bus=bus.describe(service.channel_names))
+    merger = getattr(service, "merger", None)
+    if merger is not None:
+        summary["assemblers"] = merger.stats.as_dict()
     print_summary(summary)
     return 130 if "interrupted" in summary else 0

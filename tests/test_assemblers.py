@@ -1,0 +1,227 @@
+"""Cycle assemblers in other processes, one fuser (issue 14, "Beyond one host"): two
+``fusion-center assemble`` processes (one per scene channel) feed the fuser over
+multiprocessing.connection while the fuser is the CANopen master on udp_multicast; the merge
+itself (parts out of order, a missing part) as a unit."""
+
+from __future__ import annotations
+
+import random
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fusion_center.service.assemblers import (
+    CycleMerger,
+    GroupAssembler,
+    group_layout,
+    parse_address,
+)
+from fusion_center.cli import main as cli_main
+from taxel_net.errors import UsageError
+from taxel_net.scene import load_scene
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT / "tests"))
+from test_node_shards import _scene_file  # noqa: E402 - the two-channel patch scene (2 x 40 taxels)
+
+GROUPS = ["239.74.163.21", "239.74.163.22"]
+
+
+def _parts(scene, k, counter, *, decisions=(1, -1)):
+    """Parts of both groups for cycle k, built through GroupAssembler.part from a ClosedCycle."""
+    from fusion_center.service.cycle_records import ClosedCycle, DeviceCycle
+
+    out = {}
+    for g, value in zip((0, 1), decisions):
+        ga = GroupAssembler(scene, [g])
+        n, nd = ga.layout.sub.n, len(ga.layout.devices)
+        closed = ClosedCycle(
+            cycle=k, sync_us=0, close_us=1000, sync_counter=counter, closed_by="complete",
+            decisions=np.full(n, value, dtype=np.int8), readings=np.full(n, np.nan),
+            received=np.ones(n, dtype=bool), expected=np.ones(n, dtype=bool), missing=np.zeros(n, dtype=bool),
+            held_decisions=np.full(n, value, dtype=np.int8), held_readings=np.full(n, np.nan),
+            late_frames=0, bad_frames=0, emcy=(), states=np.full(n, 5, dtype=np.int16),
+            devices=DeviceCycle(np.ones(nd, dtype=bool), np.zeros(nd, dtype=bool), np.full(nd, 5, dtype=np.int16),
+                                np.ones(nd, dtype=bool)))
+        out[ga.layout.name] = ga.part(closed)
+    return out
+
+
+def test_group_layout_maps_taxels_devices_and_cob_ids(tmp_path):
+    from taxel_net.patches import devices
+
+    scene = load_scene(_scene_file(tmp_path))
+    lay = group_layout(scene, [1])
+    assert lay.name == "1" and lay.sub.n == 40 and list(lay.taxels) == list(range(40, 80))
+    full = devices(scene)
+    assert [full[d].channel for d in lay.devices] == [1, 1]
+    # same node-IDs and TPDO COB-IDs as the full scene's channel 1
+    assert [(d.node_id, [t.cob_id for t in d.tpdos]) for d in devices(lay.sub)] == \
+        [(full[d].node_id, [t.cob_id for t in full[d].tpdos]) for d in lay.devices]
+
+
+def test_merge_out_of_order_and_a_missing_part(tmp_path):
+    scene = load_scene(_scene_file(tmp_path))
+    merger = CycleMerger(scene, part_deadline_s=0.5)
+    for g in (0, 1):
+        assert merger.add_group(group_layout(scene, [g])) is None
+    assert merger.add_group(group_layout(scene, [0, 1])) is not None  # overlap refused
+    t = 100.0
+    for k in range(3):
+        assert merger.opened(k + 1, 1000 * k, t) == k
+    p0, p1, p2 = (_parts(scene, k, k + 1) for k in range(3))
+    # out of order across groups (each group's own parts come in order over its connection):
+    # group 1's cycles 0 and 1 before anything of group 0; nothing is emitted before cycle 0 is whole
+    merger.add_part("1", p0["1"])
+    merger.add_part("1", p1["1"])
+    assert merger.emit(t) == []
+    merger.add_part("0", p0["0"])
+    merger.add_part("0", p1["0"])
+    out = merger.emit(t)
+    assert [c.cycle for c in out] == [0, 1]
+    assert all(c.closed_by == "complete" and c.received.all() for c in out)
+    assert (out[0].decisions[:40] == 1).all() and (out[0].decisions[40:] == -1).all()  # no mix-up of groups
+    assert out[0].devices.complete.all()
+    # cycle 2: group 1's part never comes -> degraded at the deadline, its taxels silent
+    merger.add_part("0", p2["0"])
+    assert merger.emit(t + 0.1) == []
+    merger.opened(4, 3000, t + 0.1)  # cycle 3
+    p3 = _parts(scene, 3, 4)
+    merger.add_part("0", p3["0"])
+    merger.add_part("1", p3["1"])  # a later part of group 1: its part of 2 is not coming
+    out = merger.emit(t + 0.1)
+    assert [c.cycle for c in out] == [2, 3]
+    assert out[0].closed_by == "part_missing" and merger.info[2] == {"parts_missing": ["1"]}
+    assert out[0].received[:40].all() and not out[0].received[40:].any()
+    assert out[0].expected[40:].all() and not out[0].devices.complete[2:].any()
+    assert out[1].closed_by == "complete"
+    # a part for an evaluated cycle is counted, never mixed in; a deadline alone degrades too
+    merger.add_part("1", p2["1"])
+    merger.opened(5, 4000, t + 0.2)
+    merger.add_part("0", _parts(scene, 4, 5)["0"])
+    assert merger.emit(t + 0.3) == []
+    out = merger.emit(t + 0.8)
+    assert [c.cycle for c in out] == [4] and merger.info[4] == {"parts_missing": ["1"]}
+    s = merger.stats
+    assert (s.complete, s.degraded, s.parts_missing, s.late_parts) == (3, 2, 2, 1)
+
+
+def test_counter_maps_a_part_to_its_sync_and_numbers_jump_over_lost_syncs(tmp_path):
+    scene = load_scene(_scene_file(tmp_path))
+    merger = CycleMerger(scene, part_deadline_s=0.5)
+    merger.add_group(group_layout(scene, [0]))
+    for k in range(70):  # counter wraps at 64
+        merger.opened(k % 64 + 1, k, 0.0)
+    part = _parts(scene, 0, (66 % 64) + 1)["0"]
+    with merger.lock:
+        assert merger.cycle_of(part) == 66
+    ga = GroupAssembler(scene, [0])
+    from fusion_center.service.cycle_records import ClosedCycle
+
+    def closed(c, counter):
+        n = 40
+        return ClosedCycle(cycle=c, sync_us=0, close_us=0, sync_counter=counter, closed_by="sync",
+                           decisions=np.zeros(n, dtype=np.int8), readings=np.full(n, np.nan),
+                           received=np.zeros(n, dtype=bool), expected=np.zeros(n, dtype=bool),
+                           missing=np.zeros(n, dtype=bool), held_decisions=np.zeros(n, dtype=np.int8),
+                           held_readings=np.full(n, np.nan), late_frames=0, bad_frames=0, emcy=())
+    assert [ga.number(closed(c, cnt)) for c, cnt in ((0, 1), (1, 2), (2, 5), (3, 64), (4, 2))] == [0, 1, 4, 63, 65]
+
+
+def test_bad_values_exit_2_naming_the_flag(tmp_path, capsys):
+    path = _scene_file(tmp_path)
+    with pytest.raises(UsageError, match="--fuser 'nohost'"):
+        parse_address("nohost", "--fuser")
+    cases = [
+        (["assemble", "--scene", str(path), "-i", "virtual", "--serve", "0", "--fuser", "127.0.0.1:0"], "--fuser"),
+        (["assemble", "--scene", str(path), "-i", "virtual", "--serve", "2", "--fuser", "127.0.0.1:47000"],
+         "--serve '2'"),
+        (["assemble", "--scene", str(path), "-i", "virtual", "--serve", "x", "--fuser", "127.0.0.1:47000"],
+         "--serve 'x'"),
+        (["assemble", "--scene", str(path), "-i", "virtual", "--serve", "0", "--fuser", "10.1.2.3:47000"],
+         "FUSION_CENTER_AUTHKEY"),
+        (["run", "--scene", str(path), "-i", "virtual", "--assemblers", "127.0.0.1:99999"], "--assemblers"),
+    ]
+    for argv, needle in cases:
+        assert cli_main(argv) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and needle in err, err
+
+
+def test_two_assembler_processes_and_a_fuser_on_udp_multicast(tmp_path):
+    sys.path.insert(0, str(ROOT / "bench"))
+    from skin_scale import check_records
+    from test_service_multiprocess import multicast_works
+
+    from fusion_center.service.assemblers import AssembledFusionService
+    from node_sim.rig import Rig
+
+    port = random.randint(40000, 60000)
+    why = multicast_works(port)
+    if why is not None:
+        pytest.skip(why)
+    fuser_port = random.randint(40000, 60000)
+    path = _scene_file(tmp_path)
+    scene = load_scene(path)
+    bus = {"port": port, "hop_limit": 0}
+    rig = Rig(scene, interface="udp_multicast", channel=GROUPS, bus_kwargs=bus)
+    service = AssembledFusionService(scene, listen=("127.0.0.1", fuser_port), interface="udp_multicast",
+                                     channels=GROUPS, bus_kwargs=bus, assembler_wait_s=20.0)
+    procs = []
+    t0 = time.monotonic()
+    try:
+        rig.start()
+        service.open()
+        for serve in ("0", "1"):
+            procs.append(subprocess.Popen(
+                [sys.executable, "-c", "import sys; from fusion_center.cli import main; sys.exit(main())",
+                 "assemble", "--scene", str(path), "-i", "udp_multicast", "-c", ",".join(GROUPS),
+                 "--bus-kwargs", f"port={port}", "hop_limit=0", "--serve", serve,
+                 "--fuser", f"127.0.0.1:{fuser_port}"],
+                cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True))
+        for proc, group in zip(procs, GROUPS):
+            line = proc.stdout.readline()
+            assert "ready" in line and group in line and "40 taxels" in line, (
+                line, proc.stderr.read() if proc.poll() is not None else "")
+        service.boot(5.0)
+        assert not service.summary().missing_at_boot
+        service.run(60)
+    finally:
+        service.close()
+        rig.stop()
+    outs = []
+    for proc in procs:  # the fuser's close says bye: the assemblers end by themselves
+        try:
+            out, err = proc.communicate(timeout=10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            out, err = proc.communicate()
+        outs.append((proc.returncode, out, err))
+    elapsed = time.monotonic() - t0
+    records = service.records
+    figures = check_records(scene, records)
+    stats = service.merger.stats
+    print(figures, stats.as_dict(), f"{elapsed:.1f} s", service.summary().latency_percentile(50),
+          service.summary().latency_percentile(99))
+    for r in records:
+        if r["closed_by"] != "complete":
+            print({k: r.get(k) for k in ("cycle", "closed_by", "n_received", "silent_nodes", "missing_nodes",
+                                         "parts_missing", "closed_after_ms", "nodes_by_state", "late_frames")})
+    assert [rc for rc, _, _ in outs] == [0, 0], outs
+    assert all("60 cycles sent" in out for _, out, _ in outs), outs
+    assert [r["cycle"] for r in records] == list(range(60))
+    assert figures["misattributed"] == 0
+    # every process sent a part of every cycle, each matched to its SYNC
+    assert stats.by_group == {"0": 60, "1": 60} and stats.unmatched_parts == 0
+    assert stats.complete + stats.degraded == 60
+    # 60/60 complete on an idle host (and at load 6.6 on the 2 cores); a host starved for
+    # hundreds of ms (p99 ~300 ms seen with the full suite beside it) loses a few cycles -
+    # degraded or undecided, flagged, never misattributed
+    assert figures["complete"] >= 48, figures
+    complete = [r for r in records if r["closed_by"] == "complete"]
+    assert len(complete) >= 48 and all(r["parts_missing"] == [] and r["n_received"] == 80 for r in complete)
+    assert elapsed < 30
