@@ -555,3 +555,27 @@ def test_random_chain_cases_vs_log_domain_reference(seed):
             else:
                 assert got is not None and abs(got - r) <= 1e-11 * max(1.0, abs(r)), (seed, name, got, r)
                 assert ours.error_bounds[name] < -13, (name, ours.error_bounds[name])
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_extreme_probabilities_vs_log_domain_reference(seed):
+    """Per-taxel probabilities of exactly 0 or 1, 1e-12 or 10^-12..10^-1 (strong tilts, masses
+    that shrink by 1e-12 per taxel): every log against the untrimmed log-domain DP, deep."""
+    rng = np.random.default_rng(200 + seed)
+    n = int(rng.integers(30, 110))
+    p, q = float(rng.uniform(0.05, 2.0)), float(rng.uniform(0.05, 2.0))
+    pi = rng.uniform(0, 1, n)
+    if seed % 2:
+        pi = 10.0 ** rng.uniform(-12, -1, n)
+    pi[rng.integers(0, n, 5)] = rng.choice([0.0, 1.0, 1e-12, 1 - 1e-12], 5)
+    g = 2.0**p + 2.0**q + (n - 2) * 2.0 ** (p + q)
+    low, high = sorted(rng.uniform(-1.1 * g, 1.1 * g, 2))
+    ours = preferential_error_rates(pi, pi, p, q, "pm1", low, high)
+    with np.errstate(divide="ignore"):
+        ref = log_chain_reference(pi, p, q, low, high)
+    for name, r in zip(("p_false_alarm", "p_undecided_h0", "p_reject"), ref):
+        got = getattr(ours, "log_" + name)
+        if r is None or r == -math.inf:
+            assert got is None, (name, got)
+        else:
+            assert got is not None and abs(got - r) <= 1e-11 * max(1.0, abs(r)), (seed, name, got, r)

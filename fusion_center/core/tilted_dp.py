@@ -56,6 +56,8 @@ TRIM_REL = 1e-32
 BLOCK = 32
 """Taxels per block: the window is trimmed and rescaled once per block (per-block work ~ 15
 numpy calls, so blocks are long; the window grows by at most BLOCK steps meanwhile)."""
+SHRINK_MAX = 400.0
+"""A block of tilted steps ends before the mass can shrink by more than e^SHRINK_MAX."""
 SPAN_MAX = 1200.0
 """Natural-log span of the untilted values a window may hold before the arithmetic is tilted
 (the doubles hold ~e^1330 below the largest column at 2^SCALE_BITS)."""
@@ -245,21 +247,35 @@ def lattice_law_rows(pi: np.ndarray, lat: _Lattice, theta: float = 0.0, trim: fl
             log_wmax = np.maximum(logp[0], logp[1])
         else:
             log_wmax = np.maximum(*[logp[c] + th * (smax_c[c] if th >= 0 else smin_c[c]) for c in (0, 1)])
+        # per step, ln of the least total weight a state passes on (<= 0 only when tilted): a
+        # block ends before the mass can shrink by e^SHRINK_MAX (it stays far above subnormals)
+        least = np.min([np.logaddexp(logp[0] + th * int(shift[a, b, 0]), logp[1] + th * int(shift[a, b, 1]))
+                        for a in (0, 1) for b in (0, 1)], axis=0) - log_wmax
         factors = {}
         for c in (0, 1):
             s0s = {s0_of[(0, c)], s0_of[(1, c)]}
             keys = [(None, s) for s in s0s] if len(s0s) == 1 else [(b, s0_of[(b, c)]) for b in (0, 1)]
             for b, s0 in keys:
                 factors[(b, c)] = np.exp(logp[c] + th * s0 - log_wmax).tolist()
-        return factors, [math.exp(th * (s1 - s0)) for _, _, s0, s1 in groups], log_wmax
+        return factors, [math.exp(th * (s1 - s0)) for _, _, s0, s1 in groups], log_wmax, least.tolist()
 
     tilted = False
-    factors, ratios, log_wmax = arithmetic(0.0)
+    factors, ratios, log_wmax, least = arithmetic(0.0)
     wmax_from = 2  # log_wmax[wmax_from:] not yet in log_parts
     parity = 0
     x_of = lambda j: j - pad + xmin  # noqa: E731  the x of buffer column j
-    for start in range(2, n, BLOCK):
-        steps = min(n, start + BLOCK) - start
+    end = 2
+    while end < n:
+        start = end
+        end = min(n, start + BLOCK)
+        if tilted:
+            shrink = 0.0
+            for i in range(start, end):
+                shrink += least[i]
+                if shrink < -SHRINK_MAX:
+                    end = max(i, start + 1)
+                    break
+        steps = end - start
         lo, hi = lo + smin * steps, hi + smax * steps
         views = []
         for par in (0, 1):
@@ -324,7 +340,7 @@ def lattice_law_rows(pi: np.ndarray, lat: _Lattice, theta: float = 0.0, trim: fl
                 np.exp(logs - m, out=live)
                 log_parts.append(math.fsum(log_wmax[wmax_from:start + steps].tolist()))
                 log_parts.append(theta * x_c + m)
-                factors, ratios, log_wmax = arithmetic(theta)
+                factors, ratios, log_wmax, least = arithmetic(theta)
                 wmax_from = start + steps
                 tilted = True
     log_parts.append(math.fsum(log_wmax[wmax_from:].tolist()))
