@@ -197,7 +197,10 @@ def format_summary(summary: dict) -> list[str]:
         lines.append(("assemblers", f"{a['parts']} parts ({', '.join(f'{k} {v}' for k, v in a['by_group'].items())}); "
                                     f"cycles complete {a['complete']}, degraded {a['degraded']} "
                                     f"({a['parts_missing']} parts missing), late parts {a['late_parts']}, "
-                                    f"unmatched {a['unmatched_parts']}"))
+                                    f"unmatched {a['unmatched_parts']}; SYNC -> part sent p50 "
+                                    f"{_fmt_ms(a['to_send_ms']['p50'])}, p99 {_fmt_ms(a['to_send_ms']['p99'])}; "
+                                    f"part transport p50 {_fmt_ms(a['transport_ms']['p50'])}, "
+                                    f"p99 {_fmt_ms(a['transport_ms']['p99'])}"))
     if "interrupted" in summary:
         lines.append(("interrupted", f"Ctrl-C after {summary['cycles']} of {summary['interrupted']['cycles_asked']} "
                                      "SYNC cycles: a partial summary; every record written is complete"))

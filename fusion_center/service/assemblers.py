@@ -56,6 +56,7 @@ import numpy as np
 from taxel_net.errors import UsageError
 from taxel_net.patches import devices as scene_devices
 from taxel_net.scene import Scene
+from .aggregates import LatencyHistogram
 from .cycle_records import (
     EMCY_PER_CYCLE,
     STATE_UNKNOWN,
@@ -73,6 +74,17 @@ AUTHKEY_ENV = "FUSION_CENTER_AUTHKEY"
 DEFAULT_AUTHKEY = b"taxel-can loopback"  # only for loopback addresses (module docstring)
 PROTOCOL = 1  # version of the hello / part messages
 COB_SYNC = 0x080
+# what the master needs to hear (accept filters, 11-bit): NMT, SYNC + EMCY, TIME, SDO both ways,
+# heartbeats / boot-ups, LSS - every COB-ID but the PDOs (0x181..0x57F), which the assemblers take
+MASTER_FILTERS = [
+    {"can_id": 0x000, "can_mask": 0x7FF, "extended": False},
+    {"can_id": 0x080, "can_mask": 0x780, "extended": False},
+    {"can_id": 0x100, "can_mask": 0x7FF, "extended": False},
+    {"can_id": 0x580, "can_mask": 0x780, "extended": False},
+    {"can_id": 0x600, "can_mask": 0x780, "extended": False},
+    {"can_id": 0x700, "can_mask": 0x780, "extended": False},
+    {"can_id": 0x7E4, "can_mask": 0x7FE, "extended": False},
+]
 NMT_RESETS = (0x81, 0x82)
 
 
@@ -269,9 +281,18 @@ class MergeStats:
     unmatched_parts: int = 0  # parts for no SYNC this fuser sent
     duplicate_parts: int = 0
     by_group: dict = field(default_factory=dict)  # group -> parts received
+    # where a part's time goes (same-host clocks; across hosts only as good as their sync):
+    to_send: LatencyHistogram = field(default_factory=LatencyHistogram)    # SYNC sent -> part sent
+    transport: LatencyHistogram = field(default_factory=LatencyHistogram)  # part sent -> received
 
     def as_dict(self) -> dict:
-        return dataclasses.asdict(self)
+        out = {k: v for k, v in vars(self).items() if not isinstance(v, LatencyHistogram)}
+        out["by_group"] = dict(self.by_group)
+        for name in ("to_send", "transport"):
+            h = getattr(self, name)
+            out[f"{name}_ms"] = {f"p{q}": None if h.percentile(q) is None else round(h.percentile(q), 3)
+                                 for q in (50, 99)}
+        return out
 
 
 class CycleMerger:
@@ -289,7 +310,7 @@ class CycleMerger:
         self.groups: dict[str, GroupLayout] = {}   # connected groups
         self.gone: set[str] = set()                # disconnected groups (their parts are missing)
         self.last_k: dict[str, int] = {}           # latest cycle a group sent a part for
-        self.syncs: dict[int, tuple[int | None, int, float]] = {}  # k -> (counter, sync_us, monotonic sent)
+        self.syncs: dict[int, tuple] = {}  # k -> (counter, sync_us, monotonic sent, time.time() sent)
         self.last_sync: tuple[int, int | None] | None = None
         self.parts: dict[int, dict[str, CyclePart]] = {}
         self.next_k: int | None = None
@@ -322,12 +343,12 @@ class CycleMerger:
             return {c for g in self.groups.values() for c in g.channels}
 
     # -- SYNCs and parts
-    def opened(self, counter: int | None, sync_us: int, now: float) -> int:
+    def opened(self, counter: int | None, sync_us: int, now: float, wall: float | None = None) -> int:
         """The fuser sent a SYNC (called before it goes on the bus): its cycle number."""
         with self.lock:
             k = self.sent
             self.sent += 1
-            self.syncs[k] = (counter, sync_us, now)
+            self.syncs[k] = (counter, sync_us, now, wall)
             self.last_sync = (k, counter)
             if self.next_k is None:
                 self.next_k = k
@@ -342,12 +363,17 @@ class CycleMerger:
             return last_k - (last_counter - part.sync_counter) % self.overflow
         return part.number
 
-    def add_part(self, name: str, part: CyclePart) -> None:
+    def add_part(self, name: str, part: CyclePart, received_at: float | None = None) -> None:
         with self.lock:
             stats = self.stats
             stats.parts += 1
             stats.by_group[name] = stats.by_group.get(name, 0) + 1
             k = self.cycle_of(part)
+            if received_at is not None and part.sent_at:
+                stats.transport.add((received_at - part.sent_at) * 1e3)
+                wall = self.syncs[k][3] if k in self.syncs else None
+                if wall is not None:
+                    stats.to_send.add((part.sent_at - wall) * 1e3)
             if k is None or k not in self.syncs:
                 if k is not None and self.next_k is not None and k < self.next_k:
                     stats.late_parts += 1
@@ -370,7 +396,7 @@ class CycleMerger:
         with self.lock:
             while self.next_k is not None and self.next_k in self.syncs:
                 k = self.next_k
-                counter, sync_us, sent = self.syncs[k]
+                counter, sync_us, sent, _ = self.syncs[k]
                 got = self.parts.get(k, {})
                 names = sorted(set(self.groups) | self.gone)
                 missing = []
@@ -484,11 +510,20 @@ class AssembledFusionService(FusionService):
     ``listen``: (host, port) of the ``multiprocessing.connection`` listener the assemblers
     connect to; :meth:`boot` waits up to ``assembler_wait_s`` for assemblers covering every
     scene channel. The service's own ``CycleAssembler`` still runs (boot-ups, SDO answers, NMT
-    states for the master), its closed cycles are not evaluated."""
+    states for the master), its closed cycles are not evaluated.
+
+    ``pdo_filter`` (off by default): the fuser's buses accept only the master's traffic
+    (:data:`MASTER_FILTERS`; kernel filters on SocketCAN). Only for scenes without a synchronous
+    window: with one, the own assembler would hold SYNC k+1 until SYNC k+2 (no node frame after
+    the window closes k), and with it an SDO request of a mid-run reconfiguration - whose answer
+    would then arrive unsolicited (not handed to the SDO client). Measured on udp_multicast it
+    saved nothing (python-can filters after parsing every datagram)."""
 
     def __init__(self, scene: Scene, *, listen: tuple[str, int], authkey: bytes | None = None,
-                 part_deadline_s: float | None = None, assembler_wait_s: float = 30.0, **kwargs):
+                 part_deadline_s: float | None = None, assembler_wait_s: float = 30.0,
+                 pdo_filter: bool = False, **kwargs):
         super().__init__(scene, **kwargs)
+        self.pdo_filter = bool(pdo_filter)
         self.listen_address = listen
         self.authkey = authkey if authkey is not None else authkey_for(listen[0], "--assemblers")
         period = scene.bus.sync_period_ms / 1000.0
@@ -513,6 +548,9 @@ class AssembledFusionService(FusionService):
         from multiprocessing.connection import Listener
 
         super().open()
+        if self.pdo_filter:  # the PDOs are the assemblers' (kernel filters on SocketCAN, else python-can's)
+            for bus in self.buses:
+                bus.set_filters(MASTER_FILTERS)
         try:
             self._listener = Listener(self.listen_address, authkey=self.authkey)
         except OSError as exc:
@@ -581,8 +619,9 @@ class AssembledFusionService(FusionService):
 
     def _on_sync(self, payload: bytes) -> None:
         t0 = self.assembler.t0_us
-        sync_us = quantise_timestamp(time.time()) - (t0 if t0 is not None else 0)
-        self.merger.opened(payload[0] if payload else None, max(0, sync_us), time.monotonic())
+        wall = time.time()
+        sync_us = quantise_timestamp(wall) - (t0 if t0 is not None else 0)
+        self.merger.opened(payload[0] if payload else None, max(0, sync_us), time.monotonic(), wall)
 
     def _emit(self, final: bool = False) -> None:
         with self._merge_lock:
@@ -639,7 +678,7 @@ class AssembledFusionService(FusionService):
             while not self._stop_merge.is_set():
                 part = conn.recv()
                 if isinstance(part, CyclePart):
-                    self.merger.add_part(name, part)
+                    self.merger.add_part(name, part, time.time())
                     self._emit()
         except (EOFError, OSError):
             pass
