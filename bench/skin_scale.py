@@ -90,20 +90,59 @@ def run_in_process(scene, cycles: int) -> tuple[FusionService, object, float]:
     return service, summary, boot_s
 
 
+def run_sharded(scene, cycles: int, shards: int) -> tuple[FusionService, object, float]:
+    """The twins in ``shards`` node-sim processes (``--serve``: consecutive channel groups), the
+    centre here; udp_multicast on loopback, one group per scene channel."""
+    import random
+    import subprocess
+
+    port = random.randint(40000, 60000)
+    groups = [f"239.74.164.{10 + k}" for k in range(len(scene.bus.channels))]
+    bounds = np.linspace(0, len(groups), shards + 1).round().astype(int)
+    procs = []
+    try:
+        for a, b in zip(bounds[:-1], bounds[1:]):
+            procs.append(subprocess.Popen(
+                [sys.executable, "-m", "node_sim.cli", "--scene", scene.path, "-i", "udp_multicast",
+                 "-c", ",".join(groups), "--bus-kwargs", f"port={port}", "hop_limit=0", "--serve", f"{a}-{b - 1}"],
+                cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True))
+        for proc in procs:
+            line = proc.stdout.readline()
+            if "ready" not in line:
+                raise SystemExit(f"node-sim did not start: {proc.stderr.read() if proc.poll() is not None else line}")
+        service = FusionService(scene, interface="udp_multicast", channels=groups,
+                                bus_kwargs={"port": port, "hop_limit": 0})
+        with service:
+            t0 = time.perf_counter()
+            service.boot(30.0)
+            boot_s = time.perf_counter() - t0
+            summary = service.run(cycles)
+    finally:
+        for proc in procs:
+            proc.terminate()
+            proc.wait(10)
+    return service, summary, boot_s
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scene", nargs="+", type=Path, default=SCENES)
     ap.add_argument("--cycles", type=int, default=300)
+    ap.add_argument("--shards", type=int, default=0, help="node-sim processes for the twins (0: in this process)")
     args = ap.parse_args(argv)
     for path in args.scene:
         scene = load_scene(path)
-        service, summary, boot_s = run_in_process(scene, args.cycles)
+        if args.shards:
+            service, summary, boot_s = run_sharded(scene, args.cycles, args.shards)
+        else:
+            service, summary, boot_s = run_in_process(scene, args.cycles)
         hist = summary.latency_hist
         centre = service.centre_latency
         checked = check_records(scene, service.records)
         rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+        where = f"twins in {args.shards} node-sim processes (udp_multicast)" if args.shards else "twins in this process"
         print(f"{scene.name}: {scene.n} taxels, {len(scene.bus.channels)} channels, SYNC {scene.bus.sync_period_ms:g} ms, "
-              f"{summary.cycles} cycles, boot {boot_s:.1f} s ({summary.sdo_writes} SDO writes)")
+              f"{summary.cycles} cycles, {where}, boot {boot_s:.1f} s ({summary.sdo_writes} SDO writes)")
         print(f"  SYNC -> record: p50 {hist.percentile(50):.2f} ms, p99 {hist.percentile(99):.2f} ms "
               f"(goal <= 5 ms: {hist.percentile(99) / 5.0:.2f}x), max {hist.percentile(100):.2f} ms; "
               f"centre part p99 {centre.percentile(99):.2f} ms")
