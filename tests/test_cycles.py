@@ -438,3 +438,21 @@ def test_the_masters_heartbeat_is_held_like_its_sync_while_a_window_is_open():
     assert closed[0].decisions.tolist() == [1, -1, 1]
     assert a.cycle == 1 and not a.held and a.counters()["master_heartbeat"] == 2
     assert sum(a.counts) == a.events
+
+
+def test_a_tagged_decision_stamped_before_its_sync_is_an_old_one_and_late():
+    """The tag repeats every 64 SYNCs: a decision held up behind a backlog of 64 periods carries
+    the open cycle's tag. No answer is sent before its SYNC, so one stamped before it is the old
+    one: late, never counted (a skin4096 run 640 ms behind counted old contacts)."""
+    sc = scene(sync_counter=64)
+    a = CycleAssembler(sc)
+    boot_all(a, sc)
+    a.feed(640 * MS, 0, 0x80, bytes([5]))                     # counter 5 again, 64 SYNCs after the first
+    a.feed(640 * MS + 100, 0, *tagged(10, 1, 5))
+    a.feed(640 * MS + 200, 0, *tagged(11, 1, 5))
+    # node 12's answer to the SYNC with counter 5 of 640 ms earlier, reaching the assembler now
+    a.feed_all(0 * MS + 300, 0, *tagged(12, 1, 5))
+    assert a.counters()["late"] == 1 and not a.got1[2]
+    a.feed(640 * MS + 400, 0, *tagged(12, -1, 5))            # its answer to this SYNC: counted
+    closed = a.feed(650 * MS, 0, 0x80, bytes([6]))
+    assert closed.cycle == 0 and closed.decisions.tolist() == [1, 1, -1] and a.counters()["tpdo1"] == 3

@@ -299,3 +299,18 @@ def test_the_assemblers_slot_decoder_is_patches_unpack(mode, raw_format, fd, syn
                     continue
                 assert bad is None and tag == ref_tag
                 np.testing.assert_array_equal(values, ref)
+
+
+def test_a_patch_frame_stamped_before_its_sync_is_an_old_one_and_late():
+    """The cycle tag (the full counter) repeats every overflow SYNCs: a frame held up behind a
+    backlog that long carries the open cycle's tag but is stamped before its SYNC - late."""
+    sc = patch_scene(sizes=(10,), sync_counter=4)
+    a = CycleAssembler(sc)
+    boot(a, sc)
+    (tpdo,) = devices(sc)[0].tpdos
+    old = pack(tpdo, np.ones(10), tag=2)
+    sync(a, 50 * MS, 2)                                   # the SYNC with counter 2, four SYNCs later
+    a.feed_all(40 * MS, 0, tpdo.cob_id, old)              # stamped before it: the answer of 40 ms ago
+    assert a.counters()["late"] == 1
+    closed = a.feed_all(50 * MS + 100, 0, tpdo.cob_id, pack(tpdo, -np.ones(10), tag=2))
+    assert len(closed) == 1 and closed[0].closed_by == "complete" and (closed[0].decisions == -1).all()

@@ -35,10 +35,13 @@ everything it decides is a function of that stream, so feeding the trace back
 * With a SYNC counter (``sync_counter`` > 0) in decision mode, TPDO1 carries a *cycle tag*
   (object 0x2003: u_i in bits 0-1 as a 2-bit two's complement number, 0b01 = +1, 0b11 = -1;
   bits 2-7 the counter of the SYNC the node sampled, modulo 64). A decision is counted only
-  in the cycle opened by the SYNC with that counter; any other tag is ``late``. This does not
-  depend on any clock: a PDO delayed by a loaded host, a queue or a flood is never counted in
-  a later cycle. Raw mode (TPDO2, a full REAL32) and scenes without a SYNC counter carry no
-  tag and rely on the time stamps below.
+  in the cycle opened by the SYNC with that counter; any other tag is ``late``. A PDO delayed
+  by a loaded host, a queue or a flood is never counted in a later cycle. The tag repeats
+  every 64 SYNCs (patch nodes: every overflow value of the counter), so a PDO held up behind a
+  backlog of that many periods carries the open cycle's tag: it is told apart by its time
+  stamp, which precedes the SYNC it would answer (no answer is sent before its SYNC) - such a
+  PDO is ``late`` too. Raw mode (TPDO2, a full REAL32) and scenes without a SYNC counter carry
+  no tag and rely on the time stamps below.
 
 * Untagged PDOs: a PDO whose own time stamp precedes the time stamp of the SYNC that opened the cycle was
   sent (virtual bus: stamped by the sender) or received (SocketCAN, udp_multicast: stamped by
@@ -434,8 +437,11 @@ class CycleAssembler:
                     u = -1
                 else:
                     return self._bad(C_BAD_VALUE)
-                # the tag names the SYNC it answers: the open cycle's, or it is late
-                stale = self.sync_counter is None or (value >> 2) != (self.sync_counter & TAG_MASK)
+                # the tag names the SYNC it answers: the open cycle's, or it is late; and an
+                # answer is never stamped before its SYNC - one that is carries the same tag as
+                # a SYNC 64 (or overflow) cycles older, still queued behind a backlog
+                stale = (self.sync_counter is None or (value >> 2) != (self.sync_counter & TAG_MASK)
+                         or raw < self.sync_raw)
             elif value == 1:  # object 0x2000: INTEGER8 +1 / -1
                 u = 1
                 stale = raw < self.sync_raw
@@ -559,7 +565,9 @@ class CycleAssembler:
         if tag is not None:
             if not 1 <= tag <= self.sync_overflow:
                 return self._bad(C_BAD_VALUE)  # no SYNC carries this counter
-            stale = self.sync_counter is None or tag != self.sync_counter
+            # an answer is never stamped before its SYNC: one that is answers the SYNC that
+            # carried the same counter a whole counter period earlier (a backlog), never this one
+            stale = self.sync_counter is None or tag != self.sync_counter or raw < self.sync_raw
         else:
             stale = raw < self.sync_raw
         d = int(self.slot_device[slot])
