@@ -281,7 +281,8 @@ def _preferential_rates(args, record: dict, p, q, encoding, low: float, high: fl
         record["log_" + key] = getattr(rates, "log_" + key)
     record["rates_method"] = rates.method
     below = [key for key in ("p_detect", "p_false_alarm", "p_undecided_h1", "p_undecided_h0") if key in rates.below_floor]
-    if below:  # their log_ fields are null: 0 <= rate < 1e-300 (not impossible)
+    if below:  # their plain values underflow to 0 (not impossible): the log_ fields hold the exact
+        # logarithms (tilted DP), null only where none was computed (the {0,1} counts DP)
         record["rates_below_1e-300"] = below
     if rates.ci95:
         record["rates_ci95"] = {k: list(v) for k, v in rates.ci95.items()}
