@@ -44,7 +44,8 @@ SCENES = [ROOT / "scenes" / "skin4096.toml"]
 def check_records(scene, records) -> dict:
     """Records against the physics of their cycle, per taxel (eqs 1-4): ``misattributed`` counts
     records whose present taxels differ from the physics of their cycle (complete records), or
-    - degraded ones - whose present taxels of the nodes that answered do."""
+    - degraded ones - whose present taxels of the nodes that answered do (a node listed in
+    ``silent_nodes``, ``missing_nodes`` or any state of ``nodes_by_state`` sent none)."""
     from fusion_center.service.pipeline import node_labels, taxel_labels
     from taxel_net.patches import devices
 
@@ -61,7 +62,10 @@ def check_records(scene, records) -> dict:
         present = np.zeros(scene.n, dtype=bool)
         present[[index_of[label] for label in r["present_nodes"]]] = True
         received = np.ones(scene.n, dtype=bool)
-        for label in list(r.get("silent_nodes", [])) + list(r.get("missing_nodes", [])):
+        not_heard = set(r.get("silent_nodes", [])) | set(r.get("missing_nodes", []))
+        for labels in r.get("nodes_by_state", {}).values():  # pre-operational, stopped, ...: no PDO
+            not_heard.update(labels)
+        for label in not_heard:
             received[list(taxels_of[label])] = False
         if r["n_received"] == scene.n:
             complete += 1

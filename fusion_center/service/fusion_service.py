@@ -38,6 +38,7 @@ from .aggregates import LatencyHistogram, RunAggregates
 from .cycles import MALFORMED, ClosedCycle, CycleAssembler
 from .pipeline import CyclePipeline
 from .records import RecordWriter
+from .receiver import notifiers_for
 from .stream import EchoFilter, EventStream, RateLimitedLog, _StreamListener
 from .traces import open_trace_writer
 
@@ -181,12 +182,17 @@ class FusionService:
                 self.stream.trace = self._trace_logger
             if self.json_lines is not None:
                 self.writer = RecordWriter(self.json_lines)
+            pairs = []
             for index, bus in enumerate(self.buses):
                 network = canopen.Network(bus)
                 network.send_message = self._sender(index)
                 self.networks.append(network)
-                self.notifiers.append(can.Notifier(bus, [_StreamListener(self, index, network)], timeout=0.05))
-                network.notifier = self.notifiers[-1]
+                pairs.append((bus, [_StreamListener(self, index, network)]))
+            # one receive thread for all buses with a socket (service/receiver.py), else a
+            # python-can Notifier per bus
+            self.notifiers = notifiers_for(pairs, timeout=0.05)
+            for network, notifier in zip(self.networks, self.notifiers):
+                network.notifier = notifier
             from .master import Master
 
             self.master = Master(self, self.scene, self.networks, od)
