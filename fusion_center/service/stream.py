@@ -2,7 +2,9 @@
 
 Threads of a live run:
 
-* one python-can ``Notifier`` thread per bus with one listener, :class:`_StreamListener`: it
+* the receive thread(s) (:mod:`.receiver`: one thread selecting on every bus's socket for
+  udp_multicast / socketcan, else one python-can ``Notifier`` thread per bus), one listener
+  per bus, :class:`_StreamListener`: it
   feeds :meth:`EventStream.receive`, then hands canopen (SDO client, heartbeat and EMCY
   consumers of ``canopen.Network``) only the frames canopen has subscribed to - guarded: an
   exception is counted as ``internal_error`` and never escapes (a raising listener stops
