@@ -58,7 +58,8 @@ def run(args) -> int:
 
     from taxel_net.errors import UsageError
     from taxel_net.scene import load_scene
-    from ..service.assemblers import AssemblerProcess, check_serve, parse_address
+    from ..service.assembler_parts import check_serve, parse_address
+    from ..service.assembler_process import AssemblerProcess
     from . import check_bitrate_flags, resolve_bus
     from .run import apply_mode, setup_logging
 

@@ -1,0 +1,148 @@
+"""What assemblers and fuser share (issue 14, "Beyond one host"; :mod:`.assemblers`): addresses
+and keys of the ``multiprocessing.connection`` transport, channel groups and their sub-scenes,
+the scene fingerprint both sides compare, and :class:`CyclePart`, the one message an assembler
+sends per closed cycle.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import ipaddress
+import logging
+import os
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from taxel_net.errors import UsageError
+from taxel_net.patches import devices as scene_devices
+from taxel_net.scene import Scene
+
+logger = logging.getLogger("fusion_center.service.assemblers")
+
+AUTHKEY_ENV = "FUSION_CENTER_AUTHKEY"
+DEFAULT_AUTHKEY = b"taxel-can loopback"  # only for loopback addresses (module docstring)
+PROTOCOL = 1  # version of the hello / part messages
+COB_SYNC = 0x080
+NMT_RESETS = (0x81, 0x82)
+
+
+# ---------------------------------------------------------------------------- addresses and keys
+
+def parse_address(text: str, flag: str) -> tuple[str, int]:
+    """``HOST:PORT`` (``[v6]:PORT`` for IPv6) -> (host, port); else :class:`UsageError`."""
+    host, sep, port = str(text).rpartition(":")
+    host = host[1:-1] if host.startswith("[") and host.endswith("]") else host
+    try:
+        number = int(port)
+    except ValueError:
+        number = -1
+    if not sep or not host or not 1 <= number <= 65535:
+        raise UsageError(f"{flag} {text!r}: expected HOST:PORT with a port in 1..65535 (e.g. 127.0.0.1:47000)")
+    return host, number
+
+
+def is_loopback(host: str) -> bool:
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+def authkey_for(host: str, flag: str) -> bytes:
+    """The shared key: ``$FUSION_CENTER_AUTHKEY``; without it only a loopback address."""
+    key = os.environ.get(AUTHKEY_ENV, "")
+    if key:
+        return key.encode()
+    if not is_loopback(host):
+        raise UsageError(f"{flag} {host!r}: beyond this host the assemblers and the fuser need a shared key: "
+                         f"set {AUTHKEY_ENV} (the same value on every host), or use 127.0.0.1")
+    return DEFAULT_AUTHKEY
+
+
+def check_serve(channels: Sequence[int], scene: Scene, text: str | None = None) -> list[int]:
+    served = sorted(set(int(c) for c in channels))
+    n = len(scene.bus.channels)
+    if not served or served[0] < 0 or served[-1] >= n:
+        shown = text if text is not None else ",".join(map(str, channels))
+        raise UsageError(f"--serve {shown!r}: scene {scene.name!r} has channels 0..{n - 1} "
+                         f"{list(scene.bus.channels)}: give indices such as 0-{n - 1} or 0,{n - 1}")
+    return served
+
+
+def group_name(channels: Sequence[int]) -> str:
+    """``0-3`` / ``0,2,5``: a channel group as ``--serve`` spells it."""
+    chans = sorted(channels)
+    if chans == list(range(chans[0], chans[-1] + 1)) and len(chans) > 1:
+        return f"{chans[0]}-{chans[-1]}"
+    return ",".join(map(str, chans))
+
+
+# ---------------------------------------------------------------------------- the sub-scene
+
+@dataclass(frozen=True)
+class GroupLayout:
+    """A channel group inside the full scene: its taxels and devices (full-scene indices, in
+    the sub-scene's order) and the sub-scene an assembler runs."""
+
+    channels: tuple[int, ...]
+    taxels: np.ndarray     # sub taxel j -> scene taxel index
+    devices: np.ndarray    # sub device d -> scene device index
+    sub: Scene
+
+    @property
+    def name(self) -> str:
+        return group_name(self.channels)
+
+
+def group_layout(scene: Scene, channels: Sequence[int]) -> GroupLayout:
+    """The scene restricted to ``channels`` (renumbered 0..k-1 in their order): same taxels,
+    node-IDs and TPDO COB-IDs (a channel's TPDOs are numbered over its own nodes)."""
+    served = tuple(sorted(set(int(c) for c in channels)))
+    new = {c: k for k, c in enumerate(served)}
+    taxels = [i for i, t in enumerate(scene.taxels) if t.channel in new]
+    sub_taxels = tuple(dataclasses.replace(scene.taxels[i], channel=new[scene.taxels[i].channel]) for i in taxels)
+    bus = dataclasses.replace(scene.bus, channels=tuple(scene.bus.channels[c] for c in served))
+    sub = dataclasses.replace(scene, taxels=sub_taxels, bus=bus, faults=())
+    full_index = {(d.channel, d.node_id): k for k, d in enumerate(scene_devices(scene))}
+    devs = [full_index[(served[d.channel], d.node_id)] for d in scene_devices(sub)]
+    return GroupLayout(served, np.array(taxels, dtype=np.intp), np.array(devs, dtype=np.intp), sub)
+
+
+def scene_fingerprint(scene: Scene) -> dict:
+    """What an assembler and the fuser must agree on (checked at the hello)."""
+    return {"scene": scene.name, "n": scene.n, "channels": len(scene.bus.channels), "mode": scene.bus.mode,
+            "patch_nodes": bool(scene.bus.patch_nodes), "sync_counter": int(scene.bus.sync_counter),
+            "fd": bool(scene.bus.fd)}
+
+
+# ---------------------------------------------------------------------------- the part
+
+@dataclass
+class CyclePart:
+    """One closed cycle of one channel group, as sent to the fuser (sub-scene order)."""
+
+    channels: tuple[int, ...]
+    number: int                 # the assembler's cycle number (SYNCs since the master's reset)
+    sync_counter: int | None
+    closed_by: str
+    closed_after_us: int        # SYNC -> closing event (the assembler's stream time)
+    decisions: np.ndarray       # int8 per taxel of the group
+    readings: np.ndarray | None  # float64 (None: none received - decision mode)
+    received: np.ndarray
+    expected: np.ndarray
+    missing: np.ndarray
+    states: np.ndarray
+    held_decisions: np.ndarray
+    held_readings: np.ndarray | None
+    late_frames: int = 0
+    bad_frames: int = 0
+    emcy: tuple = ()            # EmcyEvent with the scene's labels and taxel indices
+    emcy_dropped: int = 0
+    duplicates: tuple = ()      # scene device indexes
+    devices: tuple | None = None  # patch scenes: (expected, missing, states, complete) per device of the group
+    sent_at: float = 0.0        # time.time() when sent (assembler -> fuser delay, same-host clocks)
+

@@ -1,0 +1,262 @@
+"""``fusion-center assemble``: a ``CycleAssembler`` over one channel group, listening on its
+buses, each closed cycle sent to the fuser (issue 14; :mod:`.assemblers`).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import socket
+import threading
+import time
+from collections import deque
+from typing import Sequence
+
+import can
+import numpy as np
+
+from taxel_net.errors import UsageError
+from taxel_net.patches import devices as scene_devices
+from taxel_net.scene import Scene
+from .assembler_parts import (AUTHKEY_ENV, NMT_RESETS, PROTOCOL, CyclePart, authkey_for, group_layout,
+                              scene_fingerprint)
+from .cycle_records import ClosedCycle, EmcyEvent, quantise_timestamp
+
+logger = logging.getLogger("fusion_center.service.assemblers")
+
+class GroupAssembler:
+    """A ``CycleAssembler`` over one channel group, its cycles numbered by SYNC and turned
+    into :class:`CyclePart` (pure: feed events, get parts)."""
+
+    def __init__(self, scene: Scene, channels: Sequence[int]):
+        from .cycles import CycleAssembler
+
+        self.scene = scene
+        self.layout = group_layout(scene, channels)
+        self.assembler = CycleAssembler(self.layout.sub)
+        full_labels = {k: (d.node_id if d.channel == 0 else f"{d.channel}:{d.node_id}")
+                       for k, d in enumerate(scene_devices(scene))}
+        self._label = {sub_label: full_labels[int(self.layout.devices[d])]
+                       for d, sub_label in enumerate(self.assembler.labels)}
+        self.overflow = int(scene.bus.sync_counter)
+        self.reset_at: int | None = None  # first assembler cycle after the master's reset broadcast
+        self.last: tuple[int, int, int | None] | None = None  # (assembler cycle, number, counter)
+
+    def note_reset(self) -> None:
+        """The master's broadcast reset communication / node was fed: numbers restart."""
+        self.reset_at = self.assembler.cycle + 1
+
+    def feed(self, timestamp_us: int, channel: int, can_id: int, data: bytes, flags: int = 0) -> list[CyclePart]:
+        closed = self.assembler.feed_all(timestamp_us, channel, can_id, data, flags)
+        if channel == 0 and can_id == 0 and len(data) == 2 and data[1] == 0 and data[0] in NMT_RESETS:
+            self.note_reset()
+        return [self.part(c) for c in closed]
+
+    def number(self, closed: ClosedCycle) -> int:
+        c, counter = closed.cycle, closed.sync_counter
+        if self.reset_at is not None and c >= self.reset_at:
+            number = (counter - 1) if counter else c - self.reset_at  # the master counts from 1
+            self.reset_at = None
+        elif self.last is None:
+            number = (counter - 1) if counter else c
+        else:
+            last_c, last_number, last_counter = self.last
+            step = c - last_c
+            if counter and last_counter and self.overflow:
+                step = (counter - last_counter - 1) % self.overflow + 1  # a jump: lost SYNCs
+            number = last_number + step
+        self.last = (c, number, counter)
+        return number
+
+    def part(self, closed: ClosedCycle) -> CyclePart:
+        lay = self.layout
+        readings = closed.readings if not np.isnan(closed.readings).all() else None
+        held = closed.held_readings if not np.isnan(closed.held_readings).all() else None
+        emcy = tuple(EmcyEvent(self._label.get(e.node, e.node), int(lay.taxels[e.taxel]), e.code, e.register,
+                               e.manufacturer, e.t_us) for e in closed.emcy)
+        dev = closed.devices
+        return CyclePart(
+            channels=lay.channels, number=self.number(closed), sync_counter=closed.sync_counter,
+            closed_by=closed.closed_by, closed_after_us=int(closed.close_us - closed.sync_us),
+            decisions=closed.decisions, readings=readings, received=closed.received,
+            expected=np.asarray(closed.expected), missing=np.asarray(closed.missing),
+            states=np.asarray(closed.states), held_decisions=closed.held_decisions, held_readings=held,
+            late_frames=closed.late_frames, bad_frames=closed.bad_frames, emcy=emcy,
+            emcy_dropped=closed.emcy_dropped, duplicates=tuple(int(lay.devices[d]) for d in closed.duplicates),
+            devices=None if dev is None else (dev.expected, dev.missing, dev.states, dev.complete))
+
+
+# ---------------------------------------------------------------------------- the assembler process
+
+class AssemblerProcess:
+    """``fusion-center assemble``: a :class:`GroupAssembler` on its channels' buses, each
+    closed cycle sent to the fuser as a :class:`CyclePart`."""
+
+    def __init__(self, scene: Scene, channels: Sequence[int], *, fuser: tuple[str, int], interface: str,
+                 channel_names: Sequence[str] | None = None, bitrate: int | None = None,
+                 bus_kwargs: dict | None = None, authkey: bytes | None = None):
+        self.scene = scene
+        self.group = GroupAssembler(scene, channels)
+        self.layout = self.group.layout
+        names = list(channel_names) if channel_names is not None else list(scene.bus.channels)
+        if len(names) != len(scene.bus.channels):
+            raise UsageError(f"--channel: the scene has {len(scene.bus.channels)} channel(s) "
+                             f"{list(scene.bus.channels)}, got {len(names)}")
+        self.channel_names = [names[c] for c in self.layout.channels]
+        self.interface = interface
+        self.bitrate = bitrate
+        self.bus_kwargs = dict(bus_kwargs or {})
+        self.fuser = fuser
+        self.authkey = authkey if authkey is not None else authkey_for(fuser[0], "--fuser")
+        self.buses = []
+        self.notifiers = []
+        self.conn = None
+        self.lock = threading.Lock()       # the event stream: one order over the group's channels
+        self._send_lock = threading.Lock()
+        self._outbox: deque[CyclePart] = deque()
+        self.parts_sent = 0
+        self.parts_unsent = 0
+        self.events = 0
+        self.closed = threading.Event()    # the fuser said bye or went away
+        self.bye = False
+
+    def open(self) -> "AssemblerProcess":
+        import can
+
+        from taxel_net.canmsg import tune_udp_multicast
+
+        if self.interface not in can.interfaces.VALID_INTERFACES:
+            raise UsageError(f"--interface {self.interface!r}: not a python-can interface")
+        try:
+            for name in self.channel_names:
+                kwargs = dict(self.bus_kwargs)
+                if self.bitrate is not None:
+                    kwargs["bitrate"] = self.bitrate
+                try:
+                    bus = can.Bus(interface=self.interface, channel=name, **kwargs)
+                except Exception as exc:  # noqa: BLE001
+                    raise UsageError(f"--channel {name!r} cannot be opened with interface {self.interface!r}: "
+                                     f"{type(exc).__name__}: {exc}") from None
+                tune_udp_multicast(bus)
+                self.buses.append(bus)
+            for index, bus in enumerate(self.buses):
+                self.notifiers.append(can.Notifier(bus, [_PartListener(self, index)], timeout=0.05))
+        except BaseException:
+            self.close()
+            raise
+        return self
+
+    def connect(self, timeout_s: float = 30.0) -> None:
+        """Connect to the fuser (retrying while it is not listening yet), say hello."""
+        from multiprocessing.connection import Client
+
+        host, port = self.fuser
+        deadline = time.monotonic() + timeout_s
+        while True:
+            try:
+                conn = Client((host, port), authkey=self.authkey)
+                break
+            except (ConnectionRefusedError, socket.timeout, OSError) as exc:
+                if isinstance(exc, ConnectionRefusedError) or getattr(exc, "errno", None) in (111, 113, 110):
+                    if time.monotonic() < deadline:
+                        time.sleep(0.1)
+                        continue
+                raise UsageError(f"--fuser {host}:{port}: cannot connect ({exc.strerror or exc}) within "
+                                 f"{timeout_s:g} s: is `fusion-center run --assemblers {host}:{port}` running?") from None
+            except Exception as exc:  # noqa: BLE001 - multiprocessing.AuthenticationError
+                raise UsageError(f"--fuser {host}:{port}: {type(exc).__name__}: {exc} (the same "
+                                 f"{AUTHKEY_ENV} on both sides?)") from None
+        conn.send({"kind": "hello", "protocol": PROTOCOL, "scene": scene_fingerprint(self.scene),
+                   "channels": list(self.layout.channels), "host": socket.gethostname(), "pid": os.getpid()})
+        answer = conn.recv()
+        if not isinstance(answer, dict) or answer.get("kind") != "welcome":
+            conn.close()
+            why = answer.get("why") if isinstance(answer, dict) else answer
+            raise UsageError(f"--fuser {host}:{port}: refused: {why}")
+        self.conn = conn
+        threading.Thread(target=self._watch, name="fuser-watch", daemon=True).start()
+
+    def _watch(self) -> None:
+        try:
+            while True:
+                message = self.conn.recv()
+                if isinstance(message, dict) and message.get("kind") == "bye":
+                    self.bye = True
+                    break
+        except (EOFError, OSError):
+            pass
+        self.closed.set()
+
+    def close(self) -> None:
+        for notifier in self.notifiers:
+            try:
+                notifier.stop(timeout=2)
+            except Exception:  # noqa: BLE001
+                pass
+        self.notifiers = []
+        for bus in self.buses:
+            try:
+                bus.shutdown()
+            except Exception:  # noqa: BLE001
+                pass
+        self.buses = []
+        if self.conn is not None:
+            try:
+                self.conn.close()
+            except OSError:
+                pass
+            self.conn = None
+
+    def __enter__(self):
+        return self.open()
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def receive(self, msg, channel: int) -> None:
+        from .stream import message_flags
+
+        with self.lock:
+            self.events += 1
+            parts = self.group.feed(quantise_timestamp(msg.timestamp), channel, msg.arbitration_id,
+                                    bytes(msg.data), message_flags(msg))
+            self._outbox.extend(parts)
+        if parts:
+            self._send()
+
+    def _send(self) -> None:
+        with self._send_lock:  # parts leave in the order they closed
+            while self._outbox:
+                part = self._outbox.popleft()
+                conn = self.conn
+                if conn is None or self.closed.is_set():
+                    self.parts_unsent += 1
+                    continue
+                part.sent_at = time.time()
+                try:
+                    conn.send(part)
+                    self.parts_sent += 1
+                except (OSError, ValueError):
+                    self.parts_unsent += 1
+                    self.closed.set()
+
+
+class _PartListener(can.Listener):
+    """python-can listener of one channel of an assembler process (never raises)."""
+
+    def __init__(self, process: AssemblerProcess, channel: int):
+        self.process = process
+        self.channel = channel
+
+    def on_message_received(self, msg) -> None:
+        try:
+            self.process.receive(msg, self.channel)
+        except Exception:  # noqa: BLE001 - never let the Notifier thread die
+            logger.exception("assembler receive path failed")
+
+    def on_error(self, exc) -> None:
+        logger.warning("bus error on channel %d: %s", self.channel, exc)
+
+    def stop(self) -> None:
+        pass
+

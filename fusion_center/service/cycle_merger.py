@@ -1,0 +1,238 @@
+"""The fuser's merge of the assemblers' parts (issue 14; :mod:`.assemblers`, *Merge*): per SYNC
+the fuser sent, one :class:`~.assembler_parts.CyclePart` per channel group, merged into one
+``ClosedCycle`` over every taxel. Pure: the caller passes the time.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from taxel_net.patches import devices as scene_devices
+from taxel_net.scene import Scene
+from .aggregates import LatencyHistogram
+from .assembler_parts import CyclePart, GroupLayout, group_layout
+from .cycle_records import EMCY_PER_CYCLE, STATE_UNKNOWN, ClosedCycle, DeviceCycle, EmcyEvent
+
+logger = logging.getLogger("fusion_center.service.assemblers")
+
+# ---------------------------------------------------------------------------- the merge
+
+@dataclass
+class MergeStats:
+    parts: int = 0
+    complete: int = 0         # cycles with every group's part
+    degraded: int = 0         # cycles with a missing part
+    parts_missing: int = 0    # (cycle, group) pairs without a part
+    late_parts: int = 0       # parts for a cycle already evaluated
+    unmatched_parts: int = 0  # parts for no SYNC this fuser sent
+    duplicate_parts: int = 0
+    by_group: dict = field(default_factory=dict)  # group -> parts received
+    # where a part's time goes (same-host clocks; across hosts only as good as their sync):
+    to_send: LatencyHistogram = field(default_factory=LatencyHistogram)    # SYNC sent -> part sent
+    transport: LatencyHistogram = field(default_factory=LatencyHistogram)  # part sent -> received
+
+    def as_dict(self) -> dict:
+        out = {k: v for k, v in vars(self).items() if not isinstance(v, LatencyHistogram)}
+        out["by_group"] = dict(self.by_group)
+        for name in ("to_send", "transport"):
+            h = getattr(self, name)
+            out[f"{name}_ms"] = {f"p{q}": None if h.percentile(q) is None else round(h.percentile(q), 3)
+                                 for q in (50, 99)}
+        return out
+
+
+class CycleMerger:
+    """Merges the groups' parts per SYNC into one :class:`ClosedCycle` over every taxel (module
+    docstring, *Merge*). Pure: the caller passes the time; thread-safe (one lock)."""
+
+    def __init__(self, scene: Scene, *, part_deadline_s: float):
+        self.scene = scene
+        self.n = scene.n
+        self.n_devices = len(scene_devices(scene))
+        self.patch = bool(scene.bus.patch_nodes)
+        self.overflow = int(scene.bus.sync_counter)
+        self.deadline_s = float(part_deadline_s)
+        self.lock = threading.Lock()
+        self.groups: dict[str, GroupLayout] = {}   # connected groups
+        self.gone: set[str] = set()                # disconnected groups (their parts are missing)
+        self.last_k: dict[str, int] = {}           # latest cycle a group sent a part for
+        self.syncs: dict[int, tuple] = {}  # k -> (counter, sync_us, monotonic sent, time.time() sent)
+        self.last_sync: tuple[int, int | None] | None = None
+        self.parts: dict[int, dict[str, CyclePart]] = {}
+        self.next_k: int | None = None
+        self.sent = 0
+        self.held_decisions = np.zeros(self.n, dtype=np.int8)
+        self.held_readings = np.full(self.n, np.nan)
+        self.stats = MergeStats()
+        self.info: dict[int, dict] = {}  # k -> record fields of the merge (parts_missing, ...)
+
+    # -- groups
+    def add_group(self, layout: GroupLayout) -> str | None:
+        """Register a group; a reason string when refused (overlap with a connected group)."""
+        with self.lock:
+            taken = {c for name, g in self.groups.items() for c in g.channels}
+            overlap = sorted(taken & set(layout.channels))
+            if overlap:
+                return f"scene channel(s) {overlap} are already served by another assembler"
+            self.groups[layout.name] = layout
+            self.gone.discard(layout.name)
+            self.stats.by_group.setdefault(layout.name, 0)
+            return None
+
+    def remove_group(self, name: str) -> None:
+        with self.lock:
+            if self.groups.pop(name, None) is not None:
+                self.gone.add(name)
+
+    def covered(self) -> set[int]:
+        with self.lock:
+            return {c for g in self.groups.values() for c in g.channels}
+
+    # -- SYNCs and parts
+    def opened(self, counter: int | None, sync_us: int, now: float, wall: float | None = None) -> int:
+        """The fuser sent a SYNC (called before it goes on the bus): its cycle number."""
+        with self.lock:
+            k = self.sent
+            self.sent += 1
+            self.syncs[k] = (counter, sync_us, now, wall)
+            self.last_sync = (k, counter)
+            if self.next_k is None:
+                self.next_k = k
+            return k
+
+    def cycle_of(self, part: CyclePart) -> int | None:
+        """The SYNC (cycle number) a part answers (lock held)."""
+        if self.last_sync is None:
+            return None
+        last_k, last_counter = self.last_sync
+        if self.overflow and part.sync_counter is not None and last_counter is not None:
+            return last_k - (last_counter - part.sync_counter) % self.overflow
+        return part.number
+
+    def add_part(self, name: str, part: CyclePart, received_at: float | None = None) -> None:
+        with self.lock:
+            stats = self.stats
+            stats.parts += 1
+            stats.by_group[name] = stats.by_group.get(name, 0) + 1
+            k = self.cycle_of(part)
+            if received_at is not None and part.sent_at:
+                stats.transport.add((received_at - part.sent_at) * 1e3)
+                wall = self.syncs[k][3] if k in self.syncs else None
+                if wall is not None:
+                    stats.to_send.add((part.sent_at - wall) * 1e3)
+            if k is None or k not in self.syncs:
+                if k is not None and self.next_k is not None and k < self.next_k:
+                    stats.late_parts += 1
+                else:
+                    stats.unmatched_parts += 1
+                return
+            if self.next_k is not None and k < self.next_k:
+                stats.late_parts += 1
+                return
+            got = self.parts.setdefault(k, {})
+            if name in got:
+                stats.duplicate_parts += 1
+                return
+            got[name] = part
+            self.last_k[name] = max(k, self.last_k.get(name, -1))
+
+    def emit(self, now: float, *, final: bool = False) -> list[ClosedCycle]:
+        """The cycles now decided, in SYNC order (``final``: every cycle sent, missing parts missing)."""
+        out = []
+        with self.lock:
+            while self.next_k is not None and self.next_k in self.syncs:
+                k = self.next_k
+                counter, sync_us, sent, _ = self.syncs[k]
+                got = self.parts.get(k, {})
+                names = sorted(set(self.groups) | self.gone)
+                missing = []
+                wait = False
+                for name in names:
+                    if name in got:
+                        continue
+                    if final or name in self.gone or self.last_k.get(name, -1) > k or now - sent > self.deadline_s:
+                        missing.append(name)
+                    else:
+                        wait = True
+                        break
+                if wait or not names:
+                    break
+                out.append(self._merge(k, counter, sync_us, got, missing))
+                self.parts.pop(k, None)
+                del self.syncs[k]
+                self.next_k = k + 1
+        return out
+
+    def pending(self) -> int:
+        with self.lock:
+            return len(self.syncs)
+
+    def _merge(self, k: int, counter, sync_us: int, got: dict[str, CyclePart], missing: list[str]) -> ClosedCycle:
+        n = self.n
+        decisions = np.zeros(n, dtype=np.int8)
+        readings = np.full(n, np.nan)
+        received = np.zeros(n, dtype=bool)
+        expected = np.ones(n, dtype=bool)    # a missing group's taxels: silent (expected, not received)
+        missing_t = np.zeros(n, dtype=bool)
+        states = np.full(n, STATE_UNKNOWN, dtype=np.int16)
+        device = None
+        if self.patch:
+            nd = self.n_devices
+            d_exp, d_miss = np.ones(nd, dtype=bool), np.zeros(nd, dtype=bool)
+            d_states, d_complete = np.full(nd, STATE_UNKNOWN, dtype=np.int16), np.zeros(nd, dtype=bool)
+        late = bad = dropped = 0
+        emcy: list[EmcyEvent] = []
+        duplicates: set[int] = set()
+        close_after = 0
+        by = []
+        for name, part in got.items():
+            layout = self.groups.get(name)
+            if layout is None:  # disconnected since: its layout is still valid (by channels)
+                layout = group_layout(self.scene, part.channels)
+            idx = layout.taxels
+            decisions[idx] = part.decisions
+            if part.readings is not None:
+                readings[idx] = part.readings
+            received[idx] = part.received
+            expected[idx] = part.expected
+            missing_t[idx] = part.missing
+            states[idx] = part.states
+            self.held_decisions[idx] = part.held_decisions
+            if part.held_readings is not None:
+                self.held_readings[idx] = part.held_readings
+            if self.patch and part.devices is not None:
+                dv = layout.devices
+                d_exp[dv], d_miss[dv], d_states[dv], d_complete[dv] = part.devices
+            late += part.late_frames
+            bad += part.bad_frames
+            dropped += part.emcy_dropped
+            emcy.extend(part.emcy)
+            duplicates.update(part.duplicates)
+            close_after = max(close_after, part.closed_after_us)
+            by.append(part.closed_by)
+        if len(emcy) > EMCY_PER_CYCLE:
+            dropped += len(emcy) - EMCY_PER_CYCLE
+            emcy = sorted(emcy, key=lambda e: e.t_us)[:EMCY_PER_CYCLE]
+        if self.patch:
+            device = DeviceCycle(expected=d_exp, missing=d_miss, states=d_states, complete=d_complete)
+        if missing:
+            closed_by = "part_missing"
+            self.stats.degraded += 1
+            self.stats.parts_missing += len(missing)
+        else:
+            self.stats.complete += 1
+            closed_by = next((b for b in by if b != "complete"), "complete")
+        self.info[k] = {"parts_missing": missing}
+        if len(self.info) > 4096:
+            self.info.pop(next(iter(self.info)))
+        return ClosedCycle(
+            cycle=k, sync_us=sync_us, close_us=sync_us + close_after, sync_counter=counter, closed_by=closed_by,
+            decisions=decisions, readings=readings, received=received, expected=expected, missing=missing_t,
+            held_decisions=self.held_decisions.copy(), held_readings=self.held_readings.copy(),
+            late_frames=late, bad_frames=bad, emcy=tuple(emcy), states=states,
+            duplicates=tuple(sorted(duplicates)), emcy_dropped=dropped, devices=device)
+
