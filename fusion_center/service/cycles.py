@@ -79,10 +79,11 @@ import math
 
 import numpy as np
 
-from taxel_net.patches import ENC_BITS, RAW_BYTES, devices as scene_devices
+from taxel_net.patches import ENC_BITS, devices as scene_devices
 from taxel_net.scene import Scene
 from .decoder import (
     HEARTBEAT_STATES,
+    SlotDecoder,  # re-exported: the patch TPDO decoding lives in .decoder
     K_EMCY,
     K_HEARTBEAT,
     K_NMT,
@@ -152,52 +153,6 @@ from .cycle_records import (  # noqa: F401 - re-exported: the assembler's vocabu
 NODE_KINDS = frozenset({K_TPDO1, K_TPDO2, K_PATCH, K_HEARTBEAT, K_EMCY, K_SDO_RESPONSE})  # frames a node sends
 PDO_KINDS = frozenset({K_TPDO1, K_TPDO2, K_PATCH})  # CAN FD frames on a scene with [bus] fd
 K_FORMAT = -1  # a classic frame on a COB-ID whose PDO is a CAN FD frame: counted as fd_frame
-
-# bit k of a byte as a decision (u_i = +1 present, -1 absent): one table lookup per frame
-_BITS_PM1 = np.where(np.unpackbits(np.arange(256, dtype=np.uint8)[:, None], axis=1, bitorder="little") == 1,
-                     np.int8(1), np.int8(-1)).astype(np.int8)
-
-
-class SlotDecoder:
-    """The decoding of one patch TPDO, precomputed: exactly :func:`taxel_net.patches.unpack`
-    (same values, same refusals), at a few µs a frame (one ``frombuffer`` and one table lookup
-    for packed decisions; tests/test_cycles_patch.py checks the two agree on random frames).
-
-    ``decode(data)`` -> ``(counter, tag, values)``: ``counter`` None when the frame fits, else
-    the disposition (``C_BAD_DLC``, ``C_BAD_VALUE``)."""
-
-    __slots__ = ("length", "tagged", "start", "end", "count", "tail", "pad_mask", "bits", "dtype", "lo", "lsb")
-
-    def __init__(self, tpdo, lsb_mv: float):
-        self.length = tpdo.length
-        self.tagged = tpdo.tagged
-        self.start = int(tpdo.tagged)
-        self.end = self.start + tpdo.payload_bytes
-        self.count = tpdo.count
-        self.tail = bytes(tpdo.length - self.end)  # padding bytes: all 0
-        self.bits = tpdo.encoding == ENC_BITS
-        used = tpdo.count % 8
-        self.pad_mask = (0xFF << used) & 0xFF if self.bits and used else 0  # unused bits of the last byte
-        self.dtype = np.dtype("<i1") if RAW_BYTES.get(tpdo.encoding) == 1 else np.dtype("<i2")
-        self.lo = int(np.iinfo(self.dtype).min)  # "not valid"
-        self.lsb = float(lsb_mv)
-
-    def decode(self, data: bytes):
-        if len(data) != self.length:
-            return C_BAD_DLC, None, None
-        end = self.end
-        if data[end:] != self.tail or (self.pad_mask and data[end - 1] & self.pad_mask):
-            return C_BAD_VALUE, None, None
-        tag = data[0] if self.tagged else None
-        start = self.start
-        if self.bits:
-            body = np.frombuffer(data, dtype=np.uint8, count=end - start, offset=start)
-            return None, tag, _BITS_PM1[body].reshape(-1)[: self.count]
-        counts = np.frombuffer(data, dtype=self.dtype, count=self.count, offset=start)
-        mv = counts * self.lsb
-        mv[counts == self.lo] = np.nan
-        return None, tag, mv
-
 
 HOLD_MAX = 4096  # master / other frames held at most while a window is open (then released)
 
