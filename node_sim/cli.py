@@ -36,7 +36,7 @@ import threading
 
 import can
 
-from taxel_net.buscli import BITRATE_RANGE, DATA_BITRATE_MAX, ChannelsAction, parse_bitrate
+from taxel_net.buscli import BITRATE_RANGE, DATA_BITRATE_MAX, ChannelsAction, channel_indices, parse_bitrate
 from taxel_net.errors import ParameterError, SceneError
 
 from . import od as odx
@@ -162,17 +162,10 @@ def resolve_bus(args, scene) -> tuple[str, list | None, int | None, dict]:
 
 def parse_channel_indices(text: str) -> list[int]:
     """argparse type of ``--serve``: ``0-3``, ``0,2,5`` or a mix (``0-2,7``)."""
-    out: list[int] = []
     try:
-        for part in text.split(","):
-            lo, _, hi = part.strip().partition("-")
-            first, last = int(lo), int(hi) if hi else int(lo)
-            if first < 0 or last < first:
-                raise ValueError
-            out.extend(range(first, last + 1))
+        return channel_indices(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r}: scene channel indices such as 0-3 or 0,2,5") from None
-    return out
 
 
 def main(argv: list[str] | None = None) -> int:

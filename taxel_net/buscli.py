@@ -34,3 +34,16 @@ class ChannelsAction(argparse.Action):
     def __call__(self, parser, namespace, values, option_string=None):
         before = getattr(namespace, self.dest, None)
         setattr(namespace, self.dest, values if before is None else f"{before},{values}")
+
+
+def channel_indices(text: str) -> list[int]:
+    """Scene channel indices as ``--serve`` takes them: ``0-3``, ``0,2,5`` or a mix (``0-2,7``);
+    ``ValueError`` for anything else (node-sim and ``fusion-center assemble`` word the error)."""
+    out: list[int] = []
+    for part in str(text).split(","):
+        lo, _, hi = part.strip().partition("-")
+        first, last = int(lo), int(hi) if hi else int(lo)
+        if first < 0 or last < first:
+            raise ValueError(text)
+        out.extend(range(first, last + 1))
+    return out

@@ -38,19 +38,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def parse_serve(text: str) -> list[int]:
+    from taxel_net.buscli import channel_indices
     from taxel_net.errors import UsageError
 
-    out: list[int] = []
     try:
-        for part in str(text).split(","):
-            lo, _, hi = part.strip().partition("-")
-            first, last = int(lo), int(hi) if hi else int(lo)
-            if first < 0 or last < first:
-                raise ValueError
-            out.extend(range(first, last + 1))
+        return channel_indices(text)
     except ValueError:
         raise UsageError(f"--serve {text!r}: expected scene channel indices such as 0-3 or 0,2,5") from None
-    return out
 
 
 def run(args) -> int:
