@@ -13,6 +13,8 @@ on ``udp_multicast`` (loopback) - for ``--cycles`` SYNC cycles at the scene's SY
   stage the scene asks for) - p50, p99, max - and the centre's own part (closing event -> record);
 * records complete / degraded / undecided, late PDOs, and records whose received decisions
   differ from the physics of their cycle (``misattributed``; goal 0);
+* CPU time per cycle of the centre (and of the twins' processes with shards) over the run: what
+  a cycle costs, less dependent on the load than the latency;
 * peak resident memory of this process (``ru_maxrss``; with shards, the twins run elsewhere).
 
 Goal (issue 14): p99 <= 5 ms and <= 300 MB at 4,096 taxels, patch nodes, 8 channels, 100 Hz,
@@ -22,6 +24,7 @@ on the 2-core machine. The figures measure the host as much as the code: run it 
 from __future__ import annotations
 
 import argparse
+import os
 import resource
 import sys
 import time
@@ -76,6 +79,34 @@ def check_records(scene, records) -> dict:
             "misattributed": wrong}
 
 
+class CpuMeter:
+    """CPU time (user + system, s) of this process and of ``pids`` (the node-sim shards) over
+    the ``with`` block: what a cycle costs the host, whatever else runs beside it."""
+
+    def __init__(self, pids=()):
+        self.pids = list(pids)
+
+    @staticmethod
+    def _of(pid) -> float:
+        if pid is None:
+            usage = resource.getrusage(resource.RUSAGE_SELF)
+            return usage.ru_utime + usage.ru_stime
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")  # utime, stime
+
+    def __enter__(self):
+        self.t0 = time.perf_counter()
+        self.start = [self._of(None)] + [self._of(pid) for pid in self.pids]
+        return self
+
+    def __exit__(self, *exc):
+        self.wall_s = time.perf_counter() - self.t0
+        end = [self._of(None)] + [self._of(pid) for pid in self.pids]
+        self.centre_s, *twins = [b - a for a, b in zip(self.start, end)]
+        self.twins_s = sum(twins)
+        return False
+
+
 def run_in_process(scene, cycles: int) -> tuple[FusionService, object, float]:
     from node_sim.rig import Rig
 
@@ -88,10 +119,11 @@ def run_in_process(scene, cycles: int) -> tuple[FusionService, object, float]:
             t0 = time.perf_counter()
             service.boot(30.0)
             boot_s = time.perf_counter() - t0
-            summary = service.run(cycles)
+            with CpuMeter() as cpu:
+                summary = service.run(cycles)
         finally:
             rig.stop()
-    return service, summary, boot_s
+    return service, summary, boot_s, cpu
 
 
 def run_sharded(scene, cycles: int, shards: int) -> tuple[FusionService, object, float]:
@@ -120,12 +152,13 @@ def run_sharded(scene, cycles: int, shards: int) -> tuple[FusionService, object,
             t0 = time.perf_counter()
             service.boot(30.0)
             boot_s = time.perf_counter() - t0
-            summary = service.run(cycles)
+            with CpuMeter([proc.pid for proc in procs]) as cpu:
+                summary = service.run(cycles)
     finally:
         for proc in procs:
             proc.terminate()
             proc.wait(10)
-    return service, summary, boot_s
+    return service, summary, boot_s, cpu
 
 
 def main(argv=None) -> int:
@@ -137,9 +170,9 @@ def main(argv=None) -> int:
     for path in args.scene:
         scene = load_scene(path)
         if args.shards:
-            service, summary, boot_s = run_sharded(scene, args.cycles, args.shards)
+            service, summary, boot_s, cpu = run_sharded(scene, args.cycles, args.shards)
         else:
-            service, summary, boot_s = run_in_process(scene, args.cycles)
+            service, summary, boot_s, cpu = run_in_process(scene, args.cycles)
         hist = summary.latency_hist
         centre = service.centre_latency
         checked = check_records(scene, service.records)
@@ -152,6 +185,11 @@ def main(argv=None) -> int:
               f"centre part p99 {centre.percentile(99):.2f} ms")
         print(f"  records: {checked['complete']} complete, {checked['degraded']} degraded, {checked['undecided']} "
               f"undecided, late PDOs {summary.counters.get('late', 0)}, misattributed {checked['misattributed']}")
+        n_cycles = max(summary.cycles, 1)
+        twins = (f", twins {cpu.twins_s / n_cycles * 1e3:.2f} ms" if args.shards else "")
+        print(f"  CPU per cycle: {'centre' if args.shards else 'centre + twins'} {cpu.centre_s / n_cycles * 1e3:.2f} ms"
+              f"{twins} (of a {scene.bus.sync_period_ms:g} ms period; {cpu.wall_s:.1f} s run, "
+              f"load {os.getloadavg()[0]:.1f} at the end)")
         print(f"  peak memory of this process: {rss_mb:.0f} MB (goal <= 300 MB: {rss_mb / 300:.2f}x)")
     return 0
 
