@@ -417,6 +417,27 @@ def _region_logs(rows, lat: _Lattice, edges: dict, theta: float, theta_out: floa
     return out
 
 
+def _shared_run_may_hold(pi: np.ndarray, lat: _Lattice, theta: float, edges) -> bool:
+    """Whether a run tilted by ``theta`` can give every region whose near edge is in ``edges``
+    an error bound below 10^BOUND_OK: False where the Gaussian approximation of the tilted law
+    (mean and variance Lambda'(theta), Lambda''(theta)) puts an edge so far out that the predicted
+    bound, eps ~ n / BLOCK * TRIM_REL over the tilted mass near the edge, misses 10^BOUND_OK by
+    more than a factor 10^3. A prediction only (it saves a run that would fail its check);
+    the result does not depend on it: every rate is checked against its proven bound."""
+    h = 1e-3
+    lam = log_partition(pi, lat, [theta - h, theta, theta + h])
+    mean = float((lam[2] - lam[0]) / (2 * h))
+    var = max(float((lam[2] - 2 * lam[1] + lam[0]) / (h * h)), 1e-12)
+    log_eps = math.log(max(pi.size / BLOCK, 1.0) * TRIM_REL)
+    for edge in edges:
+        z = (edge - mean) / math.sqrt(var)
+        # ln of the tilted mass near the edge, weighted by e^(-theta (x - edge)) inside the region
+        log_near = -0.5 * z * z - 0.5 * math.log(2 * math.pi * var) - math.log(-math.expm1(-abs(theta)))
+        if (log_eps - log_near) / math.log(10.0) > BOUND_OK + 3.0:
+            return False
+    return True
+
+
 def lattice_band_logs(pi: np.ndarray, lat: _Lattice, low: float, high: float, deep: bool = True):
     """Per region (U_G >= high, low <= U_G < high, U_G < low), for one hypothesis (taxels present
     with probabilities ``pi``), n = pi.size >= 2, eq 7 and the eq 20 band: (ln P or None, below
@@ -480,7 +501,7 @@ def lattice_band_logs(pi: np.ndarray, lat: _Lattice, low: float, high: float, de
             skipped.append(chernoff)
         tilts[r] = None if shared else theta
     far = [r for r in far if out[r] is None]
-    if shared and far:
+    if shared and far and _shared_run_may_hold(pi, lat, middle[0], [targets[r] for r in far]):
         for r in far:
             if run(middle[0])[r][1] <= BOUND_OK:
                 out[r] = run(middle[0])[r]
