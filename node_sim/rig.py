@@ -62,6 +62,7 @@ import numpy as np
 from taxel_net import patches
 from taxel_net.canmsg import TxMessage, tune_udp_multicast
 from taxel_net.errors import ParameterError
+from taxel_net.receiver import notifiers_for
 from taxel_net.scene import TAXEL_KINDS, Scene
 
 from . import lss as lssx
@@ -150,7 +151,7 @@ class _Channel(can.Listener):
         self._rx_time = 0.0
         self.late_syncs = 0  # SYNCs handled after their synchronous window (0x1007): no TPDO sent
         self.frames_sent = 0
-        self.notifier: can.Notifier | None = None
+        self.notifier = None  # its receive handle (a can.Notifier or a taxel_net.receiver one)
         self._sync_map: dict[int, list[tuple[TaxelNode, Callable, int]]] | None = None
 
     # -- python-can Listener
@@ -402,8 +403,11 @@ class Rig:
                     self._new_node(ch, i, t.node_id)
             if self._reading_source is None:
                 self._readings(0)  # the first SYNC's readings (and the scene's arrays) off its path
-            for ch in self._channels:
-                ch.notifier = can.Notifier(ch.bus, [ch], timeout=0.05)
+            # one receive thread for all the channels' buses when each has a socket
+            # (udp_multicast, socketcan: taxel_net/receiver.py), else a python-can Notifier each
+            handles = notifiers_for([(ch.bus, [ch]) for ch in self._channels], timeout=0.05, name="node-sim-receive")
+            for ch, handle in zip(self._channels, handles):
+                ch.notifier = handle
             for ch in self._channels:
                 with ch.lock:
                     for node in ch.nodes.values():

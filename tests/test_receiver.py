@@ -1,4 +1,4 @@
-"""service/receiver.py: one select thread for every bus with a socket (udp_multicast here)."""
+"""taxel_net/receiver.py: one select thread for every bus with a socket (udp_multicast here)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from pathlib import Path
 import can
 import pytest
 
-from fusion_center.service.receiver import SelectNotifiers, has_socket, notifiers_for
+from taxel_net.receiver import SelectNotifiers, has_socket, notifiers_for
 
 ROOT = Path(__file__).resolve().parent.parent
 GROUPS = ["239.74.163.31", "239.74.163.32", "239.74.163.33"]
@@ -115,3 +115,53 @@ def test_a_failing_bus_is_reported_once_and_no_longer_read():
     finally:
         loop.stop(1)
         bus.shutdown()
+
+
+def test_udp_multicast_drain_reads_what_recv_would_and_no_more():
+    """The direct socket read yields what python-can's own ``recv`` gives a second bus of the
+    same group (every field, the kernel's receive time; FD frames dropped on a classic bus),
+    and returns at once when the socket is empty; a bus with software filters is left to
+    ``bus.recv`` (the drain would skip them)."""
+    sys.path.insert(0, str(ROOT / "tests"))
+    from test_service_multiprocess import multicast_works
+
+    from taxel_net.receiver import udp_multicast_drain
+
+    port = random.randint(40000, 60000)
+    why = multicast_works(port)
+    if why is not None:
+        pytest.skip(why)
+
+    def fields(m):
+        return m.arbitration_id, bytes(m.data), m.is_extended_id, m.is_remote_frame, m.dlc, m.is_fd, m.bitrate_switch
+
+    for fd in (False, True):
+        rx, reference = (can.Bus(interface="udp_multicast", channel=GROUPS[0], port=port, hop_limit=0, fd=fd)
+                         for _ in range(2))
+        tx = can.Bus(interface="udp_multicast", channel=GROUPS[0], port=port, hop_limit=0, fd=True)
+        try:
+            drain = udp_multicast_drain(rx)
+            assert drain is not None
+            assert list(drain()) == []  # nothing sent yet: returns without waiting
+            sent = [can.Message(arbitration_id=0x181, data=b"\x01\x02", is_extended_id=False),
+                    can.Message(arbitration_id=0x1234567, is_extended_id=True, is_remote_frame=True, dlc=3),
+                    can.Message(arbitration_id=0x281, data=bytes(12), is_extended_id=False, is_fd=True,
+                                bitrate_switch=True),
+                    can.Message(arbitration_id=0x080, data=b"\x07", is_extended_id=False)]
+            for m in sent:
+                tx.send(m)
+            expected = []
+            while (m := reference.recv(1.0)) is not None:
+                expected.append(m)
+            assert [fields(m) for m in expected] == [fields(m) for m in sent if fd or not m.is_fd]
+            got = list(drain())  # the reference has them all: so has this socket
+            assert [fields(m) for m in got] == [fields(m) for m in expected]
+            assert all(abs(a.timestamp - b.timestamp) < 0.5 and a.timestamp > 1e9 for a, b in zip(got, expected))
+            rx.set_filters([{"can_id": 0x080, "can_mask": 0x7FF}])
+            assert udp_multicast_drain(rx) is None
+        finally:
+            for bus in (rx, reference, tx):
+                bus.shutdown()
+    virtual = can.Bus(interface="virtual", channel=f"v-{random.random()}")
+    assert udp_multicast_drain(virtual) is None
+    virtual.shutdown()

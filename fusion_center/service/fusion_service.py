@@ -32,13 +32,13 @@ import can
 
 from taxel_net.canmsg import tune_udp_multicast
 from taxel_net.errors import UsageError
+from taxel_net.receiver import notifiers_for
 from taxel_net.resources import eds_path, patch_eds_path
 from taxel_net.scene import Scene
 from .aggregates import LatencyHistogram, RunAggregates
 from .cycles import MALFORMED, ClosedCycle, CycleAssembler
 from .pipeline import CyclePipeline
 from .records import RecordWriter
-from .receiver import notifiers_for
 from .stream import EchoFilter, EventStream, RateLimitedLog, _StreamListener
 from .traces import open_trace_writer
 
@@ -188,9 +188,9 @@ class FusionService:
                 network.send_message = self._sender(index)
                 self.networks.append(network)
                 pairs.append((bus, [_StreamListener(self, index, network)]))
-            # one receive thread for all buses with a socket (service/receiver.py), else a
+            # one receive thread for all buses with a socket (taxel_net/receiver.py), else a
             # python-can Notifier per bus
-            self.notifiers = notifiers_for(pairs, timeout=0.05)
+            self.notifiers = notifiers_for(pairs, timeout=0.05, name="centre-receive")
             for network, notifier in zip(self.networks, self.notifiers):
                 network.notifier = notifier
             from .master import Master

@@ -2,7 +2,7 @@
 
 Threads of a live run:
 
-* the receive thread(s) (:mod:`.receiver`: one thread selecting on every bus's socket for
+* the receive thread(s) (:mod:`taxel_net.receiver`: one thread selecting on every bus's socket for
   udp_multicast / socketcan, else one python-can ``Notifier`` thread per bus), one listener
   per bus, :class:`_StreamListener`: it
   feeds :meth:`EventStream.receive`, then hands canopen (SDO client, heartbeat and EMCY

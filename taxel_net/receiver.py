@@ -1,4 +1,5 @@
-"""One receive thread for every bus that has a socket (udp_multicast, socketcan).
+"""One receive thread for every bus that has a socket (udp_multicast, socketcan): the centre's
+buses and each node-sim process's.
 
 python-can's ``Notifier`` runs one thread per bus. With eight buses (scenes/skin4096.toml) the
 centre's eight receive threads took one frame each per turn on the interpreter lock, and
@@ -6,6 +7,9 @@ received frames waited 200-800 ms before the centre saw them (most PDOs late). O
 waits on every bus's socket at once (``select``) and drains each ready bus before waiting again
 handles the same traffic with far less delay (bench/skin_scale.py --shards 2, side by side:
 SYNC -> record p99 18 ms against 27 ms, late PDOs 521 in 150 cycles against 12,014 in 300).
+The node twins of a node-sim process serving four channels had the same four threads (and
+heard every frame of their buses, their own included: udp_multicast loops each datagram back
+to every member of its group on the host).
 Frames of one bus keep their order; across buses the order is no more fixed than with one
 thread per bus (each frame carries its own time stamp and cycle tag).
 
@@ -13,18 +17,26 @@ thread per bus (each frame carries its own time stamp and cycle tag).
 ``remove_listener``, ``stop``, ``exception``: what the centre, its LSS master and canopen's
 ``Network`` use), all served by one thread. Buses without a file descriptor (python-can's
 ``virtual``) keep a ``can.Notifier`` each (:func:`notifiers_for`).
+
+A ``udp_multicast`` bus of python-can 4.x (Linux, kernel time stamps) is drained straight from
+its socket (:func:`udp_multicast_drain`): the datagrams ready are read without blocking, each
+unpacked with python-can's own ``unpack_message`` and stamped with the kernel's receive time,
+exactly as ``bus.recv`` does, minus the ``select`` ``recv`` makes before every datagram.
+Any other bus, or one with software filters set, is read with ``bus.recv(0)``.
 """
 
 from __future__ import annotations
 
 import logging
 import select
+import socket
+import struct
 import threading
-from typing import Sequence
+from typing import Callable, Iterator, Sequence
 
 import can
 
-logger = logging.getLogger("fusion_center.service")
+logger = logging.getLogger("taxel_net.receiver")
 
 
 def has_socket(bus: can.BusABC) -> bool:
@@ -35,6 +47,58 @@ def has_socket(bus: can.BusABC) -> bool:
         return False
 
 
+def udp_multicast_drain(bus: can.BusABC) -> Callable[[], Iterator[can.Message]] | None:
+    """For a python-can 4.x ``UdpMulticastBus`` with kernel nanosecond time stamps and no
+    software filters: a function yielding the frames its socket holds now, without blocking -
+    what ``bus.recv(0)`` returns in turn, read at one system call a frame. None for any other
+    bus (or another python-can layout): read it with ``bus.recv(0)``."""
+    multicast = getattr(bus, "_multicast", None)
+    sock = getattr(multicast, "_socket", None)
+    if (not isinstance(sock, socket.socket) or not getattr(multicast, "timestamp_nanosecond", False)
+            or getattr(bus, "filters", None) or not hasattr(bus, "_can_protocol")):
+        return None
+    try:
+        from can.interfaces.udp_multicast.bus import SO_TIMESTAMPNS
+        from can.interfaces.udp_multicast.utils import unpack_message
+        max_buffer = int(multicast.max_buffer)
+        ancillary_size = int(multicast.received_ancillary_buffer_size)
+        stamp = struct.Struct(multicast.received_timestamp_struct)
+    except (ImportError, AttributeError, TypeError, ValueError, struct.error):
+        return None
+    fd_bus = bus._can_protocol is can.CanProtocol.CAN_FD
+    recvmsg = sock.recvmsg
+    dontwait = socket.MSG_DONTWAIT
+
+    def drain() -> Iterator[can.Message]:
+        while True:
+            try:
+                data, ancillary, _flags, _sender = recvmsg(max_buffer, ancillary_size, dontwait)
+            except (BlockingIOError, InterruptedError):
+                return
+            except OSError as exc:
+                raise can.CanOperationError(f"failed to receive from the udp_multicast socket: {exc}") from exc
+            # as GeneralPurposeUdpMulticastBus.recv: one SO_TIMESTAMPNS control message
+            if len(ancillary) != 1 or ancillary[0][0] != socket.SOL_SOCKET or ancillary[0][1] != SO_TIMESTAMPNS:
+                raise can.CanOperationError("received control message type that was not requested")
+            seconds, nanoseconds = stamp.unpack(ancillary[0][2])
+            if nanoseconds >= 1_000_000_000:
+                raise can.CanOperationError(f"Timestamp nanoseconds field was out of range: {nanoseconds}")
+            try:
+                msg = unpack_message(data, replace={"timestamp": seconds + nanoseconds * 1.0e-9}, check=True)
+            except Exception as exc:  # noqa: BLE001 - as UdpMulticastBus._recv_internal
+                raise can.CanOperationError("could not unpack received message") from exc
+            if msg.is_fd and not fd_bus:  # as UdpMulticastBus._recv_internal: dropped
+                continue
+            yield msg
+
+    return drain
+
+
+def _recv_all(bus: can.BusABC) -> Iterator[can.Message]:
+    while (msg := bus.recv(0)) is not None:
+        yield msg
+
+
 class _Handle:
     """The ``Notifier`` of one bus, served by a :class:`SelectNotifiers` thread."""
 
@@ -43,6 +107,7 @@ class _Handle:
         self.bus = bus
         self.listeners = list(listeners)
         self.exception: Exception | None = None
+        self.drain = udp_multicast_drain(bus) or (lambda: _recv_all(bus))
 
     def add_listener(self, listener) -> None:
         self.listeners.append(listener)
@@ -64,11 +129,11 @@ class _Handle:
 class SelectNotifiers:
     """One thread reading every bus of ``pairs`` (bus, listeners): ``handles[k]`` is bus k's."""
 
-    def __init__(self, pairs: Sequence[tuple[can.BusABC, list]], timeout: float = 0.05):
+    def __init__(self, pairs: Sequence[tuple[can.BusABC, list]], timeout: float = 0.05, name: str = "can-receive"):
         self.handles = [_Handle(self, bus, listeners) for bus, listeners in pairs]
         self.timeout = timeout
         self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name="centre-receive", daemon=True)
+        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
         self._thread.start()
 
     def _run(self) -> None:
@@ -84,7 +149,7 @@ class SelectNotifiers:
             for fd in ready:
                 handle = by_fd[fd]
                 try:
-                    while (msg := handle.bus.recv(0)) is not None:  # drain this bus
+                    for msg in handle.drain():  # every frame this bus holds now
                         handle.dispatch(msg)
                 except Exception as exc:  # noqa: BLE001 - as can.Notifier: note it, tell the listeners
                     if self._stop.is_set():
@@ -104,9 +169,9 @@ class SelectNotifiers:
             self._thread.join(timeout)
 
 
-def notifiers_for(pairs: Sequence[tuple[can.BusABC, list]], timeout: float = 0.05) -> list:
+def notifiers_for(pairs: Sequence[tuple[can.BusABC, list]], timeout: float = 0.05, name: str = "can-receive") -> list:
     """A ``Notifier``-like handle per bus, in order: one shared select thread when every bus has
     a socket, else a ``can.Notifier`` each."""
     if pairs and all(has_socket(bus) for bus, _ in pairs):
-        return list(SelectNotifiers(pairs, timeout).handles)
+        return list(SelectNotifiers(pairs, timeout, name).handles)
     return [can.Notifier(bus, list(listeners), timeout=timeout) for bus, listeners in pairs]
