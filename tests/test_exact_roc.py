@@ -219,3 +219,68 @@ def test_error_plot_floor_reaches_the_exact_values(monkeypatch):
     assert markers["D"] == 3e-200 and markers["v"] == 1e-300
     labels = [t.get_text() for t in ax.get_legend().get_texts()]
     assert any(text.startswith("MC floor") for text in labels) and "exact < 1e-300" in labels
+
+
+def log_law_reference(pi, p, q):
+    """U_G's law for {-1,+1}, p, q > 0 by an independent log-domain DP (np.logaddexp, no scaling
+    or trimming): state (u_(i-1), u_i, e_1), m = -n..n, U_G = 2^(p+q) m + 2^p e_1 + 2^q e_n
+    (mpmath values, 40 digits). Returns {U_G: ln P}."""
+    n = len(pi)
+    size, mid, ninf = 2 * n + 3, n + 1, -np.inf
+    L = np.full((2, 2, 3, size), ninf)
+    lp, lq = np.log(pi), np.log1p(-np.asarray(pi))
+    for a in (0, 1):
+        for b in (0, 1):
+            e1 = (1 if a else -1) if b else 0
+            L[a, b, e1 + 1, mid] = (lp[0] if a else lq[0]) + (lp[1] if b else lq[1])
+    for i in range(2, n):
+        new = np.full_like(L, ninf)
+        for a in (0, 1):
+            for b in (0, 1):
+                for c in (0, 1):
+                    s = (1 if b else -1) if (a and c) else 0
+                    moved = np.full((3, size), ninf)
+                    if s == 0:
+                        moved = L[a, b]
+                    elif s == 1:
+                        moved[:, 1:] = L[a, b, :, :-1]
+                    else:
+                        moved[:, :-1] = L[a, b, :, 1:]
+                    new[b, c] = np.logaddexp(new[b, c], moved + (lp[i] if c else lq[i]))
+        L = new
+    out = {}
+    with mp.workdps(40):
+        P, Q = mp.mpf(2) ** mp.mpf(p), mp.mpf(2) ** mp.mpf(q)
+        for a in (0, 1):
+            for b in (0, 1):
+                en = (1 if b else -1) if a else 0
+                for e1 in (-1, 0, 1):
+                    for j in np.flatnonzero(np.isfinite(L[a, b, e1 + 1])):
+                        key = mp.nstr(P * Q * (j - mid) + P * e1 + Q * en, 25)
+                        out[key] = float(np.logaddexp(out.get(key, ninf), L[a, b, e1 + 1, j]))
+    return {float(mp.mpf(k)): v for k, v in out.items()}
+
+
+@pytest.mark.parametrize("p, q", [(1.0, 1.0), (1.3, 0.2)])
+def test_preferential_law_deep_atoms_vs_log_domain_reference(p, q):
+    """n = 150 taxels present with probability 0.002-0.008 (every taxel present: ~1e-350): with
+    deep (default) the atoms below 1e-300 beyond the outermost atom >= 1e-300
+    come from tilted runs; every returned ln P against an untrimmed log-domain DP to 1e-11
+    (relative on the log); without deep none below 1e-300, and the same atoms above it."""
+    rng = np.random.default_rng(5)
+    pi = rng.uniform(0.002, 0.008, 150)
+    ref = log_law_reference(pi, p, q)
+    keys = np.array(sorted(ref))
+    values, logp = exact_rates.preferential_law(pi, p, q, "pm1")
+    assert logp.min() < math.log(1e-300) - 50  # deep atoms are there
+    for v, lp in zip(values, logp):
+        key = keys[np.argmin(np.abs(keys - v))]
+        assert abs(key - v) <= 1e-12 * max(1.0, abs(v))
+        assert abs(lp - ref[key]) <= 1e-11 * max(1.0, abs(ref[key])), (v, lp, ref[key])
+    shallow_v, shallow_lp = exact_rates.preferential_law(pi, p, q, "pm1", deep=False)
+    assert shallow_lp.min() >= math.log(1e-300)
+    kept = np.isin(values, shallow_v)
+    assert np.array_equal(values[kept], shallow_v) and np.allclose(logp[kept], shallow_lp, rtol=1e-14)
+    # the upper tail is covered from the bulk to the all-present vector (its atom: every taxel present)
+    top = float(np.sum(np.log(pi)))
+    assert math.isclose(logp[-1], top, rel_tol=1e-12)

@@ -49,7 +49,7 @@ import numpy as np
 
 from .chain_dp import _LOG_FLOOR, SCALE_BITS, _first_at_least, _label_base, _Lattice, _x_range
 
-__all__ = ["lattice_band_logs", "lattice_law_rows", "log_partition", "tilt_for_mean"]
+__all__ = ["lattice_band_logs", "lattice_law_rows", "lattice_law_tail_atoms", "log_partition", "tilt_for_mean"]
 
 _LN2 = math.log(2.0)
 TRIM_REL = 1e-32
@@ -533,3 +533,80 @@ def lattice_band_logs(pi: np.ndarray, lat: _Lattice, low: float, high: float, de
         else:
             result.append((out[r][0], out[r][0] < _LOG_FLOOR, out[r][1]))
     return result
+
+
+# ------------------------------------------------------------------ U_G's law beyond FLOOR
+def lattice_law_tail_atoms(pi: np.ndarray, lat: _Lattice, frontier: int, upward: bool, max_runs: int = 64):
+    """Atoms of U_G's law (eq 7) beyond the final lattice coordinate ``frontier`` on one side
+    (``upward``: x >= frontier, else x <= frontier), for n = pi.size >= 2 taxels already in the
+    lattice's orientation: {(ls, le, x): ln P}. Each run is tilted so that the tilted mean sits
+    at the frontier (Lambda'(theta) = frontier, :func:`tilt_for_mean`); an atom is kept when its
+    proven relative error bound eps T e^(-theta x) / P(x) (module doc, R = {x}) is below
+    10^BOUND_OK, and the frontier moves past the contiguous run of kept x values (an x with
+    every atom exactly 0 inside the live window is impossible: nothing is trimmed inside it).
+    Stops at the end of the reachable range, after ``max_runs`` runs, or where a run keeps
+    nothing (returns what it has and the frontier reached)."""
+    n = pi.size
+    xa, xb = _x_range(lat, n)
+    h = 1e-3
+    lam = log_partition(pi, lat, [-h, 0.0, h])
+    mean = float((lam[2] - lam[0]) / (2 * h))
+    var = max(float((lam[2] - 2 * lam[1] + lam[0]) / (h * h)), 1e-12)
+    atoms: dict = {}
+    step = 1 if upward else -1
+    theta_prev = None
+    for _ in range(max_runs):
+        if (upward and frontier > xb) or (not upward and frontier < xa):
+            break
+        target = min(max(frontier, xa), xb)
+        theta, _lam = tilt_for_mean(pi, lat, float(target), mean, var, start=theta_prev)
+        theta_prev = theta
+        rows, log_scale, theta_out, eps = lattice_law_rows(pi, lat, theta)
+        if not rows:
+            break
+        x_ref = rows[0][3]
+        per_x: dict = {}
+        total = []
+        for a, b, ls, x_first, arr in rows:
+            e_steps, le = lat.end[a][b]
+            x = (x_first - x_ref) + np.arange(arr.size)
+            with np.errstate(divide="ignore"):
+                lv = np.log(arr) - theta_out * x
+            lt = lv + theta * x
+            top = float(lt.max())
+            total.append(top + math.log(float(np.exp(lt - top).sum())))
+            for j in range(arr.size):
+                xf = int(x_first + j + e_steps)
+                per_x.setdefault(xf, []).append((ls, le, float(lv[j]), int(x[j])))
+        log_total = _logsumexp(total)
+        lo_x, hi_x = min(per_x), max(per_x)
+        kept = 0
+        x = frontier
+        while lo_x <= x <= hi_x:
+            entries = per_x.get(x, [])
+            ok = True
+            found = {}
+            for ls, le, lv, xr in entries:
+                if lv == -math.inf:
+                    continue
+                key = (ls, le, x)
+                # ln P of this (state, start label) part; parts of one atom are summed below
+                found.setdefault(key, []).append((lv, xr))
+            for key, parts in found.items():
+                log_p = _logsumexp([lv for lv, _ in parts])
+                worst = max(-theta * xr for _, xr in parts)
+                if eps > 0.0:
+                    bound = (math.log(eps) + log_total + worst - log_p) / math.log(10.0)
+                    if bound > BOUND_OK:
+                        ok = False
+                        break
+            if not ok:
+                break
+            for key, parts in found.items():
+                atoms[key] = _logsumexp([lv for lv, _ in parts]) + log_scale - theta_out * x_ref
+            kept += 1
+            x += step
+        if kept == 0:
+            break
+        frontier = x
+    return atoms, frontier
