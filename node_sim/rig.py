@@ -123,6 +123,18 @@ def _virtual_burst_sender(bus: can.BusABC) -> Callable[[list[tuple]], None] | No
     return send_many
 
 
+# What the twins of a channel consume (:meth:`_Channel._dispatch`), as python-can filters: NMT
+# module control, SDO requests (0x601-0x67F), heartbeats / boot-ups (0x701-0x77F), LSS master
+# requests, plus the nodes' SYNC COB-IDs (0x1005) - not the PDOs, EMCY and SDO answers of the
+# bus (udp_multicast loops every twin's own frames back to it: a third of what it received)
+CONSUMED_FILTERS = [
+    {"can_id": 0x000, "can_mask": 0x7FF, "extended": False},
+    {"can_id": 0x600, "can_mask": 0x780, "extended": False},
+    {"can_id": 0x700, "can_mask": 0x780, "extended": False},
+    {"can_id": lssx.LSS_MASTER_COB, "can_mask": 0x7FF, "extended": False},
+]
+
+
 class _Channel(can.Listener):
     """One CANopen network: a bus object, its notifier, the nodes, one lock, one timer thread."""
 
@@ -153,6 +165,19 @@ class _Channel(can.Listener):
         self.frames_sent = 0
         self.notifier = None  # its receive handle (a can.Notifier or a taxel_net.receiver one)
         self._sync_map: dict[int, list[tuple[TaxelNode, Callable, int]]] | None = None
+        self._sync_ids: frozenset[int] | None = None  # the SYNC COB-IDs the bus filters let through
+
+    def refresh_filters(self) -> None:
+        """Let through what the nodes consume (:data:`CONSUMED_FILTERS` and their SYNC COB-IDs,
+        0x080 while there is no node): python-can filters, in the kernel or the controller
+        where the interface can, else before a frame becomes a ``can.Message``
+        (:func:`taxel_net.receiver.udp_multicast_drain`) or at least before this listener."""
+        ids = frozenset(n.sync.cob_id for n in self.nodes.values()) or frozenset((0x080,))
+        if ids == self._sync_ids:
+            return
+        self._sync_ids = ids
+        self.bus.set_filters(CONSUMED_FILTERS + [{"can_id": i, "can_mask": 0x7FF, "extended": False}
+                                                 for i in sorted(ids)])
 
     # -- python-can Listener
     def on_message_received(self, msg: can.Message) -> None:
@@ -177,6 +202,8 @@ class _Channel(can.Listener):
                 for node in nodes:
                     node.on_nmt(data[0])
                 self._sync_map = None  # resets restore 0x1005
+                if data[0] in (0x81, 0x82):
+                    self.refresh_filters()
                 if target == 0 and data[0] in (0x81, 0x82):
                     # every node reset by the master: the simulated world restarts with the
                     # master's cycle 0 (a second master run sees the same scene as the first)
@@ -188,6 +215,8 @@ class _Channel(can.Listener):
             if node is not None and len(data) == 8:
                 node.on_sdo_request(data)
                 self._sync_map = None  # 0x1005 may have changed
+                if self._sync_ids is None or node.sync.cob_id not in self._sync_ids:
+                    self.refresh_filters()
             return
         if self._sync_map is None:
             self._sync_map = {}
@@ -405,6 +434,8 @@ class Rig:
                 self._readings(0)  # the first SYNC's readings (and the scene's arrays) off its path
             # one receive thread for all the channels' buses when each has a socket
             # (udp_multicast, socketcan: taxel_net/receiver.py), else a python-can Notifier each
+            for ch in self._channels:
+                ch.refresh_filters()
             handles = notifiers_for([(ch.bus, [ch]) for ch in self._channels], timeout=0.05, name="node-sim-receive")
             for ch, handle in zip(self._channels, handles):
                 ch.notifier = handle
@@ -495,6 +526,7 @@ class Rig:
             store.update({i: dict(subs) for i, subs in old.local.data_store.items() if i not in odx.COMM_AREA})
             node.detector.invalidate()
         self._apply_silence(ch.index, node, ch.cycle if ch.cycle is not None else 0)
+        ch.refresh_filters()
         node.power_on()
 
     def _startup_values(self, t, node_id: int | None = None) -> dict[tuple[int, int], object]:

@@ -21,8 +21,9 @@ thread per bus (each frame carries its own time stamp and cycle tag).
 A ``udp_multicast`` bus of python-can 4.x (Linux, kernel time stamps) is drained straight from
 its socket (:func:`udp_multicast_drain`): the datagrams ready are read without blocking, each
 unpacked with python-can's own ``unpack_message`` and stamped with the kernel's receive time,
-exactly as ``bus.recv`` does, minus the ``select`` ``recv`` makes before every datagram.
-Any other bus, or one with software filters set, is read with ``bus.recv(0)``.
+exactly as ``bus.recv`` does, minus the ``select`` ``recv`` makes before every datagram; the
+bus's filters (``set_filters``) are applied before a ``can.Message`` is made. Any other bus is
+read with ``bus.recv(0)``.
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ import select
 import socket
 import struct
 import threading
+import time
 from typing import Callable, Iterator, Sequence
 
 import can
@@ -47,19 +49,33 @@ def has_socket(bus: can.BusABC) -> bool:
         return False
 
 
+def _matches(filters, can_id: int, extended: bool) -> bool:
+    """python-can's ``BusABC._matches_filters`` on the fields of a frame not yet a Message."""
+    for f in filters:
+        if "extended" in f and f["extended"] != extended:
+            continue
+        if (f["can_id"] ^ can_id) & f["can_mask"] == 0:
+            return True
+    return False
+
+
 def udp_multicast_drain(bus: can.BusABC) -> Callable[[], Iterator[can.Message]] | None:
-    """For a python-can 4.x ``UdpMulticastBus`` with kernel nanosecond time stamps and no
-    software filters: a function yielding the frames its socket holds now, without blocking -
-    what ``bus.recv(0)`` returns in turn, read at one system call a frame. None for any other
-    bus (or another python-can layout): read it with ``bus.recv(0)``."""
+    """For a python-can 4.x ``UdpMulticastBus`` with kernel nanosecond time stamps: a function
+    yielding the frames its socket holds now, without blocking - what ``bus.recv(0)`` returns in
+    turn (the bus's filters applied, ``set_filters`` taking effect at the next call), read at
+    one system call a frame, and a frame the filters refuse dropped before a ``can.Message`` is
+    made of it. A datagram that is no python-can frame is skipped and logged (at most a line a
+    second, with the count), where ``bus.recv`` raises and so ends the reading of the bus. None for any other bus (or another python-can layout): read it with
+    ``bus.recv(0)``."""
     multicast = getattr(bus, "_multicast", None)
     sock = getattr(multicast, "_socket", None)
     if (not isinstance(sock, socket.socket) or not getattr(multicast, "timestamp_nanosecond", False)
-            or getattr(bus, "filters", None) or not hasattr(bus, "_can_protocol")):
+            or not hasattr(bus, "_can_protocol") or not hasattr(bus, "_filters")):
         return None
     try:
+        import msgpack
         from can.interfaces.udp_multicast.bus import SO_TIMESTAMPNS
-        from can.interfaces.udp_multicast.utils import unpack_message
+
         max_buffer = int(multicast.max_buffer)
         ancillary_size = int(multicast.received_ancillary_buffer_size)
         stamp = struct.Struct(multicast.received_timestamp_struct)
@@ -68,6 +84,9 @@ def udp_multicast_drain(bus: can.BusABC) -> Callable[[], Iterator[can.Message]] 
     fd_bus = bus._can_protocol is can.CanProtocol.CAN_FD
     recvmsg = sock.recvmsg
     dontwait = socket.MSG_DONTWAIT
+    unpackb = msgpack.unpackb
+    Message = can.Message
+    undecodable = [0, float("-inf")]  # datagrams skipped, time of the last log line
 
     def drain() -> Iterator[can.Message]:
         while True:
@@ -83,10 +102,25 @@ def udp_multicast_drain(bus: can.BusABC) -> Callable[[], Iterator[can.Message]] 
             seconds, nanoseconds = stamp.unpack(ancillary[0][2])
             if nanoseconds >= 1_000_000_000:
                 raise can.CanOperationError(f"Timestamp nanoseconds field was out of range: {nanoseconds}")
-            try:
-                msg = unpack_message(data, replace={"timestamp": seconds + nanoseconds * 1.0e-9}, check=True)
-            except Exception as exc:  # noqa: BLE001 - as UdpMulticastBus._recv_internal
-                raise can.CanOperationError("could not unpack received message") from exc
+            try:  # as can.interfaces.udp_multicast.utils.unpack_message(data, replace=..., check=True)
+                fields = unpackb(data, raw=False)
+                filters = bus._filters
+                if filters is not None and not _matches(filters, fields.get("arbitration_id", 0),
+                                                        fields.get("is_extended_id", True)):
+                    continue
+                fields["timestamp"] = seconds + nanoseconds * 1.0e-9
+                msg = Message(check=True, **fields)
+            except Exception as exc:  # noqa: BLE001 - not a python-can frame: counted, skipped
+                # (UdpMulticastBus.recv raises here, and a raising bus is no longer read: one stray
+                # datagram on the group would deafen the receiver for good)
+                undecodable[0] += 1
+                now = time.monotonic()
+                if now - undecodable[1] >= 1.0:
+                    undecodable[1] = now
+                    logger.warning("udp_multicast bus %s: %d datagram(s) that are no python-can frame skipped "
+                                   "(last: %d bytes, %s: %s)", bus.channel_info, undecodable[0], len(data),
+                                   type(exc).__name__, exc)
+                continue
             if msg.is_fd and not fd_bus:  # as UdpMulticastBus._recv_internal: dropped
                 continue
             yield msg

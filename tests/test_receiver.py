@@ -120,8 +120,7 @@ def test_a_failing_bus_is_reported_once_and_no_longer_read():
 def test_udp_multicast_drain_reads_what_recv_would_and_no_more():
     """The direct socket read yields what python-can's own ``recv`` gives a second bus of the
     same group (every field, the kernel's receive time; FD frames dropped on a classic bus),
-    and returns at once when the socket is empty; a bus with software filters is left to
-    ``bus.recv`` (the drain would skip them)."""
+    and returns at once when the socket is empty; the bus's filters apply as in ``recv``."""
     sys.path.insert(0, str(ROOT / "tests"))
     from test_service_multiprocess import multicast_works
 
@@ -157,11 +156,52 @@ def test_udp_multicast_drain_reads_what_recv_would_and_no_more():
             got = list(drain())  # the reference has them all: so has this socket
             assert [fields(m) for m in got] == [fields(m) for m in expected]
             assert all(abs(a.timestamp - b.timestamp) < 0.5 and a.timestamp > 1e9 for a, b in zip(got, expected))
-            rx.set_filters([{"can_id": 0x080, "can_mask": 0x7FF}])
-            assert udp_multicast_drain(rx) is None
+            # filters: applied by the drain as by recv (here on the reference bus)
+            only = [{"can_id": 0x080, "can_mask": 0x7FF}, {"can_id": 0x1234560, "can_mask": 0x1FFFFFF0, "extended": True}]
+            rx.set_filters(only)
+            reference.set_filters(only)
+            for m in sent:
+                tx.send(m)
+            expected = []
+            while (m := reference.recv(1.0)) is not None:
+                expected.append(m)
+            assert [m.arbitration_id for m in expected] == [0x1234567, 0x080]
+            assert [fields(m) for m in drain()] == [fields(m) for m in expected]
         finally:
             for bus in (rx, reference, tx):
                 bus.shutdown()
     virtual = can.Bus(interface="virtual", channel=f"v-{random.random()}")
     assert udp_multicast_drain(virtual) is None
     virtual.shutdown()
+
+
+def test_a_stray_datagram_is_skipped_not_fatal(caplog):
+    """A datagram on the group that is no python-can frame: python-can's recv raises (and a
+    Notifier stops reading the bus); the drain skips it, logs it and reads on."""
+    sys.path.insert(0, str(ROOT / "tests"))
+    from test_service_multiprocess import multicast_works
+
+    port = random.randint(40000, 60000)
+    why = multicast_works(port)
+    if why is not None:
+        pytest.skip(why)
+    rx = can.Bus(interface="udp_multicast", channel=GROUPS[1], port=port, hop_limit=0)
+    tx = can.Bus(interface="udp_multicast", channel=GROUPS[1], port=port, hop_limit=0)
+    raw = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    raw.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_TTL, 0)
+    got = []
+    try:
+        handles = notifiers_for([(rx, [got.append])])
+        raw.sendto(b"\xc1 not msgpack", (GROUPS[1], port))
+        tx.send(can.Message(arbitration_id=0x181, data=b"\x01", is_extended_id=False))
+        deadline = time.monotonic() + 5
+        while not got and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert [m.arbitration_id for m in got] == [0x181]
+        assert handles[0].exception is None
+        assert "no python-can frame skipped" in caplog.text
+        handles[0].stop(1)
+    finally:
+        raw.close()
+        rx.shutdown()
+        tx.shutdown()

@@ -236,3 +236,37 @@ def test_rig_parameter_errors():
     rig.stop()   # idempotent
     with pytest.raises(ParameterError):
         rig.drop_node(1)
+
+
+def test_bus_filters_follow_the_sync_cob_id_and_keep_out_the_pdos():
+    """The twins' bus lets through what they consume (python-can filters: in the kernel on
+    socketcan, before a Message is made on udp_multicast): when an SDO moves 0x1005 to
+    another COB-ID, SYNC there still drives the node; a reset restores 0x080."""
+    ch = uid()
+    scene = Scene(path="<t>", name="f", taxels=(TaxelSpec(node_id=1, kind="R", zeta_mv=1.0),),
+                  bus=BusSpec(channels=(ch,), heartbeat_producer_ms=0))
+    rec = Recorder(ch)
+    try:
+        with Rig(scene, reading_source=lambda cycle: np.array([5.0])) as rig:
+            bus = rig._channels[0].bus
+            accepted = {f["can_id"] for f in bus.filters if f["can_mask"] == 0x7FF}
+            assert 0x080 in accepted and 0x181 not in accepted
+            assert not bus._matches_filters(can.Message(arbitration_id=0x181, is_extended_id=False))
+            assert bus._matches_filters(can.Message(arbitration_id=0x601, is_extended_id=False))
+            # SDO expedited download 0x1005:0 := 0x0A0 (COB-ID SYNC), then start the node
+            rec.send(0x601, bytes([0x23, 0x05, 0x10, 0x00, 0xA0, 0x00, 0x00, 0x00]))
+            answer = rec.wait_count(0x581, 1)[0]
+            assert answer.data[0] == 0x60, answer.data.hex()
+            assert bus._matches_filters(can.Message(arbitration_id=0x0A0, is_extended_id=False))
+            rec.send(0x000, bytes([0x01, 1]))
+            deadline = time.monotonic() + WAIT
+            while rig.node(1).state != 0x05 and time.monotonic() < deadline:
+                time.sleep(0.005)
+            rec.send(0x0A0)
+            assert rig.wait_cycle(0, 0, timeout=WAIT)
+            assert rec.wait_count(0x181, 1)
+            rec.send(0x000, bytes([0x82, 0]))  # reset communication: 0x1005 back to 0x080
+            rec.wait_count(0x701, 2)           # the boot-up after the reset
+            assert bus._matches_filters(can.Message(arbitration_id=0x080, is_extended_id=False))
+    finally:
+        rec.close()
