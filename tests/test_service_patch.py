@@ -84,6 +84,16 @@ def test_demo_of_patch_nodes_decides_every_cycle_from_its_own_decisions_and_repl
     # the trace keeps the FD frames (is_fd, BRS): replay decides the same
     replayed, _ = replay_trace(scene, tmp_path / trace, truth=True)
     assert replayed == records
+    # and `fusion-center replay` takes it as the scene's (patch TPDO COB-IDs are allotted per
+    # channel, not node-ID based), but not as a recording of the other mode
+    from fusion_center.service.traces import check_trace
+    from taxel_net.errors import UsageError
+
+    counts = check_trace(scene, tmp_path / trace)
+    assert counts["foreign"] == 0 and counts["tpdo1"] > 0 and counts["tpdo2"] == 0, counts
+    raw = dataclasses.replace(scene, bus=dataclasses.replace(scene.bus, mode="raw"))
+    with pytest.raises(UsageError, match="recorded in decision mode"):
+        check_trace(raw, tmp_path / trace)
 
 
 def test_the_master_configures_the_patch_twins_as_their_tpdos_describe():

@@ -162,6 +162,25 @@ def _open_reader(p: Path):
     return reader
 
 
+def _patch_tpdo_tables(scene: Scene) -> tuple[list[dict[int, int]], list[dict[int, int]]]:
+    """Per channel, COB-ID -> data length of the patches' TPDOs in the scene's mode and in the
+    other mode."""
+    import dataclasses
+
+    from taxel_net.patches import devices
+
+    other = dataclasses.replace(scene, bus=dataclasses.replace(
+        scene.bus, mode="raw" if scene.bus.mode == "decision" else "decision"))
+    tables = []
+    for sc in (scene, other):
+        table: list[dict[int, int]] = [{} for _ in scene.bus.channels]
+        for device in devices(sc):
+            for tpdo in device.tpdos:
+                table[device.channel][tpdo.cob_id] = tpdo.length
+        tables.append(table)
+    return tables[0], tables[1]
+
+
 def check_trace(scene: Scene, trace_path) -> dict:
     """Is this trace a recording of ``scene`` in ``scene.bus.mode``? One pass over the frames
     before replay writes anything; :class:`UsageError` (one line: what does not match, the
@@ -174,7 +193,9 @@ def check_trace(scene: Scene, trace_path) -> dict:
       the scene on that channel, or a COB-ID of no CANopen object the scene uses (a trace of
       another scene);
     * the nodes' PDOs are those of the other mode (TPDO2 X_i in a decision-mode replay, TPDO1
-      u_i in a raw-mode one).
+      u_i in a raw-mode one; with patch nodes, frames that fit only the other mode's TPDOs -
+      COB-ID and length, :func:`taxel_net.patches.devices` - outnumber those that fit only
+      this mode's).
 
     Returns the counts (``frames``, ``channels``, ``foreign``, ``tpdo1``, ``tpdo2``).
     """
@@ -194,6 +215,11 @@ def check_trace(scene: Scene, trace_path) -> dict:
     bases = (BASE_EMCY, BASE_TPDO1, BASE_TPDO2, BASE_SDO_RESPONSE, BASE_SDO_REQUEST, BASE_HEARTBEAT)
     # the master's own heartbeat (CiA 302), when the scene's master produces one
     master_heartbeat = BASE_HEARTBEAT + scene.master.node_id if scene.master_heartbeat_ms > 0 else COB_NMT
+    # patch nodes: TPDO COB-IDs are allotted per channel (taxel_net.patches), not 0x180/0x280 +
+    # node-ID; a frame is one of this mode's / the other mode's TPDOs by COB-ID and length
+    patch_tables = _patch_tpdo_tables(scene) if scene.bus.patch_nodes else None
+    if patch_tables is not None:
+        bases = (BASE_EMCY, BASE_SDO_RESPONSE, BASE_SDO_REQUEST, BASE_HEARTBEAT)
     frames = 0
     off_channel: dict[int, int] = {}
     foreign_nodes: dict[int, int] = {}
@@ -212,6 +238,15 @@ def check_trace(scene: Scene, trace_path) -> dict:
             cob = msg.arbitration_id
             if cob in (COB_NMT, COB_SYNC, COB_TIME, master_heartbeat):
                 continue
+            if patch_tables is not None:
+                this_mode, other_mode = patch_tables[0][channel].get(cob), patch_tables[1][channel].get(cob)
+                if this_mode is not None or other_mode is not None:
+                    fits_this, fits_other = this_mode == len(msg.data), other_mode == len(msg.data)
+                    if fits_this and not fits_other:
+                        tpdo[BASE_TPDO1 if scene.bus.mode == "decision" else BASE_TPDO2] += 1
+                    elif fits_other and not fits_this:
+                        tpdo[BASE_TPDO2 if scene.bus.mode == "decision" else BASE_TPDO1] += 1
+                    continue  # a TPDO of the scene's patches (a bad length is counted by the replay)
             base, node = cob & 0x780, cob & 0x7F
             if base not in bases or node == 0:
                 foreign_cobs[cob] = foreign_cobs.get(cob, 0) + 1
