@@ -348,7 +348,7 @@ def _fields(msg: can.Message) -> dict:
 
 @pytest.mark.parametrize("own", [False, True])
 def test_virtual_burst_delivers_what_virtual_send_delivers(own):
-    from node_sim.rig import _virtual_burst_sender
+    from node_sim.channel import virtual_burst_sender
 
     frames = [(0x181, b"\x01"), (0x182, b"\xff"), (0x081, bytes(range(8))), (0x281, b"\0\0\x80\x3f"), (0x700, b"")]
     received = {}
@@ -363,7 +363,7 @@ def test_virtual_burst_delivers_what_virtual_send_delivers(own):
                 for can_id, data in frames:
                     tx.send(can.Message(arbitration_id=can_id, data=data, is_extended_id=False))
             else:
-                send_many = _virtual_burst_sender(tx)
+                send_many = virtual_burst_sender(tx)
                 assert send_many is not None
                 send_many(frames)
             after = time.time()
@@ -387,7 +387,7 @@ def test_virtual_burst_delivers_what_virtual_send_delivers(own):
 def test_virtual_burst_only_for_plain_virtual_buses():
     from can.interfaces.virtual import VirtualBus
 
-    from node_sim.rig import _virtual_burst_sender
+    from node_sim.channel import virtual_burst_sender
 
     class Derived(VirtualBus):
         pass
@@ -396,8 +396,8 @@ def test_virtual_burst_only_for_plain_virtual_buses():
     derived = Derived(channel=channel)
     plain = can.Bus(interface="virtual", channel=channel)
     try:
-        assert _virtual_burst_sender(derived) is None    # may override send: use it
-        send_many = _virtual_burst_sender(plain)
+        assert virtual_burst_sender(derived) is None    # may override send: use it
+        send_many = virtual_burst_sender(plain)
     finally:
         derived.shutdown()
         plain.shutdown()
