@@ -270,3 +270,19 @@ def test_bus_filters_follow_the_sync_cob_id_and_keep_out_the_pdos():
             assert bus._matches_filters(can.Message(arbitration_id=0x080, is_extended_id=False))
     finally:
         rec.close()
+
+
+def test_the_set_up_is_frozen_out_of_the_cyclic_collector():
+    """After start the rig's set-up (ODs, EDS imports) is in the permanent generation: a full
+    collection during the run does not traverse it (a pause of tens of ms at skin scale)."""
+    import gc
+
+    ch = uid()
+    scene = Scene(path="<t>", name="g", taxels=(TaxelSpec(node_id=1, kind="R", zeta_mv=1.0),),
+                  bus=BusSpec(channels=(ch,), heartbeat_producer_ms=0))
+    gc.unfreeze()
+    assert gc.get_freeze_count() == 0
+    with Rig(scene, reading_source=lambda cycle: np.array([0.0])) as rig:
+        node = rig.node(1)
+        assert gc.get_freeze_count() > 0
+        assert not gc.is_tracked(node) or node not in gc.get_objects(generation=2)

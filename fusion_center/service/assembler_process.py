@@ -4,6 +4,7 @@ buses, each closed cycle sent to the fuser (issue 14; :mod:`.assemblers`).
 
 from __future__ import annotations
 
+import gc
 import logging
 import os
 import socket
@@ -175,6 +176,7 @@ class AssemblerProcess:
             raise UsageError(f"--fuser {host}:{port}: refused: {why}")
         self.conn = conn
         threading.Thread(target=self._watch, name="fuser-watch", daemon=True).start()
+        gc.freeze()  # the set-up is never traversed by the cyclic collector again (as the centre's run)
 
     def _watch(self) -> None:
         try:
