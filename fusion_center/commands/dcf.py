@@ -13,6 +13,21 @@ shipped take the DCF within their documented limits (canopen's ``import_od`` rea
 commissioning and every ``ParameterValue``; eds-utils ignores ``ParameterValue``; objdictgen
 refuses ``[DeviceComissioning]``, docs/node-twins.md).
 
+One DCF per CANopen node, i.e. per device of :func:`taxel_net.patches.devices`. In a
+one-taxel scene that is one per taxel (device k is taxel k), from ``eds/taxel_node.eds``. In a
+patch scene (``[bus] patch_nodes = true``) it is one per patch node, from
+``eds/taxel_patch.eds`` (``taxel_net.resources.patch_eds_path``), with the values of
+``fusion_center.service.master.patch_configuration`` (with the detector arrays, as the master
+writes them by default): ζ and N_i of every taxel (ARRAY entries, sections ``[2010subK]`` /
+``[2011subK]`` with K in hex for the device's taxel K - 1), 0x2032 in raw mode, heartbeat,
+0x1016, SYNC counter and window, and every TPDO's parameters and mapping. The patches' kind,
+x and y (0x2012-0x2014) are no part of it: the master does not write them (the node keeps its
+stored values). NodeName says ``patch node N (n taxels)``. LSS_SerialNumber is the serial
+number the node reports in 0x1018:4: the patch twin reports its device's
+(``node_sim.rig.identity_serial`` of its first taxel: scene, channel and node-ID, so the same
+for each of its taxels), although its EDS says ``LSS_Supported=0`` (the scene loader refuses
+LSS node-ID assignment with patch nodes): the key names the device's identity, which it has.
+
     fusion-center dcf --scene S --node N -o FILE.dcf     (N, or C:N for a node of channel C > 0)
     fusion-center dcf --scene S --all -o DIR             (one file per node)
 """
@@ -23,6 +38,7 @@ import argparse
 import configparser
 import re
 import struct
+from functools import lru_cache
 from pathlib import Path
 
 HELP = "write the CiA 306 DCF of a scene's node (--node N) or of every node (--all) with its configured values"
@@ -42,39 +58,78 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--eds", default=None, help=argparse.SUPPRESS)
 
 
+_devices_of: list = [None, ()]  # the last scene and its devices (--all asks once per node)
+
+
+def _devices(scene):
+    from taxel_net.patches import devices
+
+    if _devices_of[0] is not scene:
+        _devices_of[:] = [scene, devices(scene)]
+    return _devices_of[1]
+
+
 def node_index(scene, text: str) -> int:
-    """Scene index of ``--node`` ``N`` (channel 0) or ``C:N``; UsageError naming the value."""
+    """Device index (:func:`taxel_net.patches.devices`; the taxel's index in a one-taxel scene)
+    of ``--node`` ``N`` (channel 0) or ``C:N``; UsageError naming the value."""
     from taxel_net.errors import UsageError
-    from taxel_net.scene import taxel_index
 
     channel, sep, node = text.rpartition(":")
     try:
         node_id, ch = int(node, 0), int(channel, 0) if sep else 0
     except ValueError:
         raise UsageError(f"--node {text!r}: expected a node-ID N or C:N (scene channel C)") from None
-    try:
-        return taxel_index(scene, node_id, ch)
-    except KeyError:
-        where = f"channel {ch}" if sep else "channel 0 (use C:N for another channel)"
-        raise UsageError(f"--node {text!r}: no node {node_id} on {where} of scene {scene.name!r}") from None
+    for index, device in enumerate(_devices(scene)):
+        if device.node_id == node_id and device.channel == ch:
+            return index
+    where = f"channel {ch}" if sep else "channel 0 (use C:N for another channel)"
+    raise UsageError(f"--node {text!r}: no node {node_id} on {where} of scene {scene.name!r}")
 
 
 def file_name(scene, index: int) -> str:
-    """``<scene>_node017.dcf``, or ``<scene>_ch1_node017.dcf`` off channel 0."""
-    t = scene.taxels[index]
-    channel = f"_ch{t.channel}" if t.channel else ""
-    return f"{scene.name}{channel}_node{t.node_id:03d}.dcf"
+    """``<scene>_node017.dcf``, or ``<scene>_ch1_node017.dcf`` off channel 0 (node ``index``
+    as :func:`node_index` numbers them)."""
+    d = _devices(scene)[index]
+    channel = f"_ch{d.channel}" if d.channel else ""
+    return f"{scene.name}{channel}_node{d.node_id:03d}.dcf"
 
 
 def configured_values(scene, index: int) -> dict[tuple[int, int], object]:
-    """(index, sub-index) -> the value the centre leaves there (its last SDO write)."""
-    from ..service.master import node_configuration
+    """(index, sub-index) -> the value the centre leaves there (its last SDO write) in node
+    ``index`` (:func:`node_index`): ``node_configuration`` of a one-taxel node,
+    ``patch_configuration`` of a patch node."""
+    from ..service.master import node_configuration, patch_configuration
 
+    if scene.bus.patch_nodes:
+        writes = [(obj, sub, value) for obj, sub, value, _ in patch_configuration(scene, _devices(scene)[index])]
+    else:
+        writes = node_configuration(scene, index)
     values: dict[tuple[int, int], object] = {}
-    for obj, sub, value in node_configuration(scene, index):
+    for obj, sub, value in writes:
         values.pop((obj, sub), None)  # re-inserted: objects in the order of their last write
         values[(obj, sub)] = value
     return values
+
+
+def node_description(scene, index: int) -> str:
+    """``taxel 17 (C)`` of a one-taxel node, ``patch node 1:3 (192 taxels)`` of a patch node."""
+    d = _devices(scene)[index]
+    if scene.bus.patch_nodes:
+        return f"patch node {d.label} ({len(d.taxels)} taxels)"
+    return f"taxel {d.label} ({scene.taxels[d.taxels[0]].kind})"
+
+
+@lru_cache(maxsize=4)
+def _eds_entries(eds_text: str) -> tuple[dict[str, str], dict[str, int | None]]:
+    """Parsed once per EDS text (the patch EDS has 4,249 sections): section name by its upper
+    case, and each section's DataType (None without one)."""
+    parser = configparser.RawConfigParser(inline_comment_prefixes=(";",), strict=False)
+    parser.optionxform = str
+    parser.read_string(eds_text)
+    sections = {s.upper(): s for s in parser.sections()}
+    types = {key: int(parser.get(s, "DataType"), 0) if parser.has_option(s, "DataType") else None
+             for key, s in sections.items()}
+    return sections, types
 
 
 def _format(value, data_type: int) -> str:
@@ -96,37 +151,35 @@ def _format(value, data_type: int) -> str:
 
 
 def dcf_text(scene, index: int, eds_text: str, name: str | None = None) -> str:
-    """The DCF of taxel ``index`` of ``scene``, made from the EDS text ``eds_text``."""
+    """The DCF of node ``index`` of ``scene`` (:func:`node_index`: the taxel's index in a
+    one-taxel scene, the patch node's in a patch scene), made from the EDS text ``eds_text``."""
     from taxel_net.errors import UsageError
 
     from ..service.lss import expected_serial
 
-    t = scene.taxels[index]
-    parser = configparser.RawConfigParser(inline_comment_prefixes=(";",), strict=False)
-    parser.optionxform = str
-    parser.read_string(eds_text)
-    sections = {s.upper(): s for s in parser.sections()}
+    d = _devices(scene)[index]
+    sections, types = _eds_entries(eds_text)
     if "DEVICECOMISSIONING" in sections:
         raise UsageError("EDS already has a [DeviceComissioning] section: give the EDS, not a DCF")
     values: dict[str, list[str]] = {}
     for (obj, sub), value in configured_values(scene, index).items():
-        section = sections.get(f"{obj:04X}SUB{sub:X}")
-        if section is None and sub == 0:
-            section = sections.get(f"{obj:04X}")
-        if section is None or not parser.has_option(section, "DataType"):
+        key = f"{obj:04X}SUB{sub:X}"
+        if key not in sections and sub == 0:
+            key = f"{obj:04X}"
+        if types.get(key) is None:
             raise UsageError(f"EDS has no entry 0x{obj:04X}:{sub} (the node's configuration writes it)")
-        data_type = int(parser.get(section, "DataType"), 0)
-        values[section.upper()] = [f"ParameterValue={_format(value, data_type)}"]
-    label = t.node_id if t.channel == 0 else f"{t.channel}:{t.node_id}"
+        values[key] = [f"ParameterValue={_format(value, types[key])}"]
+    label = d.label
     commissioning = [
         "[DeviceComissioning]",
-        f"NodeID={t.node_id}",
-        f"NodeName=taxel {label} ({t.kind})",
+        f"NodeID={d.node_id}",
+        f"NodeName={node_description(scene, index)}",
         f"Baudrate={scene.bus.bitrate // 1000}",
-        f"NetNumber={t.channel + 1}",
-        f"NetworkName={scene.bus.channels[t.channel]}",
+        f"NetNumber={d.channel + 1}",
+        f"NetworkName={scene.bus.channels[d.channel]}",
         "CANopenManager=0",
-        f"LSS_SerialNumber=0x{expected_serial(scene, t):08X}",
+        # 0x1018:4 of the node; a patch node's is its first taxel's (the same for all of them)
+        f"LSS_SerialNumber=0x{expected_serial(scene, scene.taxels[d.taxels[0]]):08X}",
         "",
     ]
     out: list[str] = []
@@ -155,7 +208,8 @@ def dcf_text(scene, index: int, eds_text: str, name: str | None = None) -> str:
                 out.append(f"FileName={name or 'node.dcf'}")
                 line = f"LastEDS={line.partition('=')[2].strip()}"  # CiA 306: the EDS it comes from
             elif key == "Description":
-                line = f"{line} - DCF of node {label} of scene {scene.name}"
+                patch = "patch " if scene.bus.patch_nodes else ""
+                line = f"{line} - DCF of {patch}node {label} of scene {scene.name}"
         out.append(line)
     close_section()
     if "DUMMYUSAGE" not in sections:
@@ -168,11 +222,11 @@ def run(args) -> int:
     import sys
 
     from taxel_net.errors import UsageError
-    from taxel_net.resources import eds_path
+    from taxel_net.resources import eds_path, patch_eds_path
     from taxel_net.scene import load_scene
 
     scene = load_scene(args.scene)
-    source = Path(args.eds) if args.eds else eds_path()
+    source = Path(args.eds) if args.eds else patch_eds_path() if scene.bus.patch_nodes else eds_path()
     try:
         eds_text = source.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
@@ -183,10 +237,12 @@ def run(args) -> int:
             if out.exists() and not out.is_dir():
                 raise UsageError(f"-o {args.output!r}: not a directory (--all writes one DCF per node)")
             out.mkdir(parents=True, exist_ok=True)
-            for index in range(scene.n):
+            n = len(_devices(scene))
+            for index in range(n):
                 name = file_name(scene, index)
                 (out / name).write_text(dcf_text(scene, index, eds_text, name), encoding="utf-8")
-            print(f"{scene.n} DCFs of scene {scene.name!r} written to {out}")
+            print(f"{n} DCFs of scene {scene.name!r} written to {out}"
+                  + (f" (one per patch node, {scene.n} taxels)" if scene.bus.patch_nodes else ""))
             return 0
         index = node_index(scene, args.node)
         if args.output == "-":
@@ -198,7 +254,8 @@ def run(args) -> int:
         out.write_text(text, encoding="utf-8")
     except OSError as exc:
         raise UsageError(f"-o {args.output!r}: cannot write: {exc.strerror or exc}") from None
-    t = scene.taxels[index]
-    print(f"DCF of node {args.node} ({t.kind}) of scene {scene.name!r} written to {out}: "
+    what = node_description(scene, index).partition(" (")[2].rstrip(")")
+    kind = "patch node" if scene.bus.patch_nodes else "node"
+    print(f"DCF of {kind} {args.node} ({what}) of scene {scene.name!r} written to {out}: "
           f"{text.count('ParameterValue=')} parameter values")
     return 0
