@@ -10,7 +10,9 @@ on ``udp_multicast`` (loopback) - for ``--cycles`` SYNC cycles at the scene's SY
 (100 Hz for skin4096), and prints per scene:
 
 * latency SYNC -> record: from the master's SYNC transmission to the fused record (every
-  stage the scene asks for) - p50, p99, max - and the centre's own part (closing event -> record);
+  stage the scene asks for) - p50, p99, max - split per cycle into SYNC -> closing event (the
+  twins and the bus: the receive time of the cycle's last PDO, or the window's end) and the
+  centre's own part (closing event -> record);
 * records complete / degraded / undecided, late PDOs, and records whose received decisions
   differ from the physics of their cycle (``misattributed``; goal 0);
 * CPU time per cycle of the centre (and of the twins' processes with shards) over the run: what
@@ -180,9 +182,13 @@ def main(argv=None) -> int:
         where = f"twins in {args.shards} node-sim processes (udp_multicast)" if args.shards else "twins in this process"
         print(f"{scene.name}: {scene.n} taxels, {len(scene.bus.channels)} channels, SYNC {scene.bus.sync_period_ms:g} ms, "
               f"{summary.cycles} cycles, {where}, boot {boot_s:.1f} s ({summary.sdo_writes} SDO writes)")
+        # per cycle: SYNC -> closing event (the twins and the bus: the last PDO's receive time, or
+        # the window's end) and closing event -> record (the centre), paired samples
+        twins_part = np.subtract(list(service.latency_ms), list(service.centre_latency_ms))
         print(f"  SYNC -> record: p50 {hist.percentile(50):.2f} ms, p99 {hist.percentile(99):.2f} ms "
               f"(goal <= 5 ms: {hist.percentile(99) / 5.0:.2f}x), max {hist.percentile(100):.2f} ms; "
-              f"centre part p99 {centre.percentile(99):.2f} ms")
+              f"SYNC -> closing event p50 {np.percentile(twins_part, 50):.2f} / p99 {np.percentile(twins_part, 99):.2f} ms, "
+              f"closing event -> record p50 {centre.percentile(50):.2f} / p99 {centre.percentile(99):.2f} ms")
         print(f"  records: {checked['complete']} complete, {checked['degraded']} degraded, {checked['undecided']} "
               f"undecided, late PDOs {summary.counters.get('late', 0)}, misattributed {checked['misattributed']}")
         n_cycles = max(summary.cycles, 1)
