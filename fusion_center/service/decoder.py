@@ -171,12 +171,13 @@ def sync_payload(counter: int | None) -> bytes:
 # bit k of a byte as a decision (u_i = +1 present, -1 absent): one table lookup per frame
 _BITS_PM1 = np.where(np.unpackbits(np.arange(256, dtype=np.uint8)[:, None], axis=1, bitorder="little") == 1,
                      np.int8(1), np.int8(-1)).astype(np.int8)
+_BITS_PM1_BYTES = [row.tobytes() for row in _BITS_PM1]  # the same, a bytes object per byte value
 
 
 class SlotDecoder:
     """The decoding of one patch TPDO, precomputed: exactly :func:`taxel_net.patches.unpack`
-    (same values, same refusals), at a few µs a frame (one ``frombuffer`` and one table lookup
-    for packed decisions; tests/test_cycles_patch.py checks the two agree on random frames).
+    (same values, same refusals), at a few µs a frame (a table of 8-byte patterns per byte value
+    and one ``frombuffer`` for packed decisions; tests/test_cycles_patch.py checks the two agree on random frames).
 
     ``decode(data)`` -> ``(counter, tag, values)``: ``counter`` None when the frame fits, else
     the disposition (``C_BAD_DLC``, ``C_BAD_VALUE``)."""
@@ -205,9 +206,9 @@ class SlotDecoder:
             return C_BAD_VALUE, None, None
         tag = data[0] if self.tagged else None
         start = self.start
-        if self.bits:
-            body = np.frombuffer(data, dtype=np.uint8, count=end - start, offset=start)
-            return None, tag, _BITS_PM1[body].reshape(-1)[: self.count]
+        if self.bits:  # eight decisions a byte, looked up as bytes: half the time of a numpy gather
+            return None, tag, np.frombuffer(b"".join([_BITS_PM1_BYTES[b] for b in data[start:end]]),
+                                            dtype=np.int8, count=self.count)
         counts = np.frombuffer(data, dtype=self.dtype, count=self.count, offset=start)
         mv = counts * self.lsb
         mv[counts == self.lo] = np.nan
