@@ -237,3 +237,292 @@ def test_two_assembler_processes_and_a_fuser_on_udp_multicast(tmp_path):
     wrong = [{k: r.get(k) for k in ("cycle", "n_received", "parts_missing", "nodes_by_state")}
              for r in complete if r["parts_missing"] != [] or r["n_received"] != heard(r)]
     assert not wrong, wrong
+
+
+# ---------------------------------------------------------------------------- reconnects
+
+def _assemble(path, serve, fuser_port, port=None, *extra, interface="udp_multicast", channels=None):
+    """A `fusion-center assemble` process (stdout/stderr piped)."""
+    channels = channels if channels is not None else GROUPS
+    bus = ["--bus-kwargs", f"port={port}", "hop_limit=0"] if port is not None else []
+    return subprocess.Popen(
+        [sys.executable, "-c", "import sys; from fusion_center.cli import main; sys.exit(main())",
+         "assemble", "--scene", str(path), "-i", interface, "-c", ",".join(channels), *bus, "--serve", serve,
+         "--fuser", f"127.0.0.1:{fuser_port}", *extra],
+        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def _finish(proc, timeout=30):
+    try:
+        out, err = proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        out, err = proc.communicate()
+    return proc.returncode, out, err
+
+
+def test_merger_takes_a_group_back_and_refuses_a_second_claim(tmp_path):
+    scene = load_scene(_scene_file(tmp_path))
+    merger = CycleMerger(scene, part_deadline_s=0.5)
+    for g in (0, 1):
+        assert merger.add_group(group_layout(scene, [g])) is None
+    t = 100.0
+    merger.opened(1, 0, t)
+    p = _parts(scene, 0, 1)
+    merger.add_part("0", p["0"])
+    merger.add_part("1", p["1"])
+    merger.remove_group("1")  # group 1's connection broke
+    why = merger.add_group(group_layout(scene, [0]))  # a second assembler for the connected group 0
+    assert why is not None and "already served" in why and "group 0" in why
+    for k in (1, 2):
+        merger.opened(k + 1, 1000 * k, t)
+        merger.add_part("0", _parts(scene, k, k + 1)["0"])
+    out = merger.emit(t)  # group 1 gone: its cycles are decided at once, degraded naming it
+    assert [(c.cycle, c.closed_by) for c in out] == [(0, "complete"), (1, "part_missing"), (2, "part_missing")]
+    assert merger.info[1] == merger.info[2] == {"parts_missing": ["1"]}
+    assert merger.add_group(group_layout(scene, [1])) is None  # back: the same group
+    assert merger.stats.reconnects == {"1": 1}
+    assert merger.add_group(group_layout(scene, [1])) is not None  # ... and now connected: a second claim
+    merger.opened(4, 3000, t)
+    merger.add_part("0", _parts(scene, 3, 4)["0"])
+    assert merger.emit(t) == []  # waits for group 1 again
+    merger.add_part("1", _parts(scene, 3, 4)["1"])
+    out = merger.emit(t)
+    assert [(c.cycle, c.closed_by) for c in out] == [(3, "complete")]
+    assert (out[0].decisions[:40] == 1).all() and (out[0].decisions[40:] == -1).all()
+    assert merger.stats.as_dict()["reconnects"] == {"1": 1}
+    from fusion_center.commands.run import _reconnects  # the summary line's field
+
+    assert _reconnects(merger.stats.as_dict()) == "1 (1 1)" and _reconnects({"reconnects": {}}) == "0"
+    merger.remove_group("0")
+    merger.remove_group("1")
+    why = merger.add_group(group_layout(scene, [0, 1]))  # another grouping of this run's channels
+    assert why is not None and "--serve 0" in why
+
+
+def test_assembler_reconnects_retries_a_refusal_and_gives_up_after_reconnect_timeout(tmp_path):
+    """A stand-in fuser (a Listener of this process): it breaks the connection without bye, refuses
+    the first try to come back, takes the second; then it is gone for good: exit 1, one line."""
+    from multiprocessing.connection import Listener
+
+    from fusion_center.service.assembler_parts import authkey_for
+
+    path = _scene_file(tmp_path)
+    listener = Listener(("127.0.0.1", 0), authkey=authkey_for("127.0.0.1", "--fuser"))
+    port = listener.address[1]
+    proc = _assemble(path, "1", port, None, "--reconnect-timeout", "1", interface="virtual",
+                     channels=["rc-a", "rc-b"])
+    try:
+        hellos = []
+        conn = listener.accept()
+        hellos.append(conn.recv())
+        conn.send({"kind": "welcome", "group": "1"})
+        line = proc.stdout.readline()
+        assert "ready" in line, (line, proc.stderr.read() if proc.poll() is not None else "")
+        conn.close()  # no bye: a broken connection
+        conn = listener.accept()
+        hellos.append(conn.recv())
+        conn.send({"kind": "refused", "why": "scene channel(s) [1] are already served by another assembler"})
+        conn.close()
+        conn = listener.accept()
+        hellos.append(conn.recv())
+        conn.send({"kind": "welcome", "group": "1"})
+        assert [h["channels"] for h in hellos] == [[1], [1], [1]]
+        assert len({h["pid"] for h in hellos}) == 1  # the same process came back
+        conn.close()
+    finally:
+        listener.close()  # nobody listens any more
+    rc, out, err = _finish(proc, timeout=120)
+    assert rc == 1, (rc, out, err)
+    assert "1 reconnects" in out, out
+    last = err.strip().splitlines()[-1]
+    assert last.startswith(f"fusion-center assemble: the fuser 127.0.0.1:{port} went away and was not back "
+                           "within 1 s (last try: "), err
+    assert "reconnected to the fuser" in err and "broke: reconnecting" in err, err
+
+
+def test_assemblers_come_back_during_a_run_and_a_second_claim_is_refused(tmp_path):
+    """The fuser breaks group 1's connection: the same process reconnects; group 0's process is
+    killed and a new one started: it is taken back; a second `--serve 1` while group 1 is
+    connected is refused (exit 2). Parts merge again after each comeback, never misattributed."""
+    sys.path.insert(0, str(ROOT / "bench"))
+    from skin_scale import check_records
+    from test_service_multiprocess import multicast_works
+
+    from fusion_center.service.assemblers import AssembledFusionService
+    from node_sim.rig import Rig
+
+    port = random.randint(40000, 60000)
+    why = multicast_works(port)
+    if why is not None:
+        pytest.skip(why)
+    fuser_port = random.randint(40000, 60000)
+    path = _scene_file(tmp_path)
+    scene = load_scene(path)
+    bus = {"port": port, "hop_limit": 0}
+    rig = Rig(scene, interface="udp_multicast", channel=GROUPS, bus_kwargs=bus)
+    service = AssembledFusionService(scene, listen=("127.0.0.1", fuser_port), interface="udp_multicast",
+                                     channels=GROUPS, bus_kwargs=bus, assembler_wait_s=20.0)
+    procs = {}
+    at = {}  # event -> the cycle whose before_sync hook saw it
+    reconnects = service.merger.stats.reconnects
+
+    def wait_for(condition):  # holds the SYNCs until it holds (a safety limit, not a timing claim)
+        end = time.monotonic() + 120
+        while not condition() and time.monotonic() < end:
+            time.sleep(0.01)
+
+    def hook(k):  # runs before SYNC k goes out
+        if k == 10:
+            at["drop"] = k
+            assert service.drop_assembler("1")
+        if "drop" in at and "back1" not in at:
+            if k == 40:
+                wait_for(lambda: reconnects.get("1"))
+            if reconnects.get("1"):
+                at["back1"] = k
+                procs["dup"] = _assemble(path, "1", fuser_port, port)  # group 1 is connected: refused
+        if k == 70:
+            at["kill"] = k
+            procs["0"].kill()
+        if "kill" in at and "gone0" not in at:
+            if k == 100:
+                wait_for(lambda: "0" in service.merger.gone)
+            if "0" in service.merger.gone:
+                at["gone0"] = k  # SYNC k goes out while no assembler serves group 0
+        elif "gone0" in at and "restart" not in at:
+            at["restart"] = k
+            procs["0 again"] = _assemble(path, "0", fuser_port, port)
+        if "restart" in at and "back0" not in at:
+            if k == 140:
+                wait_for(lambda: reconnects.get("0"))
+            if reconnects.get("0"):
+                at["back0"] = k
+
+    cycles = 180
+    try:
+        rig.start()
+        service.open()
+        for serve in ("0", "1"):
+            procs[serve] = _assemble(path, serve, fuser_port, port)
+        for serve in ("0", "1"):
+            line = procs[serve].stdout.readline()
+            assert "ready" in line, (line, procs[serve].stderr.read() if procs[serve].poll() is not None else "")
+        service.boot(5.0)
+        service.run(cycles, before_sync=hook, timeout_s=600)
+    finally:
+        service.close()
+        rig.stop()
+    outs = {name: _finish(proc) for name, proc in procs.items()}
+    records = service.records
+    stats = service.merger.stats
+    figures = check_records(scene, records)
+    print(at, figures, stats.as_dict())
+    for name, (rc, out, err) in outs.items():
+        print(name, rc, out.strip().splitlines()[-1:], err.strip().splitlines()[-3:])
+    assert set(at) == {"drop", "back1", "kill", "gone0", "restart", "back0"}, at
+    assert [r["cycle"] for r in records] == list(range(cycles))
+    assert figures["misattributed"] == 0
+    assert stats.reconnects == {"1": 1, "0": 1} and stats.unmatched_parts == 0
+    # the processes: group 1's came back by itself, group 0's second one was taken back, the
+    # second claim of group 1 was refused with one line
+    rc, out, err = outs["1"]
+    assert rc == 0 and "1 reconnects" in out and "reconnected to the fuser" in err, (rc, out, err)
+    assert outs["0"][0] == -9
+    rc, out, err = outs["0 again"]
+    assert rc == 0 and "ready" in out, (rc, out, err)
+    rc, out, err = outs["dup"]
+    assert rc == 2 and len(err.strip().splitlines()) == 1 and "refused" in err and "already served" in err, err
+    by_cycle = {r["cycle"]: r for r in records}
+    # no part of group 0 for the SYNC sent while no process served it: degraded, naming it
+    assert "0" in by_cycle[at["gone0"]]["parts_missing"], by_cycle[at["gone0"]]
+    assert by_cycle[at["gone0"]]["closed_by"] == "part_missing"
+    # every cycle group 1's assembler closed while disconnected (not sent) is degraded naming it
+    unsent = int(out_1.split(" not sent")[0].rsplit(", ", 1)[-1]) if (out_1 := outs["1"][1]) else 0
+    assert sum("1" in r["parts_missing"] for r in records) >= unsent
+    # the parts merge again after each comeback: complete records, holding both groups' taxels
+    for since in (at["back1"], at["back0"]):
+        assert any(r["closed_by"] == "complete" for r in records[since + 1:]), since
+    assert all(r["parts_missing"] == [] and r["n_received"] > 0 for r in records if r["closed_by"] == "complete")
+
+
+def test_a_fuser_killed_and_started_again_gets_its_assemblers_back(tmp_path):
+    """`fusion-center run --assemblers` killed (SIGKILL: no bye) mid-run: the assemblers keep
+    going and reconnect to the next fuser on the same address, whose run merges their parts."""
+    sys.path.insert(0, str(ROOT / "bench"))
+    from skin_scale import check_records
+    from test_service_multiprocess import multicast_works
+
+    from fusion_center.service.assemblers import AssembledFusionService
+    from node_sim.rig import Rig
+
+    port = random.randint(40000, 60000)
+    why = multicast_works(port)
+    if why is not None:
+        pytest.skip(why)
+    fuser_port = random.randint(40000, 60000)
+    path = _scene_file(tmp_path)
+    scene = load_scene(path)
+    bus = {"port": port, "hop_limit": 0}
+    rig = Rig(scene, interface="udp_multicast", channel=GROUPS, bus_kwargs=bus)
+    jsonl = tmp_path / "first.jsonl"
+    procs = []
+    service = None
+    try:
+        rig.start()
+        first = subprocess.Popen(
+            [sys.executable, "-c", "import sys; from fusion_center.cli import main; sys.exit(main())",
+             "run", "--scene", str(path), "-i", "udp_multicast", "-c", ",".join(GROUPS), "--bus-kwargs",
+             f"port={port}", "hop_limit=0", "--assemblers", f"127.0.0.1:{fuser_port}", "--cycles", "100000",
+             "--no-live", "--json-lines", str(jsonl)],
+            cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        procs = [_assemble(path, serve, fuser_port, port) for serve in ("0", "1")]
+        for proc in procs:
+            line = proc.stdout.readline()
+            assert "ready" in line, (line, proc.stderr.read() if proc.poll() is not None else "")
+        end = time.monotonic() + 120  # a safety limit: the first fuser writes records
+        while time.monotonic() < end and first.poll() is None and \
+                (not jsonl.exists() or jsonl.read_text().count("\n") < 10):
+            time.sleep(0.05)
+        assert first.poll() is None, first.communicate()
+        first.kill()  # no bye
+        first.communicate()
+        service = AssembledFusionService(scene, listen=("127.0.0.1", fuser_port), interface="udp_multicast",
+                                         channels=GROUPS, bus_kwargs=bus, assembler_wait_s=60.0)
+        service.open()
+        service.boot(5.0)
+        service.run(40, timeout_s=600)
+    finally:
+        if service is not None:
+            service.close()
+        rig.stop()
+    outs = [_finish(proc) for proc in procs]
+    records = service.records
+    figures = check_records(scene, records)
+    print(figures, service.merger.stats.as_dict(), [(rc, out.strip().splitlines()[-1:]) for rc, out, _ in outs])
+    for rc, out, err in outs:  # the second fuser's bye ends them
+        assert rc == 0 and "1 reconnects" in out and "reconnected to the fuser" in err, (rc, out, err)
+    assert service.merger.stats.reconnects == {}  # new to this fuser: a first connection, not a reconnect
+    assert [r["cycle"] for r in records] == list(range(40)) and figures["misattributed"] == 0
+    assert any(r["closed_by"] == "complete" for r in records)
+    assert all(r["parts_missing"] == [] for r in records if r["closed_by"] == "complete")
+
+
+def test_without_a_sync_counter_only_an_assembler_that_heard_the_reset_comes_back(tmp_path):
+    from fusion_center.service.assemblers import AssembledFusionService, scene_fingerprint
+
+    path = _scene_file(tmp_path)
+    path.write_text(path.read_text().replace("sync_counter = 64", "sync_counter = 0"))
+    scene = load_scene(path)
+    service = AssembledFusionService(scene, listen=("127.0.0.1", 47999), interface="virtual",
+                                     channels=["nc-a", "nc-b"])
+    hello = {"kind": "hello", "protocol": 1, "scene": scene_fingerprint(scene), "channels": [1]}
+    assert service._check_hello(hello) is None  # before the run's SYNCs: numbered from the reset to come
+    service.merger.opened(None, 0, 0.0)
+    why = service._check_hello(hello)  # a process started mid-run numbers from its own first SYNC
+    assert why is not None and "no SYNC counter" in why
+    assert service._check_hello({**hello, "numbered_from_reset": True}) is None  # the same process, back
+    ga = GroupAssembler(scene, [1])
+    assert not ga.heard_reset
+    ga.feed(0, 0, 0x000, bytes([0x82, 0]))  # the master's broadcast reset communication
+    assert ga.heard_reset

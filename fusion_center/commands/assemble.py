@@ -6,8 +6,9 @@ process or host, feeding the fuser (``fusion-center run --assemblers HOST:PORT``
 It opens the buses of the served channels only (``-c`` lists one bus channel per scene
 channel, as for ``run``), listens (it sends nothing on the buses), assembles every SYNC
 cycle of its channels and sends it to the fuser (:mod:`fusion_center.service.assemblers`).
-It ends when the fuser ends (exit 0), on Ctrl-C / SIGTERM (exit 0), or when the fuser goes
-away without saying so (exit 1).
+It ends when the fuser ends (exit 0), on Ctrl-C / SIGTERM (exit 0), or when the fuser went
+away without saying so and was not back within ``--reconnect-timeout`` (exit 1): until then it
+keeps assembling its buses (the cycles closed meanwhile are not sent) and connects again.
 """
 
 from __future__ import annotations
@@ -34,6 +35,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "the same FUSION_CENTER_AUTHKEY on both hosts)")
     parser.add_argument("--connect-timeout", type=float, default=30.0, metavar="S",
                         help="seconds to keep trying to reach the fuser (default 30)")
+    parser.add_argument("--reconnect-timeout", type=float, default=60.0, metavar="S",
+                        help="when the connection to the fuser breaks without its goodbye: seconds to keep "
+                             "trying to connect again before exiting 1 (default 60)")
     add_mode_argument(parser)
 
 
@@ -61,13 +65,15 @@ def run(args) -> int:
     fuser = parse_address(args.fuser, "--fuser")
     if not (math.isfinite(args.connect_timeout) and 0 < args.connect_timeout <= 3600):
         raise UsageError(f"--connect-timeout {args.connect_timeout}: must be a number of seconds in (0, 3600]")
+    if not (math.isfinite(args.reconnect_timeout) and 0 < args.reconnect_timeout <= 86400):
+        raise UsageError(f"--reconnect-timeout {args.reconnect_timeout}: must be a number of seconds in (0, 86400]")
     serve = parse_serve(args.serve)
     check_bitrate_flags(args)
     scene = apply_mode(load_scene(args.scene), args.mode)
     serve = check_serve(serve, scene, args.serve)
     bus = resolve_bus(args, scene)
     process = AssemblerProcess(scene, serve, fuser=fuser, interface=bus.interface, channel_names=bus.channels,
-                               bitrate=bus.bitrate, bus_kwargs=bus.kwargs)
+                               bitrate=bus.bitrate, bus_kwargs=bus.kwargs, reconnect_timeout_s=args.reconnect_timeout)
     stop = threading.Event()
 
     def on_signal(signum, frame):
@@ -86,8 +92,8 @@ def run(args) -> int:
             pass
     counters = process.group.assembler.counters()
     print(f"fusion-center assemble: {process.parts_sent} cycles sent, {process.parts_unsent} not sent, "
-          f"{process.events} frames; " + ", ".join(f"{k} {v}" for k, v in counters.items() if v), flush=True)
+          f"{process.events} frames, {process.reconnects} reconnects; " + ", ".join(f"{k} {v}" for k, v in counters.items() if v), flush=True)
     if process.closed.is_set() and not process.bye and not stop.is_set():
-        print("fusion-center assemble: the fuser went away", file=sys.stderr)
+        print(f"fusion-center assemble: {process.gave_up or 'the fuser went away'}", file=sys.stderr)
         return 1
     return 0

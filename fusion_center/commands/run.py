@@ -197,7 +197,7 @@ def format_summary(summary: dict) -> list[str]:
         lines.append(("assemblers", f"{a['parts']} parts ({', '.join(f'{k} {v}' for k, v in a['by_group'].items())}); "
                                     f"cycles complete {a['complete']}, degraded {a['degraded']} "
                                     f"({a['parts_missing']} parts missing), late parts {a['late_parts']}, "
-                                    f"unmatched {a['unmatched_parts']}; SYNC -> part sent p50 "
+                                    f"unmatched {a['unmatched_parts']}; reconnects {_reconnects(a)}; SYNC -> part sent p50 "
                                     f"{_fmt_ms(a['to_send_ms']['p50'])}, p99 {_fmt_ms(a['to_send_ms']['p99'])}; "
                                     f"part transport p50 {_fmt_ms(a['transport_ms']['p50'])}, "
                                     f"p99 {_fmt_ms(a['transport_ms']['p99'])}"))
@@ -206,6 +206,13 @@ def format_summary(summary: dict) -> list[str]:
                                      "SYNC cycles: a partial summary; every record written is complete"))
     width = max(len(k) for k, _ in lines)
     return [f"{k + ':':<{width + 1}} {v}" for k, v in lines]
+
+
+def _reconnects(a: dict) -> str:
+    """``0`` or ``3 (1 2, 0 1)``: groups that came back during the run, how often."""
+    by = a.get("reconnects") or {}
+    total = sum(by.values())
+    return f"{total} ({', '.join(f'{k} {v}' for k, v in by.items())})" if total else "0"
 
 
 def _fmt_ms(x):

@@ -10,6 +10,9 @@ import dataclasses
 import ipaddress
 import logging
 import os
+import socket
+import threading
+import time
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -24,6 +27,7 @@ logger = logging.getLogger("fusion_center.service.assemblers")
 AUTHKEY_ENV = "FUSION_CENTER_AUTHKEY"
 DEFAULT_AUTHKEY = b"taxel-can loopback"  # only for loopback addresses (module docstring)
 PROTOCOL = 1  # version of the hello / part messages
+LOG_INTERVAL_S = 10.0  # disconnect / reconnect warnings: at most one of a kind in this time
 COB_SYNC = 0x080
 NMT_RESETS = (0x81, 0x82)
 
@@ -146,3 +150,49 @@ class CyclePart:
     devices: tuple | None = None  # patch scenes: (expected, missing, states, complete) per device of the group
     sent_at: float = 0.0        # time.time() when sent (assembler -> fuser delay, same-host clocks)
 
+
+
+# ---------------------------------------------------------------------------- the connection
+
+def shutdown_connection(conn) -> None:
+    """Break a ``multiprocessing.connection`` connection as a network fault would: both ends see
+    it closed, and a thread blocked in its ``recv`` wakes (a plain ``close`` from another thread
+    does not wake it). Never raises."""
+    try:
+        sock = socket.socket(fileno=os.dup(conn.fileno()))
+    except (OSError, ValueError):
+        return
+    try:
+        sock.shutdown(socket.SHUT_RDWR)
+    except OSError:
+        pass
+    finally:
+        sock.close()
+
+
+class RateLimitedLog:
+    """Warnings of one kind at most every ``interval_s`` (a flapping link never floods the log);
+    the ones left out are counted in the next one logged."""
+
+    def __init__(self, log: logging.Logger, interval_s: float = LOG_INTERVAL_S):
+        self.log = log
+        self.interval_s = float(interval_s)
+        self._last: dict[str, float] = {}
+        self._left_out: dict[str, int] = {}
+        self._lock = threading.Lock()
+
+    def warning(self, kind: str, message: str) -> bool:
+        """Log ``message`` (no %-formatting) unless one of ``kind`` went out less than
+        ``interval_s`` ago; True when logged."""
+        now = time.monotonic()
+        with self._lock:
+            last = self._last.get(kind)
+            if last is not None and now - last < self.interval_s:
+                self._left_out[kind] = self._left_out.get(kind, 0) + 1
+                return False
+            self._last[kind] = now
+            left_out = self._left_out.pop(kind, 0)
+        if left_out:
+            message += f" (+{left_out} like this not logged since the last)"
+        self.log.warning("%s", message)
+        return True

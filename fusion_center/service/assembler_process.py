@@ -19,11 +19,18 @@ import numpy as np
 from taxel_net.errors import UsageError
 from taxel_net.patches import devices as scene_devices
 from taxel_net.scene import Scene
-from .assembler_parts import (AUTHKEY_ENV, NMT_RESETS, PROTOCOL, CyclePart, authkey_for, group_layout,
-                              scene_fingerprint)
+from .assembler_parts import (AUTHKEY_ENV, LOG_INTERVAL_S, NMT_RESETS, PROTOCOL, CyclePart, RateLimitedLog,
+                              authkey_for, group_layout, scene_fingerprint, shutdown_connection)
 from .cycle_records import ClosedCycle, EmcyEvent, quantise_timestamp
 
 logger = logging.getLogger("fusion_center.service.assemblers")
+
+RECONNECT_FIRST_S = 0.1  # wait before the first try after a break; doubled after every failed try
+RECONNECT_MAX_S = 2.0    # ... up to this
+
+
+class Refused(Exception):
+    """The fuser answered the hello with a refusal (the reason is the message)."""
 
 class GroupAssembler:
     """A ``CycleAssembler`` over one channel group, its cycles numbered by SYNC and turned
@@ -41,11 +48,13 @@ class GroupAssembler:
                        for d, sub_label in enumerate(self.assembler.labels)}
         self.overflow = int(scene.bus.sync_counter)
         self.reset_at: int | None = None  # first assembler cycle after the master's reset broadcast
+        self.heard_reset = False  # numbers count from the master's reset (told the fuser at a reconnect)
         self.last: tuple[int, int, int | None] | None = None  # (assembler cycle, number, counter)
 
     def note_reset(self) -> None:
         """The master's broadcast reset communication / node was fed: numbers restart."""
         self.reset_at = self.assembler.cycle + 1
+        self.heard_reset = True
 
     def feed(self, timestamp_us: int, channel: int, can_id: int, data: bytes, flags: int = 0) -> list[CyclePart]:
         closed = self.assembler.feed_all(timestamp_us, channel, can_id, data, flags)
@@ -91,11 +100,16 @@ class GroupAssembler:
 
 class AssemblerProcess:
     """``fusion-center assemble``: a :class:`GroupAssembler` on its channels' buses, each
-    closed cycle sent to the fuser as a :class:`CyclePart`."""
+    closed cycle sent to the fuser as a :class:`CyclePart`.
+
+    When the connection breaks without the fuser's ``bye`` it keeps assembling (the parts
+    closed meanwhile count as not sent) and connects again, waiting 0.1 s doubling to 2 s
+    between tries, for up to ``reconnect_timeout_s``; then :attr:`closed` is set with
+    :attr:`gave_up` saying why."""
 
     def __init__(self, scene: Scene, channels: Sequence[int], *, fuser: tuple[str, int], interface: str,
                  channel_names: Sequence[str] | None = None, bitrate: int | None = None,
-                 bus_kwargs: dict | None = None, authkey: bytes | None = None):
+                 bus_kwargs: dict | None = None, authkey: bytes | None = None, reconnect_timeout_s: float = 60.0):
         self.scene = scene
         self.group = GroupAssembler(scene, channels)
         self.layout = self.group.layout
@@ -118,8 +132,13 @@ class AssemblerProcess:
         self.parts_sent = 0
         self.parts_unsent = 0
         self.events = 0
-        self.closed = threading.Event()    # the fuser said bye or went away
+        self.closed = threading.Event()    # the fuser said bye, or went away and did not come back
         self.bye = False
+        self.reconnect_timeout_s = float(reconnect_timeout_s)
+        self.reconnects = 0
+        self.gave_up: str | None = None    # why the fuser is given up (closed without bye)
+        self._stop = threading.Event()     # close(): no more reconnecting
+        self._log = RateLimitedLog(logger)
 
     def open(self) -> "AssemblerProcess":
         import can
@@ -147,16 +166,37 @@ class AssemblerProcess:
             raise
         return self
 
-    def connect(self, timeout_s: float = 30.0) -> None:
-        """Connect to the fuser (retrying while it is not listening yet), say hello."""
+    def _dial(self):
+        """One try: connect, hello, welcome -> the connection. Raises :class:`Refused`, OSError,
+        EOFError (closed during the hello) or multiprocessing's AuthenticationError."""
         from multiprocessing.connection import Client
 
+        conn = Client(self.fuser, authkey=self.authkey)
+        try:
+            conn.send({"kind": "hello", "protocol": PROTOCOL, "scene": scene_fingerprint(self.scene),
+                       "channels": list(self.layout.channels), "host": socket.gethostname(), "pid": os.getpid(),
+                       "numbered_from_reset": self.group.heard_reset})
+            answer = conn.recv()
+        except BaseException:
+            conn.close()
+            raise
+        if not isinstance(answer, dict) or answer.get("kind") != "welcome":
+            conn.close()
+            raise Refused(answer.get("why") if isinstance(answer, dict) else answer)
+        return conn
+
+    def connect(self, timeout_s: float = 30.0) -> None:
+        """Connect to the fuser (retrying while it is not listening yet), say hello."""
         host, port = self.fuser
         deadline = time.monotonic() + timeout_s
         while True:
             try:
-                conn = Client((host, port), authkey=self.authkey)
+                conn = self._dial()
                 break
+            except Refused as exc:
+                raise UsageError(f"--fuser {host}:{port}: refused: {exc}") from None
+            except EOFError:
+                raise UsageError(f"--fuser {host}:{port}: the connection closed during the hello") from None
             except (ConnectionRefusedError, socket.timeout, OSError) as exc:
                 if isinstance(exc, ConnectionRefusedError) or getattr(exc, "errno", None) in (111, 113, 110):
                     if time.monotonic() < deadline:
@@ -167,29 +207,80 @@ class AssemblerProcess:
             except Exception as exc:  # noqa: BLE001 - multiprocessing.AuthenticationError
                 raise UsageError(f"--fuser {host}:{port}: {type(exc).__name__}: {exc} (the same "
                                  f"{AUTHKEY_ENV} on both sides?)") from None
-        conn.send({"kind": "hello", "protocol": PROTOCOL, "scene": scene_fingerprint(self.scene),
-                   "channels": list(self.layout.channels), "host": socket.gethostname(), "pid": os.getpid()})
-        answer = conn.recv()
-        if not isinstance(answer, dict) or answer.get("kind") != "welcome":
-            conn.close()
-            why = answer.get("why") if isinstance(answer, dict) else answer
-            raise UsageError(f"--fuser {host}:{port}: refused: {why}")
         self.conn = conn
         threading.Thread(target=self._watch, name="fuser-watch", daemon=True).start()
         gc.freeze()  # the set-up is never traversed by the cyclic collector again (as the centre's run)
 
     def _watch(self) -> None:
-        try:
-            while True:
-                message = self.conn.recv()
-                if isinstance(message, dict) and message.get("kind") == "bye":
-                    self.bye = True
-                    break
-        except (EOFError, OSError):
-            pass
-        self.closed.set()
+        """Hears the fuser: its bye ends the process; a break without bye, a reconnect."""
+        while True:
+            conn = self.conn
+            try:
+                while conn is not None:
+                    message = conn.recv()
+                    if isinstance(message, dict) and message.get("kind") == "bye":
+                        self.bye = True
+                        self.closed.set()
+                        return
+            except (EOFError, OSError):
+                pass
+            with self._send_lock:
+                if self.conn is conn:
+                    self.conn = None
+            if conn is not None:
+                try:
+                    conn.close()
+                except OSError:
+                    pass
+            if self._stop.is_set() or not self._reconnect():
+                self.closed.set()
+                return
+
+    def _reconnect(self) -> bool:
+        """Try again and again (bounded back-off) until the fuser takes this group back (True),
+        :meth:`close` or ``reconnect_timeout_s`` (False, :attr:`gave_up` set)."""
+        host, port = self.fuser
+        since = time.monotonic()
+        deadline = since + self.reconnect_timeout_s
+        unsent = self.parts_unsent
+        self._log.warning("lost", f"the connection to the fuser {host}:{port} broke: reconnecting for up to "
+                                  f"{self.reconnect_timeout_s:g} s (cycles closed meanwhile are not sent)")
+        delay, last = RECONNECT_FIRST_S, None
+        while True:
+            wait = min(delay, deadline - time.monotonic())
+            if wait <= 0:
+                break
+            if self._stop.wait(wait):
+                return False
+            delay = min(2 * delay, RECONNECT_MAX_S)
+            try:
+                conn = self._dial()
+            except Refused as exc:  # e.g. the fuser has not seen the break yet: try again
+                last = f"refused: {exc}"
+            except EOFError:
+                last = "the connection closed during the hello"
+            except Exception as exc:  # noqa: BLE001 - refused, unreachable, a wrong key: all retried
+                last = f"{type(exc).__name__}: {getattr(exc, 'strerror', None) or exc}"
+            else:
+                with self._send_lock:
+                    if self._stop.is_set():  # closed meanwhile
+                        conn.close()
+                        return False
+                    self.conn = conn
+                self.reconnects += 1
+                self._log.warning("back", f"reconnected to the fuser {host}:{port} after "
+                                          f"{time.monotonic() - since:.1f} s ({self.parts_unsent - unsent} "
+                                          "cycle(s) not sent meanwhile)")
+                return True
+            if time.monotonic() - since >= LOG_INTERVAL_S:
+                self._log.warning("retry", f"the fuser {host}:{port} is not back after "
+                                           f"{time.monotonic() - since:.0f} s ({last})")
+        self.gave_up = (f"the fuser {host}:{port} went away and was not back within {self.reconnect_timeout_s:g} s"
+                        + (f" (last try: {last})" if last else ""))
+        return False
 
     def close(self) -> None:
+        self._stop.set()
         for notifier in self.notifiers:
             try:
                 notifier.stop(timeout=2)
@@ -202,12 +293,14 @@ class AssemblerProcess:
             except Exception:  # noqa: BLE001
                 pass
         self.buses = []
-        if self.conn is not None:
+        with self._send_lock:
+            conn, self.conn = self.conn, None
+        if conn is not None:
+            shutdown_connection(conn)  # wakes the watcher
             try:
-                self.conn.close()
+                conn.close()
             except OSError:
                 pass
-            self.conn = None
 
     def __enter__(self):
         return self.open()
@@ -231,7 +324,7 @@ class AssemblerProcess:
             while self._outbox:
                 part = self._outbox.popleft()
                 conn = self.conn
-                if conn is None or self.closed.is_set():
+                if conn is None or self.closed.is_set():  # disconnected: not sent, never queued
                     self.parts_unsent += 1
                     continue
                 part.sent_at = time.time()
@@ -240,7 +333,8 @@ class AssemblerProcess:
                     self.parts_sent += 1
                 except (OSError, ValueError):
                     self.parts_unsent += 1
-                    self.closed.set()
+                    self.conn = None
+                    shutdown_connection(conn)  # the watcher wakes and reconnects
 
 
 class _PartListener(can.Listener):

@@ -35,6 +35,14 @@ evaluates them with the usual pipeline, writing the same records as
   silent (received nothing), the record is degraded and names the group in
   ``parts_missing`` (``closed_by: "part_missing"``). Cycles are evaluated in SYNC order;
   a part for a cycle already evaluated is counted (``late_parts``), never mixed in.
+* **Reconnects**: an assembler whose connection breaks without the fuser's ``bye`` keeps
+  assembling its buses (the parts closed meanwhile are counted as not sent, never queued) and
+  connects again (0.1 s doubling to 2 s between tries, for ``--reconnect-timeout`` s; then it
+  exits 1). The fuser accepts a group of its run again with the same hello checks (a group that
+  is still connected is refused), counts it (``reconnects``) and merges its parts from then on;
+  the cycles in between are degraded naming the group. A restarted assembler process is
+  accepted the same way (its cycles are mapped by the SYNC counter; in a scene without one
+  only an assembler that heard the master's reset, i.e. the same process, can come back).
 
 By job: :mod:`.assembler_parts` (what both sides share: addresses and keys, channel groups,
 :class:`CyclePart`), :mod:`.assembler_process` (the assembler: ``GroupAssembler``,
@@ -51,8 +59,8 @@ import time
 from taxel_net.errors import UsageError
 from taxel_net.scene import Scene
 from .assembler_parts import (AUTHKEY_ENV, COB_SYNC, DEFAULT_AUTHKEY, NMT_RESETS, PROTOCOL, CyclePart,  # noqa: F401
-                              GroupLayout, authkey_for, check_serve, group_layout, group_name, is_loopback,
-                              parse_address, scene_fingerprint)
+                              GroupLayout, RateLimitedLog, authkey_for, check_serve, group_layout, group_name,
+                              is_loopback, parse_address, scene_fingerprint, shutdown_connection)
 from .assembler_process import AssemblerProcess, GroupAssembler  # noqa: F401 - public names of this module
 from .cycle_merger import CycleMerger, MergeStats  # noqa: F401
 from .cycle_records import ClosedCycle, quantise_timestamp
@@ -124,7 +132,9 @@ class AssembledFusionService(FusionService):
         self.stream.echoes = echoes
         self.stream.on_sync = self._on_sync
         self._listener = None
-        self._conns: list = []
+        self._conns: dict = {}  # group name -> its connection
+        self._conn_lock = threading.Lock()  # a group's connection and its place in the merger change together
+        self._log = RateLimitedLog(logger)
         self._threads: list[threading.Thread] = []
         self._stop_merge = threading.Event()
         self._merge_lock = threading.Lock()  # emission order into _pending
@@ -158,7 +168,9 @@ class AssembledFusionService(FusionService):
                 listener.close()
             except OSError:
                 pass
-        for conn in list(self._conns):
+        with self._conn_lock:
+            conns = list(self._conns.values())
+        for conn in conns:
             try:
                 conn.send({"kind": "bye"})
             except (OSError, ValueError, EOFError):
@@ -246,21 +258,40 @@ class AssembledFusionService(FusionService):
             thread = threading.Thread(target=self._serve, args=(conn,), name="assembler-conn", daemon=True)
             thread.start()
 
+    def drop_assembler(self, name: str) -> bool:
+        """Break the connection of group ``name`` as a network fault would (its assembler
+        reconnects); False when that group is not connected."""
+        with self._conn_lock:
+            conn = self._conns.get(name)
+        if conn is None:
+            return False
+        shutdown_connection(conn)
+        return True
+
     def _serve(self, conn) -> None:
         name = None
+        back = False
         try:
             hello = conn.recv()
             why = self._check_hello(hello)
             if why is None:
                 layout = group_layout(self.scene, hello["channels"])
-                why = self.merger.add_group(layout)
+                with self._conn_lock:
+                    before = self.merger.stats.reconnects.get(layout.name, 0)
+                    why = self.merger.add_group(layout)
+                    if why is None:
+                        name = layout.name
+                        self._conns[name] = conn
+                        back = self.merger.stats.reconnects.get(name, 0) > before
             if why is not None:
                 self.refused.append(why)
                 logger.warning("assembler refused: %s", why)
                 conn.send({"kind": "refused", "why": why})
                 return
-            name = layout.name
-            self._conns.append(conn)
+            if back:
+                self._log.warning(f"back {name}", f"assembler of channel(s) {name} is back (host "
+                                  f"{hello.get('host')}, pid {hello.get('pid')}; reconnect "
+                                  f"{self.merger.stats.reconnects[name]}): its parts merge again")
             conn.send({"kind": "welcome", "group": name})
             while not self._stop_merge.is_set():
                 part = conn.recv()
@@ -273,11 +304,13 @@ class AssembledFusionService(FusionService):
             logger.exception("assembler connection failed")
         finally:
             if name is not None:
-                self.merger.remove_group(name)
-                if conn in self._conns:
-                    self._conns.remove(conn)
+                with self._conn_lock:
+                    if self._conns.get(name) is conn:
+                        self.merger.remove_group(name)
+                        del self._conns[name]
                 if not self._stop_merge.is_set():
-                    logger.warning("assembler of channel(s) %s disconnected: its parts are missing", name)
+                    self._log.warning(f"gone {name}", f"assembler of channel(s) {name} disconnected: its parts "
+                                      "are missing until it is back")
                     self._emit()
             try:
                 conn.close()
@@ -295,4 +328,7 @@ class AssembledFusionService(FusionService):
         n = len(self.scene.bus.channels)
         if not channels or not all(isinstance(c, int) and 0 <= c < n for c in channels):
             return f"channels {channels!r}: the scene has channels 0..{n - 1}"
+        if not self.scene.bus.sync_counter and self.merger.sent and not hello.get("numbered_from_reset"):
+            return ("the scene has no SYNC counter and this run's SYNCs have begun: an assembler started now "
+                    "cannot number its cycles (only one that heard the master's reset can come back)")
         return None

@@ -31,6 +31,7 @@ class MergeStats:
     unmatched_parts: int = 0  # parts for no SYNC this fuser sent
     duplicate_parts: int = 0
     by_group: dict = field(default_factory=dict)  # group -> parts received
+    reconnects: dict = field(default_factory=dict)  # group -> times it came back during the run
     # where a part's time goes (same-host clocks; across hosts only as good as their sync):
     to_send: LatencyHistogram = field(default_factory=LatencyHistogram)    # SYNC sent -> part sent
     transport: LatencyHistogram = field(default_factory=LatencyHistogram)  # part sent -> received
@@ -38,6 +39,7 @@ class MergeStats:
     def as_dict(self) -> dict:
         out = {k: v for k, v in vars(self).items() if not isinstance(v, LatencyHistogram)}
         out["by_group"] = dict(self.by_group)
+        out["reconnects"] = dict(self.reconnects)
         for name in ("to_send", "transport"):
             h = getattr(self, name)
             out[f"{name}_ms"] = {f"p{q}": None if h.percentile(q) is None else round(h.percentile(q), 3)
@@ -72,16 +74,39 @@ class CycleMerger:
 
     # -- groups
     def add_group(self, layout: GroupLayout) -> str | None:
-        """Register a group; a reason string when refused (overlap with a connected group)."""
+        """Register a group; a reason string when refused. A group of this run that
+        disconnected comes back with the same channels (a reconnect, counted); channels that
+        a connected group serves are refused, and so - once a SYNC went out - are channels
+        of a disconnected group in another grouping."""
         with self.lock:
-            taken = {c for name, g in self.groups.items() for c in g.channels}
-            overlap = sorted(taken & set(layout.channels))
+            name = layout.name
+            connected = {c: g for g, lay in self.groups.items() for c in lay.channels}
+            overlap = sorted(set(connected) & set(layout.channels))
             if overlap:
-                return f"scene channel(s) {overlap} are already served by another assembler"
-            self.groups[layout.name] = layout
-            self.gone.discard(layout.name)
-            self.stats.by_group.setdefault(layout.name, 0)
+                served = sorted({connected[c] for c in overlap})
+                return (f"scene channel(s) {overlap} are already served by another assembler (connected, "
+                        f"group {', '.join(served)})")
+            if name in self.gone:
+                self.stats.reconnects[name] = self.stats.reconnects.get(name, 0) + 1
+            else:
+                clash = sorted(g for g in self.gone if set(self._channels(g)) & set(layout.channels))
+                if clash and self.sent:
+                    return (f"scene channel(s) {sorted(layout.channels)} differ from group(s) {', '.join(clash)} "
+                            f"of this run: an assembler comes back with --serve {clash[0]}")
+                self.gone.difference_update(clash)  # before the first SYNC: regrouped, nothing was missed
+            self.groups[name] = layout
+            self.gone.discard(name)
+            self.stats.by_group.setdefault(name, 0)
             return None
+
+    @staticmethod
+    def _channels(name: str) -> list[int]:
+        """The channels of a group name (``0-3`` / ``0,2,5``)."""
+        out: list[int] = []
+        for piece in name.split(","):
+            first, _, last = piece.partition("-")
+            out.extend(range(int(first), int(last or first) + 1))
+        return out
 
     def remove_group(self, name: str) -> None:
         with self.lock:
