@@ -526,3 +526,37 @@ def test_without_a_sync_counter_only_an_assembler_that_heard_the_reset_comes_bac
     assert not ga.heard_reset
     ga.feed(0, 0, 0x000, bytes([0x82, 0]))  # the master's broadcast reset communication
     assert ga.heard_reset
+
+
+def test_both_ends_notice_a_peer_gone_without_closing():
+    """Keepalive and a user timeout on the assembler <-> fuser connection (Linux options): a host
+    powered off is noticed in ~10 s, not after TCP's minutes - the fuser would otherwise keep the
+    group connected and refuse the group's restarted assembler."""
+    import os
+    import socket
+    import threading
+    from multiprocessing.connection import Client, Listener
+
+    from fusion_center.service.assembler_parts import KEEPALIVE, tune_connection
+
+    listener = Listener(("127.0.0.1", 0), authkey=b"k")
+    accepted = []
+    thread = threading.Thread(target=lambda: accepted.append(listener.accept()))
+    thread.start()
+    client = Client(listener.address, authkey=b"k")
+    thread.join()
+    try:
+        for conn in (client, accepted[0]):
+            tune_connection(conn)
+            sock = socket.socket(fileno=os.dup(conn.fileno()))
+            try:
+                assert sock.getsockopt(socket.SOL_SOCKET, socket.SO_KEEPALIVE) == 1
+                for name, value in KEEPALIVE:
+                    if hasattr(socket, name):
+                        assert sock.getsockopt(socket.IPPROTO_TCP, getattr(socket, name)) == value, name
+            finally:
+                sock.close()
+    finally:
+        client.close()
+        accepted[0].close()
+        listener.close()

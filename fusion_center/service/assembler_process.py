@@ -20,7 +20,8 @@ from taxel_net.errors import UsageError
 from taxel_net.patches import devices as scene_devices
 from taxel_net.scene import Scene
 from .assembler_parts import (AUTHKEY_ENV, LOG_INTERVAL_S, NMT_RESETS, PROTOCOL, CyclePart, RateLimitedLog,
-                              authkey_for, group_layout, scene_fingerprint, shutdown_connection)
+                              authkey_for, group_layout, scene_fingerprint, shutdown_connection,
+                              tune_connection)
 from .cycle_records import ClosedCycle, EmcyEvent, quantise_timestamp
 
 logger = logging.getLogger("fusion_center.service.assemblers")
@@ -172,6 +173,7 @@ class AssemblerProcess:
         from multiprocessing.connection import Client
 
         conn = Client(self.fuser, authkey=self.authkey)
+        tune_connection(conn)
         try:
             conn.send({"kind": "hello", "protocol": PROTOCOL, "scene": scene_fingerprint(self.scene),
                        "channels": list(self.layout.channels), "host": socket.gethostname(), "pid": os.getpid(),

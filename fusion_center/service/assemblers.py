@@ -60,7 +60,8 @@ from taxel_net.errors import UsageError
 from taxel_net.scene import Scene
 from .assembler_parts import (AUTHKEY_ENV, COB_SYNC, DEFAULT_AUTHKEY, NMT_RESETS, PROTOCOL, CyclePart,  # noqa: F401
                               GroupLayout, RateLimitedLog, authkey_for, check_serve, group_layout, group_name,
-                              is_loopback, parse_address, scene_fingerprint, shutdown_connection)
+                              is_loopback, parse_address, scene_fingerprint, shutdown_connection,
+                              tune_connection)
 from .assembler_process import AssemblerProcess, GroupAssembler  # noqa: F401 - public names of this module
 from .cycle_merger import CycleMerger, MergeStats  # noqa: F401
 from .cycle_records import ClosedCycle, quantise_timestamp
@@ -271,6 +272,7 @@ class AssembledFusionService(FusionService):
     def _serve(self, conn) -> None:
         name = None
         back = False
+        tune_connection(conn)  # a peer gone without closing is noticed (assembler_parts.KEEPALIVE)
         try:
             hello = conn.recv()
             why = self._check_hello(hello)
