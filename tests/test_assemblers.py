@@ -145,6 +145,8 @@ def test_bad_values_exit_2_naming_the_flag(tmp_path, capsys):
         (["assemble", "--scene", str(path), "-i", "virtual", "--serve", "0", "--fuser", "10.1.2.3:47000"],
          "FUSION_CENTER_AUTHKEY"),
         (["run", "--scene", str(path), "-i", "virtual", "--assemblers", "127.0.0.1:99999"], "--assemblers"),
+        (["assemble", "--scene", str(path), "-i", "virtual", "--serve", "0", "--fuser", "127.0.0.1:47000",
+          "--reconnect-timeout", "0"], "--reconnect-timeout 0.0"),
     ]
     for argv, needle in cases:
         assert cli_main(argv) == 2
