@@ -579,3 +579,98 @@ def test_extreme_probabilities_vs_log_domain_reference(seed):
             assert got is None, (name, got)
         else:
             assert got is not None and abs(got - r) <= 1e-11 * max(1.0, abs(r)), (seed, name, got, r)
+
+
+# ------------------------------------------------------------------ bridge trimming (tilted_dp)
+def test_bridge_trimmed_rates_vs_log_domain_reference():
+    """n = 1200 (bridge trimming: from tilted_dp.BRIDGE_MIN_TAXELS taxels on), the chapter's band:
+    every rate of both hypotheses, the ones far below 1e-300 included (H0: ~1e-900 and
+    ~1e-1250), against the untrimmed log-domain DP to 1e-11 (relative, on the log), each with
+    its proven error bound below 1e-13."""
+    from fusion_center.core import tilted_dp
+    from fusion_center.core.thresholds import preferential_threshold
+
+    rng = np.random.default_rng(12)
+    n = 1200
+    assert n >= tilted_dp.BRIDGE_MIN_TAXELS
+    pd = rng.uniform(0.8, 0.99, n)
+    pf = rng.uniform(0.001, 0.01, n)
+    for p, q in ((1.3, 0.2), (1.0, 1.0)):
+        band = preferential_threshold(n, 0.003, 0.48, p, q)
+        low, high = band.threshold_initial, band.threshold_final
+        ours = preferential_error_rates(pd, pf, p, q, "pm1", low, high)
+        for probs, names in ((pd, ("p_detect", "p_undecided_h1", "p_miss")),
+                             (pf, ("p_false_alarm", "p_undecided_h0", "p_reject"))):
+            ref = log_chain_reference(probs, p, q, low, high)
+            for name, r in zip(names, ref):
+                got = getattr(ours, "log_" + name)
+                assert got is not None and abs(got - r) <= 1e-11 * max(1.0, abs(r)), (p, q, name, got, r)
+                assert ours.error_bounds[name] < -13, (name, ours.error_bounds[name])
+        assert ours.log_p_false_alarm < -800 * math.log(10.0)
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_bridge_trimming_forced_at_small_n_vs_log_domain_reference(seed, monkeypatch):
+    """Bridge trimming forced from 2 taxels on (random {-1,+1} chains as in
+    test_random_chain_cases_vs_log_domain_reference, deep): all six logs against the untrimmed
+    log-domain DP, every error bound below 1e-13."""
+    from fusion_center.core import tilted_dp
+
+    monkeypatch.setattr(tilted_dp, "BRIDGE_MIN_TAXELS", 2)
+    rng = np.random.default_rng(300 + seed)
+    n = int(rng.integers(40, 261))
+    p, q = float(rng.uniform(0.1, 2.0)), float(rng.uniform(0.1, 2.0))
+    pd = rng.uniform(*sorted(rng.uniform(0.3, 0.999, 2)), n)
+    pf = 10.0 ** rng.uniform(-6.0, -0.5, n)
+    if seed % 2:
+        pf[rng.integers(0, n, 4)] = rng.choice([0.0, 1.0, 1e-12], 4)
+    g = 2.0**p + 2.0**q + (n - 2) * 2.0 ** (p + q)
+    low, high = sorted(rng.uniform(-0.3 * g, 0.95 * g, 2))
+    ours = preferential_error_rates(pd, pf, p, q, "pm1", low, high)
+    for probs, names in ((pd, ("p_detect", "p_undecided_h1", "p_miss")),
+                         (pf, ("p_false_alarm", "p_undecided_h0", "p_reject"))):
+        with np.errstate(divide="ignore"):
+            ref = log_chain_reference(probs, p, q, low, high)
+        for name, r in zip(names, ref):
+            got = getattr(ours, "log_" + name)
+            if r is None or r == -math.inf:
+                assert got is None, (seed, name, got)
+            else:
+                assert got is not None and abs(got - r) <= 1e-11 * max(1.0, abs(r)), (seed, name, got, r)
+                assert ours.error_bounds[name] < -13, (name, ours.error_bounds[name])
+
+
+@pytest.mark.parametrize("encoding, p, q", [("pm1", 1.3, 0.2), ("01", 1.0, 1.0), ("pm1", 0.0, 1.5)])
+def test_suffix_bounds_vs_log_domain_backward_recursion(encoding, p, q):
+    """tilted_dp._suffix_logs: at every block end, ln max over states of E[e^(theta S) | state]
+    (S the remaining steps, the last taxel's end steps included) against a backward recursion in
+    the log domain (np.logaddexp, taxel by taxel): an upper bound, within 1e-9 of it; and
+    Lambda(theta) against log_partition."""
+    from fusion_center.core import tilted_dp
+    from fusion_center.core.chain_dp import _lattice
+
+    rng = np.random.default_rng(5)
+    n = 150
+    pi = rng.uniform(0.0, 1.0, n)
+    pi[:3] = (1e-13, 0.999, 0.3)
+    pi[rng.integers(0, n, 6)] = rng.choice([0.0, 1.0, 1e-14], 6)
+    lat = _lattice(p, q, encoding)
+    thetas = np.array([-3.0, -0.4, 0.0, 0.7, 4.0])
+    bounds, log_hmax, lam = tilted_dp._suffix_logs(pi, lat, thetas, block=16)
+    assert np.allclose(lam, tilted_dp.log_partition(pi, lat, thetas), rtol=1e-12, atol=1e-10)
+    with np.errstate(divide="ignore"):
+        lp = np.stack([np.log1p(-pi), np.log(pi)])
+    for k, th in enumerate(thetas):
+        h = np.array([th * lat.end[a][b][0] for a in (0, 1) for b in (0, 1)], float)  # state index 2 a + b
+        want = {n: float(h.max())}
+        for j in range(n - 1, 1, -1):  # taxel j added from state (u_(j-2), u_(j-1))
+            new = np.empty(4)
+            for a in (0, 1):
+                for b in (0, 1):
+                    new[2 * a + b] = np.logaddexp(lp[0, j] + th * lat.shift[a, b, 0] + h[2 * b],
+                                                  lp[1, j] + th * lat.shift[a, b, 1] + h[2 * b + 1])
+            h = new
+            want[j] = float(h.max())
+        for b_idx, e in enumerate(bounds):
+            assert log_hmax[k, b_idx] >= want[e] - 1e-9 * max(1.0, abs(want[e])), (th, e)
+            assert log_hmax[k, b_idx] <= want[e] + 1e-9 * max(1.0, abs(want[e])), (th, e)

@@ -37,8 +37,33 @@ the cases tested). A run tilted between the two regions on one side of the bulk 
 when both bounds are below 10^BOUND_OK, else each gets its own. The region that holds the
 bulk is 1 minus the other two (log1p, exact) when those sum to at most 1/2.
 
+Bridge trimming (from BRIDGE_MIN_TAXELS = 1000 taxels on). The trimming above keeps the
+tilted law of the first i taxels to ~12 standard deviations, a window growing like sqrt(i);
+but a column x after i taxels matters only through the mass it can still carry into the
+region R. For any tilt t with R inside [edge, oo) (t >= 0), inside (-oo, edge] (t <= 0), or
+t = 0, 1[x_final in R] <= e^(t (x_final - edge)), so the column's share of P(R) is at most
+
+    P_i(x) e^(t (x - edge)) Hmax_i(t),    Hmax_i(t) = max over states s of E[e^(t S) | s],
+
+S the steps still to come (the last taxel's end steps included) -- a Chernoff bound on the
+rest of the chain, rigorous for every t. The least over a grid of tilts (the run's theta plus
+0, +-0.5, +-1, ..., +-256 tilted standard deviations, and t = 0; any subset of them bounds as
+well) shrinks like the Brownian bridge from the start to the region's edge: the window is
+~2 z sigma sqrt(i (n - i) / n) instead of ~2 z sigma sqrt(i) (z ~ 10), narrowest at both ends.
+Hmax_i(t) comes from one backward pass over the chain for every t at once at the block ends
+(:func:`_suffix_logs`: products of the block's 4 x 4 transfer matrices, upper bounds);
+every BRIDGE_EVERY-th block end, columns are dropped from either side while each region's sum
+of these bounds stays within BRIDGE_REL times its Chernoff bound, and the sums dropped are the
+region's absolute error bound, divided by its computed P(R) for the relative bound returned
+(~1e-15 to 1e-18 at n = 10^4). One bridge run serves both regions on one side of the bulk when
+their edges are closer than BRIDGE_SHARED tilted standard deviations (the window spans both
+bridges), else each has its own. The run's theta now only keeps the arithmetic in range.
+
 Cost: a run is O(n W) with W the tilted law's window, O(sqrt n) columns (n = 10^4, the
-chapter's band: 4800 columns under H1, 11000 under H0 for both far regions in one run).
+chapter's band, trimmed by the tilted law: 4800 columns under H1, 11000 under H0 for both far
+regions in one run; bridge-trimmed, the mean window over the run is 0.65-0.85 of that, ~0.5
+where a run serves one region), plus ~0.1 s of fixed costs at n = 10^4 (the tilt searches,
+the backward pass, the trims).
 """
 
 from __future__ import annotations
@@ -120,13 +145,21 @@ def log_partition(pi: np.ndarray, lat: _Lattice, thetas) -> np.ndarray:
 def tilt_for_mean(pi: np.ndarray, lat: _Lattice, target: float, mean: float, var: float | None = None,
                   start: float | None = None, stop_below: float = -math.inf,
                   stop_target: float | None = None) -> tuple[float, float]:
+    """(theta, Lambda(theta)) of :func:`_tilt_search` (its doc)."""
+    return _tilt_search(pi, lat, target, mean, var, start, stop_below, stop_target)[:2]
+
+
+def _tilt_search(pi: np.ndarray, lat: _Lattice, target: float, mean: float, var: float | None = None,
+                 start: float | None = None, stop_below: float = -math.inf,
+                 stop_target: float | None = None) -> tuple[float, float, float]:
     """(theta, Lambda(theta)) with Lambda'(theta) = target (within two tilted standard
     deviations), by Newton's method safeguarded by bisection on [0, theta_max] (or its mirror);
     Lambda' and Lambda'' by central differences. theta_max where the target is out of reach.
     First guess: ``start`` (a nearby solution), else (target - mean) / var (one Newton step
     from 0, var = Lambda''(0)), else 1. Returns at once where the Chernoff bound
     Lambda(theta) - theta t of P(x beyond t), t = ``stop_target`` (default ``target``), falls
-    below ``stop_below`` (enough to skip a rate)."""
+    below ``stop_below`` (enough to skip a rate). Third value: Lambda''(theta), the tilted
+    variance (central difference)."""
     stop_target = target if stop_target is None else stop_target
     sign = 1.0 if target > mean else -1.0
     lo, hi = 0.0, theta_max(lat)
@@ -142,7 +175,7 @@ def tilt_for_mean(pi: np.ndarray, lat: _Lattice, target: float, mean: float, var
         d1 = sign * (lam[2] - lam[0]) / (2 * h)  # Lambda'(sign theta)
         d2 = max((lam[2] - 2 * lam[1] + lam[0]) / (h * h), 1e-12)
         if abs(d1 - target) <= max(1.0, 2.0 * math.sqrt(d2)) or lam[1] - sign * theta * stop_target < stop_below:
-            return sign * theta, float(lam[1])
+            return sign * theta, float(lam[1]), float(d2)
         if sign * (d1 - target) < 0:
             lo = theta
             if grow and 2 * theta < hi:
@@ -156,11 +189,12 @@ def tilt_for_mean(pi: np.ndarray, lat: _Lattice, target: float, mean: float, var
             theta, at_max = hi, True  # out of reach? try the cap once
             continue
         if at_max and theta == hi and sign * (d1 - target) < 0:
-            return sign * theta, float(lam[1])
+            return sign * theta, float(lam[1]), float(d2)
         theta = step if lo < step < hi else 0.5 * (lo + hi)
         if hi - lo < 1e-9 * max(1.0, hi):
             break
-    return sign * theta, float(log_partition(pi, lat, [sign * theta])[0])
+    lam = log_partition(pi, lat, sign * np.array([theta - 1e-3, theta, theta + 1e-3]))
+    return sign * theta, float(lam[1]), max(float((lam[2] - 2 * lam[1] + lam[0]) / 1e-6), 1e-12)
 
 
 # ------------------------------------------------------------------ the DP
@@ -188,7 +222,182 @@ def _future_spread(pi: np.ndarray, lat: _Lattice, theta: float) -> list:
     return spread
 
 
-def lattice_law_rows(pi: np.ndarray, lat: _Lattice, theta: float = 0.0, trim: float = TRIM_REL):
+def _suffix_logs(pi: np.ndarray, lat: _Lattice, thetas, block: int = BLOCK):
+    """The future's exponential moments at the block ends of a bridge run (module doc,
+    "Bridge trimming"): (bounds, log_hmax, lam) with bounds[b] the number of taxels placed at
+    the end of block b (blocks of ``block`` inner taxels aligned on the last one, bounds[0] = 2),
+
+        log_hmax[k, b] >= ln max over states s of E[e^(theta_k S) | s after taxel bounds[b]],
+
+    S the remaining inner steps plus the last taxel's end steps (an upper bound: products of
+    nonnegative matrices, normalised per step, each step adding 1e-300 of the largest entry
+    to every entry so that nothing lost to underflow makes it smaller), and lam[k] = Lambda(theta_k) (:func:`log_partition`). The product of
+    each block's transfer matrices is formed backwards for every block and theta at once (the
+    4 x 4 product as 4 x 4 arrays over (theta, block)), then the blocks are chained from the
+    end: O(n K) work in ~block * 16 numpy calls."""
+    thetas = np.asarray(thetas, float)
+    k = thetas.size
+    n = pi.size
+    m = n - 2
+    nb = max(1, -(-m // block))
+    pad = nb * block - m
+    pp = np.concatenate([np.zeros(pad), pi[2:]]).reshape(nb, block)
+    real = np.concatenate([np.zeros(pad, bool), np.ones(m, bool)]).reshape(nb, block)
+    shift = lat.shift
+    E = np.exp(thetas[:, None] * shift.reshape(1, 8).astype(float)).reshape(k, 2, 2, 2)
+    # V[row, col, k, block] (the block's product, rows/cols: states (a, b)); a step backwards:
+    # new row (a, b) = e^(theta s[a,b,0]) (1 - p) V[(b, 0)] + e^(theta s[a,b,1]) p V[(b, 1)]
+    V = np.zeros((4, 4, k, nb))
+    for r in range(4):
+        V[r, r] = 1.0
+    logv = np.zeros((k, nb))
+    ex = {(a, b, c): E[:, a, b, c][:, None] for a in (0, 1) for b in (0, 1) for c in (0, 1)}
+    ones = {key: bool(np.all(e == 1.0)) for key, e in ex.items()}
+    new = np.empty_like(V)
+    for t in range(block - 1, -1, -1):
+        pc = pp[:, t]
+        x0 = [V[2 * b] * (1.0 - pc) for b in (0, 1)]
+        x1 = [V[2 * b + 1] * pc for b in (0, 1)]
+        for a in (0, 1):
+            for b in (0, 1):
+                out = new[2 * a + b]
+                if ones[(a, b, 0)]:
+                    out[...] = x0[b]
+                else:
+                    np.multiply(x0[b], ex[(a, b, 0)], out=out)
+                out += x1[b] if ones[(a, b, 1)] else x1[b] * ex[(a, b, 1)]
+        if not real[:, t].all():
+            new[:, :, :, ~real[:, t]] = V[:, :, :, ~real[:, t]]
+        V, new = new, V
+        # largest entry back to 1 (its log kept), then 1e-300 added: every entry stays above
+        # the true (normalised) value whatever underflows (upper bounds, not estimates)
+        top = np.maximum.reduce(V.reshape(16, k, nb), axis=0)
+        V /= top
+        V += 1e-300
+        logv += np.log(top)
+    V = V.transpose(2, 3, 0, 1)
+    w = np.empty((k, 4))
+    v = np.empty((k, 4))
+    for a in (0, 1):
+        for b in (0, 1):
+            w[:, 2 * a + b] = thetas * lat.end[a][b][0]
+            v[:, 2 * a + b] = thetas * lat.start[a][b][0]
+    top = w.max(axis=1)
+    h = np.exp(w - top[:, None])
+    acc = top.copy()
+    log_hmax = np.empty((k, nb + 1))
+    log_hmax[:, nb] = acc
+    for b in range(nb - 1, -1, -1):  # block b spans taxels bounds[b] .. bounds[b + 1] - 1
+        h = np.einsum("kij,kj->ki", V[:, b], h) + 1e-290
+        top = h.max(axis=1)
+        h /= top[:, None]
+        acc = acc + np.log(top) + logv[:, b]
+        log_hmax[:, b] = acc
+    p0 = np.array([(1.0 - pi[0]) * (1.0 - pi[1]), (1.0 - pi[0]) * pi[1], pi[0] * (1.0 - pi[1]), pi[0] * pi[1]])
+    with np.errstate(divide="ignore"):
+        lv = np.log(p0)[None, :] + v
+    top = lv.max(axis=1)
+    lam = top + np.log((np.exp(lv - top[:, None]) * h).sum(axis=1)) + acc
+    bounds = [2] + [2 + b * block - pad for b in range(1, nb + 1)]
+    return bounds, log_hmax, lam
+
+
+BRIDGE_REL = 1e-22
+"""Bridge trimming: each trim drops, per region, columns whose bounds sum to at most BRIDGE_REL
+times the region's Chernoff bound (the least over the grid of tilts)."""
+BRIDGE_GRID = (0.0,) + tuple(s * 0.5 * 2.0**j for j in range(10) for s in (1.0, -1.0))
+"""Offsets of the bridge run's tilts from its own theta, in units of 1 / sigma (and theta = 0)."""
+BRIDGE_SHARED = 16.0
+"""A bridge run serves both regions on one side of the bulk when their near edges are closer
+than this many tilted standard deviations (module doc, "Bridge trimming": cost ~ 7.9 + D / 2
+against 2 x 7.9 for two runs, in units of sigma n)."""
+BRIDGE_EVERY = 2
+"""A bridge run trims at every BRIDGE_EVERY-th block end (a trim costs ~0.2 ms)."""
+BRIDGE_MIN_TAXELS = 1000
+"""Bridge trimming from this many taxels on (below, the backward pass costs more than it saves)."""
+
+
+def _bridge_setup(pi: np.ndarray, lat: _Lattice, theta: float, sigma: float, regions, trim: float) -> dict:
+    """The tilts, the future's bounds (:func:`_suffix_logs`) and, per region, its lines and its
+    budget for :func:`_bridge_trim`."""
+    steps = [abs(int(v)) for v in lat.shift.ravel()]
+    steps += [abs(lat.start[a][b][0]) for a in (0, 1) for b in (0, 1)]
+    steps += [abs(lat.end[a][b][0]) for a in (0, 1) for b in (0, 1)]
+    cap = 150.0 / max(1, *steps)  # e^(theta s) stays far inside the doubles
+    grid = {0.0}
+    for c in BRIDGE_GRID:
+        grid.add(min(cap, max(-cap, theta + c / max(sigma, 1e-3))))
+    thetas = np.array(sorted(grid))
+    bounds, log_hmax, lam = _suffix_logs(pi, lat, thetas)
+    k = thetas.size
+    # per region and tilt: the line t (x - edge) (+ ln Hmax_b(t), added per block); a tilt of
+    # the wrong sign for the region (no edge on that side) gets +inf
+    offset = np.full((len(regions), k), math.inf)
+    budgets = np.empty(len(regions))
+    for r, (x_low, x_high) in enumerate(regions):
+        for j, th in enumerate(thetas):
+            if th == 0.0:
+                offset[r, j] = 0.0
+            elif th > 0.0 and x_low is not None:
+                offset[r, j] = -th * float(x_low)
+            elif th < 0.0 and x_high is not None:
+                offset[r, j] = -th * float(x_high)
+        chernoff = float(np.min(lam + offset[r]))  # >= the least Chernoff bound of the region
+        budgets[r] = chernoff + math.log(BRIDGE_REL * trim / TRIM_REL)
+    smin, smax = int(lat.shift.min()), int(lat.shift.max())
+    return {"bounds": bounds, "log_hmax": log_hmax, "thetas": thetas, "offset": offset, "budgets": budgets,
+            "segment": 2 * BLOCK * (smax - smin) + 32}
+
+
+def _bridge_trim(state: dict, b: int, log_cols: np.ndarray, log_abs: float, x_first: int, theta_out: float,
+                 errs: list) -> tuple[int, int]:
+    """Columns to drop at the end of block b of a bridge run: (f0, l0), keep log_cols[f0:l0].
+    A column x (P(x) = e^(log_cols + log_abs - theta_out x), every state and label) adds to a
+    region R at most P(x) min over tilts t of e^(t (x - edge_t)) Hmax_b(t) (module doc); from
+    either side, columns are dropped while every region's sum of these stays within its budget
+    (both sides and every region at once, a segment of columns at a time), and the sums go into
+    ``errs`` (ln, per region)."""
+    size = log_cols.size
+    if size < 2:
+        return 0, size
+    thetas = state["thetas"]
+    lines = state["offset"] + state["log_hmax"][:, b][None, :]  # (regions, tilts)
+    budgets = state["budgets"]
+    seg = state["segment"]
+    done = [0, 0]  # columns dropped from the left, from the right
+    sums = np.zeros((len(budgets), 2))
+    open_ = [True, True]
+    while any(open_) and done[0] + done[1] < size - 1:
+        room = size - 1 - done[0] - done[1]
+        m = min(seg, room)
+        idx = np.stack([done[0] + np.arange(m), size - 1 - done[1] - np.arange(m)])  # (side, m)
+        x = (x_first + idx).astype(float)
+        lf = log_cols[idx] + (log_abs - theta_out * x)
+        # any subset of the lines bounds as well: those least at the segments' ends and middles
+        probe = x[:, [0, m // 2, m - 1]].ravel()
+        best = np.unique(np.argmin(lines[:, :, None] + thetas[None, :, None] * probe[None, None], axis=1))
+        g = np.min(lines[:, best, None, None] + thetas[None, best, None, None] * x[None, None], axis=1)  # (r, side, m)
+        with np.errstate(over="ignore"):
+            c = np.cumsum(np.exp(np.minimum(lf[None] + g - budgets[:, None, None], 700.0)), axis=2) + sums[:, :, None]
+        take = (c <= 1.0).sum(axis=2).min(axis=0)  # per side: columns every region can lose
+        for side in (0, 1):
+            t = int(take[side]) if open_[side] else 0
+            if side == 1:
+                t = min(t, size - 1 - done[0] - done[1])
+            if t:
+                sums[:, side] = c[:, side, t - 1]
+                done[side] += t
+            if t < m:
+                open_[side] = False
+    total = sums.sum(axis=1)
+    for r in range(len(budgets)):
+        if total[r] > 0.0:
+            errs[r] = float(np.logaddexp(errs[r], math.log(total[r]) + budgets[r]))
+    return done[0], size - done[1]
+
+
+def lattice_law_rows(pi: np.ndarray, lat: _Lattice, theta: float = 0.0, trim: float = TRIM_REL,
+                     bridge: tuple | None = None):
     """The law of (u_(n-1), u_n, start label, x) for n = pi.size >= 2 taxels, trimmed by its
     tilted law (module doc): (rows, log_scale, theta_out, eps) with rows = [(a, b, ls, x_first,
     stored array over x)], x the lattice coordinate before the last taxel's term, and
@@ -205,11 +414,21 @@ def lattice_law_rows(pi: np.ndarray, lat: _Lattice, theta: float = 0.0, trim: fl
     once the window's untilted values would span more than the double range (far tails, large
     |theta| W), the columns are multiplied by e^(theta (x - x_c)) and the steps carry the tilt:
     X[1, b] times e^(theta (s1 - s0)) in the group sum, P(c) e^(theta s0) in the branch factor,
-    every step's weights divided by their largest (its log goes into log_scale)."""
+    every step's weights divided by their largest (its log goes into log_scale).
+
+    ``bridge`` = (regions, sigma): trimmed by the bridge bounds instead (module doc, "Bridge
+    trimming"), regions a list of (x_low, x_high) on the final x (None: unbounded), sigma the
+    scale of the grid of tilts (the tilted law's standard deviation); eps is then the list of
+    the regions' ln absolute error bounds (-inf: nothing dropped)."""
     n = pi.size
     shift = lat.shift
     smin, smax = int(shift.min()), int(shift.max())
-    spread = _future_spread(pi, lat, theta)
+    if bridge is not None:
+        regions, sigma = bridge
+        bridge_state = _bridge_setup(pi, lat, theta, sigma, regions, trim)
+        spread = None
+    else:
+        spread = _future_spread(pi, lat, theta)
     st = [lat.start[a][b][0] for a in (0, 1) for b in (0, 1)]
     xmin = min(st) + (n - 2) * smin
     pad = smax - smin + 2
@@ -262,12 +481,22 @@ def lattice_law_rows(pi: np.ndarray, lat: _Lattice, theta: float = 0.0, trim: fl
     tilted = False
     factors, ratios, log_wmax, least = arithmetic(0.0)
     wmax_from = 2  # log_wmax[wmax_from:] not yet in log_parts
+    if bridge is not None:
+        cum_wmax = np.concatenate([[0.0], np.cumsum(log_wmax)])  # for the trims' absolute logs
+        errs = [-math.inf] * len(regions)
+        bounds = bridge_state["bounds"]
+        next_b = 1
     parity = 0
     x_of = lambda j: j - pad + xmin  # noqa: E731  the x of buffer column j
     end = 2
     while end < n:
         start = end
-        end = min(n, start + BLOCK)
+        if bridge is not None:  # blocks end where the future's bounds are known
+            while bounds[next_b] <= start:
+                next_b += 1
+            end = bounds[next_b]
+        else:
+            end = min(n, start + BLOCK)
         if tilted:
             shrink = 0.0
             for i in range(start, end):
@@ -308,24 +537,37 @@ def lattice_law_rows(pi: np.ndarray, lat: _Lattice, theta: float = 0.0, trim: fl
             live *= math.ldexp(1.0, -k)
             cols *= math.ldexp(1.0, -k)
             exponent -= k
-        s_i = spread[start + steps - 1]
         with np.errstate(divide="ignore"):
             log_cols = np.log(cols)
-        if not tilted and theta != 0.0:
-            log_t = log_cols + theta * np.arange(cols.size)  # tilted, up to a constant
+        if bridge is not None:
+            if start + steps == bounds[next_b] and start + steps < n and next_b % BRIDGE_EVERY == 0:
+                log_abs = (math.fsum(log_parts) + float(cum_wmax[start + steps] - cum_wmax[wmax_from])
+                           - exponent * _LN2)
+                f0, l0 = _bridge_trim(bridge_state, next_b, log_cols, log_abs, x_of(lo),
+                                      theta if tilted else 0.0, errs)
+                if f0 or l0 < hi - lo:
+                    for arr in buffers:
+                        arr[:, :, :, lo:lo + f0] = 0.0
+                        arr[:, :, :, lo + l0:hi] = 0.0
+                    lo, hi = lo + f0, lo + l0
+                    log_cols = log_cols[f0:l0]
         else:
-            log_t = log_cols
-        top = float(log_t.max())
-        keep = np.flatnonzero(log_t >= top + math.log(trim / s_i))
-        f0, l0 = int(keep[0]), int(keep[-1]) + 1
-        if f0 or l0 < hi - lo:
-            w = np.exp(log_t - top)
-            eps += float(w[:f0].sum() + w[l0:].sum()) / float(w.sum()) * s_i
-            for arr in buffers:
-                arr[:, :, :, lo:lo + f0] = 0.0
-                arr[:, :, :, lo + l0:hi] = 0.0
-            lo, hi = lo + f0, lo + l0
-            log_cols = log_cols[f0:l0]
+            s_i = spread[start + steps - 1]
+            if not tilted and theta != 0.0:
+                log_t = log_cols + theta * np.arange(cols.size)  # tilted, up to a constant
+            else:
+                log_t = log_cols
+            top = float(log_t.max())
+            keep = np.flatnonzero(log_t >= top + math.log(trim / s_i))
+            f0, l0 = int(keep[0]), int(keep[-1]) + 1
+            if f0 or l0 < hi - lo:
+                w = np.exp(log_t - top)
+                eps += float(w[:f0].sum() + w[l0:].sum()) / float(w.sum()) * s_i
+                for arr in buffers:
+                    arr[:, :, :, lo:lo + f0] = 0.0
+                    arr[:, :, :, lo + l0:hi] = 0.0
+                lo, hi = lo + f0, lo + l0
+                log_cols = log_cols[f0:l0]
         if not tilted and theta != 0.0 and start + steps < n:
             span = float(log_cols.max() - log_cols[np.isfinite(log_cols)].min()) if log_cols.size else 0.0
             if span + abs(theta) * (smax - smin) * 2 * BLOCK > SPAN_MAX:
@@ -343,6 +585,8 @@ def lattice_law_rows(pi: np.ndarray, lat: _Lattice, theta: float = 0.0, trim: fl
                 factors, ratios, log_wmax, least = arithmetic(theta)
                 wmax_from = start + steps
                 tilted = True
+                if bridge is not None:
+                    cum_wmax = np.concatenate([[0.0], np.cumsum(log_wmax)])
     log_parts.append(math.fsum(log_wmax[wmax_from:].tolist()))
     x_law = buffers[parity]
     rows = []
@@ -352,7 +596,7 @@ def lattice_law_rows(pi: np.ndarray, lat: _Lattice, theta: float = 0.0, trim: fl
                 row = x_law[a, b, ls, lo:hi]
                 if row.any():
                     rows.append((a, b, ls, x_of(lo), row.copy()))
-    return rows, math.fsum(log_parts) - exponent * _LN2, (theta if tilted else 0.0), eps
+    return rows, math.fsum(log_parts) - exponent * _LN2, (theta if tilted else 0.0), (eps if bridge is None else errs)
 
 
 def _logsumexp(values) -> float:
@@ -407,6 +651,13 @@ def _region_logs(rows, lat: _Lattice, edges: dict, theta: float, theta_out: floa
     out = []
     for r in range(3):
         log_sum = _logsumexp(parts[r])
+        if isinstance(eps, dict):  # a bridge run: ln absolute error bounds of its regions
+            value = (log_scale - theta_out * x_ref) + log_sum
+            err = eps.get(r, math.inf)
+            bound = (-math.inf if err == -math.inf else math.inf if log_sum == -math.inf
+                     else (err - value) / math.log(10.0))
+            out.append((value, bound))
+            continue
         if eps == 0.0:
             bound = -math.inf
         elif log_sum == -math.inf:
@@ -470,12 +721,25 @@ def lattice_band_logs(pi: np.ndarray, lat: _Lattice, low: float, high: float, de
             ends = [s for s, e in live] + [e - 1 for s, e in live]
             targets.append(min(ends, key=lambda x: abs(x - mean)))
     runs: dict = {}
+    # each region's x on the final lattice coordinate lies in [x_low, x_high] (every label pair)
+    spans = [(min(s for s, e in iv if e > s), max(e - 1 for s, e in iv if e > s)) if not empty[r] else None
+             for r, iv in enumerate(intervals)]
+    bridged = n >= BRIDGE_MIN_TAXELS
 
-    def run(theta: float, trim: float = TRIM_REL):
-        if (theta, trim) not in runs:
-            rows, log_scale, theta_out, eps = lattice_law_rows(pi, lat, theta, trim)
-            runs[(theta, trim)] = _region_logs(rows, lat, edges, theta, theta_out, log_scale, eps, (xa, xb))
-        return runs[(theta, trim)]
+    def run(theta: float, trim: float = TRIM_REL, regions: tuple = (), sigma: float = 1.0):
+        """The regions' rates from a run tilted by theta; with ``regions`` (bridged) a bridge
+        run for those regions (their bounds from its own error sums)."""
+        key = (theta, trim, regions)
+        if key not in runs:
+            if regions:
+                bridge = ([(spans[r][0] if spans[r][0] > xa else None, spans[r][1] if spans[r][1] < xb else None)
+                           for r in regions], sigma)
+                rows, log_scale, theta_out, errs = lattice_law_rows(pi, lat, theta, trim, bridge)
+                eps = dict(zip(regions, errs))
+            else:
+                rows, log_scale, theta_out, eps = lattice_law_rows(pi, lat, theta, trim)
+            runs[key] = _region_logs(rows, lat, edges, theta, theta_out, log_scale, eps, (xa, xb))
+        return runs[key]
 
     out: list = [None, None, None]
     skipped = []  # ln of the Chernoff bounds of regions not computed (each < ln FLOOR)
@@ -490,27 +754,39 @@ def lattice_band_logs(pi: np.ndarray, lat: _Lattice, low: float, high: float, de
     stop = -math.inf if deep else _LOG_FLOOR
     if shared:
         near = min(targets[far[0]], targets[far[1]], key=lambda t: abs(t - mean))
-        middle = tilt_for_mean(pi, lat, 0.5 * (targets[far[0]] + targets[far[1]]), mean, var,
-                               stop_below=stop, stop_target=near)  # near below FLOOR: the far one too
+        middle = _tilt_search(pi, lat, 0.5 * (targets[far[0]] + targets[far[1]]), mean, var,
+                              stop_below=stop, stop_target=near)  # near below FLOOR: the far one too
     tilts = {}
     for r in far:
-        theta, lam_t = middle if shared else tilt_for_mean(pi, lat, targets[r], mean, var, stop_below=stop)
+        theta, lam_t, var_t = middle if shared else _tilt_search(pi, lat, targets[r], mean, var, stop_below=stop)
         chernoff = lam_t - theta * targets[r]  # P(R) <= P(x beyond its near edge) <= e^chernoff
         if not deep and chernoff < _LOG_FLOOR:
             out[r] = "skipped"
             skipped.append(chernoff)
-        tilts[r] = None if shared else theta
+        tilts[r] = None if shared else (theta, var_t)
     far = [r for r in far if out[r] is None]
-    if shared and far and _shared_run_may_hold(pi, lat, middle[0], [targets[r] for r in far]):
-        for r in far:
-            if run(middle[0])[r][1] <= BOUND_OK:
-                out[r] = run(middle[0])[r]
+    if shared and far:
+        if bridged:
+            # one bridge run holds both where their edges are closer than BRIDGE_SHARED tilted
+            # standard deviations (its window spans both bridges), else a run each is cheaper
+            sigma = math.sqrt(middle[2])
+            if len(far) == 1 or abs(targets[far[0]] - targets[far[1]]) < BRIDGE_SHARED * sigma:
+                for r in far:
+                    got = run(middle[0], regions=tuple(far), sigma=sigma)[r]
+                    if got[1] <= BOUND_OK:
+                        out[r] = got
+        elif _shared_run_may_hold(pi, lat, middle[0], [targets[r] for r in far]):
+            for r in far:
+                if run(middle[0])[r][1] <= BOUND_OK:
+                    out[r] = run(middle[0])[r]
     for r in far:
         if out[r] is None:
-            theta = tilts[r] if tilts[r] is not None else tilt_for_mean(pi, lat, targets[r], mean, var, middle[0])[0]
-            out[r] = run(theta)[r]
+            theta, var_t = tilts[r] if tilts[r] is not None else \
+                _tilt_search(pi, lat, targets[r], mean, var, middle[0])[::2]
+            regions, sigma = ((r,), math.sqrt(var_t)) if bridged else ((), 1.0)
+            out[r] = run(theta, regions=regions, sigma=sigma)[r]
             if out[r][1] > BOUND_OK:  # once more, trimmed 1e15 times less
-                out[r] = run(theta, TRIM_REL * 1e-15)[r]
+                out[r] = run(theta, TRIM_REL * 1e-15, regions, sigma)[r]
     computed = [r for r in range(3) if isinstance(out[r], tuple)]
     bulk = [r for r in range(3) if out[r] is None]
     if len(bulk) == 1:
