@@ -110,9 +110,26 @@ def theta_max(lat: _Lattice) -> float:
 def log_partition(pi: np.ndarray, lat: _Lattice, thetas) -> np.ndarray:
     """Lambda(theta) = ln E[e^(theta x)] for each theta (x: the lattice coordinate including the
     first and last taxels' steps), from the product of the chain's transfer matrices
-    (state (u_(i-1), u_i)), multiplied pairwise and normalised per level."""
+    (state (u_(i-1), u_i)), multiplied pairwise and normalised per level; from
+    BRIDGE_MIN_TAXELS taxels on the products of blocks of BLOCK taxels first
+    (:func:`_block_products`, ~4x faster at 10^4 taxels), then pairwise."""
     thetas = np.atleast_1d(np.asarray(thetas, float))
     n = pi.size
+    if n >= BRIDGE_MIN_TAXELS:
+        m, logv, _ = _block_products(pi, lat, thetas, BLOCK, 0.0)
+        lv, lw = _end_vectors(pi, lat, thetas)
+        log_acc = logv.sum(axis=1) + lv.max(axis=1) + lw.max(axis=1)
+        v = np.exp(lv - lv.max(axis=1)[:, None])
+        w = np.exp(lw - lw.max(axis=1)[:, None])
+        while m.shape[1] > 1:
+            if m.shape[1] % 2:
+                m = np.concatenate([m, np.broadcast_to(np.eye(4), (thetas.size, 1, 4, 4))], axis=1)
+            m = m[:, 0::2] @ m[:, 1::2]
+            top = m.max(axis=(2, 3))
+            m /= top[:, :, None, None]
+            log_acc += np.log(top).sum(axis=1)
+        with np.errstate(divide="ignore"):
+            return np.log(np.einsum("ki,kij,kj->k", v, m[:, 0], w)) + log_acc
     k = thetas.size
     prob = np.stack([1.0 - pi, pi], axis=-1)
     v = np.zeros((k, 4))
@@ -222,31 +239,23 @@ def _future_spread(pi: np.ndarray, lat: _Lattice, theta: float) -> list:
     return spread
 
 
-def _suffix_logs(pi: np.ndarray, lat: _Lattice, thetas, block: int = BLOCK):
-    """The future's exponential moments at the block ends of a bridge run (module doc,
-    "Bridge trimming"): (bounds, log_hmax, lam) with bounds[b] the number of taxels placed at
-    the end of block b (blocks of ``block`` inner taxels aligned on the last one, bounds[0] = 2),
-
-        log_hmax[k, b] >= ln max over states s of E[e^(theta_k S) | s after taxel bounds[b]],
-
-    S the remaining inner steps plus the last taxel's end steps (an upper bound: products of
-    nonnegative matrices, normalised per step, each step adding 1e-300 of the largest entry
-    to every entry so that nothing lost to underflow makes it smaller), and lam[k] = Lambda(theta_k) (:func:`log_partition`). The product of
-    each block's transfer matrices is formed backwards for every block and theta at once (the
-    4 x 4 product as 4 x 4 arrays over (theta, block)), then the blocks are chained from the
-    end: O(n K) work in ~block * 16 numpy calls."""
-    thetas = np.asarray(thetas, float)
+def _block_products(pi: np.ndarray, lat: _Lattice, thetas: np.ndarray, block: int, slack: float):
+    """Per theta and block of ``block`` inner taxels (aligned on the last one; the first block
+    padded with identities in front): the product of the block's transfer matrices M_j[(a, b),
+    (b, c)] = P_j(c) e^(theta shift[a, b, c]) as (k, nb, 4, 4) with its largest entry 1, the
+    logs of the scales (k, nb), and the padding. Formed backwards for every block and theta at
+    once (the 4 x 4 product as 4 x 4 arrays over (theta, block)), normalised per step; with
+    ``slack`` > 0 that fraction of the largest entry is added to every entry per step, so that
+    nothing lost to underflow makes an entry smaller than its true value (upper bounds)."""
     k = thetas.size
-    n = pi.size
-    m = n - 2
+    m = pi.size - 2
     nb = max(1, -(-m // block))
     pad = nb * block - m
     pp = np.concatenate([np.zeros(pad), pi[2:]]).reshape(nb, block)
     real = np.concatenate([np.zeros(pad, bool), np.ones(m, bool)]).reshape(nb, block)
-    shift = lat.shift
-    E = np.exp(thetas[:, None] * shift.reshape(1, 8).astype(float)).reshape(k, 2, 2, 2)
-    # V[row, col, k, block] (the block's product, rows/cols: states (a, b)); a step backwards:
-    # new row (a, b) = e^(theta s[a,b,0]) (1 - p) V[(b, 0)] + e^(theta s[a,b,1]) p V[(b, 1)]
+    E = np.exp(thetas[:, None] * lat.shift.reshape(1, 8).astype(float)).reshape(k, 2, 2, 2)
+    # V[row, col, k, block]; a step backwards: new row (a, b) = e^(theta s[a,b,0]) (1 - p) V[(b, 0)]
+    # + e^(theta s[a,b,1]) p V[(b, 1)]
     V = np.zeros((4, 4, k, nb))
     for r in range(4):
         V[r, r] = 1.0
@@ -269,23 +278,48 @@ def _suffix_logs(pi: np.ndarray, lat: _Lattice, thetas, block: int = BLOCK):
         if not real[:, t].all():
             new[:, :, :, ~real[:, t]] = V[:, :, :, ~real[:, t]]
         V, new = new, V
-        # largest entry back to 1 (its log kept), then 1e-300 added: every entry stays above
-        # the true (normalised) value whatever underflows (upper bounds, not estimates)
         top = np.maximum.reduce(V.reshape(16, k, nb), axis=0)
         V /= top
-        V += 1e-300
+        if slack:
+            V += slack
         logv += np.log(top)
-    V = V.transpose(2, 3, 0, 1)
+    return V.transpose(2, 3, 0, 1), logv, pad
+
+
+def _end_vectors(pi: np.ndarray, lat: _Lattice, thetas: np.ndarray):
+    """(ln v, ln w) per theta: v = P(u_1, u_2) e^(theta start steps), w = e^(theta end steps)."""
+    k = thetas.size
     w = np.empty((k, 4))
     v = np.empty((k, 4))
     for a in (0, 1):
         for b in (0, 1):
             w[:, 2 * a + b] = thetas * lat.end[a][b][0]
             v[:, 2 * a + b] = thetas * lat.start[a][b][0]
+    p0 = np.array([(1.0 - pi[0]) * (1.0 - pi[1]), (1.0 - pi[0]) * pi[1], pi[0] * (1.0 - pi[1]), pi[0] * pi[1]])
+    with np.errstate(divide="ignore"):
+        return np.log(p0)[None, :] + v, w
+
+
+def _suffix_logs(pi: np.ndarray, lat: _Lattice, thetas, block: int = BLOCK):
+    """The future's exponential moments at the block ends of a bridge run (module doc,
+    "Bridge trimming"): (bounds, log_hmax, lam) with bounds[b] the number of taxels placed at
+    the end of block b (blocks of ``block`` inner taxels aligned on the last one, bounds[0] = 2),
+
+        log_hmax[k, b] >= ln max over states s of E[e^(theta_k S) | s after taxel bounds[b]],
+
+    S the remaining inner steps plus the last taxel's end steps (an upper bound: the block
+    products of :func:`_block_products` with slack 1e-300, chained from the end, normalised,
+    1e-290 of the largest entry added per block), and lam[k] = Lambda(theta_k)
+    (:func:`log_partition`). O(n K) work in ~block * 16 numpy calls and one short loop over
+    the blocks."""
+    thetas = np.asarray(thetas, float)
+    V, logv, pad = _block_products(pi, lat, thetas, block, 1e-300)
+    nb = V.shape[1]
+    lv, w = _end_vectors(pi, lat, thetas)
     top = w.max(axis=1)
     h = np.exp(w - top[:, None])
     acc = top.copy()
-    log_hmax = np.empty((k, nb + 1))
+    log_hmax = np.empty((thetas.size, nb + 1))
     log_hmax[:, nb] = acc
     for b in range(nb - 1, -1, -1):  # block b spans taxels bounds[b] .. bounds[b + 1] - 1
         h = np.einsum("kij,kj->ki", V[:, b], h) + 1e-290
@@ -293,9 +327,6 @@ def _suffix_logs(pi: np.ndarray, lat: _Lattice, thetas, block: int = BLOCK):
         h /= top[:, None]
         acc = acc + np.log(top) + logv[:, b]
         log_hmax[:, b] = acc
-    p0 = np.array([(1.0 - pi[0]) * (1.0 - pi[1]), (1.0 - pi[0]) * pi[1], pi[0] * (1.0 - pi[1]), pi[0] * pi[1]])
-    with np.errstate(divide="ignore"):
-        lv = np.log(p0)[None, :] + v
     top = lv.max(axis=1)
     lam = top + np.log((np.exp(lv - top[:, None]) * h).sum(axis=1)) + acc
     bounds = [2] + [2 + b * block - pad for b in range(1, nb + 1)]
@@ -307,10 +338,11 @@ BRIDGE_REL = 1e-22
 times the region's Chernoff bound (the least over the grid of tilts)."""
 BRIDGE_GRID = (0.0,) + tuple(s * 0.5 * 2.0**j for j in range(10) for s in (1.0, -1.0))
 """Offsets of the bridge run's tilts from its own theta, in units of 1 / sigma (and theta = 0)."""
-BRIDGE_SHARED = 16.0
+BRIDGE_SHARED = 8.0
 """A bridge run serves both regions on one side of the bulk when their near edges are closer
-than this many tilted standard deviations (module doc, "Bridge trimming": cost ~ 7.9 + D / 2
-against 2 x 7.9 for two runs, in units of sigma n)."""
+than this many tilted standard deviations D (module doc, "Bridge trimming": mean window ~(7.9 +
+D / 2) sigma against ~16 sigma trimmed by the tilted law and 2 x 7.9 sigma for two bridge
+runs; beyond D ~ 8 the bridge's fixed costs (~0.1 s at 10^4 taxels) eat the difference)."""
 BRIDGE_EVERY = 2
 """A bridge run trims at every BRIDGE_EVERY-th block end (a trim costs ~0.2 ms)."""
 BRIDGE_MIN_TAXELS = 1000
@@ -459,23 +491,28 @@ def lattice_law_rows(pi: np.ndarray, lat: _Lattice, theta: float = 0.0, trim: fl
 
     def arithmetic(th: float):
         """Per step i: the branch factors P_i(c) e^(th s0) / wmax_i (keyed (b or None, c)), the
-        group ratios e^(th (s1 - s0)) and ln wmax_i."""
+        group ratios e^(th (s1 - s0)) and ln wmax_i (wmax_i: the largest weight of a transition,
+        or the largest branch factor where that is within e of it)."""
         smax_c = [max(int(shift[a, b, c]) for a in (0, 1) for b in (0, 1)) for c in (0, 1)]
         smin_c = [min(int(shift[a, b, c]) for a in (0, 1) for b in (0, 1)) for c in (0, 1)]
+        keyed = []
+        for c in (0, 1):
+            s0s = {s0_of[(0, c)], s0_of[(1, c)]}
+            keyed += [(None, c, s) for s in s0s] if len(s0s) == 1 else [(b, c, s0_of[(b, c)]) for b in (0, 1)]
         if th == 0.0:
             log_wmax = np.maximum(logp[0], logp[1])
         else:
             log_wmax = np.maximum(*[logp[c] + th * (smax_c[c] if th >= 0 else smin_c[c]) for c in (0, 1)])
+            # divided by the largest branch factor instead where it is within e of wmax: that
+            # branch is then not multiplied (factor exactly 1), and a step still grows the
+            # mass by at most 2 e (a block by e^54, within the headroom above 2^SCALE_BITS)
+            cand = np.max([logp[c] + th * s0 for _, c, s0 in keyed], axis=0)
+            log_wmax = np.where(cand >= log_wmax - 1.0, cand, log_wmax)
         # per step, ln of the least total weight a state passes on (<= 0 only when tilted): a
         # block ends before the mass can shrink by e^SHRINK_MAX (it stays far above subnormals)
         least = np.min([np.logaddexp(logp[0] + th * int(shift[a, b, 0]), logp[1] + th * int(shift[a, b, 1]))
                         for a in (0, 1) for b in (0, 1)], axis=0) - log_wmax
-        factors = {}
-        for c in (0, 1):
-            s0s = {s0_of[(0, c)], s0_of[(1, c)]}
-            keys = [(None, s) for s in s0s] if len(s0s) == 1 else [(b, s0_of[(b, c)]) for b in (0, 1)]
-            for b, s0 in keys:
-                factors[(b, c)] = np.exp(logp[c] + th * s0 - log_wmax).tolist()
+        factors = {(b, c): np.exp(logp[c] + th * s0 - log_wmax).tolist() for b, c, s0 in keyed}
         return factors, [math.exp(th * (s1 - s0)) for _, _, s0, s1 in groups], log_wmax, least.tolist()
 
     tilted = False
@@ -766,15 +803,15 @@ def lattice_band_logs(pi: np.ndarray, lat: _Lattice, low: float, high: float, de
         tilts[r] = None if shared else (theta, var_t)
     far = [r for r in far if out[r] is None]
     if shared and far:
-        if bridged:
-            # one bridge run holds both where their edges are closer than BRIDGE_SHARED tilted
-            # standard deviations (its window spans both bridges), else a run each is cheaper
-            sigma = math.sqrt(middle[2])
-            if len(far) == 1 or abs(targets[far[0]] - targets[far[1]]) < BRIDGE_SHARED * sigma:
-                for r in far:
-                    got = run(middle[0], regions=tuple(far), sigma=sigma)[r]
-                    if got[1] <= BOUND_OK:
-                        out[r] = got
+        # one bridge run holds both where their edges are closer than BRIDGE_SHARED tilted
+        # standard deviations (its window spans both bridges); farther apart, the run trimmed
+        # by the tilted law (as cheap there, without the bridge's fixed costs), or a run each
+        sigma = math.sqrt(middle[2])
+        if bridged and (len(far) == 1 or abs(targets[far[0]] - targets[far[1]]) < BRIDGE_SHARED * sigma):
+            for r in far:
+                got = run(middle[0], regions=tuple(far), sigma=sigma)[r]
+                if got[1] <= BOUND_OK:
+                    out[r] = got
         elif _shared_run_may_hold(pi, lat, middle[0], [targets[r] for r in far]):
             for r in far:
                 if run(middle[0])[r][1] <= BOUND_OK:
