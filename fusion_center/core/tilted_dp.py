@@ -57,13 +57,18 @@ of these bounds stays within BRIDGE_REL times its Chernoff bound, and the sums d
 region's absolute error bound, divided by its computed P(R) for the relative bound returned
 (~1e-15 to 1e-18 at n = 10^4). One bridge run serves both regions on one side of the bulk when
 their edges are closer than BRIDGE_SHARED tilted standard deviations (the window spans both
-bridges), else each has its own. The run's theta now only keeps the arithmetic in range.
+bridges); farther apart, a run trimmed by the tilted law serves both if its bound holds,
+else each region gets its own bridge run. A bridge run's theta only keeps the arithmetic in
+range.
 
-Cost: a run is O(n W) with W the tilted law's window, O(sqrt n) columns (n = 10^4, the
-chapter's band, trimmed by the tilted law: 4800 columns under H1, 11000 under H0 for both far
-regions in one run; bridge-trimmed, the mean window over the run is 0.65-0.85 of that, ~0.5
-where a run serves one region), plus ~0.1 s of fixed costs at n = 10^4 (the tilt searches,
-the backward pass, the trims).
+Cost: a run is O(n W) with W the window, O(sqrt n) columns (n = 10^4, the chapter's band,
+trimmed by the tilted law: ~4800 columns at the end under H1, ~11000 under H0 for both far
+regions in one run, means over the run 2/3 of that; bridge-trimmed, the mean window is ~0.65 of
+the tilted-law one for both H0 regions in one run, ~0.5 for a run serving one region), plus
+fixed costs of ~0.05-0.1 s per hypothesis at 10^4 (the tilt searches, the backward pass, the
+trims). At 10^4 the DP's vector operations run at ~1-1.5 ns per element (the window sits in
+the L2 cache): the time is the number of element passes, 4 per state row and taxel untilted,
+~6 tilted.
 """
 
 from __future__ import annotations
@@ -338,11 +343,12 @@ BRIDGE_REL = 1e-22
 times the region's Chernoff bound (the least over the grid of tilts)."""
 BRIDGE_GRID = (0.0,) + tuple(s * 0.5 * 2.0**j for j in range(10) for s in (1.0, -1.0))
 """Offsets of the bridge run's tilts from its own theta, in units of 1 / sigma (and theta = 0)."""
-BRIDGE_SHARED = 8.0
+BRIDGE_SHARED = 10.0
 """A bridge run serves both regions on one side of the bulk when their near edges are closer
 than this many tilted standard deviations D (module doc, "Bridge trimming": mean window ~(7.9 +
 D / 2) sigma against ~16 sigma trimmed by the tilted law and 2 x 7.9 sigma for two bridge
-runs; beyond D ~ 8 the bridge's fixed costs (~0.1 s at 10^4 taxels) eat the difference)."""
+runs; measured at 10^4 taxels: D ~ 9 ({0,1} under H0) gains ~20 %, D ~ 12-13 ({-1,+1} under
+H1) loses a little to the bridge's fixed costs, backward pass and trims, ~0.05-0.1 s)."""
 BRIDGE_EVERY = 2
 """A bridge run trims at every BRIDGE_EVERY-th block end (a trim costs ~0.2 ms)."""
 BRIDGE_MIN_TAXELS = 1000
