@@ -674,3 +674,34 @@ def test_suffix_bounds_vs_log_domain_backward_recursion(encoding, p, q):
         for b_idx, e in enumerate(bounds):
             assert log_hmax[k, b_idx] >= want[e] - 1e-9 * max(1.0, abs(want[e])), (th, e)
             assert log_hmax[k, b_idx] <= want[e] + 1e-9 * max(1.0, abs(want[e])), (th, e)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_bridge_error_bounds_hold_when_trimmed_hard(seed, monkeypatch):
+    """The bridge's error bounds are bounds: trimmed hard on purpose (BRIDGE_REL = 1e-4, every
+    bound accepted), each far rate's true relative error (against the untrimmed log-domain DP)
+    stays below the bound the run reports for it, and the trimming did cost accuracy."""
+    from fusion_center.core import tilted_dp
+    from fusion_center.core.chain_dp import _lattice
+    from fusion_center.core.thresholds import preferential_threshold
+
+    monkeypatch.setattr(tilted_dp, "BRIDGE_MIN_TAXELS", 2)
+    monkeypatch.setattr(tilted_dp, "BRIDGE_REL", 1e-4)
+    monkeypatch.setattr(tilted_dp, "BOUND_OK", 0.0)
+    rng = np.random.default_rng(400 + seed)
+    n = int(rng.integers(150, 301))
+    p, q = ((1.0, 1.0), (1.3, 0.2), (0.7, 1.6), (2.0, 0.5))[seed]
+    band = preferential_threshold(n, 0.003, 0.48, p, q)
+    low, high = band.threshold_initial, band.threshold_final
+    loosest = -math.inf
+    for probs in (rng.uniform(0.8, 0.99, n), rng.uniform(0.001, 0.02, n)):
+        regions = tilted_dp.lattice_band_logs(probs, _lattice(p, q, "pm1"), low, high)
+        ref = log_chain_reference(probs, p, q, low, high)
+        for (log, _, bound), r in zip(regions, ref):
+            if bound is None or log is None:
+                continue
+            err = abs(math.expm1(log - r))
+            # plus rounding: ~1e-16 relative on a log of size |r| (both logs), ~1e-13 overall
+            assert err <= 10.0**bound * (1 + 1e-6) + 1e-15 * max(1.0, abs(r)) + 1e-13, (seed, log, r, err, bound)
+            loosest = max(loosest, err)
+    assert loosest > 1e-6  # the hard trimming did change the results
