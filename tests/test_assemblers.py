@@ -154,25 +154,37 @@ def test_bad_values_exit_2_naming_the_flag(tmp_path, capsys):
         assert len(err.splitlines()) == 1 and needle in err, err
 
 
-def test_two_assembler_processes_and_a_fuser_on_udp_multicast(tmp_path):
+def _udp_rig(tmp_path):
+    """The two-group scene's twins on udp_multicast (skip where multicast does not work):
+    (scene, its file, rig, bus kwargs, bus port, a fuser port); bench/ importable (check_records)."""
     sys.path.insert(0, str(ROOT / "bench"))
-    from skin_scale import check_records
     from test_service_multiprocess import multicast_works
 
-    from fusion_center.service.assemblers import AssembledFusionService
     from node_sim.rig import Rig
 
     port = random.randint(40000, 60000)
     why = multicast_works(port)
     if why is not None:
         pytest.skip(why)
-    fuser_port = random.randint(40000, 60000)
     path = _scene_file(tmp_path)
     scene = load_scene(path)
     bus = {"port": port, "hop_limit": 0}
     rig = Rig(scene, interface="udp_multicast", channel=GROUPS, bus_kwargs=bus)
-    service = AssembledFusionService(scene, listen=("127.0.0.1", fuser_port), interface="udp_multicast",
-                                     channels=GROUPS, bus_kwargs=bus, assembler_wait_s=20.0)
+    return scene, path, rig, bus, port, random.randint(40000, 60000)
+
+
+def _fuser(scene, bus, fuser_port, assembler_wait_s=20.0):
+    """The fuser of the scene's channels on udp_multicast, listening on ``fuser_port``."""
+    from fusion_center.service.assemblers import AssembledFusionService
+
+    return AssembledFusionService(scene, listen=("127.0.0.1", fuser_port), interface="udp_multicast",
+                                  channels=GROUPS, bus_kwargs=bus, assembler_wait_s=assembler_wait_s)
+
+
+def test_two_assembler_processes_and_a_fuser_on_udp_multicast(tmp_path):
+    scene, path, rig, bus, port, fuser_port = _udp_rig(tmp_path)
+    from skin_scale import check_records
+    service = _fuser(scene, bus, fuser_port)
     procs = []
     t0 = time.monotonic()
     try:
@@ -347,24 +359,9 @@ def test_assemblers_come_back_during_a_run_and_a_second_claim_is_refused(tmp_pat
     """The fuser breaks group 1's connection: the same process reconnects; group 0's process is
     killed and a new one started: it is taken back; a second `--serve 1` while group 1 is
     connected is refused (exit 2). Parts merge again after each comeback, never misattributed."""
-    sys.path.insert(0, str(ROOT / "bench"))
+    scene, path, rig, bus, port, fuser_port = _udp_rig(tmp_path)
     from skin_scale import check_records
-    from test_service_multiprocess import multicast_works
-
-    from fusion_center.service.assemblers import AssembledFusionService
-    from node_sim.rig import Rig
-
-    port = random.randint(40000, 60000)
-    why = multicast_works(port)
-    if why is not None:
-        pytest.skip(why)
-    fuser_port = random.randint(40000, 60000)
-    path = _scene_file(tmp_path)
-    scene = load_scene(path)
-    bus = {"port": port, "hop_limit": 0}
-    rig = Rig(scene, interface="udp_multicast", channel=GROUPS, bus_kwargs=bus)
-    service = AssembledFusionService(scene, listen=("127.0.0.1", fuser_port), interface="udp_multicast",
-                                     channels=GROUPS, bus_kwargs=bus, assembler_wait_s=20.0)
+    service = _fuser(scene, bus, fuser_port)
     procs = {}
     at = {}  # event -> the cycle whose before_sync hook saw it
     reconnects = service.merger.stats.reconnects
@@ -451,22 +448,8 @@ def test_assemblers_come_back_during_a_run_and_a_second_claim_is_refused(tmp_pat
 def test_a_fuser_killed_and_started_again_gets_its_assemblers_back(tmp_path):
     """`fusion-center run --assemblers` killed (SIGKILL: no bye) mid-run: the assemblers keep
     going and reconnect to the next fuser on the same address, whose run merges their parts."""
-    sys.path.insert(0, str(ROOT / "bench"))
+    scene, path, rig, bus, port, fuser_port = _udp_rig(tmp_path)
     from skin_scale import check_records
-    from test_service_multiprocess import multicast_works
-
-    from fusion_center.service.assemblers import AssembledFusionService
-    from node_sim.rig import Rig
-
-    port = random.randint(40000, 60000)
-    why = multicast_works(port)
-    if why is not None:
-        pytest.skip(why)
-    fuser_port = random.randint(40000, 60000)
-    path = _scene_file(tmp_path)
-    scene = load_scene(path)
-    bus = {"port": port, "hop_limit": 0}
-    rig = Rig(scene, interface="udp_multicast", channel=GROUPS, bus_kwargs=bus)
     jsonl = tmp_path / "first.jsonl"
     procs = []
     service = None
@@ -489,8 +472,7 @@ def test_a_fuser_killed_and_started_again_gets_its_assemblers_back(tmp_path):
         assert first.poll() is None, first.communicate()
         first.kill()  # no bye
         first.communicate()
-        service = AssembledFusionService(scene, listen=("127.0.0.1", fuser_port), interface="udp_multicast",
-                                         channels=GROUPS, bus_kwargs=bus, assembler_wait_s=60.0)
+        service = _fuser(scene, bus, fuser_port, assembler_wait_s=60.0)
         service.open()
         service.boot(5.0)
         service.run(40, timeout_s=600)
