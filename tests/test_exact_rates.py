@@ -705,3 +705,65 @@ def test_bridge_error_bounds_hold_when_trimmed_hard(seed, monkeypatch):
             assert err <= 10.0**bound * (1 + 1e-6) + 1e-15 * max(1.0, abs(r)) + 1e-13, (seed, log, r, err, bound)
             loosest = max(loosest, err)
     assert loosest > 1e-6  # the hard trimming did change the results
+
+
+# ------------------------------------------------------------------ {0,1}: the two-count DP
+TWO_COUNT_CASES = [(1.0, 0.3), (0.4, 2.0), (0.25, 0.75), (1.5, 0.5), (1.3, 0.0), (0.0, 0.6), (2.0, 1.7)]
+
+
+@pytest.mark.parametrize("p, q", TWO_COUNT_CASES)
+def test_two_count_dp_vs_all_2_16_vectors(p, q):
+    """{0,1} where U_G needs two integer coordinates (p or q an integer, p + q an integer, a zero
+    weight): every rate against all 2^16 decision vectors, three bands (one edge on an
+    attainable value), unequal pd_i / pf_i."""
+    from fusion_center.core.chain_dp import _two_count_form
+
+    assert _two_count_form(p, q) is not None
+    rng = np.random.default_rng(17)
+    n = 16
+    pd = rng.uniform(0.5, 0.99, n)
+    pf = rng.uniform(0.01, 0.4, n)
+    g = 2.0**p + 2.0**q + (n - 2) * 2.0 ** (p + q)
+    for low, high in ((0.2 * g, 0.45 * g), (-0.1 * g, 0.1 * g), (2.0**p + 2.0**q, 0.7 * g)):
+        ours = preferential_error_rates(pd, pf, p, q, "01", low, high)
+        assert ours.method == "exact-counts"
+        for probs, names in ((pd, ("p_detect", "p_undecided_h1", "p_miss")),
+                             (pf, ("p_false_alarm", "p_undecided_h0", "p_reject"))):
+            for name, ref in zip(names, brute_numpy(probs, p, q, "01", low, high)):
+                assert abs(getattr(ours, name) - ref) <= 1e-12 * ref + 1e-300, (name, low, high)
+
+
+def test_two_count_form_only_where_exact():
+    """The two-count form is decided on the float inputs exactly: 0.3 + 0.7 is not 1 in
+    doubles (2^0.3 2^0.7 != 2), so that pair takes the three-count DP; both integers are the
+    lattice DP's."""
+    from fusion_center.core.chain_dp import _two_count_form
+
+    assert _two_count_form(0.3, 0.7) is None
+    assert _two_count_form(0.25, 0.75) is not None
+    assert _two_count_form(1.3, 0.2) is None
+
+
+@pytest.mark.parametrize("p, q", [(1.0, 0.3), (0.25, 0.75)])
+def test_two_count_dp_exact_at_300_taxels(p, q):
+    """Beyond the three-count DP's 200 taxels the two-count DP is exact (was Monte Carlo): at
+    n = 90 against the DP over the integer coefficients of 1, 2^p, 2^q, 2^(p+q) (the test
+    reference, too slow at 300), at n = 300 the method is exact and each hypothesis' three
+    rates sum to 1."""
+    rng = np.random.default_rng(21)
+    n = 90
+    pi = rng.uniform(0.05, 0.7, n)
+    g = 2.0**p + 2.0**q + (n - 2) * 2.0 ** (p + q)
+    law = coeff_chain_law(list(pi))
+    for low, high in ((0.1 * g, 0.25 * g), (0.3 * g, 0.5 * g)):
+        ours = preferential_error_rates(pi, pi, p, q, "01", low, high)
+        ref = classify_law(law, p, q, low, high)
+        for a, b in zip((ours.p_false_alarm, ours.p_undecided_h0, ours.p_reject), ref):
+            assert abs(a - b) <= 1e-11 * b + 1e-300, (a, b)
+    n = 300
+    pd, pf = rng.uniform(0.3, 0.9, n), rng.uniform(0.05, 0.4, n)
+    g = 2.0**p + 2.0**q + (n - 2) * 2.0 ** (p + q)
+    ours = preferential_error_rates(pd, pf, p, q, "01", 0.2 * g, 0.3 * g)
+    assert ours.method == "exact-counts"
+    assert math.isclose(ours.p_detect + ours.p_undecided_h1 + ours.p_miss, 1.0, rel_tol=1e-13)
+    assert math.isclose(ours.p_false_alarm + ours.p_undecided_h0 + ours.p_reject, 1.0, rel_tol=1e-13)

@@ -508,6 +508,124 @@ def _rates_counts(pi: np.ndarray, p: float, q: float, low: float, high: float):
     return _scaled_logs(sums, dropped, scale=(exponent, math.fsum(log_factors)))
 
 
+# ------------------------------------------------------------------ {0,1}, two counts
+def _two_count_form(p: float, q: float):
+    """Where U_G on {0,1} (a + b (2^p + 2^q) + d 2^(p+q), ``_rates_counts``) needs two integer
+    coordinates only: U_G = y1 + c y2 with (y1, y2) moved by an integer vector per count --
+    ((da, db, dd) as (y1, y2) steps, c, basis) with basis(y1, y2) the coefficients of (1, 2^p,
+    2^q, 2^(p+q)) -- or None. Exact identities of eq 7's terms on {0,1}:
+
+    * a zero weight, q = 0: 2^q = 1, U_G = (a + b) + (b + d) 2^p (p = 0: the mirror);
+    * p an integer: U_G = (a + b 2^p) + (b + d 2^p) 2^q (q an integer: the mirror);
+    * p + q an integer K: U_G = (a + d 2^K) + b (2^p + 2^q).
+
+    (Both weights integers: U_G is an integer, the lattice DP's case.)"""
+    if q == 0.0:
+        return ((1, 0), (1, 1), (0, 1)), 2.0**p, lambda y1, y2: (y1, y2, 0, 0)
+    if p == 0.0:
+        return ((1, 0), (1, 1), (0, 1)), 2.0**q, lambda y1, y2: (y1, 0, y2, 0)
+    if float(p).is_integer():
+        k = 2 ** int(p)
+        return ((1, 0), (k, 1), (0, k)), 2.0**q, lambda y1, y2: (y1, 0, y2, 0)
+    if float(q).is_integer():
+        k = 2 ** int(q)
+        return ((1, 0), (k, 1), (0, k)), 2.0**p, lambda y1, y2: (y1, y2, 0, 0)
+    if (Fraction(p) + Fraction(q)).denominator == 1:
+        k = 2 ** int(Fraction(p) + Fraction(q))
+        return ((1, 0), (0, 1), (k, 0)), 2.0**p + 2.0**q, lambda y1, y2: (y1, y2, y2, 0)
+    return None
+
+
+TWO_COUNTS_WORK_MAX = 100_000_000
+"""Array elements the two-count DP may touch (~0.6-1 s here); it gives up (None) as soon as the
+box it holds, growing as it has (area ~ taxels^2), would take it beyond this."""
+
+
+def _rates_two_counts(pi: np.ndarray, p: float, q: float, low: float, high: float):
+    """``_rates_counts`` where :func:`_two_count_form` applies: the same DP along the chain
+    (state: last taxel absent / run of length 1 / run of length >= 2; a run of one ends: a + 1;
+    a run reaches length two: b + 1; a longer run grows: d + 1, eq 7 on {0,1}), over a 2-d array
+    of (y1, y2) per state instead of 3-d counts: O(n^2) cells per step at most, ~40x faster at
+    200 taxels. Trimmed, rescaled and classified like ``_rates_counts`` (every rate >= FLOOR
+    exact; comparisons with the edges exact, mpmath within rounding); None where the form does
+    not apply or beyond TWO_COUNTS_WORK_MAX."""
+    form = _two_count_form(p, q)
+    if form is None:
+        return None
+    (step_a, step_b, step_d), c_value, basis = form
+    g1 = max(step_a[0], step_b[0], step_d[0])
+    g2 = max(step_a[1], step_b[1], step_d[1])
+    n = pi.size
+    s0, s1, s2 = np.full((1, 1), 2.0**SCALE_BITS), np.zeros((1, 1)), np.zeros((1, 1))
+    origin = [0, 0]
+    exponent = SCALE_BITS
+    log_factors = []
+    dropped = 0.0
+    work = 0
+    pl = pi.tolist()
+    for i in range(n):
+        pc = pl[i]
+        qc = 1.0 - pc
+        big = max(pc, qc)
+        log_factors.append(math.log(big))
+        fp, fq = pc / big, qc / big
+        m1, m2 = s0.shape
+        shape = (m1 + g1, m2 + g2)
+        n0 = np.zeros(shape)  # absent: runs so far unchanged, a run of one ends (a + 1)
+        n0[:m1, :m2] += s0
+        n0[:m1, :m2] += s2
+        n0[step_a[0]:step_a[0] + m1, step_a[1]:step_a[1] + m2] += s1
+        n0 *= fq
+        n1 = np.zeros(shape)  # a run starts
+        n1[:m1, :m2] = s0 * fp
+        n2 = np.zeros(shape)  # a run reaches two (b + 1) or grows (d + 1)
+        n2[step_b[0]:step_b[0] + m1, step_b[1]:step_b[1] + m2] += s1
+        n2[step_d[0]:step_d[0] + m1, step_d[1]:step_d[1] + m2] += s2
+        n2 *= fp
+        s0, s1, s2 = n0, n1, n2
+        work += 3 * s2.size
+        # the box's sides grow ~linearly (trimming aside): projected, the rest costs ~box (j/i)^2
+        # per taxel j, sum ~ box (n^3 - i^3) / (3 i^2) -- giving up early, not after most of it
+        rest = n - 1 - i
+        grown = s2.size * (((n / (i + 1)) ** 3 - 1.0) * (i + 1) / 3.0 if i >= max(31, n // 10) else rest)
+        if work + 3 * grown > TWO_COUNTS_WORK_MAX:
+            return None
+        if i % TRIM_EVERY == TRIM_EVERY - 1 or i == n - 1:
+            total = s0 + s1 + s2
+            k = math.frexp(float(total.max()))[1] - SCALE_BITS - 1
+            if k:
+                for arr in (s0, s1, s2):
+                    arr *= math.ldexp(1.0, -k)
+                total *= math.ldexp(1.0, -k)
+                dropped = math.ldexp(dropped, -k)
+                exponent -= k
+            tail = TRIM_TAIL * math.exp(exponent * math.log(2.0) - math.fsum(log_factors) - _LOG_SCALE)
+            cuts = []
+            for axis in (0, 1):
+                marg = total.sum(axis=1 - axis)
+                keep = np.flatnonzero(marg >= tail)
+                cuts.append((int(keep[0]), int(keep[-1]) + 1) if keep.size else (0, marg.size))
+            if any(lo_ > 0 or hi_ < size for (lo_, hi_), size in zip(cuts, total.shape)):
+                sl = tuple(slice(lo_, hi_) for lo_, hi_ in cuts)
+                dropped += float(total.sum() - total[sl].sum())
+                s0, s1, s2 = s0[sl].copy(), s1[sl].copy(), s2[sl].copy()
+                origin = [o + lo_ for o, (lo_, _) in zip(origin, cuts)]
+    # the last taxel ends its run: state 1 -> a + 1
+    m1, m2 = s0.shape
+    law = np.zeros((m1 + step_a[0], m2 + step_a[1]))
+    law[:m1, :m2] += s0 + s2
+    law[step_a[0]:step_a[0] + m1, step_a[1]:step_a[1] + m2] += s1
+    y1 = origin[0] + np.arange(law.shape[0])[:, None]
+    y2 = origin[1] + np.arange(law.shape[1])[None, :]
+    live = law > 0.0
+    v1, v2 = (np.broadcast_to(y, law.shape)[live] for y in (y1, y2))
+    weights = law[live]
+    values = v1 + v2 * c_value
+    above, below = _classify(values, lambda j: basis(int(v1[j]), int(v2[j])), p, q, low, high)
+    sums = [float(weights[above].sum()), float(weights[~above & ~below].sum()), float(weights[below].sum())]
+    return _scaled_logs(sums, dropped, scale=(exponent, math.fsum(log_factors)))
+
+
 COUNTS_WORK_MAX = 400_000_000
 """Array elements the counts DP may touch in total (a few seconds); it gives up (returns None)
 as soon as the box it holds, kept for the remaining taxels, would exceed this."""

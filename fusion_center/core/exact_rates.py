@@ -17,11 +17,12 @@ from __future__ import annotations
 from .chain_dp import FLOOR, _lattice
 from .kind_laws import (KIND_ATOMS_MAX, KindRates, _kind_atoms, kinds_of, linear_statistic_law,
                         linear_statistic_tail, llr_error_rates, np_kinds_fusion, roc_from_laws)
-from .preferential_rates import SPARSE_MAX_TAXELS, PreferentialRates, preferential_error_rates, preferential_law
+from .preferential_rates import (SPARSE_MAX_TAXELS, PreferentialRates, exact_counts_max_taxels, preferential_error_rates,
+                                 preferential_law)
 from .rate_sampling import importance_sampling_tail
 
 # private names other modules reach through this one (report/build.py, montecarlo.py, baselines.py)
-_REEXPORTED = (_lattice, _kind_atoms)
+_REEXPORTED = (_lattice, _kind_atoms, exact_counts_max_taxels)
 
 __all__ = [
     "PreferentialRates",

@@ -391,8 +391,8 @@ def _exact_other(name, setup, taxel_pf, pd_patterns, weights):
     if name == "preferential":
         p, q, tm = setup.preferential
         n = taxel_pf.size
-        if exact_rates._lattice(p, q, setup.encoding) is None and n > exact_rates.SPARSE_MAX_TAXELS:
-            return None, None  # {0,1} with a non-integer weight beyond the exact sparse DP
+        if exact_rates._lattice(p, q, setup.encoding) is None and n > exact_rates.exact_counts_max_taxels(p, q):
+            return None, None  # {0,1} with a non-integer weight beyond the exact counts DPs
 
         def fn(probs):
             return exact_rates.preferential_error_rates(probs, probs, p, q, setup.encoding, tm, tm).p_detect

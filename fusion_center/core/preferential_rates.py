@@ -10,8 +10,10 @@ Which DP (:mod:`.chain_dp`, :mod:`.tilted_dp`):
   tilted DP (exact, with a proven error bound; ``deep=False`` skips them);
 * {0,1} with a non-integer weight ("exact-counts"): U_G = a + b (2^p + 2^q) + d 2^(p+q) over
   three integer counts, a DP over them (polynomial; within budget up to SPARSE_MAX_TAXELS for
-  any probabilities), every rate >= FLOOR exact, the logs below not computed; a Monte Carlo
-  estimate with 95 % Wilson intervals beyond the budget ("monte-carlo", said so).
+  any probabilities); where U_G needs two integer coordinates only (a zero weight, p or q an
+  integer, p + q an integer) a DP over those two instead, up to TWO_COUNTS_MAX_TAXELS; every
+  rate >= FLOOR exact, the logs below not computed; a Monte Carlo estimate with 95 % Wilson
+  intervals beyond ("monte-carlo", said so).
 
 Each comparison of U_G with a band edge is exact (mpmath where rounding cannot decide); the
 three probabilities per hypothesis are sums of positive terms (the tilted DP's bulk region:
@@ -28,7 +30,7 @@ import numpy as np
 from taxel_net.errors import ParameterError
 
 from .chain_dp import (FLOOR, SCALE_BITS, _float_value, _label_base, _lattice, _lattice_law, _log_probability,
-                       _LOG_FLOOR, _rates_counts, _scaled_logs)
+                       _LOG_FLOOR, _rates_counts, _rates_two_counts, _scaled_logs, _two_count_form)
 from .rate_sampling import monte_carlo_band_rates, wilson
 from .tilted_dp import lattice_band_logs
 
@@ -38,6 +40,19 @@ stays within its budget for any per-taxel probabilities (200 taxels at pi = 0.5:
 rates are exact; beyond, exact while the budget holds (the law's box stays small), otherwise a
 Monte Carlo estimate (method "monte-carlo"). The name is kept from the sparse DP it replaced."""
 COUNTS_MAX_TAXELS = SPARSE_MAX_TAXELS
+TWO_COUNTS_MAX_TAXELS = 1000
+"""{0,1} where U_G needs two integer coordinates only (a zero weight, p or q an integer, p + q an
+integer: chain_dp._two_count_form): the two-count DP (chain_dp._rates_two_counts) up to this
+many taxels while its budget (chain_dp.TWO_COUNTS_WORK_MAX, ~1 s) holds -- for any
+probabilities to ~300 taxels with p or q an integer, ~500 with p + q an integer or a zero
+weight; beyond, Monte Carlo (the three-count DP would take minutes there)."""
+
+
+def exact_counts_max_taxels(p: float, q: float) -> int:
+    """Taxels up to which {0,1} with a non-integer weight has exact rates for any per-taxel
+    probabilities: TWO_COUNTS_MAX_TAXELS where the two-count form applies, else
+    SPARSE_MAX_TAXELS (the three-count DP)."""
+    return TWO_COUNTS_MAX_TAXELS if _two_count_form(float(p), float(q)) is not None else SPARSE_MAX_TAXELS
 
 
 def _log(x: float) -> float | None:
@@ -200,8 +215,13 @@ def preferential_error_rates(pd, pf, p, q, encoding: str, low: float, high: floa
             bounds.update({_NAMES[3 * h + r]: b for r, (_, _, b) in enumerate(regions) if b is not None})
     else:  # {0,1} with a non-integer weight: the counts DP (polynomial), Monte Carlo beyond its budget
         method = "exact-counts"
-        results = [_rates_counts(pd_arr, p, q, low, high)]
-        results.append(_rates_counts(pf_arr, p, q, low, high) if results[0] is not None else None)
+        results = [None, None]
+        if _two_count_form(p, q) is not None and n <= TWO_COUNTS_MAX_TAXELS:
+            results = [_rates_two_counts(pd_arr, p, q, low, high)]
+            results.append(_rates_two_counts(pf_arr, p, q, low, high) if results[0] is not None else None)
+        if results[1] is None and (_two_count_form(p, q) is None or n <= SPARSE_MAX_TAXELS):
+            results = [_rates_counts(pd_arr, p, q, low, high)]
+            results.append(_rates_counts(pf_arr, p, q, low, high) if results[0] is not None else None)
         if results[1] is None:
             rng = rng if rng is not None else np.random.default_rng(0)
             r1 = monte_carlo_band_rates(pd_arr, p, q, encoding, low, high, samples, rng)

@@ -127,7 +127,8 @@ def achieved_levels(scene, mc: montecarlo.MonteCarloResult, rng) -> dict:
         p, q, _ = setup.preferential
         req, ach, log10 = [], [], []
         stat = mc.statistics_h0["preferential"]
-        exact = exact_rates._lattice(p, q, setup.encoding) is not None or scene.n <= exact_rates.SPARSE_MAX_TAXELS
+        exact = (exact_rates._lattice(p, q, setup.encoding) is not None
+                 or scene.n <= exact_rates.exact_counts_max_taxels(p, q))
         for a in ALPHA_GRID:
             try:
                 tm = evaluation.preferential_threshold_mean(scene, alpha=a)
