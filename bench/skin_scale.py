@@ -1,7 +1,7 @@
 """The centre at skin scale: SYNC -> decision latency and memory at 4,096 taxels (issue 14).
 
     .venv/bin/python bench/skin_scale.py [--scene scenes/skin4096.toml ...] [--cycles 300]
-                                         [--shards 0]
+                                         [--shards 0] [--repeat 1]
 
 Runs the scene's node twins and the fusion centre on python-can buses - by default all in
 this process on ``virtual`` buses (one per scene channel: 8 for skin4096), with ``--shards K``
@@ -168,8 +168,12 @@ def main(argv=None) -> int:
     ap.add_argument("--scene", nargs="+", type=Path, default=SCENES)
     ap.add_argument("--cycles", type=int, default=300)
     ap.add_argument("--shards", type=int, default=0, help="node-sim processes for the twins (0: in this process)")
+    ap.add_argument("--repeat", type=int, default=1,
+                    help="runs per scene, alternating scenes (the host's speed varies: compare spreads)")
     args = ap.parse_args(argv)
-    for path in args.scene:
+    if args.repeat < 1 or args.cycles < 1 or args.shards < 0:
+        ap.error("--repeat and --cycles must be >= 1, --shards >= 0")
+    for run, path in [(k, p) for k in range(args.repeat) for p in args.scene]:
         scene = load_scene(path)
         if args.shards:
             service, summary, boot_s, cpu = run_sharded(scene, args.cycles, args.shards)
@@ -180,7 +184,8 @@ def main(argv=None) -> int:
         checked = check_records(scene, service.records)
         rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
         where = f"twins in {args.shards} node-sim processes (udp_multicast)" if args.shards else "twins in this process"
-        print(f"{scene.name}: {scene.n} taxels, {len(scene.bus.channels)} channels, SYNC {scene.bus.sync_period_ms:g} ms, "
+        print(f"{scene.name}{f' (run {run + 1} of {args.repeat})' if args.repeat > 1 else ''}: {scene.n} taxels, "
+              f"{len(scene.bus.channels)} channels, SYNC {scene.bus.sync_period_ms:g} ms, "
               f"{summary.cycles} cycles, {where}, boot {boot_s:.1f} s ({summary.sdo_writes} SDO writes)")
         # per cycle: SYNC -> closing event (the twins and the bus: the last PDO's receive time, or
         # the window's end) and closing event -> record (the centre), paired samples
