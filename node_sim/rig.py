@@ -50,7 +50,6 @@ bus without python-can's per-receiver deep copy (:func:`node_sim.channel.virtual
 from __future__ import annotations
 
 import dataclasses
-import gc
 import logging
 import threading
 import time
@@ -60,7 +59,7 @@ from typing import Callable, Mapping, Sequence
 import can
 import numpy as np
 
-from taxel_net import patches
+from taxel_net import gcfreeze, patches
 from taxel_net.canmsg import tune_udp_multicast
 from taxel_net.errors import ParameterError
 from taxel_net.receiver import notifiers_for
@@ -146,6 +145,7 @@ class Rig:
         self._prefetch_wake = threading.Event()
         self._prefetch_first = 0
         self._prefetch_stop = False
+        self._gc_held = False  # holds taxel_net.gcfreeze while started
         self.started = False
         for i, t in enumerate(scene.taxels):
             if not 0 <= t.channel < len(names):
@@ -215,9 +215,10 @@ class Rig:
             self.stop()
             raise
         self.started = True
-        # the set-up (EDS imports, ODs, scene arrays) is never traversed by the cyclic collector
-        # again: a full collection of it is a pause of tens of ms on a SYNC path
-        gc.freeze()
+        # the set-up (EDS imports, ODs, scene arrays) is not traversed by the cyclic collector
+        # while the rig runs: a full collection of it is a pause of tens of ms on a SYNC path
+        gcfreeze.hold()
+        self._gc_held = True
         return self
 
     def stop(self) -> None:
@@ -244,6 +245,9 @@ class Rig:
         self._channels = []
         self._channel_at = {}
         self.started = False
+        if self._gc_held:
+            self._gc_held = False
+            gcfreeze.release()
 
     # ------------------------------------------------------------------ configuration
     def _lss_device(self) -> tuple[tuple[int, int, int], frozenset[int]]:

@@ -272,17 +272,44 @@ def test_bus_filters_follow_the_sync_cob_id_and_keep_out_the_pdos():
         rec.close()
 
 
-def test_the_set_up_is_frozen_out_of_the_cyclic_collector():
-    """After start the rig's set-up (ODs, EDS imports) is in the permanent generation: a full
-    collection during the run does not traverse it (a pause of tens of ms at skin scale)."""
+def test_the_set_up_is_out_of_the_cyclic_collector_while_the_rig_runs_and_given_back_after():
+    """While the rig runs its set-up (ODs, EDS imports) is frozen: a full collection does not
+    traverse it (a pause of tens of ms at skin scale). Once stopped it is given back: a stopped
+    rig is collected, never kept for the life of the process."""
     import gc
+    import weakref
 
+    from taxel_net import gcfreeze
+
+    assert gcfreeze.holders() == 0
+    gc.unfreeze()
     ch = uid()
     scene = Scene(path="<t>", name="g", taxels=(TaxelSpec(node_id=1, kind="R", zeta_mv=1.0),),
                   bus=BusSpec(channels=(ch,), heartbeat_producer_ms=0))
-    gc.unfreeze()
-    assert gc.get_freeze_count() == 0
-    with Rig(scene, reading_source=lambda cycle: np.array([0.0])) as rig:
+    rig = Rig(scene, reading_source=lambda cycle: np.array([0.0]))
+    with rig:
         node = rig.node(1)
-        assert gc.get_freeze_count() > 0
-        assert not gc.is_tracked(node) or node not in gc.get_objects(generation=2)
+        assert gcfreeze.holders() == 1 and gc.get_freeze_count() > 0
+        assert all(o is not node for o in gc.get_objects(generation=2))
+        del node
+    assert gcfreeze.holders() == 0 and gc.get_freeze_count() == 0
+    gone = weakref.ref(rig)
+    del rig
+    gc.collect()
+    assert gone() is None
+
+
+def test_the_freeze_is_given_back_by_its_last_holder():
+    import gc
+
+    from taxel_net import gcfreeze
+
+    gc.unfreeze()
+    gcfreeze.hold()
+    gcfreeze.hold()
+    gcfreeze.release()
+    assert gcfreeze.holders() == 1 and gc.get_freeze_count() > 0
+    gcfreeze.release()
+    assert gcfreeze.holders() == 0 and gc.get_freeze_count() == 0
+    gcfreeze.release()  # more releases than holds: nothing happens
+    assert gcfreeze.holders() == 0

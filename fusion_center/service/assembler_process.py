@@ -4,7 +4,6 @@ buses, each closed cycle sent to the fuser (issue 14; :mod:`.assemblers`).
 
 from __future__ import annotations
 
-import gc
 import logging
 import os
 import socket
@@ -16,6 +15,7 @@ from typing import Sequence
 import can
 import numpy as np
 
+from taxel_net import gcfreeze
 from taxel_net.errors import UsageError
 from taxel_net.patches import devices as scene_devices
 from taxel_net.scene import Scene
@@ -114,6 +114,7 @@ class AssemblerProcess:
         self.scene = scene
         self.group = GroupAssembler(scene, channels)
         self.layout = self.group.layout
+        self._gc_held = False  # holds taxel_net.gcfreeze once connected, until closed
         names = list(channel_names) if channel_names is not None else list(scene.bus.channels)
         if len(names) != len(scene.bus.channels):
             raise UsageError(f"--channel: the scene has {len(scene.bus.channels)} channel(s) "
@@ -211,7 +212,9 @@ class AssemblerProcess:
                                  f"{AUTHKEY_ENV} on both sides?)") from None
         self.conn = conn
         threading.Thread(target=self._watch, name="fuser-watch", daemon=True).start()
-        gc.freeze()  # the set-up is never traversed by the cyclic collector again (as the centre's run)
+        if not self._gc_held:  # the set-up is not traversed by the cyclic collector (as the centre's run)
+            self._gc_held = True
+            gcfreeze.hold()
 
     def _watch(self) -> None:
         """Hears the fuser: its bye ends the process; a break without bye, a reconnect."""
@@ -283,6 +286,9 @@ class AssemblerProcess:
 
     def close(self) -> None:
         self._stop.set()
+        if self._gc_held:
+            self._gc_held = False
+            gcfreeze.release()
         for notifier in self.notifiers:
             try:
                 notifier.stop(timeout=2)

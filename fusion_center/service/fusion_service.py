@@ -18,7 +18,6 @@ and replay in :mod:`fusion_center.service.traces`.
 
 from __future__ import annotations
 
-import gc
 import logging
 import math
 import sys
@@ -32,6 +31,7 @@ from typing import Callable, Sequence
 import can
 
 from taxel_net.canmsg import tune_udp_multicast
+from taxel_net import gcfreeze
 from taxel_net.errors import UsageError
 from taxel_net.receiver import notifiers_for
 from taxel_net.resources import eds_path, patch_eds_path
@@ -284,16 +284,19 @@ class FusionService:
         if cycles < 1:
             raise UsageError(f"--cycles {cycles}: must be >= 1")
         period = self.scene.bus.sync_period_ms / 1000.0
-        # what the set-up allocated (EDS, canopen objects, scene arrays, caches) is never
-        # traversed by the cyclic collector again: a full collection of it took 40-130 ms at
-        # 4,096 taxels (bench/skin_scale.py), a SYNC -> record outlier each time it ran
-        gc.freeze()
-        self.master.start_sync(cycles, before_sync)
-        if timeout_s is None:
-            timeout_s = cycles * period * 3 + 10.0
-        self.master.wait_sync_done(timeout_s)
-        self.master.stop()
-        self.drain(timeout=5.0)
+        # what the set-up allocated (EDS, canopen objects, scene arrays, caches) is not
+        # traversed by the cyclic collector during the run: a full collection of it took
+        # 40-130 ms at 4,096 taxels (bench/skin_scale.py), a SYNC -> record outlier each time
+        gcfreeze.hold()
+        try:
+            self.master.start_sync(cycles, before_sync)
+            if timeout_s is None:
+                timeout_s = cycles * period * 3 + 10.0
+            self.master.wait_sync_done(timeout_s)
+            self.master.stop()
+            self.drain(timeout=5.0)
+        finally:
+            gcfreeze.release()
         return self.summary()
 
     def drain(self, timeout: float = 5.0) -> None:
