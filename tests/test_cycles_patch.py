@@ -182,7 +182,7 @@ def test_missing_device_after_its_consumer_time():
     a = CycleAssembler(sc)
     assert a.labels == [1, "1:2"]
     boot(a, sc)
-    t0, t1 = devices(sc)[0].tpdos[0], devices(sc)[1].tpdos[0]
+    t0 = devices(sc)[0].tpdos[0]
     sync(a, 400 * MS, 1)
     # nothing heard from either for 400 ms > 300 ms: both missing, the cycle waits for the next SYNC
     assert a.feed(400 * MS + 1, 0, t0.cob_id, pack(t0, np.ones(4), tag=1)) is None

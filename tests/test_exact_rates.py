@@ -114,7 +114,7 @@ def test_preferential_dp_vs_mpmath_dp_n72(encoding, p, q):
 
 def test_preferential_dp_edge_ties_exact():
     """Integer p, q: U_G lands exactly on the band edges; H1 iff U_G >= high, H0 iff U_G < low."""
-    n, pd, pf = 9, [0.7] * 9, [0.2] * 9
+    pd, pf = [0.7] * 9, [0.2] * 9
     for encoding in ("pm1", "01"):
         for low, high in ((4.0, 12.0), (0.0, 0.0), (-3.0, 8.0)):
             ours = preferential_error_rates(pd, pf, 1, 1, encoding, low, high)
