@@ -262,7 +262,7 @@ def test_non_contiguous_patch_taxels():
     for ch, cob, data in frames(sc, u, tag=3):
         closed = a.feed(10 * MS + 1, ch, cob, data)
     assert closed.decisions.tolist() == u.tolist()
-    assert a.taxel_device.tolist() == [0, 1, 0, 1, 0]
+    assert a.layout.taxel_device.tolist() == [0, 1, 0, 1, 0]
 
 
 @pytest.mark.parametrize("mode, raw_format, fd, sync_counter", [

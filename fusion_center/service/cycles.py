@@ -79,8 +79,8 @@ import math
 
 import numpy as np
 
-from taxel_net.patches import ENC_BITS, devices as scene_devices
 from taxel_net.scene import Scene
+from .cycle_layout import CycleLayout
 from .decoder import (
     HEARTBEAT_STATES,
     SlotDecoder,  # re-exported: the patch TPDO decoding lives in .decoder
@@ -106,7 +106,6 @@ from .decoder import (
     STATE_OPERATIONAL,
     STATE_PRE_OPERATIONAL,
     STATE_STOPPED,
-    build_cob_tables,
     decode_emcy,
     decode_real32,
 )
@@ -165,36 +164,11 @@ class CycleAssembler:
         n = scene.n
         self.n = n
         bus = scene.bus
-        # devices (CANopen nodes): node states, liveness and SDO bookkeeping are per device;
-        # decisions and readings per taxel. One-taxel scenes: device index == taxel index.
-        self.devices = devs = scene_devices(scene)
-        nd = self.n_devices = len(devs)
+        self.layout = layout = CycleLayout(scene)  # where every taxel is (.cycle_layout)
+        nd = layout.n_devices
         self.patch = bool(bus.patch_nodes)
         self.fd = bool(bus.fd)
-        self.tables = build_cob_tables(scene, devs)
-        self.labels: list[int | str] = [
-            d.node_id if d.channel == 0 else f"{d.channel}:{d.node_id}" for d in devs
-        ]  # device labels (one-taxel scenes: the taxels' node labels)
-        self.taxel_device = np.zeros(n, dtype=np.intp)  # device index of every taxel
-        for d, dev in enumerate(devs):
-            self.taxel_device[list(dev.taxels)] = d
-        self.index_by_node: list[dict[int, int]] = [dict() for _ in bus.channels]  # node-ID -> device
-        for d, dev in enumerate(devs):
-            self.index_by_node[dev.channel][dev.node_id] = d
-        self.channel_members = [
-            np.array([d for d, dev in enumerate(devs) if dev.channel == c], dtype=np.intp)
-            for c in range(len(bus.channels))
-        ]
-        # patch TPDOs: one slot each, numbered over the devices in order (decoder.build_cob_tables)
-        self.slot_tpdo = [tpdo for dev in devs for tpdo in dev.tpdos] if self.patch else []
-        self.slot_device = np.array([d for d, dev in enumerate(devs) for _ in dev.tpdos] if self.patch else [],
-                                    dtype=np.intp)
-        self.slot_taxels = [self._taxel_index(dev.taxels[t.first:t.first + t.count])
-                            for dev in devs for t in dev.tpdos] if self.patch else []
-        self.slot_is_bits = [t.encoding == ENC_BITS for t in self.slot_tpdo]
-        self.slot_decoders = [SlotDecoder(t, bus.raw_lsb_mv) for t in self.slot_tpdo]
-        self.device_slots = np.array([len(dev.tpdos) for dev in devs], dtype=np.int64)  # TPDOs per device
-        self.slot_got = np.zeros(len(self.slot_tpdo), dtype=bool)
+        self.slot_got = np.zeros(len(layout.slot_tpdo), dtype=bool)
         self.lsb_mv = float(bus.raw_lsb_mv)
         self.primary = K_TPDO2 if bus.mode == "raw" else K_TPDO1
         self.synchronous_every_sync = bus.transmission_type == 1
@@ -242,6 +216,18 @@ class CycleAssembler:
 
     # ------------------------------------------------------------------ queries
     @property
+    def devices(self):
+        return self.layout.devices
+
+    @property
+    def n_devices(self) -> int:
+        return self.layout.n_devices
+
+    @property
+    def labels(self) -> list[int | str]:
+        return self.layout.labels
+
+    @property
     def events(self) -> int:
         """Events fed: every one counted under one disposition, or held (see *Bus order*)."""
         return sum(self.counts) + len(self.held)
@@ -252,12 +238,6 @@ class CycleAssembler:
         if self.held:
             counters["held"] = len(self.held)
         return counters
-
-    def _taxel_index(self, taxels: tuple[int, ...]):
-        """A slice when the taxels are consecutive (cheap views), else an index array."""
-        if taxels and list(taxels) == list(range(taxels[0], taxels[0] + len(taxels))):
-            return slice(taxels[0], taxels[0] + len(taxels))
-        return np.array(taxels, dtype=np.intp)
 
     def malformed(self) -> int:
         return sum(self.counts[i] for i in _MALFORMED_IDX)
@@ -348,7 +328,7 @@ class CycleAssembler:
         if flags and not (flags == FLAG_FD and self.fd):
             return None
         try:
-            entry = self.tables[channel].get(can_id)
+            entry = self.layout.tables[channel].get(can_id)
         except (IndexError, TypeError, AttributeError):
             return None
         if self.fd and entry is not None and (entry[0] in PDO_KINDS) != bool(flags):
@@ -514,7 +494,7 @@ class CycleAssembler:
         """A TPDO of a patch node (``taxel_net.patches``): packed decisions or readings behind
         the cycle tag (the full counter of the sampling SYNC), counted only in that SYNC's cycle."""
         counts = self.counts
-        bad, tag, values = self.slot_decoders[slot].decode(data)
+        bad, tag, values = self.layout.slot_decoders[slot].decode(data)
         if bad is not None:
             return self._bad(bad)
         if tag is not None:
@@ -525,11 +505,11 @@ class CycleAssembler:
             stale = self.sync_counter is None or tag != self.sync_counter or raw < self.sync_raw
         else:
             stale = raw < self.sync_raw
-        d = int(self.slot_device[slot])
+        d = int(self.layout.slot_device[slot])
         self.last_heard[d] = t
         self.state[d] = STATE_OPERATIONAL
-        taxels = self.slot_taxels[slot]
-        bits = self.slot_is_bits[slot]
+        taxels = self.layout.slot_taxels[slot]
+        bits = self.layout.slot_is_bits[slot]
         if bits:
             self.held_decisions[taxels] = values
         else:
@@ -594,7 +574,7 @@ class CycleAssembler:
         if not self.synchronous_every_sync:
             self.pending = -1
         elif self.patch:  # every TPDO of every expected device
-            self.pending = int(self.device_slots[self.expected].sum())
+            self.pending = int(self.layout.device_slots[self.expected].sum())
         else:
             self.pending = int(np.count_nonzero(self.expected))
         if self.pending == 0:
@@ -630,7 +610,7 @@ class CycleAssembler:
         }[command]
         is_reset = command in (NMT_RESET_NODE, NMT_RESET_COMMUNICATION)
         if node_id == 0:
-            members = self.channel_members[channel] if 0 <= channel < len(self.channel_members) else ()
+            members = self.layout.channel_members[channel] if 0 <= channel < len(self.layout.channel_members) else ()
             self.state[members] = new_state
             if is_reset:  # a boot-up fed after this point answers it (the master waits for that)
                 self.reset_seq[members] = sum(self.counts) - 1
@@ -638,7 +618,7 @@ class CycleAssembler:
             if command != NMT_START and self.is_open:
                 return self._close("nmt", t)
         else:
-            idx = self.index_by_node[channel].get(node_id) if 0 <= channel < len(self.index_by_node) else None
+            idx = self.layout.index_by_node[channel].get(node_id) if 0 <= channel < len(self.layout.index_by_node) else None
             if idx is not None:
                 self.state[idx] = new_state
                 if is_reset:
@@ -651,9 +631,9 @@ class CycleAssembler:
         expected, missing, states = self.expected, self.missing, self.sync_state
         if self.patch:  # per device -> per taxel; a device is complete with all its TPDOs
             device = DeviceCycle(expected=expected, missing=missing, states=states,
-                                 complete=np.bincount(self.slot_device, weights=self.slot_got,
-                                                      minlength=self.n_devices) == self.device_slots)
-            td = self.taxel_device
+                                 complete=np.bincount(self.layout.slot_device, weights=self.slot_got,
+                                                      minlength=self.n_devices) == self.layout.device_slots)
+            td = self.layout.taxel_device
             expected, missing, states = expected[td], missing[td], states[td]
         else:
             device = None
