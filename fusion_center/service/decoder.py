@@ -121,25 +121,25 @@ def build_cob_tables(scene: Scene, devices=None) -> list[dict[int, tuple[int, in
         slot = 0
         for index, dev in enumerate(devices):
             table = tables[dev.channel]
-            nid = dev.node_id
-            table[BASE_HEARTBEAT + nid] = (K_HEARTBEAT, index)
-            table[BASE_EMCY + nid] = (K_EMCY, index)
-            table[BASE_SDO_RESPONSE + nid] = (K_SDO_RESPONSE, index)
-            table[BASE_SDO_REQUEST + nid] = (K_SDO_REQUEST, index)
+            _node_objects(table, dev.node_id, index)
             for tpdo in dev.tpdos:
                 table[tpdo.cob_id] = (K_PATCH, slot)
                 slot += 1
         return tables
     for index, taxel in enumerate(scene.taxels):
         table = tables[taxel.channel]
-        nid = taxel.node_id
-        table[BASE_TPDO1 + nid] = (K_TPDO1, index)
-        table[BASE_TPDO2 + nid] = (K_TPDO2, index)
-        table[BASE_HEARTBEAT + nid] = (K_HEARTBEAT, index)
-        table[BASE_EMCY + nid] = (K_EMCY, index)
-        table[BASE_SDO_RESPONSE + nid] = (K_SDO_RESPONSE, index)
-        table[BASE_SDO_REQUEST + nid] = (K_SDO_REQUEST, index)
+        table[BASE_TPDO1 + taxel.node_id] = (K_TPDO1, index)
+        table[BASE_TPDO2 + taxel.node_id] = (K_TPDO2, index)
+        _node_objects(table, taxel.node_id, index)
     return tables
+
+
+def _node_objects(table: dict[int, tuple[int, int]], node_id: int, index: int) -> None:
+    """The COB-IDs of node ``node_id``'s heartbeat, EMCY and SDO in a channel's table."""
+    table[BASE_HEARTBEAT + node_id] = (K_HEARTBEAT, index)
+    table[BASE_EMCY + node_id] = (K_EMCY, index)
+    table[BASE_SDO_RESPONSE + node_id] = (K_SDO_RESPONSE, index)
+    table[BASE_SDO_REQUEST + node_id] = (K_SDO_REQUEST, index)
 
 
 def decode_decision(data: bytes) -> int:
