@@ -158,14 +158,11 @@ def _udp_rig(tmp_path):
     """The two-group scene's twins on udp_multicast (skip where multicast does not work):
     (scene, its file, rig, bus kwargs, bus port, a fuser port); bench/ importable (check_records)."""
     sys.path.insert(0, str(ROOT / "bench"))
-    from test_service_multiprocess import multicast_works
+    from test_service_multiprocess import multicast_port
 
     from node_sim.rig import Rig
 
-    port = random.randint(40000, 60000)
-    why = multicast_works(port)
-    if why is not None:
-        pytest.skip(why)
+    port = multicast_port()
     path = _scene_file(tmp_path)
     scene = load_scene(path)
     bus = {"port": port, "hop_limit": 0}

@@ -3,7 +3,6 @@ what they ignore; junk never reaches the canopen library; FD frames are malforme
 udp_multicast only true echoes of the centre's own frames are dropped."""
 
 import logging
-import random
 import subprocess
 import sys
 import time
@@ -130,12 +129,9 @@ bus.shutdown()
 
 @pytest.mark.multiprocess
 def test_udp_multicast_drops_only_true_echoes():
-    from test_service_multiprocess import GROUP, multicast_works
+    from test_service_multiprocess import GROUP, multicast_port
 
-    port = random.randint(40000, 60000)
-    why = multicast_works(port)
-    if why is not None:
-        pytest.skip(why)
+    port = multicast_port()
     scene = _without_sync_counter(load_scene(MATRIX))  # the SYNCs below have no counter byte
     sender = subprocess.Popen([sys.executable, "-c", SENDER, str(port)], cwd=ROOT, stdin=subprocess.PIPE,
                               stdout=subprocess.PIPE, text=True)

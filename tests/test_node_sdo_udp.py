@@ -117,12 +117,9 @@ def test_57_concurrent_sdo_clients_lose_no_transfer_on_udp_multicast():
     downloads and uploads of 0x2001:1 and segmented uploads of 0x1008; canopen's client makes no
     retry and waits 5 s, so a dropped datagram is a lost transfer. Every transfer completes and
     the kernel dropped nothing on node-sim's sockets (Linux /proc/net/udp)."""
-    from test_service_multiprocess import GROUP, multicast_works
+    from test_service_multiprocess import GROUP, multicast_port
 
-    port = random.randint(40000, 60000)
-    why = multicast_works(port)
-    if why is not None:
-        pytest.skip(why)
+    port = multicast_port()
     sim = subprocess.Popen(
         [sys.executable, "-c", "import sys; from node_sim.cli import main; sys.exit(main())",
          "--scene", str(MATRIX), "--interface", "udp_multicast", "--channel", GROUP,

@@ -4,7 +4,6 @@ match the physics of that cycle (the readings are a function of scene and cycle,
 
 from __future__ import annotations
 
-import random
 import subprocess
 import sys
 from pathlib import Path
@@ -83,14 +82,11 @@ def test_two_node_sim_shards_and_the_centre_on_udp_multicast(tmp_path):
     sys.path.insert(0, str(ROOT / "tests"))
     sys.path.insert(0, str(ROOT / "bench"))
     from skin_scale import check_records
-    from test_service_multiprocess import multicast_works
+    from test_service_multiprocess import multicast_port
 
     from fusion_center.service import FusionService
 
-    port = random.randint(40000, 60000)
-    why = multicast_works(port)
-    if why is not None:
-        pytest.skip(why)
+    port = multicast_port()
     path = _scene_file(tmp_path)
     scene = load_scene(path)
     shards = []
@@ -130,12 +126,9 @@ def test_udp_multicast_buses_on_two_groups_and_one_port_do_not_hear_each_other()
     from taxel_net.canmsg import tune_udp_multicast
 
     sys.path.insert(0, str(ROOT / "tests"))
-    from test_service_multiprocess import multicast_works
+    from test_service_multiprocess import multicast_port
 
-    port = random.randint(40000, 60000)
-    why = multicast_works(port)
-    if why is not None:
-        pytest.skip(why)
+    port = multicast_port()
     if not sys.platform.startswith("linux"):
         pytest.skip("IP_MULTICAST_ALL is a Linux socket option")
     a = can.Bus(interface="udp_multicast", channel=GROUPS[0], port=port, hop_limit=0)

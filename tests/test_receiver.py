@@ -9,7 +9,6 @@ import time
 from pathlib import Path
 
 import can
-import pytest
 
 from taxel_net.receiver import SelectNotifiers, has_socket, notifiers_for
 
@@ -41,12 +40,9 @@ def test_virtual_buses_keep_a_python_can_notifier_each():
 
 def test_one_thread_delivers_every_frame_of_every_bus_in_order_to_its_listeners():
     sys.path.insert(0, str(ROOT / "tests"))
-    from test_service_multiprocess import multicast_works
+    from test_service_multiprocess import multicast_port
 
-    port = random.randint(40000, 60000)
-    why = multicast_works(port)
-    if why is not None:
-        pytest.skip(why)
+    port = multicast_port()
     rx, tx = _buses(port), _buses(port)
     got = {k: [] for k in range(len(GROUPS))}
     extra = []
@@ -122,14 +118,11 @@ def test_udp_multicast_drain_reads_what_recv_would_and_no_more():
     same group (every field, the kernel's receive time; FD frames dropped on a classic bus),
     and returns at once when the socket is empty; the bus's filters apply as in ``recv``."""
     sys.path.insert(0, str(ROOT / "tests"))
-    from test_service_multiprocess import multicast_works
+    from test_service_multiprocess import multicast_port
 
     from taxel_net.receiver import udp_multicast_drain
 
-    port = random.randint(40000, 60000)
-    why = multicast_works(port)
-    if why is not None:
-        pytest.skip(why)
+    port = multicast_port()
 
     def fields(m):
         return m.arbitration_id, bytes(m.data), m.is_extended_id, m.is_remote_frame, m.dlc, m.is_fd, m.bitrate_switch
@@ -179,12 +172,9 @@ def test_a_stray_datagram_is_skipped_not_fatal(caplog):
     """A datagram on the group that is no python-can frame: python-can's recv raises (and a
     Notifier stops reading the bus); the drain skips it, logs it and reads on."""
     sys.path.insert(0, str(ROOT / "tests"))
-    from test_service_multiprocess import multicast_works
+    from test_service_multiprocess import multicast_port
 
-    port = random.randint(40000, 60000)
-    why = multicast_works(port)
-    if why is not None:
-        pytest.skip(why)
+    port = multicast_port()
     rx = can.Bus(interface="udp_multicast", channel=GROUPS[1], port=port, hop_limit=0)
     tx = can.Bus(interface="udp_multicast", channel=GROUPS[1], port=port, hop_limit=0)
     raw = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)

@@ -40,11 +40,17 @@ def multicast_works(port: int) -> str | None:
         b.shutdown()
 
 
-def test_node_sim_process_and_fusion_centre_on_udp_multicast(tmp_path):
+def multicast_port() -> int:
+    """A random port on which udp_multicast works here; the test is skipped (saying why) if not."""
     port = random.randint(40000, 60000)
     why = multicast_works(port)
     if why is not None:
         pytest.skip(why)
+    return port
+
+
+def test_node_sim_process_and_fusion_centre_on_udp_multicast(tmp_path):
+    port = multicast_port()
     scene = load_scene(MATRIX)
     sim = subprocess.Popen(
         [sys.executable, "-c", "import sys; from node_sim.cli import main; sys.exit(main())",

@@ -154,16 +154,12 @@ def test_second_run_against_running_node_sim_decides_as_well_as_the_first(tmp_pa
     from the same node state and the same simulated cycle 0 (before: the twins went on from the
     first run's last cycle and the second run agreed with the truth in 47/145 cycles)."""
     import json
-    import random
     import subprocess
     import sys
 
-    from test_service_multiprocess import GROUP, multicast_works
+    from test_service_multiprocess import GROUP, multicast_port
 
-    port = random.randint(40000, 60000)
-    why = multicast_works(port)
-    if why is not None:
-        pytest.skip(why)
+    port = multicast_port()
     bus = ["--interface", "udp_multicast", "--channel", GROUP, "--bus-option", f"port={port}",
            "--bus-option", "hop_limit=0"]
     # matrix57 at a 40 ms SYNC (window 80 %: 32 ms): two processes on a host whose other test
