@@ -141,7 +141,7 @@ class Rig:
         self._reading_cache: dict[int, np.ndarray] = {}   # cycle -> X (scene order)
         self._reading_lock = threading.Lock()
         self._prefetch_pending = False
-        self._prefetch_thread: threading.Thread | None = None  # started at the first read-ahead
+        self._prefetch_thread: threading.Thread | None = None  # while started, default readings only
         self._prefetch_wake = threading.Event()
         self._prefetch_first = 0
         self._prefetch_stop = False
@@ -199,6 +199,9 @@ class Rig:
                     self._new_node(ch, i, t.node_id)
             if self._reading_source is None:
                 self._readings(0)  # the first SYNC's readings (and the scene's arrays) off its path
+                self._prefetch_thread = threading.Thread(target=self._prefetch_loop, name="node-sim-prefetch",
+                                                         daemon=True)
+                self._prefetch_thread.start()
             # one receive thread for all the channels' buses when each has a socket
             # (udp_multicast, socketcan: taxel_net/receiver.py), else a python-can Notifier each
             for ch in self._channels:
@@ -373,8 +376,8 @@ class Rig:
         cycles computed unless the cache already holds them (default reading source only)."""
         if self._reading_source is not None or self._prefetch_pending:
             return
-        with self._reading_lock:
-            if cycle + 1 in self._reading_cache:
+        with self._reading_lock:  # two channels' SYNCs may get here at once: one schedules
+            if self._prefetch_pending or cycle + 1 in self._reading_cache:
                 return
             self._prefetch_pending = True
         delay = 0.5 * self.scene.bus.sync_period_ms / 1000.0
@@ -382,10 +385,6 @@ class Rig:
 
     def _prefetch_request(self, first: int) -> None:
         """Timer callback (the channel lock is held): hand the work to the prefetch thread."""
-        if self._prefetch_thread is None:
-            self._prefetch_thread = threading.Thread(target=self._prefetch_loop, name="node-sim-prefetch",
-                                                     daemon=True)
-            self._prefetch_thread.start()
         self._prefetch_first = first
         self._prefetch_wake.set()
 

@@ -65,8 +65,8 @@ def udp_multicast_drain(bus: can.BusABC) -> Callable[[], Iterator[can.Message]] 
     turn (the bus's filters applied, ``set_filters`` taking effect at the next call), read at
     one system call a frame, and a frame the filters refuse dropped before a ``can.Message`` is
     made of it. A datagram that is no python-can frame is skipped and logged (at most a line a
-    second, with the count), where ``bus.recv`` raises and so ends the reading of the bus. None for any other bus (or another python-can layout): read it with
-    ``bus.recv(0)``."""
+    second, with the count), where ``bus.recv`` raises and so ends the reading of the bus.
+    None for any other bus (or another python-can layout): read it with ``bus.recv(0)``."""
     multicast = getattr(bus, "_multicast", None)
     sock = getattr(multicast, "_socket", None)
     if (not isinstance(sock, socket.socket) or not getattr(multicast, "timestamp_nanosecond", False)
