@@ -8,7 +8,6 @@ import re
 import struct
 import subprocess
 import sys
-import uuid
 from pathlib import Path
 
 import canopen
@@ -22,15 +21,9 @@ from taxel_net.patches import devices
 from taxel_net.resources import patch_eds_path
 from taxel_net.scene import load_scene
 
-ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from test_service_patch import booted_by_the_centre, small_skin  # noqa: E402 - shared test set-ups
 
-
-def small_skin(name="skin4096", channels=1):
-    """The first ``channels`` buses of a bundled skin (three patch nodes of 192/192/128 taxels
-    each), as tests/test_service_patch.py builds it."""
-    sc = load_scene(ROOT / "scenes" / f"{name}.toml")
-    taxels = tuple(t for t in sc.taxels if t.channel < channels)
-    return dataclasses.replace(sc, taxels=taxels, bus=dataclasses.replace(sc.bus, channels=sc.bus.channels[:channels]))
 
 
 def real32(x):
@@ -90,7 +83,7 @@ def check_patch_dcf(path: Path, scene, index: int) -> dict[tuple[int, int], obje
 
 @pytest.mark.parametrize("name", ["skin4096", "skin4096_fd", "skin4096_raw"])
 def test_patch_dcf_holds_the_last_write_of_every_configured_entry(tmp_path, name):
-    scene = small_skin(name)
+    scene = small_skin(name, channels=1)
     eds = patch_eds_path().read_text()
     n = len(devices(scene))
     assert n == 3
@@ -109,29 +102,17 @@ def test_patch_dcf_holds_the_last_write_of_every_configured_entry(tmp_path, name
 def test_patch_dcf_is_what_the_twin_holds_after_the_master_booted_it(tmp_path):
     """Independent of patch_configuration's list: the values a canopen master left in a patch
     twin over SDO (virtual bus) are the DCF's, entry by entry."""
-    from fusion_center.service import FusionService
-    from node_sim.rig import Rig
-
-    scene = small_skin("skin4096_raw")
+    scene = small_skin("skin4096_raw", channels=1)
     scene = dataclasses.replace(scene, taxels=tuple(t for t in scene.taxels if t.node_id == 3))
     (d,) = devices(scene)
     path = tmp_path / "p.dcf"
     path.write_text(dcf_text(scene, 0, patch_eds_path().read_text(), path.name))
     got = check_patch_dcf(path, scene, 0)
-    tag = uuid.uuid4().hex[:8]
-    channels = [f"dcf-{tag}-{c}" for c in scene.bus.channels]
-    svc = FusionService(scene, interface="virtual", channels=channels, truth=False)
-    rig = Rig(scene, interface="virtual", channel=channels)
-    with svc:
-        rig.start()
-        try:
-            assert svc.boot(5.0) == []
-            m = svc.master
-            assert m.sdo_writes == len(patch_configuration(scene, d)) and m.sdo_aborts == 0 and m.sdo_timeouts == 0
-            sdo = rig.node(d.node_id, d.channel).local.sdo
-            held = {(obj, sub): (sdo[obj] if is_variable(sdo.od[obj]) else sdo[obj][sub]).raw for obj, sub in got}
-        finally:
-            rig.stop()
+    with booted_by_the_centre(scene) as (svc, rig):
+        m = svc.master
+        assert m.sdo_writes == len(patch_configuration(scene, d)) and m.sdo_aborts == 0 and m.sdo_timeouts == 0
+        sdo = rig.node(d.node_id, d.channel).local.sdo
+        held = {(obj, sub): (sdo[obj] if is_variable(sdo.od[obj]) else sdo[obj][sub]).raw for obj, sub in got}
     assert_same(held, got)
 
 

@@ -22,6 +22,7 @@ def test_the_exact_glrt_law_gives_the_monte_carlo_quantile(n, d, alpha):
 
 
 # ---------------------------------------------------------------------------- end to end
+import contextlib  # noqa: E402
 import dataclasses  # noqa: E402
 import uuid  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -40,6 +41,26 @@ def small_skin(name="skin4096", channels=2):
     sc = load_scene(ROOT / "scenes" / f"{name}.toml")
     taxels = tuple(t for t in sc.taxels if t.channel < channels)
     return dataclasses.replace(sc, taxels=taxels, bus=dataclasses.replace(sc.bus, channels=sc.bus.channels[:channels]))
+
+
+@contextlib.contextmanager
+def booted_by_the_centre(scene):
+    """The scene's twins and a centre on fresh virtual buses, booted (every node configured
+    over SDO, none missing): yields (service, rig), stops both after."""
+    from fusion_center.service import FusionService
+    from node_sim.rig import Rig
+
+    tag = uuid.uuid4().hex[:8]
+    channels = [f"boot-{tag}-{c}" for c in scene.bus.channels]
+    svc = FusionService(scene, interface="virtual", channels=channels, truth=False)
+    rig = Rig(scene, interface="virtual", channel=channels)
+    with svc:
+        rig.start()
+        try:
+            assert svc.boot(5.0) == []
+            yield svc, rig
+        finally:
+            rig.stop()
 
 
 def check_records(scene, records):
@@ -97,37 +118,26 @@ def test_demo_of_patch_nodes_decides_every_cycle_from_its_own_decisions_and_repl
 
 
 def test_the_master_configures_the_patch_twins_as_their_tpdos_describe():
-    from fusion_center.service import FusionService
     from fusion_center.service.master import patch_configuration
-    from node_sim.rig import Rig
 
     scene = small_skin("skin4096_raw", channels=1)
     touched = scene.taxels[int(np.argmax(physics.signal_batch(scene, np.arange(scene.cycles)).sum(axis=0)))]
     scene = dataclasses.replace(scene, taxels=tuple(t for t in scene.taxels if t.node_id == touched.node_id))
-    tag = uuid.uuid4().hex[:8]
-    channels = [f"pc-{tag}-{c}" for c in scene.bus.channels]
-    svc = FusionService(scene, interface="virtual", channels=channels, truth=False)
-    rig = Rig(scene, interface="virtual", channel=channels)
-    with svc:
-        rig.start()
-        try:
-            assert svc.boot(5.0) == []
-            m = svc.master
-            writes = [w for d in devices(scene) for w in patch_configuration(scene, d)]
-            assert m.sdo_writes == len(writes) and m.sdo_aborts == 0 and m.sdo_timeouts == 0
-            for d in devices(scene):
-                od = rig.node(d.node_id, d.channel).local.sdo
-                for t in d.tpdos:  # what the twin holds: the last value written
-                    assert od[0x1800 + t.number][1].raw == 0x4000_0000 | t.cob_id
-                    assert od[0x1800 + t.number][2].raw == scene.bus.transmission_type
-                    n = od[0x1A00 + t.number][0].raw
-                    entries = [od[0x1A00 + t.number][k].raw for k in range(1, n + 1)]
-                    assert entries[0] == 0x2021_0008 and len(entries) == 1 + t.count
-                    assert entries[1] == 0x2030_0008 | (t.first + 1) << 8  # INTEGER8 readings
-                assert od[0x1019].raw == scene.bus.sync_counter and od[0x1017].raw == scene.bus.heartbeat_producer_ms
-                assert od[0x2032].raw == pytest.approx(scene.bus.raw_lsb_mv)
-                for k, i in enumerate(d.taxels[:5]):  # the detector arrays, per taxel
-                    assert od[0x2010][k + 1].raw == pytest.approx(scene.taxels[i].zeta_mv)
-                    assert od[0x2011][k + 1].raw == pytest.approx(scene.taxels[i].noise_mv)
-        finally:
-            rig.stop()
+    with booted_by_the_centre(scene) as (svc, rig):
+        m = svc.master
+        writes = [w for d in devices(scene) for w in patch_configuration(scene, d)]
+        assert m.sdo_writes == len(writes) and m.sdo_aborts == 0 and m.sdo_timeouts == 0
+        for d in devices(scene):
+            od = rig.node(d.node_id, d.channel).local.sdo
+            for t in d.tpdos:  # what the twin holds: the last value written
+                assert od[0x1800 + t.number][1].raw == 0x4000_0000 | t.cob_id
+                assert od[0x1800 + t.number][2].raw == scene.bus.transmission_type
+                n = od[0x1A00 + t.number][0].raw
+                entries = [od[0x1A00 + t.number][k].raw for k in range(1, n + 1)]
+                assert entries[0] == 0x2021_0008 and len(entries) == 1 + t.count
+                assert entries[1] == 0x2030_0008 | (t.first + 1) << 8  # INTEGER8 readings
+            assert od[0x1019].raw == scene.bus.sync_counter and od[0x1017].raw == scene.bus.heartbeat_producer_ms
+            assert od[0x2032].raw == pytest.approx(scene.bus.raw_lsb_mv)
+            for k, i in enumerate(d.taxels[:5]):  # the detector arrays, per taxel
+                assert od[0x2010][k + 1].raw == pytest.approx(scene.taxels[i].zeta_mv)
+                assert od[0x2011][k + 1].raw == pytest.approx(scene.taxels[i].noise_mv)
