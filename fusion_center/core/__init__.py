@@ -18,8 +18,10 @@ Modules (one job each):
 * :mod:`.exact_rates` - exact system error rates of every rule (preferential DP, LLR/N-P by kinds),
   gathered from :mod:`.preferential_rates` (the band decision's rates, eq 7 / eq 20),
   :mod:`.chain_dp` (the DP over the chain), :mod:`.tilted_dp` (its exponentially tilted form:
-  rates down to any depth), :mod:`.kind_laws` (eqs 31-32 on kinds, exact ROC) and
-  :mod:`.rate_sampling` (Monte Carlo / importance-sampling fallbacks)
+  rates down to any depth; its bridge trimming :mod:`.tilted_bridge`), :mod:`.counts_dp` (the
+  {0,1} counts DPs), :mod:`.dp_scaling` (the scaled probabilities the DPs share),
+  :mod:`.kind_laws` (eqs 31-32 on kinds, exact ROC) and :mod:`.rate_sampling` (Monte Carlo /
+  importance-sampling fallbacks)
 * :mod:`.centralised` - the raw-data (centralised) tests
 * :mod:`.montecarlo` - vectorised Monte Carlo of every rule, exact count-rule rates
 * :mod:`.forces`, :mod:`.units` - forces (eqs 23-30, 36)
@@ -43,7 +45,7 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(
     submodules=["encoding", "rules", "curves", "thresholds", "certify", "baselines", "poisson_binomial",
                 "exact_rates", "centralised", "montecarlo", "forces", "units", "geometry", "contact", "slip",
                 "bus_timing", "layouts", "mean_deficit", "preferential_band", "preferential_rates", "chain_dp",
-                "tilted_dp", "kind_laws", "rate_sampling"],
+                "tilted_dp", "tilted_bridge", "counts_dp", "dp_scaling", "kind_laws", "rate_sampling"],
     submod_attrs={
         "encoding": ["local_decision", "present_count", "to_pm1", "to_01"],
         "rules": ["additive", "multiplicative", "preferential", "preferential_sister", "k_of_n", "g_of_n"],

@@ -4,7 +4,9 @@ taxels that come in kinds, and their Monte Carlo / importance-sampling fallbacks
 
 This module gathers the public names of the modules that do the work (one job each):
 
-* :mod:`.chain_dp` - the DP over the chain: U_G's law (eq 7) for independent taxels;
+* :mod:`.chain_dp` - the DP over the chain: U_G's law (eq 7) for independent taxels (its
+  tilted form :mod:`.tilted_dp` with :mod:`.tilted_bridge`, the {0,1} counts DPs
+  :mod:`.counts_dp`, the scaling they share :mod:`.dp_scaling`);
 * :mod:`.preferential_rates` - the band decision's rates P(H1 decided), P(H0 decided),
   P(undecided) under H0 and H1 (:func:`preferential_error_rates`) and U_G's law
   (:func:`preferential_law`);

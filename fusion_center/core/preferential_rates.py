@@ -2,7 +2,7 @@
 decided), P(H0 decided), P(undecided) under H1 and H0 for independent taxels with any per-taxel
 Pd_i / Pf_i, and U_G's law.
 
-Which DP (:mod:`.chain_dp`, :mod:`.tilted_dp`):
+Which DP (:mod:`.chain_dp`, :mod:`.tilted_dp`, :mod:`.counts_dp`):
 
 * U_G on a lattice (``_lattice``: {-1,+1} with p, q > 0 -- "chain"; one zero weight --
   "lattice"; integer p, q on either tuple -- "integer"): the lattice DP over the chain, every
@@ -29,21 +29,22 @@ import numpy as np
 
 from taxel_net.errors import ParameterError
 
-from .chain_dp import (FLOOR, SCALE_BITS, _float_value, _label_base, _lattice, _lattice_law, _log_probability,
-                       _LOG_FLOOR, _rates_counts, _rates_two_counts, _scaled_logs, _two_count_form)
+from .chain_dp import _float_value, _label_base, _lattice, _lattice_law
+from .counts_dp import _rates_counts, _rates_two_counts, _two_count_form
+from .dp_scaling import _LOG_FLOOR, FLOOR, SCALE_BITS, _log_probability, _scaled_logs
 from .rate_sampling import monte_carlo_band_rates, wilson
 from .tilted_dp import lattice_band_logs
 
 SPARSE_MAX_TAXELS = 200
-"""{0,1} with a non-integer weight: up to this many taxels the counts DP (chain_dp._rates_counts)
+"""{0,1} with a non-integer weight: up to this many taxels the counts DP (counts_dp._rates_counts)
 stays within its budget for any per-taxel probabilities (200 taxels at pi = 0.5: ~3.5 s), so the
 rates are exact; beyond, exact while the budget holds (the law's box stays small), otherwise a
 Monte Carlo estimate (method "monte-carlo"). The name is kept from the sparse DP it replaced."""
 COUNTS_MAX_TAXELS = SPARSE_MAX_TAXELS
 TWO_COUNTS_MAX_TAXELS = 1000
 """{0,1} where U_G needs two integer coordinates only (a zero weight, p or q an integer, p + q an
-integer: chain_dp._two_count_form): the two-count DP (chain_dp._rates_two_counts) up to this
-many taxels while its budget (chain_dp.TWO_COUNTS_WORK_MAX, ~1 s) holds -- for any
+integer: counts_dp._two_count_form): the two-count DP (counts_dp._rates_two_counts) up to this
+many taxels while its budget (counts_dp.TWO_COUNTS_WORK_MAX, ~1 s) holds -- for any
 probabilities to ~300 taxels with p or q an integer, ~500 with p + q an integer or a zero
 weight; beyond, Monte Carlo (the three-count DP would take minutes there)."""
 
