@@ -113,7 +113,12 @@ class Device:
     @property
     def label(self) -> str:
         """As the centre's records name nodes: ``"12"`` on channel 0, ``"1:12"`` elsewhere."""
-        return str(self.node_id) if self.channel == 0 else f"{self.channel}:{self.node_id}"
+        return str(node_label(self.channel, self.node_id))
+
+
+def node_label(channel: int, node_id: int) -> int | str:
+    """How records name a node: its node-ID (an int) on channel 0, ``"C:ID"`` on channel C."""
+    return node_id if channel == 0 else f"{channel}:{node_id}"
 
 
 def fd_length(n: int) -> int:

@@ -17,7 +17,7 @@ import numpy as np
 
 from taxel_net import gcfreeze
 from taxel_net.errors import UsageError
-from taxel_net.patches import devices as scene_devices
+from taxel_net.patches import devices as scene_devices, node_label
 from taxel_net.scene import Scene
 from .assembler_parts import (AUTHKEY_ENV, LOG_INTERVAL_S, NMT_RESETS, PROTOCOL, CyclePart, RateLimitedLog,
                               authkey_for, group_layout, scene_fingerprint, shutdown_connection,
@@ -43,8 +43,7 @@ class GroupAssembler:
         self.scene = scene
         self.layout = group_layout(scene, channels)
         self.assembler = CycleAssembler(self.layout.sub)
-        full_labels = {k: (d.node_id if d.channel == 0 else f"{d.channel}:{d.node_id}")
-                       for k, d in enumerate(scene_devices(scene))}
+        full_labels = {k: node_label(d.channel, d.node_id) for k, d in enumerate(scene_devices(scene))}
         self._label = {sub_label: full_labels[int(self.layout.devices[d])]
                        for d, sub_label in enumerate(self.assembler.labels)}
         self.overflow = int(scene.bus.sync_counter)

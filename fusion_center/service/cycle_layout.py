@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from taxel_net.patches import ENC_BITS, devices as scene_devices
+from taxel_net.patches import ENC_BITS, devices as scene_devices, node_label
 from taxel_net.scene import Scene
 from .decoder import SlotDecoder, build_cob_tables
 
@@ -34,9 +34,7 @@ class CycleLayout:
         self.devices = devs = scene_devices(scene)
         self.n_devices = len(devs)
         self.tables = build_cob_tables(scene, devs)
-        self.labels: list[int | str] = [
-            d.node_id if d.channel == 0 else f"{d.channel}:{d.node_id}" for d in devs
-        ]  # device labels (one-taxel scenes: the taxels' node labels)
+        self.labels = [node_label(d.channel, d.node_id) for d in devs]  # as records name the devices
         self.taxel_device = np.zeros(scene.n, dtype=np.intp)  # device index of every taxel
         for d, dev in enumerate(devs):
             self.taxel_device[list(dev.taxels)] = d

@@ -36,6 +36,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..core.encoding import local_decision
+from taxel_net.patches import node_label
 from taxel_net.scene import Scene
 from ..stages import plan_stages
 from .centralised_tests import CentralisedTests
@@ -54,10 +55,10 @@ def node_labels(scene: Scene) -> list:
     """Label of every CANopen node (``taxel_net.patches.devices`` order): its node-ID on channel
     0, ``"C:ID"`` on channel C; in a one-taxel scene the node of taxel i is node i."""
     if not scene.bus.patch_nodes:
-        return [t.node_id if t.channel == 0 else f"{t.channel}:{t.node_id}" for t in scene.taxels]
+        return [node_label(t.channel, t.node_id) for t in scene.taxels]
     from taxel_net.patches import devices
 
-    return [d.node_id if d.channel == 0 else f"{d.channel}:{d.node_id}" for d in devices(scene)]
+    return [node_label(d.channel, d.node_id) for d in devices(scene)]
 
 
 def taxel_labels(scene: Scene) -> list:
@@ -70,9 +71,8 @@ def taxel_labels(scene: Scene) -> list:
 
     labels: list = [None] * scene.n
     for d in devices(scene):
-        node = str(d.node_id) if d.channel == 0 else f"{d.channel}:{d.node_id}"
         for k, i in enumerate(d.taxels):
-            labels[i] = f"{node}/{k}"
+            labels[i] = f"{d.label}/{k}"
     return labels
 
 
