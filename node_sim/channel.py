@@ -9,7 +9,9 @@ one burst), heartbeats of other participants, LSS requests. The :class:`~node_si
 owns the channels and what they share (readings, silence faults, LSS devices).
 
 On a ``virtual`` bus the burst bypasses python-can's per-receiver deep copy
-(:func:`virtual_burst_sender`).
+(:func:`virtual_burst_sender`), on a ``udp_multicast`` bus python-can's ``Message`` and
+``msgpack`` map per frame (:func:`taxel_net.udp_wire.udp_multicast_burst_sender`: the same
+datagrams).
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ from typing import TYPE_CHECKING, Callable, Sequence
 import can
 
 from taxel_net.canmsg import TxMessage
+from taxel_net.udp_wire import udp_multicast_burst_sender
 
 from . import lss as lssx
 from . import od as odx
@@ -101,7 +104,7 @@ class Channel(can.Listener):
         self.lock = threading.RLock()
         self.send_lock = threading.Lock()
         self.scheduler = Scheduler(self.lock, name=f"node-sim-timers-{name}")
-        self._burst = virtual_burst_sender(bus)
+        self._burst = virtual_burst_sender(bus) or udp_multicast_burst_sender(bus)
         self.link = NodeLink(self.send, self.scheduler, self.send_many if self._burst is not None else None)
         self.nodes: dict[int, TaxelNode] = {}
         self.scene_index: dict[int, object] = {}  # node-ID -> taxel index in scene order (a patch
@@ -254,7 +257,7 @@ class Channel(can.Listener):
         self.cycle = cycle
 
     def send_many(self, frames: list[tuple]) -> None:
-        """A SYNC burst, in order (virtual bus: :func:`_virtual_burst_sender`)."""
+        """A SYNC burst, in order (:func:`virtual_burst_sender`, or udp_multicast's)."""
         with self.send_lock:
             try:
                 self._burst(frames)

@@ -30,13 +30,12 @@ from __future__ import annotations
 
 import logging
 import select
-import socket
-import struct
 import threading
-import time
-from typing import Callable, Iterator, Sequence
+from typing import Iterator, Sequence
 
 import can
+
+from .udp_wire import udp_multicast_drain
 
 logger = logging.getLogger("taxel_net.receiver")
 
@@ -47,85 +46,6 @@ def has_socket(bus: can.BusABC) -> bool:
         return bus.fileno() >= 0
     except (NotImplementedError, OSError, AttributeError, ValueError):
         return False
-
-
-def _matches(filters, can_id: int, extended: bool) -> bool:
-    """python-can's ``BusABC._matches_filters`` on the fields of a frame not yet a Message."""
-    for f in filters:
-        if "extended" in f and f["extended"] != extended:
-            continue
-        if (f["can_id"] ^ can_id) & f["can_mask"] == 0:
-            return True
-    return False
-
-
-def udp_multicast_drain(bus: can.BusABC) -> Callable[[], Iterator[can.Message]] | None:
-    """For a python-can 4.x ``UdpMulticastBus`` with kernel nanosecond time stamps: a function
-    yielding the frames its socket holds now, without blocking - what ``bus.recv(0)`` returns in
-    turn (the bus's filters applied, ``set_filters`` taking effect at the next call), read at
-    one system call a frame, and a frame the filters refuse dropped before a ``can.Message`` is
-    made of it. A datagram that is no python-can frame is skipped and logged (at most a line a
-    second, with the count), where ``bus.recv`` raises and so ends the reading of the bus.
-    None for any other bus (or another python-can layout): read it with ``bus.recv(0)``."""
-    multicast = getattr(bus, "_multicast", None)
-    sock = getattr(multicast, "_socket", None)
-    if (not isinstance(sock, socket.socket) or not getattr(multicast, "timestamp_nanosecond", False)
-            or not hasattr(bus, "_can_protocol") or not hasattr(bus, "_filters")):
-        return None
-    try:
-        import msgpack
-        from can.interfaces.udp_multicast.bus import SO_TIMESTAMPNS
-
-        max_buffer = int(multicast.max_buffer)
-        ancillary_size = int(multicast.received_ancillary_buffer_size)
-        stamp = struct.Struct(multicast.received_timestamp_struct)
-    except (ImportError, AttributeError, TypeError, ValueError, struct.error):
-        return None
-    fd_bus = bus._can_protocol is can.CanProtocol.CAN_FD
-    recvmsg = sock.recvmsg
-    dontwait = socket.MSG_DONTWAIT
-    unpackb = msgpack.unpackb
-    Message = can.Message
-    undecodable = [0, float("-inf")]  # datagrams skipped, time of the last log line
-
-    def drain() -> Iterator[can.Message]:
-        while True:
-            try:
-                data, ancillary, _flags, _sender = recvmsg(max_buffer, ancillary_size, dontwait)
-            except (BlockingIOError, InterruptedError):
-                return
-            except OSError as exc:
-                raise can.CanOperationError(f"failed to receive from the udp_multicast socket: {exc}") from exc
-            # as GeneralPurposeUdpMulticastBus.recv: one SO_TIMESTAMPNS control message
-            if len(ancillary) != 1 or ancillary[0][0] != socket.SOL_SOCKET or ancillary[0][1] != SO_TIMESTAMPNS:
-                raise can.CanOperationError("received control message type that was not requested")
-            seconds, nanoseconds = stamp.unpack(ancillary[0][2])
-            if nanoseconds >= 1_000_000_000:
-                raise can.CanOperationError(f"Timestamp nanoseconds field was out of range: {nanoseconds}")
-            try:  # as can.interfaces.udp_multicast.utils.unpack_message(data, replace=..., check=True)
-                fields = unpackb(data, raw=False)
-                filters = bus._filters
-                if filters is not None and not _matches(filters, fields.get("arbitration_id", 0),
-                                                        fields.get("is_extended_id", True)):
-                    continue
-                fields["timestamp"] = seconds + nanoseconds * 1.0e-9
-                msg = Message(check=True, **fields)
-            except Exception as exc:  # noqa: BLE001 - not a python-can frame: counted, skipped
-                # (UdpMulticastBus.recv raises here, and a raising bus is no longer read: one stray
-                # datagram on the group would deafen the receiver for good)
-                undecodable[0] += 1
-                now = time.monotonic()
-                if now - undecodable[1] >= 1.0:
-                    undecodable[1] = now
-                    logger.warning("udp_multicast bus %s: %d datagram(s) that are no python-can frame skipped "
-                                   "(last: %d bytes, %s: %s)", bus.channel_info, undecodable[0], len(data),
-                                   type(exc).__name__, exc)
-                continue
-            if msg.is_fd and not fd_bus:  # as UdpMulticastBus._recv_internal: dropped
-                continue
-            yield msg
-
-    return drain
 
 
 def _recv_all(bus: can.BusABC) -> Iterator[can.Message]:

@@ -120,7 +120,7 @@ def test_udp_multicast_drain_reads_what_recv_would_and_no_more():
     sys.path.insert(0, str(ROOT / "tests"))
     from test_service_multiprocess import multicast_port
 
-    from taxel_net.receiver import udp_multicast_drain
+    from taxel_net.udp_wire import udp_multicast_drain
 
     port = multicast_port()
 
