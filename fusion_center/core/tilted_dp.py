@@ -286,14 +286,15 @@ def lattice_law_rows(pi: np.ndarray, lat: _Lattice, theta: float = 0.0, trim: fl
     n_labels = len(lat.start_labels)
     # the window can only move by smin / smax per step: the buffer spans the reachable range
     size = max(st) - min(st) + (n - 2) * (smax - smin) + 1 + 2 * pad
-    buffers = (np.zeros((2, 2, n_labels, size)), np.zeros((2, 2, n_labels, size)))
+    # labels innermost: a state's window (columns x labels) is one contiguous run of memory
+    buffers = (np.zeros((2, 2, size, n_labels)), np.zeros((2, 2, size, n_labels)))
     x0 = buffers[0]
     lo, hi = size, 0
     for a in (0, 1):
         for b in (0, 1):
             steps, label = lat.start[a][b]
             j = steps - xmin + pad
-            x0[a, b, label, j] += math.ldexp((pi[0] if a else 1.0 - pi[0]) * (pi[1] if b else 1.0 - pi[1]), SCALE_BITS)
+            x0[a, b, j, label] += math.ldexp((pi[0] if a else 1.0 - pi[0]) * (pi[1] if b else 1.0 - pi[1]), SCALE_BITS)
             lo, hi = min(lo, j), max(hi, j + 1)
     exponent = SCALE_BITS
     log_parts = []  # log_scale = fsum(log_parts) - exponent ln 2
@@ -365,9 +366,9 @@ def lattice_law_rows(pi: np.ndarray, lat: _Lattice, theta: float = 0.0, trim: fl
         views = []
         for par in (0, 1):
             source, dest = buffers[par], buffers[1 - par]
-            adds = [(source[0, b, :, lo - s0:hi - s0], source[1, b, :, lo - s1:hi - s1], dest[b, c, :, lo:hi], r)
+            adds = [(source[0, b, lo - s0:hi - s0], source[1, b, lo - s1:hi - s1], dest[b, c, lo:hi], r)
                     for (b, c, s0, s1), r in zip(groups, ratios)]
-            mults = [(dest[b, c, :, lo:hi] if b is not None else dest[:, c, :, lo:hi], f)
+            mults = [(dest[b, c, lo:hi] if b is not None else dest[:, c, lo:hi], f)
                      for (b, c), f in factors.items()]
             views.append((adds, mults))
         for i in range(start, start + steps):
@@ -383,8 +384,8 @@ def lattice_law_rows(pi: np.ndarray, lat: _Lattice, theta: float = 0.0, trim: fl
                 if fi != 1.0:
                     out *= fi
             parity = 1 - parity
-        live = buffers[parity][:, :, :, lo:hi]
-        cols = live.sum(axis=(0, 1, 2))
+        live = buffers[parity][:, :, lo:hi]
+        cols = live.sum(axis=(0, 1, 3))
         peak = float(cols.max())
         if peak == 0.0:
             break
@@ -403,8 +404,8 @@ def lattice_law_rows(pi: np.ndarray, lat: _Lattice, theta: float = 0.0, trim: fl
                                       theta if tilted else 0.0, errs)
                 if f0 or l0 < hi - lo:
                     for arr in buffers:
-                        arr[:, :, :, lo:lo + f0] = 0.0
-                        arr[:, :, :, lo + l0:hi] = 0.0
+                        arr[:, :, lo:lo + f0] = 0.0
+                        arr[:, :, lo + l0:hi] = 0.0
                     lo, hi = lo + f0, lo + l0
                     log_cols = log_cols[f0:l0]
         else:
@@ -420,8 +421,8 @@ def lattice_law_rows(pi: np.ndarray, lat: _Lattice, theta: float = 0.0, trim: fl
                 w = np.exp(log_t - top)
                 eps += float(w[:f0].sum() + w[l0:].sum()) / float(w.sum()) * s_i
                 for arr in buffers:
-                    arr[:, :, :, lo:lo + f0] = 0.0
-                    arr[:, :, :, lo + l0:hi] = 0.0
+                    arr[:, :, lo:lo + f0] = 0.0
+                    arr[:, :, lo + l0:hi] = 0.0
                 lo, hi = lo + f0, lo + l0
                 log_cols = log_cols[f0:l0]
         if not tilted and theta != 0.0 and start + steps < n:
@@ -431,9 +432,9 @@ def lattice_law_rows(pi: np.ndarray, lat: _Lattice, theta: float = 0.0, trim: fl
                 # tilted peak, so P = stored_t e^(scale + theta x_c - theta x)
                 j = np.arange(lo, hi)
                 x_c = x_of(lo + int(np.argmax(log_cols + theta * np.arange(hi - lo))))
-                live = buffers[parity][:, :, :, lo:hi]
+                live = buffers[parity][:, :, lo:hi]
                 with np.errstate(divide="ignore"):
-                    logs = np.log(live) + theta * (x_of(j) - x_c)  # in logs: e^(theta dx) alone may overflow
+                    logs = np.log(live) + theta * (x_of(j) - x_c)[:, None]  # in logs: e^(theta dx) alone may overflow
                 m = float(logs.max()) - SCALE_BITS * _LN2
                 np.exp(logs - m, out=live)
                 log_parts.append(math.fsum(log_wmax[wmax_from:start + steps].tolist()))
@@ -449,7 +450,7 @@ def lattice_law_rows(pi: np.ndarray, lat: _Lattice, theta: float = 0.0, trim: fl
     for a in (0, 1):
         for b in (0, 1):
             for ls in range(n_labels):
-                row = x_law[a, b, ls, lo:hi]
+                row = x_law[a, b, lo:hi, ls]
                 if row.any():
                     rows.append((a, b, ls, x_of(lo), row.copy()))
     return rows, math.fsum(log_parts) - exponent * _LN2, (theta if tilted else 0.0), (eps if bridge is None else errs)
