@@ -65,6 +65,7 @@ import numpy as np
 from .chain_dp import _first_at_least, _label_base, _Lattice, _x_range
 from .dp_scaling import _LOG_FLOOR, SCALE_BITS
 from .tilted_bridge import BLOCK, _block_products, _bridge_setup, _bridge_trim, _end_vectors
+from .tilted_steps import StepRunner
 
 # the bridge trimming and the block products / Chernoff suffix bounds moved to tilted_bridge;
 # kept importable from here
@@ -286,64 +287,28 @@ def lattice_law_rows(pi: np.ndarray, lat: _Lattice, theta: float = 0.0, trim: fl
     n_labels = len(lat.start_labels)
     # the window can only move by smin / smax per step: the buffer spans the reachable range
     size = max(st) - min(st) + (n - 2) * (smax - smin) + 1 + 2 * pad
-    # labels innermost: a state's window (columns x labels) is one contiguous run of memory
-    buffers = (np.zeros((2, 2, size, n_labels)), np.zeros((2, 2, size, n_labels)))
-    x0 = buffers[0]
+    # the state rows, labels innermost (a state's window is one contiguous run of memory), and
+    # the steps as in-place operations on them (tilted_steps)
+    runner = StepRunner(lat, pi, size, n_labels)
     lo, hi = size, 0
     for a in (0, 1):
         for b in (0, 1):
             steps, label = lat.start[a][b]
             j = steps - xmin + pad
-            x0[a, b, j, label] += math.ldexp((pi[0] if a else 1.0 - pi[0]) * (pi[1] if b else 1.0 - pi[1]), SCALE_BITS)
+            runner.put(a, b, j, label, math.ldexp((pi[0] if a else 1.0 - pi[0]) * (pi[1] if b else 1.0 - pi[1]),
+                                                  SCALE_BITS))
             lo, hi = min(lo, j), max(hi, j + 1)
     exponent = SCALE_BITS
     log_parts = []  # log_scale = fsum(log_parts) - exponent ln 2
     eps = 0.0
-    groups = []
-    for c in (0, 1):
-        if shift[0, 0, c] == shift[0, 1, c] and shift[1, 0, c] == shift[1, 1, c]:
-            groups.append((slice(None), c, int(shift[0, 0, c]), int(shift[1, 0, c])))
-        else:
-            groups.extend((b, c, int(shift[0, b, c]), int(shift[1, b, c])) for b in (0, 1))
-    with np.errstate(divide="ignore"):
-        logp = (np.log1p(-pi), np.log(pi))
-    s0_of = {(b, c): int(shift[0, b, c]) for b in (0, 1) for c in (0, 1)}
-
-    def arithmetic(th: float):
-        """Per step i: the branch factors P_i(c) e^(th s0) / wmax_i (keyed (b or None, c)), the
-        group ratios e^(th (s1 - s0)) and ln wmax_i (wmax_i: the largest weight of a transition,
-        or the largest branch factor where that is within e of it)."""
-        smax_c = [max(int(shift[a, b, c]) for a in (0, 1) for b in (0, 1)) for c in (0, 1)]
-        smin_c = [min(int(shift[a, b, c]) for a in (0, 1) for b in (0, 1)) for c in (0, 1)]
-        keyed = []
-        for c in (0, 1):
-            s0s = {s0_of[(0, c)], s0_of[(1, c)]}
-            keyed += [(None, c, s) for s in s0s] if len(s0s) == 1 else [(b, c, s0_of[(b, c)]) for b in (0, 1)]
-        if th == 0.0:
-            log_wmax = np.maximum(logp[0], logp[1])
-        else:
-            log_wmax = np.maximum(*[logp[c] + th * (smax_c[c] if th >= 0 else smin_c[c]) for c in (0, 1)])
-            # divided by the largest branch factor instead where it is within e of wmax: that
-            # branch is then not multiplied (factor exactly 1), and a step still grows the
-            # mass by at most 2 e (a block by e^54, within the headroom above 2^SCALE_BITS)
-            cand = np.max([logp[c] + th * s0 for _, c, s0 in keyed], axis=0)
-            log_wmax = np.where(cand >= log_wmax - 1.0, cand, log_wmax)
-        # per step, ln of the least total weight a state passes on (<= 0 only when tilted): a
-        # block ends before the mass can shrink by e^SHRINK_MAX (it stays far above subnormals)
-        least = np.min([np.logaddexp(logp[0] + th * int(shift[a, b, 0]), logp[1] + th * int(shift[a, b, 1]))
-                        for a in (0, 1) for b in (0, 1)], axis=0) - log_wmax
-        factors = {(b, c): np.exp(logp[c] + th * s0 - log_wmax).tolist() for b, c, s0 in keyed}
-        return factors, [math.exp(th * (s1 - s0)) for _, _, s0, s1 in groups], log_wmax, least.tolist()
-
     tilted = False
-    factors, ratios, log_wmax, least = arithmetic(0.0)
+    log_wmax, least = runner.arithmetic(0.0)
     wmax_from = 2  # log_wmax[wmax_from:] not yet in log_parts
     if bridge is not None:
         cum_wmax = np.concatenate([[0.0], np.cumsum(log_wmax)])  # for the trims' absolute logs
         errs = [-math.inf] * len(regions)
         bounds = bridge_state["bounds"]
         next_b = 1
-    parity = 0
     x_of = lambda j: j - pad + xmin  # noqa: E731  the x of buffer column j
     end = 2
     while end < n:
@@ -363,35 +328,14 @@ def lattice_law_rows(pi: np.ndarray, lat: _Lattice, theta: float = 0.0, trim: fl
                     break
         steps = end - start
         lo, hi = lo + smin * steps, hi + smax * steps
-        views = []
-        for par in (0, 1):
-            source, dest = buffers[par], buffers[1 - par]
-            adds = [(source[0, b, lo - s0:hi - s0], source[1, b, lo - s1:hi - s1], dest[b, c, lo:hi], r)
-                    for (b, c, s0, s1), r in zip(groups, ratios)]
-            mults = [(dest[b, c, lo:hi] if b is not None else dest[:, c, lo:hi], f)
-                     for (b, c), f in factors.items()]
-            views.append((adds, mults))
-        for i in range(start, start + steps):
-            adds, mults = views[parity]
-            for in0, in1, out, r in adds:
-                if r == 1.0:
-                    np.add(in0, in1, out=out)
-                else:
-                    np.multiply(in1, r, out=out)
-                    out += in0
-            for out, f in mults:
-                fi = f[i]
-                if fi != 1.0:
-                    out *= fi
-            parity = 1 - parity
-        live = buffers[parity][:, :, lo:hi]
-        cols = live.sum(axis=(0, 1, 3))
+        runner.run(start, end, lo, hi)
+        cols = runner.window(lo, hi).sum(axis=(0, 2))
         peak = float(cols.max())
         if peak == 0.0:
             break
         k = math.frexp(peak)[1] - SCALE_BITS - 1
         if k:
-            live *= math.ldexp(1.0, -k)
+            runner.scale(lo, hi, math.ldexp(1.0, -k))
             cols *= math.ldexp(1.0, -k)
             exponent -= k
         with np.errstate(divide="ignore"):
@@ -403,9 +347,8 @@ def lattice_law_rows(pi: np.ndarray, lat: _Lattice, theta: float = 0.0, trim: fl
                 f0, l0 = _bridge_trim(bridge_state, next_b, log_cols, log_abs, x_of(lo),
                                       theta if tilted else 0.0, errs)
                 if f0 or l0 < hi - lo:
-                    for arr in buffers:
-                        arr[:, :, lo:lo + f0] = 0.0
-                        arr[:, :, lo + l0:hi] = 0.0
+                    runner.zero(lo, lo + f0)
+                    runner.zero(lo + l0, hi)
                     lo, hi = lo + f0, lo + l0
                     log_cols = log_cols[f0:l0]
         else:
@@ -420,9 +363,8 @@ def lattice_law_rows(pi: np.ndarray, lat: _Lattice, theta: float = 0.0, trim: fl
             if f0 or l0 < hi - lo:
                 w = np.exp(log_t - top)
                 eps += float(w[:f0].sum() + w[l0:].sum()) / float(w.sum()) * s_i
-                for arr in buffers:
-                    arr[:, :, lo:lo + f0] = 0.0
-                    arr[:, :, lo + l0:hi] = 0.0
+                runner.zero(lo, lo + f0)
+                runner.zero(lo + l0, hi)
                 lo, hi = lo + f0, lo + l0
                 log_cols = log_cols[f0:l0]
         if not tilted and theta != 0.0 and start + steps < n:
@@ -432,25 +374,25 @@ def lattice_law_rows(pi: np.ndarray, lat: _Lattice, theta: float = 0.0, trim: fl
                 # tilted peak, so P = stored_t e^(scale + theta x_c - theta x)
                 j = np.arange(lo, hi)
                 x_c = x_of(lo + int(np.argmax(log_cols + theta * np.arange(hi - lo))))
-                live = buffers[parity][:, :, lo:hi]
-                with np.errstate(divide="ignore"):
-                    logs = np.log(live) + theta * (x_of(j) - x_c)[:, None]  # in logs: e^(theta dx) alone may overflow
+                with np.errstate(divide="ignore"):  # in logs: e^(theta dx) alone may overflow
+                    logs = np.log(runner.window(lo, hi)) + theta * (x_of(j) - x_c)[None, :, None]
                 m = float(logs.max()) - SCALE_BITS * _LN2
-                np.exp(logs - m, out=live)
+                runner.set_window(lo, hi, np.exp(logs - m))
                 log_parts.append(math.fsum(log_wmax[wmax_from:start + steps].tolist()))
                 log_parts.append(theta * x_c + m)
-                factors, ratios, log_wmax, least = arithmetic(theta)
+                log_wmax, least = runner.arithmetic(theta)
                 wmax_from = start + steps
                 tilted = True
                 if bridge is not None:
                     cum_wmax = np.concatenate([[0.0], np.cumsum(log_wmax)])
     log_parts.append(math.fsum(log_wmax[wmax_from:].tolist()))
-    x_law = buffers[parity]
     rows = []
     for a in (0, 1):
         for b in (0, 1):
             for ls in range(n_labels):
-                row = x_law[a, b, lo:hi, ls]
+                if (a, b) not in runner.keys:  # stopped early (no mass left): nothing to return
+                    continue
+                row = runner.row(a, b, ls, lo, hi)
                 if row.any():
                     rows.append((a, b, ls, x_of(lo), row.copy()))
     return rows, math.fsum(log_parts) - exponent * _LN2, (theta if tilted else 0.0), (eps if bridge is None else errs)
