@@ -329,7 +329,7 @@ def lattice_law_rows(pi: np.ndarray, lat: _Lattice, theta: float = 0.0, trim: fl
         steps = end - start
         lo, hi = lo + smin * steps, hi + smax * steps
         runner.run(start, end, lo, hi)
-        cols = runner.window(lo, hi).sum(axis=(0, 2))
+        cols = runner.column_sums(lo, hi)
         peak = float(cols.max())
         if peak == 0.0:
             break

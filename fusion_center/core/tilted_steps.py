@@ -246,6 +246,21 @@ class StepRunner:
     def slots(self) -> list:
         return sorted(self.keys.values())
 
+    def column_sums(self, lo: int, hi: int) -> np.ndarray:
+        """Per column of [lo, hi): the sum over the state rows and labels (a new array)."""
+        L = self.L
+        slots = self.slots()
+        acc = self.store[slots[0], lo * L:hi * L].copy()
+        for j in slots[1:]:
+            acc += self.store[j, lo * L:hi * L]
+        if L == 1:
+            return acc
+        acc = acc.reshape(hi - lo, L)
+        cols = acc[:, 0].copy()
+        for ls in range(1, L):
+            cols += acc[:, ls]
+        return cols
+
     def window(self, lo: int, hi: int) -> np.ndarray:
         """The state rows over [lo, hi) as a (rows, columns, labels) copy."""
         return self.store[self.slots(), lo * self.L:hi * self.L].reshape(-1, hi - lo, self.L)
