@@ -185,10 +185,11 @@ def _tilt_search(pi: np.ndarray, lat: _Lattice, target: float, mean: float, var:
     from 0, var = Lambda''(0)), else 1. Returns at once where the Chernoff bound
     Lambda(theta) - theta t of P(x beyond t), t = ``stop_target`` (default ``target``), falls
     below ``stop_below`` (enough to skip a rate). Third value: Lambda''(theta), the tilted
-    variance (central difference)."""
+    variance (central difference); fourth: Lambda'(theta), the tilted mean."""
     stop_target = target if stop_target is None else stop_target
     sign = 1.0 if target > mean else -1.0
     lo, hi = 0.0, theta_max(lat)
+    cap = hi
     if start is not None and start * sign > 0:
         theta = min(hi, abs(start))
     else:
@@ -201,7 +202,7 @@ def _tilt_search(pi: np.ndarray, lat: _Lattice, target: float, mean: float, var:
         d1 = sign * (lam[2] - lam[0]) / (2 * h)  # Lambda'(sign theta)
         d2 = max((lam[2] - 2 * lam[1] + lam[0]) / (h * h), 1e-12)
         if abs(d1 - target) <= max(1.0, 2.0 * math.sqrt(d2)) or lam[1] - sign * theta * stop_target < stop_below:
-            return sign * theta, float(lam[1]), float(d2)
+            return sign * theta, float(lam[1]), float(d2), float(d1)
         if sign * (d1 - target) < 0:
             lo = theta
             if grow and 2 * theta < hi:
@@ -211,16 +212,17 @@ def _tilt_search(pi: np.ndarray, lat: _Lattice, target: float, mean: float, var:
             hi = theta
         grow = False
         step = theta - sign * (d1 - target) / d2
-        if step >= hi and not at_max:
-            theta, at_max = hi, True  # out of reach? try the cap once
+        if step >= hi and not at_max and hi == cap:
+            theta, at_max = hi, True  # out of reach? try the cap once (not a point already evaluated)
             continue
         if at_max and theta == hi and sign * (d1 - target) < 0:
-            return sign * theta, float(lam[1]), float(d2)
+            return sign * theta, float(lam[1]), float(d2), float(d1)
         theta = step if lo < step < hi else 0.5 * (lo + hi)
         if hi - lo < 1e-9 * max(1.0, hi):
             break
     lam = log_partition(pi, lat, sign * np.array([theta - 1e-3, theta, theta + 1e-3]))
-    return sign * theta, float(lam[1]), max(float((lam[2] - 2 * lam[1] + lam[0]) / 1e-6), 1e-12)
+    return (sign * theta, float(lam[1]), max(float((lam[2] - 2 * lam[1] + lam[0]) / 1e-6), 1e-12),
+            float(sign * (lam[2] - lam[0]) / 2e-3))
 
 
 # ------------------------------------------------------------------ the DP
@@ -467,17 +469,18 @@ def _region_logs(rows, lat: _Lattice, edges: dict, theta: float, theta_out: floa
     return out
 
 
-def _shared_run_may_hold(pi: np.ndarray, lat: _Lattice, theta: float, edges) -> bool:
+def _shared_run_may_hold(pi: np.ndarray, lat: _Lattice, theta: float, edges, moments=None) -> bool:
     """Whether a run tilted by ``theta`` can give every region whose near edge is in ``edges``
     an error bound below 10^BOUND_OK: False where the Gaussian approximation of the tilted law
     (mean and variance Lambda'(theta), Lambda''(theta)) puts an edge so far out that the predicted
     bound, eps ~ n / BLOCK * TRIM_REL over the tilted mass near the edge, misses 10^BOUND_OK by
     more than a factor 10^3. A prediction only (it saves a run that would fail its check);
     the result does not depend on it: every rate is checked against its proven bound."""
-    h = 1e-3
-    lam = log_partition(pi, lat, [theta - h, theta, theta + h])
-    mean = float((lam[2] - lam[0]) / (2 * h))
-    var = max(float((lam[2] - 2 * lam[1] + lam[0]) / (h * h)), 1e-12)
+    if moments is None:
+        h = 1e-3
+        lam = log_partition(pi, lat, [theta - h, theta, theta + h])
+        moments = float((lam[2] - lam[0]) / (2 * h)), max(float((lam[2] - 2 * lam[1] + lam[0]) / (h * h)), 1e-12)
+    mean, var = moments
     log_eps = math.log(max(pi.size / BLOCK, 1.0) * TRIM_REL)
     for edge in edges:
         z = (edge - mean) / math.sqrt(var)
@@ -557,7 +560,7 @@ def lattice_band_logs(pi: np.ndarray, lat: _Lattice, low: float, high: float, de
                               stop_below=stop, stop_target=near)  # near below FLOOR: the far one too
     tilts = {}
     for r in far:
-        theta, lam_t, var_t = middle if shared else _tilt_search(pi, lat, targets[r], mean, var, stop_below=stop)
+        theta, lam_t, var_t = (middle if shared else _tilt_search(pi, lat, targets[r], mean, var, stop_below=stop))[:3]
         chernoff = lam_t - theta * targets[r]  # P(R) <= P(x beyond its near edge) <= e^chernoff
         if not deep and chernoff < _LOG_FLOOR:
             out[r] = "skipped"
@@ -574,7 +577,7 @@ def lattice_band_logs(pi: np.ndarray, lat: _Lattice, low: float, high: float, de
                 got = run(middle[0], regions=tuple(far), sigma=sigma)[r]
                 if got[1] <= BOUND_OK:
                     out[r] = got
-        elif _shared_run_may_hold(pi, lat, middle[0], [targets[r] for r in far]):
+        elif _shared_run_may_hold(pi, lat, middle[0], [targets[r] for r in far], middle[3:1:-1]):
             for r in far:
                 if run(middle[0])[r][1] <= BOUND_OK:
                     out[r] = run(middle[0])[r]

@@ -18,10 +18,11 @@ make it cheaper than one vector addition per pair of inputs:
   the views are formed once per block and phase.
 
 The order of the new rows and their accumulators is chosen per lattice form (fewest copies), and
-every term of a row is added with a relative weight <= 1 (the heaviest term first): a step
-never multiplies a value by more than 1 before the branch factor, itself <= 1 (``wmax`` is the
-largest transition weight), so the mass grows by at most 2 per step, as in the doubles' range
-argument of :mod:`.tilted_dp`. Rounding: every operation adds positive terms or multiplies by a
+every term of a row is added with a relative weight <= 1 (the heaviest term first), then the
+row is multiplied by its branch factor, <= e: ``wmax`` is the largest transition weight, or the
+factor of the rows that are most often not multiplied where that is within e of it (as the
+previous steps did). A value grows by at most 3 e per step (three terms), < 2^100 over a block
+of 32, inside the doubles' headroom above 2^SCALE_BITS (:mod:`.tilted_dp`). Rounding: every operation adds positive terms or multiplies by a
 positive factor (relative error <= 2 ulp per step and value, as before).
 """
 
@@ -133,7 +134,20 @@ class StepRunner:
         sign = 0 if theta == 0.0 else (1 if theta > 0 else -1)
         self.plan_mid, self.plan_last = self.plans[sign]
         trans = [logp[c] + theta * int(shift[a, b, c]) for a in (0, 1) for b in (0, 1) for c in (0, 1)]
-        log_wmax = np.max(trans, axis=0)
+        top = np.max(trans, axis=0)
+        # the weights are divided by the largest transition weight, or by a row's factor within e
+        # of it where that spares more multiplications (the rows with that factor are not
+        # multiplied: a step then multiplies a value by at most 3 e, a block by < 2^100)
+        groups: dict = {}
+        for _, c, s_ref, _, _ in self.plan_mid:
+            groups[(c, s_ref)] = groups.get((c, s_ref), 0) + 1
+        log_wmax = top.copy()
+        best = np.zeros(top.shape)
+        for (c, s_ref), count in sorted(groups.items(), key=lambda kv: kv[1]):
+            lw = logp[c] + theta * s_ref
+            take = (lw >= top - 1.0) & (count > best)
+            log_wmax = np.where(take, lw, log_wmax)
+            best = np.where(take, count, best)
         least = np.min([np.logaddexp(trans[4 * a + 2 * b], trans[4 * a + 2 * b + 1]) for a in (0, 1) for b in (0, 1)],
                        axis=0) - log_wmax
 
