@@ -51,9 +51,12 @@ trimmed by the tilted law: ~4800 columns at the end under H1, ~11000 under H0 fo
 regions in one run, means over the run 2/3 of that; bridge-trimmed, the mean window is ~0.65 of
 the tilted-law one for both H0 regions in one run, ~0.5 for a run serving one region), plus
 fixed costs of ~0.05-0.1 s per hypothesis at 10^4 (the tilt searches, the backward pass, the
-trims). At 10^4 the DP's vector operations run at ~1-1.5 ns per element (the window sits in
-the L2 cache): the time is the number of element passes, 4 per state row and taxel untilted,
-~6 tilted.
+trims). At 10^4 the DP's vector operations run at ~0.5-1.5 ns per element (the window sits in
+the L2 cache): the time is the number of element passes. The steps (:mod:`.tilted_steps`)
+carry merged states where two move alike (4 rows on the chain, 3 on {0,1}, 2 with one zero
+weight), labels innermost (one contiguous run per state row), and accumulate each new row in
+place (two copies, four in-place additions and about two multiplications per taxel on the
+chain, tilted or not).
 """
 
 from __future__ import annotations
@@ -262,13 +265,13 @@ def lattice_law_rows(pi: np.ndarray, lat: _Lattice, theta: float = 0.0, trim: fl
     fraction of the tilted mass times the future spread, summed (the error bound's numerator).
 
     One step per taxel: Y[b, c] = P(c) (X[0, b] moved by s0 + X[1, b] moved by s1), s_a =
-    shift[a, b, c], one vector addition per group of (b, c) with the same shifts and one
-    multiplication for the less likely branch -- the untilted arithmetic, the cheapest. The
-    window is trimmed by the tilted columns (untilted ones times e^(theta x), formed per block);
-    once the window's untilted values would span more than the double range (far tails, large
-    |theta| W), the columns are multiplied by e^(theta (x - x_c)) and the steps carry the tilt:
-    X[1, b] times e^(theta (s1 - s0)) in the group sum, P(c) e^(theta s0) in the branch factor,
-    every step's weights divided by their largest (its log goes into log_scale).
+    shift[a, b, c], as in-place vector operations on (merged) state rows (:mod:`.tilted_steps`)
+    -- the untilted arithmetic, the cheapest. The window is trimmed by the tilted columns
+    (untilted ones times e^(theta x), formed per block); once the window's untilted values would
+    span more than the double range (far tails, large |theta| W), the columns are multiplied by
+    e^(theta (x - x_c)) and the steps carry the tilt: each term times e^(theta s) relative to its
+    row's heaviest (BLAS daxpy), P(c) e^(theta s_ref) in the branch factor, every step's
+    weights divided by (about) their largest (its log goes into log_scale).
 
     ``bridge`` = (regions, sigma): trimmed by the bridge bounds instead (:mod:`.tilted_bridge`),
     regions a list of (x_low, x_high) on the final x (None: unbounded), sigma the scale of the

@@ -114,6 +114,7 @@ class StepRunner:
         n_spares = max(sum(1 for p in plan if p[3][0] == "spare") for pair in plans.values() for plan in pair)
         n_slots = max(len(self.mid), 4) + n_spares
         self.store = np.zeros((n_slots, size * n_labels))
+        self.rows = list(self.store)  # 1-D views, one per slot (cheaper to slice)
         self.keys = {k: j for j, k in enumerate(self.mid if self.n > 2 else self.last)}
         self.spares = list(range(len(self.keys), n_slots))
         self.theta = None
@@ -155,7 +156,7 @@ class StepRunner:
             out = []
             for _, c, s_ref, _, ops in plan:
                 f = np.exp(logp[c] + theta * s_ref - log_wmax)
-                out.append(f.tolist())
+                out.append(f.tolist() if np.any(f[2:] != 1.0) else None)  # None: never multiplied
             return out
 
         self.fac_mid, self.fac_last = factors(self.plan_mid), factors(self.plan_last)
@@ -200,22 +201,22 @@ class StepRunner:
                 else:
                     w = math.exp(self.theta * d) if self.theta else 1.0
                     ops.append(("add" if w == 1.0 else "axpy", dst, keys[ik], s, w))
-            ops.append(("scale", dst, None, 0, fac))
+            if fac is not None:  # a row never multiplied: no operation
+                ops.append(("scale", dst, None, 0, fac))
         return ops
 
     # ---------------------------------------------------------------- steps
     def _views(self, ops: list, lo: int, hi: int) -> list:
-        L, store = self.L, self.store
+        L, rows = self.L, self.rows
         n = (hi - lo) * L
         out = []
         for kind, dst, src, s, w in ops:
-            dv = store[dst, lo * L:hi * L]
             if kind == "axpy":
-                out.append((3, store[dst], store[src], (n, w, (lo - s) * L, 1, lo * L, 1)))
+                out.append((3, rows[dst], rows[src], (n, w, (lo - s) * L, 1, lo * L, 1)))
             elif kind == "scale":
-                out.append((4, dv, None, w))
+                out.append((4, rows[dst][lo * L:hi * L], None, w))
             else:
-                out.append((0 if kind == "copy" else 2, dv, store[src, (lo - s) * L:(hi - s) * L], None))
+                out.append((0 if kind == "copy" else 2, rows[dst][lo * L:hi * L], rows[src][(lo - s) * L:(hi - s) * L], None))
         return out
 
     def run(self, start: int, end: int, lo: int, hi: int) -> None:
