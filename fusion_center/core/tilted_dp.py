@@ -180,7 +180,7 @@ def tilt_for_mean(pi: np.ndarray, lat: _Lattice, target: float, mean: float, var
 
 def _tilt_search(pi: np.ndarray, lat: _Lattice, target: float, mean: float, var: float | None = None,
                  start: float | None = None, stop_below: float = -math.inf,
-                 stop_target: float | None = None) -> tuple[float, float, float]:
+                 stop_target: float | None = None, memo: dict | None = None) -> tuple[float, float, float, float]:
     """(theta, Lambda(theta)) with Lambda'(theta) = target (within two tilted standard
     deviations), by Newton's method safeguarded by bisection on [0, theta_max] (or its mirror);
     Lambda' and Lambda'' by central differences. theta_max where the target is out of reach.
@@ -188,7 +188,9 @@ def _tilt_search(pi: np.ndarray, lat: _Lattice, target: float, mean: float, var:
     from 0, var = Lambda''(0)), else 1. Returns at once where the Chernoff bound
     Lambda(theta) - theta t of P(x beyond t), t = ``stop_target`` (default ``target``), falls
     below ``stop_below`` (enough to skip a rate). Third value: Lambda''(theta), the tilted
-    variance (central difference); fourth: Lambda'(theta), the tilted mean."""
+    variance (central difference); fourth: Lambda'(theta), the tilted mean. ``memo``: Lambda at
+    (theta - h, theta, theta + h) by signed theta, shared by the searches of one hypothesis."""
+    memo = {} if memo is None else memo
     stop_target = target if stop_target is None else stop_target
     sign = 1.0 if target > mean else -1.0
     lo, hi = 0.0, theta_max(lat)
@@ -201,7 +203,9 @@ def _tilt_search(pi: np.ndarray, lat: _Lattice, target: float, mean: float, var:
     at_max = False
     for _ in range(60):
         h = 1e-3
-        lam = log_partition(pi, lat, sign * np.array([theta - h, theta, theta + h]))
+        if sign * theta not in memo:
+            memo[sign * theta] = log_partition(pi, lat, sign * np.array([theta - h, theta, theta + h]))
+        lam = memo[sign * theta]
         d1 = sign * (lam[2] - lam[0]) / (2 * h)  # Lambda'(sign theta)
         d2 = max((lam[2] - 2 * lam[1] + lam[0]) / (h * h), 1e-12)
         if abs(d1 - target) <= max(1.0, 2.0 * math.sqrt(d2)) or lam[1] - sign * theta * stop_target < stop_below:
@@ -557,13 +561,14 @@ def lattice_band_logs(pi: np.ndarray, lat: _Lattice, low: float, high: float, de
     shared = len(far) == 2 and (targets[far[0]] > mean) == (targets[far[1]] > mean)
     # without deep, a search may stop once the Chernoff bound of the nearer edge is below FLOOR
     stop = -math.inf if deep else _LOG_FLOOR
+    memo: dict = {}  # Lambda around each tilt tried (the searches start from each other's results)
     if shared:
         near = min(targets[far[0]], targets[far[1]], key=lambda t: abs(t - mean))
         middle = _tilt_search(pi, lat, 0.5 * (targets[far[0]] + targets[far[1]]), mean, var,
-                              stop_below=stop, stop_target=near)  # near below FLOOR: the far one too
+                              stop_below=stop, stop_target=near, memo=memo)  # near below FLOOR: the far one too
     tilts = {}
     for r in far:
-        theta, lam_t, var_t = (middle if shared else _tilt_search(pi, lat, targets[r], mean, var, stop_below=stop))[:3]
+        theta, lam_t, var_t = (middle if shared else _tilt_search(pi, lat, targets[r], mean, var, stop_below=stop, memo=memo))[:3]
         chernoff = lam_t - theta * targets[r]  # P(R) <= P(x beyond its near edge) <= e^chernoff
         if not deep and chernoff < _LOG_FLOOR:
             out[r] = "skipped"
@@ -587,7 +592,7 @@ def lattice_band_logs(pi: np.ndarray, lat: _Lattice, low: float, high: float, de
     for r in far:
         if out[r] is None:
             theta, var_t = tilts[r] if tilts[r] is not None else \
-                _tilt_search(pi, lat, targets[r], mean, var, middle[0])[::2]
+                _tilt_search(pi, lat, targets[r], mean, var, middle[0], memo=memo)[::2]
             regions, sigma = ((r,), math.sqrt(var_t)) if bridged else ((), 1.0)
             out[r] = run(theta, regions=regions, sigma=sigma)[r]
             if out[r][1] > BOUND_OK:  # once more, trimmed 1e15 times less
