@@ -13,7 +13,8 @@ deep calls -- on a machine shared with other jobs the wall time can exceed it by
 the exact logs of the rates below 1e-300 (tilted DP, core/tilted_dp.py); the log10 columns
 are the deep ones. ``--against OTHER_TREE`` runs the same calls in another copy of this
 repository (``git archive <commit> fusion_center taxel_net | tar -x -C /tmp/before``), each tree
-in its own interpreter, alternately, and prints the CPU-time ratio this (shallow) / before:
+in its own interpreter, alternately, and prints the CPU-time ratio this / before (both shallow,
+or both deep with ``--deep deep``):
 
     .venv/bin/python bench/preferential_dp.py [--n 100,300,1000,3000,10000] [--repeats 5]
         [--deep shallow|deep|both] [--against /tmp/before]
@@ -110,7 +111,7 @@ def main(argv=None) -> int:
     results: dict[str, list] = {}
     for _ in range(args.rounds):
         for name, tree in trees.items():
-            deep = name == "this deep" or (args.deep == "deep" and name == "this")
+            deep = name == "this deep" or (args.deep == "deep" and name in ("this", "before"))
             rows = measure(tree, sizes, CASES, skip[name], args.repeats, deep)
             if name not in results:
                 results[name] = rows
