@@ -119,7 +119,8 @@ def _log_law_reference(pi, lat):
     for a in (0, 1):
         for b in (0, 1):
             steps, ls = lat.start[a][b]
-            L[a, b, ls, steps - x0] = np.logaddexp(L[a, b, ls, steps - x0], (lp[0] if a else lq[0]) + (lp[1] if b else lq[1]))
+            first_two = (lp[0] if a else lq[0]) + (lp[1] if b else lq[1])
+            L[a, b, ls, steps - x0] = np.logaddexp(L[a, b, ls, steps - x0], first_two)
     for i in range(2, n):
         new = np.full_like(L, -np.inf)
         for a in (0, 1):

@@ -568,7 +568,8 @@ def lattice_band_logs(pi: np.ndarray, lat: _Lattice, low: float, high: float, de
                               stop_below=stop, stop_target=near, memo=memo)  # near below FLOOR: the far one too
     tilts = {}
     for r in far:
-        theta, lam_t, var_t = (middle if shared else _tilt_search(pi, lat, targets[r], mean, var, stop_below=stop, memo=memo))[:3]
+        found = middle if shared else _tilt_search(pi, lat, targets[r], mean, var, stop_below=stop, memo=memo)
+        theta, lam_t, var_t = found[:3]
         chernoff = lam_t - theta * targets[r]  # P(R) <= P(x beyond its near edge) <= e^chernoff
         if not deep and chernoff < _LOG_FLOOR:
             out[r] = "skipped"

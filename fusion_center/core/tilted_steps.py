@@ -22,8 +22,9 @@ every term of a row is added with a relative weight <= 1 (the heaviest term firs
 row is multiplied by its branch factor, <= e: ``wmax`` is the largest transition weight, or the
 factor of the rows that are most often not multiplied where that is within e of it (as the
 previous steps did). A value grows by at most 3 e per step (three terms), < 2^100 over a block
-of 32, inside the doubles' headroom above 2^SCALE_BITS (:mod:`.tilted_dp`). Rounding: every operation adds positive terms or multiplies by a
-positive factor (relative error <= 2 ulp per step and value, as before).
+of 32, inside the doubles' headroom above 2^SCALE_BITS (:mod:`.tilted_dp`). Rounding: every
+operation adds positive terms or multiplies by a positive factor (relative error <= 2 ulp per
+step and value, as before).
 """
 
 from __future__ import annotations
@@ -216,7 +217,8 @@ class StepRunner:
             elif kind == "scale":
                 out.append((4, rows[dst][lo * L:hi * L], None, w))
             else:
-                out.append((0 if kind == "copy" else 2, rows[dst][lo * L:hi * L], rows[src][(lo - s) * L:(hi - s) * L], None))
+                out.append((0 if kind == "copy" else 2, rows[dst][lo * L:hi * L],
+                            rows[src][(lo - s) * L:(hi - s) * L], None))
         return out
 
     def run(self, start: int, end: int, lo: int, hi: int) -> None:
