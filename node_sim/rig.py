@@ -202,8 +202,8 @@ class Rig:
                 self._prefetch_thread = threading.Thread(target=self._prefetch_loop, name="node-sim-prefetch",
                                                          daemon=True)
                 self._prefetch_thread.start()
-            # one receive thread for all the channels' buses when each has a socket
-            # (udp_multicast, socketcan: taxel_net/receiver.py), else a python-can Notifier each
+            # one receive thread for all the channels' buses (udp_multicast, socketcan, virtual:
+            # taxel_net/receiver.py), else a python-can Notifier each
             for ch in self._channels:
                 ch.refresh_filters()
             handles = notifiers_for([(ch.bus, [ch]) for ch in self._channels], timeout=0.05, name="node-sim-receive")

@@ -1,5 +1,5 @@
-"""One receive thread for every bus that has a socket (udp_multicast, socketcan): the centre's
-buses and each node-sim process's.
+"""One receive thread for all the buses of a process (udp_multicast, socketcan, virtual): the
+centre's buses and each node-sim process's.
 
 python-can's ``Notifier`` runs one thread per bus. With eight buses (scenes/skin4096.toml) the
 centre's eight receive threads took one frame each per turn on the interpreter lock, and
@@ -15,8 +15,14 @@ thread per bus (each frame carries its own time stamp and cycle tag).
 
 :class:`SelectNotifiers` gives each bus a ``Notifier``-like handle (``add_listener``,
 ``remove_listener``, ``stop``, ``exception``: what the centre, its LSS master and canopen's
-``Network`` use), all served by one thread. Buses without a file descriptor (python-can's
-``virtual``) keep a ``can.Notifier`` each (:func:`notifiers_for`).
+``Network`` use), all served by one thread. python-can's ``virtual`` buses have no file
+descriptor: :class:`VirtualNotifiers` serves them with one thread too, woken by their receive
+queues (each bus's queue swapped for one that signals a shared event when a frame is put in
+it; python-can's ``VirtualBus.send`` and :func:`node_sim.channel.virtual_burst_sender` put
+frames there). With a ``can.Notifier`` per bus, the demo of scenes/skin4096.toml ran sixteen
+receive threads (eight buses for the centre, eight for the twins) in one process and fell
+behind its 10 ms SYNC for good (p50 29 ms, 7,001 of ~8,800 PDOs late in 100 cycles). Other
+buses keep a ``can.Notifier`` each (:func:`notifiers_for`).
 
 A ``udp_multicast`` bus of python-can 4.x (Linux, kernel time stamps) is drained straight from
 its socket (:func:`udp_multicast_drain`): the datagrams ready are read without blocking, each
@@ -28,7 +34,9 @@ read with ``bus.recv(0)``.
 
 from __future__ import annotations
 
+import itertools
 import logging
+import queue
 import select
 import threading
 from typing import Iterator, Sequence
@@ -38,6 +46,8 @@ import can
 from .udp_wire import udp_multicast_drain
 
 logger = logging.getLogger("taxel_net.receiver")
+
+TURN_FRAMES = 256  # frames handled from one bus before the next bus's turn
 
 
 def has_socket(bus: can.BusABC) -> bool:
@@ -49,8 +59,22 @@ def has_socket(bus: can.BusABC) -> bool:
 
 
 def _recv_all(bus: can.BusABC) -> Iterator[can.Message]:
-    while (msg := bus.recv(0)) is not None:
-        yield msg
+    """Every frame the bus holds now that its filters let through. Not ``bus.recv(0)`` in a
+    loop: with no time left, ``recv`` returns None at the first frame its filters refuse, even
+    with more frames queued behind it (the twins' receive thread, on virtual buses flooded with
+    frames they filter out, then handled one frame per wake-up and fell seconds behind)."""
+    recv_internal = getattr(bus, "_recv_internal", None)
+    matches = getattr(bus, "_matches_filters", None)
+    if recv_internal is None or matches is None:  # not a python-can 4.x BusABC: its public recv
+        while (msg := bus.recv(0)) is not None:
+            yield msg
+        return
+    while True:  # what BusABC.recv does for each frame, without its deadline
+        msg, already_filtered = recv_internal(0.0)
+        if msg is None:
+            return
+        if already_filtered or matches(msg):
+            yield msg
 
 
 class _Handle:
@@ -103,19 +127,25 @@ class SelectNotifiers:
             for fd in ready:
                 handle = by_fd[fd]
                 try:
-                    for msg in handle.drain():  # every frame this bus holds now
+                    # the frames this bus holds now, at most TURN_FRAMES: a flooded bus does not
+                    # starve the others (the rest stays in its socket, ready at the next select)
+                    for msg in itertools.islice(handle.drain(), TURN_FRAMES):
                         handle.dispatch(msg)
                 except Exception as exc:  # noqa: BLE001 - as can.Notifier: note it, tell the listeners
                     if self._stop.is_set():
                         return
-                    handle.exception = exc
-                    for listener in list(handle.listeners):
-                        on_error = getattr(listener, "on_error", None)
-                        if on_error is not None:
-                            on_error(exc)
-                    logger.error("receive thread: bus %s: %s: %s - no longer read", handle.bus.channel_info,
-                                 type(exc).__name__, exc)
+                    self._failed(handle, exc)
                     fds.remove(fd)  # as a can.Notifier's thread ends: this bus is not read again
+
+    @staticmethod
+    def _failed(handle: _Handle, exc: Exception) -> None:
+        handle.exception = exc
+        for listener in list(handle.listeners):
+            on_error = getattr(listener, "on_error", None)
+            if on_error is not None:
+                on_error(exc)
+        logger.error("receive thread: bus %s: %s: %s - no longer read", handle.bus.channel_info,
+                     type(exc).__name__, exc)
 
     def stop(self, timeout: float = 5.0) -> None:
         self._stop.set()
@@ -123,9 +153,92 @@ class SelectNotifiers:
             self._thread.join(timeout)
 
 
+class _SignallingQueue(queue.Queue):
+    """A ``VirtualBus`` receive queue that sets ``signal`` whenever a frame is put in it."""
+
+    def __init__(self, maxsize: int, signal: threading.Event):
+        super().__init__(maxsize)
+        self.signal = signal
+
+    def put(self, item, block: bool = True, timeout: float | None = None) -> None:
+        super().put(item, block, timeout)
+        if not self.signal.is_set():
+            self.signal.set()
+
+
+def _virtual_queue_swappable(bus: can.BusABC) -> bool:
+    """A python-can 4.x ``VirtualBus`` whose receive queue (``queue``, listed in the shared
+    channel list ``channel``) can be swapped (:class:`VirtualNotifiers`)."""
+    try:
+        from can.interfaces.virtual import VirtualBus
+    except ImportError:  # pragma: no cover - python-can always ships it
+        return False
+    return (type(bus) is VirtualBus and isinstance(getattr(bus, "queue", None), queue.Queue)
+            and isinstance(getattr(bus, "channel", None), list) and any(q is bus.queue for q in bus.channel))
+
+
+class VirtualNotifiers(SelectNotifiers):
+    """One thread reading every python-can ``virtual`` bus of ``pairs``: each bus's receive queue
+    becomes a :class:`_SignallingQueue` (frames already queued moved over, in order), the thread
+    waits on the shared event, clears it and drains every bus (``recv(0)``: the bus's filters
+    apply) before waiting again - a frame put after the clear sets it again, so none waits for
+    the ``timeout``."""
+
+    def __init__(self, pairs: Sequence[tuple[can.BusABC, list]], timeout: float = 0.05, name: str = "can-receive"):
+        from can.interfaces.virtual import channels_lock
+
+        self._signal = threading.Event()
+        for bus, _ in pairs:
+            with channels_lock:
+                old = bus.queue
+                new = _SignallingQueue(old.maxsize, self._signal)
+                while True:
+                    try:
+                        new.put_nowait(old.get_nowait())
+                    except queue.Empty:
+                        break
+                bus.channel[next(k for k, q in enumerate(bus.channel) if q is old)] = new
+                bus.queue = new
+                while True:  # a sender that listed the channel's queues before the swap
+                    try:
+                        new.put_nowait(old.get_nowait())
+                    except queue.Empty:
+                        break
+        super().__init__(pairs, timeout, name)
+
+    def _run(self) -> None:
+        handles = list(self.handles)
+        signal = self._signal
+        while not self._stop.is_set() and handles:
+            signal.wait(self.timeout)
+            signal.clear()
+            for handle in list(handles):
+                try:
+                    taken = 0
+                    for msg in itertools.islice(handle.drain(), TURN_FRAMES):  # as SelectNotifiers
+                        handle.dispatch(msg)
+                        taken += 1
+                    if taken == TURN_FRAMES:
+                        signal.set()  # frames left in its queue: no wait before the next turn
+                except Exception as exc:  # noqa: BLE001 - as can.Notifier: note it, tell the listeners
+                    if self._stop.is_set():
+                        return
+                    self._failed(handle, exc)
+                    handles.remove(handle)
+
+    def stop(self, timeout: float = 5.0) -> None:
+        self._stop.set()
+        self._signal.set()
+        if self._thread is not threading.current_thread():
+            self._thread.join(timeout)
+
+
 def notifiers_for(pairs: Sequence[tuple[can.BusABC, list]], timeout: float = 0.05, name: str = "can-receive") -> list:
     """A ``Notifier``-like handle per bus, in order: one shared select thread when every bus has
-    a socket, else a ``can.Notifier`` each."""
+    a socket, one shared thread when every bus is python-can's ``virtual``
+    (:class:`VirtualNotifiers`), else a ``can.Notifier`` each."""
     if pairs and all(has_socket(bus) for bus, _ in pairs):
         return list(SelectNotifiers(pairs, timeout, name).handles)
+    if pairs and all(_virtual_queue_swappable(bus) for bus, _ in pairs):
+        return list(VirtualNotifiers(pairs, timeout, name).handles)
     return [can.Notifier(bus, list(listeners), timeout=timeout) for bus, listeners in pairs]

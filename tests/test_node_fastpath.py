@@ -321,7 +321,10 @@ def test_physics_readings_read_ahead_are_canonical(harness):
         x = physics.sample_readings(rig.scene, c)
         for i, t in enumerate(rig.scene.taxels):
             assert rig.node(t.node_id).local.data_store[0x6130][1] == real32(x[i])
-        h.timers_done(delay=0.5 * 2.0e-3)  # the read-ahead timer of this SYNC has run
+        h.timers_done(delay=0.5 * 2.0e-3)  # the read-ahead timer of this SYNC has run: it woke
+        deadline = time.monotonic() + WAIT  # the read-ahead thread - wait until that one is done
+        while rig._prefetch_pending and time.monotonic() < deadline:
+            time.sleep(0.001)
     assert read_ahead == 23                # every cycle after the first came from the cache
 
 

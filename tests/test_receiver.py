@@ -5,6 +5,7 @@ from __future__ import annotations
 import random
 import socket
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -25,16 +26,43 @@ def _buses(port):
     return buses
 
 
-def test_virtual_buses_keep_a_python_can_notifier_each():
-    buses = [can.Bus(interface="virtual", channel=f"rx-{k}-{random.random()}") for k in range(2)]
+def test_virtual_buses_share_one_thread_woken_by_their_queues():
+    """python-can virtual buses: one thread serves them all (no socket to select on: each bus's
+    receive queue signals it), every frame of every bus reaches its listeners in order - frames
+    queued before the swap included, frames from python-can's own send and from the twins'
+    burst sender alike - the bus's filters apply, and stop ends the thread."""
+    from node_sim.channel import virtual_burst_sender
+    from taxel_net.receiver import VirtualNotifiers
+
+    names = [f"rx-{k}-{random.random()}" for k in range(3)]
+    rx = [can.Bus(interface="virtual", channel=n) for n in names]
+    tx = [can.Bus(interface="virtual", channel=n) for n in names]
+    got = {k: [] for k in range(3)}
     try:
-        assert not any(has_socket(b) for b in buses)
-        notifiers = notifiers_for([(b, []) for b in buses])
-        assert all(isinstance(n, can.Notifier) for n in notifiers)
-        for n in notifiers:
-            n.stop(1)
+        assert not any(has_socket(b) for b in rx)
+        tx[0].send(can.Message(arbitration_id=0x181, data=b"\x00", is_extended_id=False))  # queued before
+        rx[2].set_filters([{"can_id": 0x181, "can_mask": 0x7FF, "extended": False}])
+        handles = notifiers_for([(b, [lambda m, k=k: got[k].append((m.arbitration_id, m.data[0]))])
+                                 for k, b in enumerate(rx)])
+        owner = handles[0].owner
+        assert isinstance(owner, VirtualNotifiers) and all(h.owner is owner for h in handles)
+        threads = threading.active_count()
+        burst = virtual_burst_sender(tx[1])
+        for i in range(1, 200):
+            tx[0].send(can.Message(arbitration_id=0x181, data=bytes([i]), is_extended_id=False))
+            burst([(0x182, bytes([i])), (0x183, bytes([i]))])
+            tx[2].send(can.Message(arbitration_id=0x181 if i % 2 else 0x281, data=bytes([i]), is_extended_id=False))
+        deadline = time.monotonic() + 5
+        while time.monotonic() < deadline and (len(got[0]) < 200 or len(got[1]) < 398 or len(got[2]) < 100):
+            time.sleep(0.01)
+        assert got[0] == [(0x181, i) for i in range(200)]
+        assert got[1] == [(can_id, i) for i in range(1, 200) for can_id in (0x182, 0x183)]
+        assert got[2] == [(0x181, i) for i in range(1, 200, 2)]          # 0x281 filtered out
+        assert threading.active_count() == threads                       # no thread per bus
+        owner.stop(1)
+        assert not owner._thread.is_alive()
     finally:
-        for b in buses:
+        for b in rx + tx:
             b.shutdown()
 
 
@@ -132,6 +160,16 @@ def test_udp_multicast_drain_reads_what_recv_would_and_no_more():
                          for _ in range(2))
         tx = can.Bus(interface="udp_multicast", channel=GROUPS[0], port=port, hop_limit=0, fd=True)
         try:
+            # Linux turns receive time stamps on for the host only once a socket asks, from a
+            # work queue: a datagram queued before that is stamped when it is read. Wait until
+            # a probe is stamped on arrival, so both readers see the kernel's receive times.
+            for _ in range(50):
+                tx.send(can.Message(arbitration_id=0x7FF, is_extended_id=False))
+                probe = reference.recv(1.0)
+                time.sleep(0.05)
+                late = rx.recv(1.0)
+                if probe is not None and late is not None and abs(late.timestamp - probe.timestamp) < 0.02:
+                    break
             drain = udp_multicast_drain(rx)
             assert drain is not None
             assert list(drain()) == []  # nothing sent yet: returns without waiting
@@ -148,7 +186,7 @@ def test_udp_multicast_drain_reads_what_recv_would_and_no_more():
             assert [fields(m) for m in expected] == [fields(m) for m in sent if fd or not m.is_fd]
             got = list(drain())  # the reference has them all: so has this socket
             assert [fields(m) for m in got] == [fields(m) for m in expected]
-            assert all(abs(a.timestamp - b.timestamp) < 0.5 and a.timestamp > 1e9 for a, b in zip(got, expected))
+            assert all(abs(a.timestamp - b.timestamp) < 0.5 and a.timestamp > 1e9 for a, b in zip(got, expected)), [(a.timestamp, b.timestamp) for a, b in zip(got, expected)]
             # filters: applied by the drain as by recv (here on the reference bus)
             only = [{"can_id": 0x080, "can_mask": 0x7FF}, {"can_id": 0x1234560, "can_mask": 0x1FFFFFF0, "extended": True}]
             rx.set_filters(only)
@@ -195,3 +233,49 @@ def test_a_stray_datagram_is_skipped_not_fatal(caplog):
         raw.close()
         rx.shutdown()
         tx.shutdown()
+
+
+def test_draining_a_bus_reads_past_the_frames_its_filters_refuse():
+    """Frames the filters refuse, queued ahead of wanted ones, do not hide those (python-can's
+    ``recv(0)`` returns None at the first refused frame): a junk flood on the twins' virtual
+    buses held their heartbeats and SYNCs back for seconds (every node fell pre-operational)."""
+    from taxel_net.receiver import _recv_all
+
+    name = f"filtered-{random.random()}"
+    rx, tx = can.Bus(interface="virtual", channel=name), can.Bus(interface="virtual", channel=name)
+    try:
+        rx.set_filters([{"can_id": 0x700, "can_mask": 0x780, "extended": False}])
+        for i in range(20):
+            tx.send(can.Message(arbitration_id=0x7F0, data=bytes(8), is_extended_id=False))   # refused
+            tx.send(can.Message(arbitration_id=0x77F, data=bytes([i]), is_extended_id=False))  # wanted
+        assert [m.data[0] for m in _recv_all(rx)] == list(range(20))
+        assert list(_recv_all(rx)) == []
+    finally:
+        rx.shutdown()
+        tx.shutdown()
+
+
+def test_a_flooded_bus_does_not_starve_the_others():
+    """One thread serves every bus in turns of at most TURN_FRAMES frames: a frame of a quiet
+    bus is handled before a flooded bus's backlog is through."""
+    from taxel_net.receiver import TURN_FRAMES
+
+    names = [f"turns-{k}-{random.random()}" for k in range(2)]
+    rx = [can.Bus(interface="virtual", channel=n) for n in names]
+    tx = [can.Bus(interface="virtual", channel=n) for n in names]
+    order = []
+    try:
+        backlog = 4 * TURN_FRAMES
+        for i in range(backlog):  # queued before the thread starts: one backlog
+            tx[0].send(can.Message(arbitration_id=0x181, data=i.to_bytes(2, "little"), is_extended_id=False))
+        tx[1].send(can.Message(arbitration_id=0x182, data=b"\x00", is_extended_id=False))
+        handles = notifiers_for([(b, [lambda m, k=k: order.append(k)]) for k, b in enumerate(rx)])
+        deadline = time.monotonic() + 5
+        while time.monotonic() < deadline and len(order) < backlog + 1:
+            time.sleep(0.01)
+        assert sorted(order) == [0] * backlog + [1]
+        assert order.index(1) <= TURN_FRAMES     # bus 1's turn came after at most one turn of bus 0
+        handles[0].stop(1)
+    finally:
+        for b in rx + tx:
+            b.shutdown()

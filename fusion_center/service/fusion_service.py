@@ -189,8 +189,8 @@ class FusionService:
                 network.send_message = self._sender(index)
                 self.networks.append(network)
                 pairs.append((bus, [_StreamListener(self, index, network)]))
-            # one receive thread for all buses with a socket (taxel_net/receiver.py), else a
-            # python-can Notifier per bus
+            # one receive thread for all buses (sockets or python-can virtual buses:
+            # taxel_net/receiver.py), else a python-can Notifier per bus
             self.notifiers = notifiers_for(pairs, timeout=0.05, name="centre-receive")
             for network, notifier in zip(self.networks, self.notifiers):
                 network.notifier = notifier
