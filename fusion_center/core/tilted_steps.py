@@ -13,9 +13,10 @@ make it cheaper than one vector addition per pair of inputs:
   equal, so the trimming's error bound (the spread of the future weights) is unchanged;
 * in-place accumulation: each new row is accumulated in a row whose old content is one of its
   terms (unmoved, and not read after) or in a spare row (one copy): y += x by numpy, y += w x
-  (a ratio of tilts) by BLAS daxpy, then one multiplication by the branch factor where it is
-  not 1. The rows are renamed instead of moved; the renaming cycles with a short period, so
-  the views are formed once per block and phase.
+  (a ratio of tilts) by BLAS daxpy; the branch factor, where it is not 1, multiplies a spare's
+  copy and the weights of its other terms, or a row accumulated in place at the end. The rows
+  are renamed instead of moved; the renaming cycles with a short period, so the views are
+  formed once per block and phase.
 
 The order of the new rows and their accumulators is chosen per lattice form (fewest copies), and
 every term of a row is added with a relative weight <= 1 (the heaviest term first), then the
@@ -196,13 +197,18 @@ class StepRunner:
         ops = []
         for (key, c, s_ref, acc, terms), fac in zip(plan, facs):
             dst = keys[acc[1]] if acc[0] == "in" else spares[acc[1]]
+            # a spare's branch factor goes into its copy and the weights of its other terms (no
+            # multiplication of its own); an accumulator in place is multiplied at the end
+            fold = fac is not None and acc[0] == "spare"
             for kind, ik, s, d in terms:
+                w = math.exp(self.theta * d) if self.theta else 1.0
                 if kind == "copy":
-                    ops.append(("copy", dst, keys[ik], s, 1.0))
+                    ops.append(("mulcopy", dst, keys[ik], s, fac) if fold else ("copy", dst, keys[ik], s, 1.0))
+                elif fold:
+                    ops.append(("faxpy", dst, keys[ik], s, (w, fac)))
                 else:
-                    w = math.exp(self.theta * d) if self.theta else 1.0
                     ops.append(("add" if w == 1.0 else "axpy", dst, keys[ik], s, w))
-            if fac is not None:  # a row never multiplied: no operation
+            if fac is not None and not fold:  # a row never multiplied: no operation
                 ops.append(("scale", dst, None, 0, fac))
         return ops
 
@@ -214,12 +220,39 @@ class StepRunner:
         for kind, dst, src, s, w in ops:
             if kind == "axpy":
                 out.append((3, rows[dst], rows[src], (n, w, (lo - s) * L, 1, lo * L, 1)))
+            elif kind == "faxpy":
+                out.append((6, rows[dst], rows[src], (n, w[0], w[1], (lo - s) * L, lo * L)))
             elif kind == "scale":
                 out.append((4, rows[dst][lo * L:hi * L], None, w))
             else:
-                out.append((0 if kind == "copy" else 2, rows[dst][lo * L:hi * L],
-                            rows[src][(lo - s) * L:(hi - s) * L], None))
+                out.append(({"copy": 0, "add": 2, "mulcopy": 5}[kind], rows[dst][lo * L:hi * L],
+                            rows[src][(lo - s) * L:(hi - s) * L], w))
         return out
+
+    @staticmethod
+    def _step(ops: list, i: int) -> None:
+        """One taxel (index i) by the resolved operations with their views."""
+        for kind, y, x, arg in ops:
+            if kind == 2:
+                y += x
+            elif kind == 4:
+                f = arg[i]
+                if f != 1.0:
+                    y *= f
+            elif kind == 0:
+                np.copyto(y, x)
+            elif kind == 5:
+                f = arg[i]
+                if f == 1.0:
+                    np.copyto(y, x)
+                else:
+                    np.multiply(x, f, out=y)
+            elif kind == 6:
+                n, w, fac, offx, offy = arg
+                daxpy(x, y, n, w * fac[i], offx, 1, offy, 1)
+            else:
+                n, w, offx, incx, offy, incy = arg
+                daxpy(x, y, n, w, offx, incx, offy, incy)
 
     def run(self, start: int, end: int, lo: int, hi: int) -> None:
         """Taxels start .. end - 1 added over the window [lo, hi) of buffer columns (it covers
@@ -228,35 +261,16 @@ class StepRunner:
         if mid_end > start:
             views = [self._views(ops, lo, hi) for _, _, ops in self.phases]
             phase, period = self.phase, len(self.phases)
+            step = self._step
             for i in range(start, mid_end):
-                for kind, y, x, arg in views[phase]:
-                    if kind == 2:
-                        y += x
-                    elif kind == 4:
-                        f = arg[i]
-                        if f != 1.0:
-                            y *= f
-                    elif kind == 0:
-                        np.copyto(y, x)
-                    else:
-                        n, w, offx, incx, offy, incy = arg
-                        daxpy(x, y, n, w, offx, incx, offy, incy)
+                step(views[phase], i)
                 phase = (phase + 1) % period
             self.phase = phase
             self.keys, self.spares = dict(self.phases[phase][0]), list(self.phases[phase][1])
         if end == self.n and end - 1 >= start:  # the last taxel: the four states again
             i = self.n - 1
             ops = self._resolve(self.keys, self.spares, self.plan_last, self.fac_last)
-            for kind, y, x, arg in self._views(ops, lo, hi):
-                if kind == 2:
-                    y += x
-                elif kind == 4:
-                    if arg[i] != 1.0:
-                        y *= arg[i]
-                elif kind == 0:
-                    np.copyto(y, x)
-                else:
-                    daxpy(x, y, *arg)
+            self._step(self._views(ops, lo, hi), i)
             self.keys, self.spares = self._step_map(self.keys, self.spares, self.plan_last)
 
     # ---------------------------------------------------------------- the rows
