@@ -18,6 +18,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="scene file or bundled scene name (default: matrix57; list: fusion-center scenes)")
     parser.add_argument("--drop-node", action="append", default=[], metavar="ID@CYCLE",
                         help="silence node ID from SYNC cycle CYCLE on (repeatable), e.g. 18@50")
+    parser.add_argument("--slow-down", type=float, default=1.0, metavar="K",
+                        help="run every bus time K times longer (SYNC period, synchronous window, heartbeats, "
+                             "inhibit and event timers), 1..1000 (default 1: the scene's own times): for a "
+                             "scene whose twins and centre do not keep its SYNC period in one process")
     add_common_outputs(parser)
 
 
@@ -38,6 +42,62 @@ def parse_drops(items: list[str], scene) -> dict[int, list[int]]:
             raise UsageError(f"--drop-node {item!r}: cycle must be >= 0")
         drops.setdefault(at, []).append(node_id)
     return drops
+
+
+SLOW_DOWN_MAX = 1000.0
+
+
+def slowed_down(scene, factor: float):
+    """``scene`` with every bus time ``factor`` times longer: SYNC period (0x1006), synchronous
+    window (0x1007), heartbeat producer and consumer times (0x1017, 0x1016) and the master's
+    heartbeat, TPDO inhibit time and event timer (0x1800:3, :5). Per-cycle physics and fusion are
+    unchanged; times (a record's ``t``) and per-second rates (slip velocity) are in the slowed
+    clock. A time the objects cannot hold (16-bit ms / 100 µs) is a one-line error."""
+    import dataclasses
+
+    from taxel_net.errors import UsageError
+    from taxel_net.scene import MASTER_HEARTBEAT_MAX_MS
+
+    if not (1.0 <= factor <= SLOW_DOWN_MAX):  # also refuses NaN
+        raise UsageError(f"--slow-down {factor}: must lie in 1..{SLOW_DOWN_MAX:g}")
+    if factor == 1.0:
+        return scene
+    bus = scene.bus
+
+    def scaled(name: str, value: int, limit: int) -> int:
+        out = int(round(value * factor))
+        if out > limit:
+            raise UsageError(f"--slow-down {factor:g}: the scene's {name} {value} becomes {out}, "
+                             f"more than its object holds ({limit})")
+        return out
+
+    master_hb = scene.master.heartbeat_ms
+    master = scene.master if master_hb is None else dataclasses.replace(
+        scene.master, heartbeat_ms=scaled("[master] heartbeat_ms", master_hb, MASTER_HEARTBEAT_MAX_MS))
+    bus = dataclasses.replace(
+        bus, sync_period_ms=bus.sync_period_ms * factor,
+        sync_window_us=scaled("sync window (us)", bus.sync_window, 0xFFFFFFFF),
+        heartbeat_producer_ms=scaled("heartbeat_producer_ms", bus.heartbeat_producer_ms,
+                                     MASTER_HEARTBEAT_MAX_MS if master_hb is None else 0xFFFF),
+        heartbeat_consumer_ms=scaled("heartbeat_consumer_ms", bus.heartbeat_consumer_ms, 0xFFFF),
+        inhibit_time_100us=scaled("inhibit_time_100us", bus.inhibit_time_100us, 0xFFFF),
+        event_timer_ms=scaled("event_timer_ms", bus.event_timer_ms, 0xFFFF))
+    return dataclasses.replace(scene, bus=bus, master=master)
+
+
+def fell_behind(summary: dict, period_ms: float) -> str | None:
+    """A warning when most cycles were degraded with PDOs late: the twins and the centre did
+    not keep the SYNC period in one process (``--slow-down`` suggested from the p99 latency)."""
+    late = summary["counters"].get("late", 0)
+    if not late or summary["degraded_cycles"] * 2 <= max(summary["records"], 1):
+        return None
+    p99 = summary.get("latency_ms_p99") or 0.0
+    k = 2
+    while k * period_ms < 2 * p99 and k < SLOW_DOWN_MAX:
+        k *= 2
+    return (f"{summary['degraded_cycles']} of {summary['records']} cycles degraded, {late} PDOs late: the node twins "
+            f"and the centre did not keep the {period_ms:g} ms SYNC in one process on this host; decisions of "
+            f"degraded cycles rest on the taxels heard; try --slow-down {k}")
 
 
 def run_demo(scene, cycles: int, *, drops: dict[int, list[int]] | None = None, json_lines=None, trace=None,
@@ -74,9 +134,17 @@ def run(args) -> int:
 
     setup_logging()
     scene, cycles = load_run_scene(args)
+    nominal_ms = scene.bus.sync_period_ms
+    scene = slowed_down(scene, args.slow_down)
     drops = parse_drops(args.drop_node, scene)
     check_trace_target(args.log, scene)
     _, summary = run_demo(scene, cycles, drops=drops, json_lines=args.json_lines, trace=args.log,
                           live=not args.no_live, boot_timeout=args.boot_timeout, keep_records=False)
+    if args.slow_down != 1.0:
+        summary["slow_down"] = (f"{args.slow_down:g}x: SYNC every {scene.bus.sync_period_ms:g} ms instead of "
+                                f"{nominal_ms:g} ms, every bus time likewise (per-cycle results unchanged)")
+    warning = fell_behind(summary, scene.bus.sync_period_ms)
+    if warning:
+        summary["warning"] = warning
     print_summary(summary)
     return 130 if "interrupted" in summary else 0

@@ -201,6 +201,10 @@ def format_summary(summary: dict) -> list[str]:
                                     f"{_fmt_ms(a['to_send_ms']['p50'])}, p99 {_fmt_ms(a['to_send_ms']['p99'])}; "
                                     f"part transport p50 {_fmt_ms(a['transport_ms']['p50'])}, "
                                     f"p99 {_fmt_ms(a['transport_ms']['p99'])}"))
+    if "slow_down" in summary:
+        lines.append(("slow_down", summary["slow_down"]))
+    if "warning" in summary:
+        lines.append(("warning", summary["warning"]))
     if "interrupted" in summary:
         lines.append(("interrupted", f"Ctrl-C after {summary['cycles']} of {summary['interrupted']['cycles_asked']} "
                                      "SYNC cycles: a partial summary; every record written is complete"))
