@@ -128,26 +128,34 @@ def run_in_process(scene, cycles: int) -> tuple[FusionService, object, float]:
     return service, summary, boot_s, cpu
 
 
+def start_shards(scene, shards: int, groups: list[str], port: int, procs: list) -> None:
+    """Start ``shards`` node-sim processes serving consecutive groups of the scene's channels on
+    udp_multicast (``groups``, ``port``, loopback), appended to ``procs`` as they start (the
+    caller terminates them), and wait until each says it is ready."""
+    import subprocess
+
+    bounds = np.linspace(0, len(groups), shards + 1).round().astype(int)
+    for a, b in zip(bounds[:-1], bounds[1:]):
+        procs.append(subprocess.Popen(
+            [sys.executable, "-m", "node_sim.cli", "--scene", scene.path, "-i", "udp_multicast",
+             "-c", ",".join(groups), "--bus-kwargs", f"port={port}", "hop_limit=0", "--serve", f"{a}-{b - 1}"],
+            cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True))
+    for proc in procs:
+        line = proc.stdout.readline()
+        if "ready" not in line:
+            raise SystemExit(f"node-sim did not start: {proc.stderr.read() if proc.poll() is not None else line}")
+
+
 def run_sharded(scene, cycles: int, shards: int) -> tuple[FusionService, object, float]:
     """The twins in ``shards`` node-sim processes (``--serve``: consecutive channel groups), the
     centre here; udp_multicast on loopback, one group per scene channel."""
     import random
-    import subprocess
 
     port = random.randint(40000, 60000)
     groups = [f"239.74.164.{10 + k}" for k in range(len(scene.bus.channels))]
-    bounds = np.linspace(0, len(groups), shards + 1).round().astype(int)
     procs = []
     try:
-        for a, b in zip(bounds[:-1], bounds[1:]):
-            procs.append(subprocess.Popen(
-                [sys.executable, "-m", "node_sim.cli", "--scene", scene.path, "-i", "udp_multicast",
-                 "-c", ",".join(groups), "--bus-kwargs", f"port={port}", "hop_limit=0", "--serve", f"{a}-{b - 1}"],
-                cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True))
-        for proc in procs:
-            line = proc.stdout.readline()
-            if "ready" not in line:
-                raise SystemExit(f"node-sim did not start: {proc.stderr.read() if proc.poll() is not None else line}")
+        start_shards(scene, shards, groups, port, procs)
         service = FusionService(scene, interface="udp_multicast", channels=groups,
                                 bus_kwargs={"port": port, "hop_limit": 0})
         with service:

@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import argparse
 import random
-import subprocess
 import sys
 import threading
 import time
@@ -32,7 +31,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "bench"))
 
-from skin_scale import CpuMeter  # noqa: E402
+from skin_scale import CpuMeter, start_shards  # noqa: E402
 from taxel_net import patches  # noqa: E402
 from taxel_net.canmsg import tune_udp_multicast  # noqa: E402
 from taxel_net.receiver import notifiers_for  # noqa: E402
@@ -55,7 +54,6 @@ class PdoClock(can.Listener):
 def run(scene, cycles: int, shards: int) -> dict:
     port = random.randint(40000, 60000)
     groups = [f"239.74.167.{10 + k}" for k in range(len(scene.bus.channels))]
-    bounds = np.linspace(0, len(groups), shards + 1).round().astype(int)
     devices = patches.devices(scene)
     if not all(t.tagged for d in devices for t in d.tpdos):
         raise SystemExit(f"{scene.path}: needs patch nodes with tagged TPDOs (the cycle tag attributes each PDO)")
@@ -65,14 +63,7 @@ def run(scene, cycles: int, shards: int) -> dict:
     period = scene.bus.sync_period_ms / 1000.0
     procs, buses = [], []
     try:
-        for a, b in zip(bounds[:-1], bounds[1:]):
-            procs.append(subprocess.Popen(
-                [sys.executable, "-m", "node_sim.cli", "--scene", scene.path, "-i", "udp_multicast",
-                 "-c", ",".join(groups), "--bus-kwargs", f"port={port}", "hop_limit=0", "--serve", f"{a}-{b - 1}"],
-                cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True))
-        for proc in procs:
-            if "ready" not in proc.stdout.readline():
-                raise SystemExit(f"node-sim did not start: {proc.stderr.read() if proc.poll() is not None else ''}")
+        start_shards(scene, shards, groups, port, procs)
         buses = [can.Bus(interface="udp_multicast", channel=g, port=port, hop_limit=0, fd=scene.bus.fd) for g in groups]
         for bus in buses:
             tune_udp_multicast(bus)

@@ -276,3 +276,18 @@ def test_trace_marks_the_centres_own_frames_tx_and_the_master_writes_no_rtr_cob_
     for index, taxel in enumerate(scene.taxels):
         cob_writes = [v for obj, sub, v in node_configuration(scene, index) if (obj, sub) == (0x1800, 1)]
         assert cob_writes[-1] == 0x4000_0180 + taxel.node_id and cob_writes[0] == 0xC000_0180 + taxel.node_id
+
+
+def test_nodes_missing_at_boot_are_one_warning_line(matrix, caplog):
+    """No twin answers: the 57 missing nodes are one warning (20 named, the rest counted), not
+    57 lines (a skin of 4,096 one-taxel nodes printed hundreds), and all are in the summary."""
+    import logging
+
+    service = FusionService(matrix, interface="virtual", channels=[f"empty-{uuid.uuid4().hex[:8]}"])
+    with caplog.at_level(logging.WARNING, logger="fusion_center.master"), service:
+        missing = service.boot(0.3)
+    assert len(missing) == matrix.n
+    lines = [r.getMessage() for r in caplog.records if "never booted" in r.getMessage()]
+    assert len(lines) == 1
+    assert lines[0].startswith(f"{matrix.n} node(s) never booted within 0.3 s: missing: 1, 2, 3,")
+    assert lines[0].endswith(f", ... ({matrix.n - 20} more)")

@@ -56,6 +56,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def setup_logging() -> None:
     logging.basicConfig(level=logging.WARNING, stream=sys.stderr,
                         format="%(levelname)s %(name)s: %(message)s")
+    # canopen logs an ERROR for every SDO transfer it gives up on; the master reports each
+    # failure itself (node, object, cause; rate-limited) and counts it in the summary
+    logging.getLogger("canopen.sdo.client").setLevel(logging.CRITICAL)
 
 
 def execute(service, cycles: int, *, live: bool, boot_timeout: float, before_sync=None, on_start=None,

@@ -85,6 +85,7 @@ logger = logging.getLogger("fusion_center.master")
 COB_INVALID = 0x8000_0000
 COB_NO_RTR = 0x4000_0000  # TPDO COB-ID bit 30 (CiA 301): no remote transmission request
 BOOT_QUIET_S = 0.05  # after the reset at start: no new boot-up for this long before configuring
+BOOT_LOG_NODES = 20  # missing nodes named in the one boot warning line (the rest counted)
 HEARTBEAT_PRODUCER = 0x1017
 CONSUMER_HEARTBEAT = 0x1016
 CONSUMER_TIME_MIN_MS = 300  # the nodes' consumer time for the master: 3 x its period, at least this
@@ -287,8 +288,11 @@ class Master:
             if now >= deadline:
                 heard = set(range(len(self.devices))) - set(self.service.never_heard())
                 silent = [i for i in silent if i not in heard]  # heard, no boot-up: present
-                for i in silent:
-                    logger.warning("node %s never booted within %.1f s: missing", self.service.labels[i], timeout_s)
+                if silent:  # one line, however many (a skin of 4,096 one-taxel nodes: hundreds)
+                    labels = [str(self.service.labels[i]) for i in silent]
+                    shown = ", ".join(labels[:BOOT_LOG_NODES]) + (
+                        f", ... ({len(labels) - BOOT_LOG_NODES} more)" if len(labels) > BOOT_LOG_NODES else "")
+                    logger.warning("%d node(s) never booted within %.1f s: missing: %s", len(labels), timeout_s, shown)
                 return silent
             time.sleep(0.005)
 
@@ -329,20 +333,21 @@ class Master:
             except canopen.SdoAbortedError as exc:
                 with self._stats_lock:
                     self.sdo_aborts += 1
-                logger.warning("node %s: SDO download 0x%04X:%d = %r aborted: %s", label, idx, sub, value, exc)
+                self._log.warning("sdo_abort", "node %s: SDO download 0x%04X:%d = %r aborted: %s", label, idx, sub,
+                                  value, exc)
                 ok = False
             except canopen.SdoCommunicationError as exc:
                 with self._stats_lock:
                     self.sdo_timeouts += 1
-                logger.warning("node %s: SDO download 0x%04X:%d: %s", label, idx, sub, exc)
+                self._log.warning("sdo_timeout", "node %s: SDO download 0x%04X:%d: %s", label, idx, sub, exc)
                 return False  # the node does not answer: no point in going on
             except (KeyError, canopen.ObjectDictionaryError) as exc:
-                logger.warning("node %s: 0x%04X:%d not in the EDS: %s", label, idx, sub, exc)
+                self._log.warning("sdo_not_in_eds", "node %s: 0x%04X:%d not in the EDS: %s", label, idx, sub, exc)
                 ok = False
             except Exception as exc:  # noqa: BLE001 - a bus error must not stop the others
                 with self._stats_lock:
                     self.sdo_timeouts += 1
-                logger.warning("node %s: SDO download 0x%04X:%d failed: %s", label, idx, sub, exc)
+                self._log.warning("sdo_failed", "node %s: SDO download 0x%04X:%d failed: %s", label, idx, sub, exc)
                 return False
         self.configured.add(index)
         return ok
