@@ -146,21 +146,40 @@ def start_shards(scene, shards: int, groups: list[str], port: int, procs: list) 
             raise SystemExit(f"node-sim did not start: {proc.stderr.read() if proc.poll() is not None else line}")
 
 
-def run_sharded(scene, cycles: int, shards: int) -> tuple[FusionService, object, float]:
-    """The twins in ``shards`` node-sim processes (``--serve``: consecutive channel groups), the
-    centre here; udp_multicast on loopback, one group per scene channel."""
+def start_player(scene, cycles: int, groups: list[str], port: int, procs: list) -> None:
+    """Start bench/patch_player.py (the scene's patch nodes at hardware speed, no twins) on the
+    groups, appended to ``procs``, and wait until it is ready."""
+    import subprocess
+
+    procs.append(subprocess.Popen(
+        [sys.executable, str(ROOT / "bench" / "patch_player.py"), "--scene", str(scene.path), "--groups",
+         ",".join(groups), "--port", str(port), "--cycles", str(cycles + 100)],
+        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True))
+    line = procs[-1].stdout.readline()
+    if "ready" not in line:
+        raise SystemExit(f"patch_player did not start: {procs[-1].stderr.read() if procs[-1].poll() is not None else line}")
+
+
+def run_sharded(scene, cycles: int, shards: int, player: bool = False) -> tuple[FusionService, object, float]:
+    """The twins in ``shards`` node-sim processes (``--serve``: consecutive channel groups), or
+    with ``player`` bench/patch_player.py in their place, the centre here; udp_multicast on
+    loopback, one group per scene channel. The player has no SDO server: the centre boots
+    without configuring the nodes."""
     import random
 
     port = random.randint(40000, 60000)
     groups = [f"239.74.164.{10 + k}" for k in range(len(scene.bus.channels))]
     procs = []
     try:
-        start_shards(scene, shards, groups, port, procs)
+        if player:
+            start_player(scene, cycles, groups, port, procs)
+        else:
+            start_shards(scene, shards, groups, port, procs)
         service = FusionService(scene, interface="udp_multicast", channels=groups,
                                 bus_kwargs={"port": port, "hop_limit": 0})
         with service:
             t0 = time.perf_counter()
-            service.boot(30.0)
+            service.boot(30.0, configure=not player)
             boot_s = time.perf_counter() - t0
             with CpuMeter([proc.pid for proc in procs]) as cpu:
                 summary = service.run(cycles)
@@ -176,6 +195,9 @@ def main(argv=None) -> int:
     ap.add_argument("--scene", nargs="+", type=Path, default=SCENES)
     ap.add_argument("--cycles", type=int, default=300)
     ap.add_argument("--shards", type=int, default=0, help="node-sim processes for the twins (0: in this process)")
+    ap.add_argument("--twins", choices=("rig", "player"), default="rig",
+                    help="player: bench/patch_player.py answers for the patch nodes at hardware speed "
+                         "(in its own process, udp_multicast) - the centre measured alone")
     ap.add_argument("--repeat", type=int, default=1,
                     help="runs per scene, alternating scenes (the host's speed varies: compare spreads)")
     args = ap.parse_args(argv)
@@ -183,7 +205,9 @@ def main(argv=None) -> int:
         ap.error("--repeat and --cycles must be >= 1, --shards >= 0")
     for run, path in [(k, p) for k in range(args.repeat) for p in args.scene]:
         scene = load_scene(path)
-        if args.shards:
+        if args.twins == "player":
+            service, summary, boot_s, cpu = run_sharded(scene, args.cycles, 1, player=True)
+        elif args.shards:
             service, summary, boot_s, cpu = run_sharded(scene, args.cycles, args.shards)
         else:
             service, summary, boot_s, cpu = run_in_process(scene, args.cycles)
@@ -191,7 +215,8 @@ def main(argv=None) -> int:
         centre = service.centre_latency
         checked = check_records(scene, service.records)
         rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-        where = f"twins in {args.shards} node-sim processes (udp_multicast)" if args.shards else "twins in this process"
+        where = ("patch nodes played at hardware speed by bench/patch_player.py (udp_multicast)" if args.twins == "player"
+                 else f"twins in {args.shards} node-sim processes (udp_multicast)" if args.shards else "twins in this process")
         print(f"{scene.name}{f' (run {run + 1} of {args.repeat})' if args.repeat > 1 else ''}: {scene.n} taxels, "
               f"{len(scene.bus.channels)} channels, SYNC {scene.bus.sync_period_ms:g} ms, "
               f"{summary.cycles} cycles, {where}, boot {boot_s:.1f} s ({summary.sdo_writes} SDO writes)")
@@ -205,8 +230,10 @@ def main(argv=None) -> int:
         print(f"  records: {checked['complete']} complete, {checked['degraded']} degraded, {checked['undecided']} "
               f"undecided, late PDOs {summary.counters.get('late', 0)}, misattributed {checked['misattributed']}")
         n_cycles = max(summary.cycles, 1)
-        twins = (f", twins {cpu.twins_s / n_cycles * 1e3:.2f} ms" if args.shards else "")
-        print(f"  CPU per cycle: {'centre' if args.shards else 'centre + twins'} {cpu.centre_s / n_cycles * 1e3:.2f} ms"
+        sharded = args.shards or args.twins == "player"
+        twins = (f", {'player' if args.twins == 'player' else 'twins'} {cpu.twins_s / n_cycles * 1e3:.2f} ms"
+                 if sharded else "")
+        print(f"  CPU per cycle: {'centre' if sharded else 'centre + twins'} {cpu.centre_s / n_cycles * 1e3:.2f} ms"
               f"{twins} (of a {scene.bus.sync_period_ms:g} ms period; {cpu.wall_s:.1f} s run, "
               f"load {os.getloadavg()[0]:.1f} at the end)")
         print(f"  peak memory of this process: {rss_mb:.0f} MB (goal <= 300 MB: {rss_mb / 300:.2f}x)")

@@ -8,6 +8,7 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import time
+from pathlib import Path
 
 import can
 import numpy as np
@@ -232,3 +233,21 @@ def test_skin4096_rig_answers_a_sync(rig_of, name, frames, fd):
     tpdos = [(ch, m) for ch, m in got if 0x181 <= m.arbitration_id <= 0x57F]
     assert len(tpdos) == frames and all(m.is_fd == fd for _, m in tpdos)
     assert {(ch, m.arbitration_id): (bytes(m.data), m.is_fd) for ch, m in tpdos} == expected_frames(scene, 0, 1)
+
+
+@pytest.mark.parametrize("name", ["skin4096", "skin4096_fd"])
+def test_patch_player_sends_what_the_twins_send(name):
+    """bench/patch_player.py (the patch nodes at hardware speed, for measuring the centre alone)
+    answers a SYNC with the frames the twins send for that cycle: the same COB-IDs, data and
+    frame format, the SYNC counter as the tag (reference: the physics and the shared layout)."""
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "bench"))
+    from patch_player import cycle_frames
+
+    scene = load_scene(f"scenes/{name}.toml")
+    frames = cycle_frames(scene, 121)
+    for cycle, counter in ((0, 1), (40, 41), (120, 57)):   # before, under and after the contact
+        got = {(ch, cob): (bytes((counter,)) + body, fd) for ch, per_cycle in enumerate(frames)
+               for cob, body, fd in per_cycle[cycle]}
+        assert got == expected_frames(scene, cycle, counter)
