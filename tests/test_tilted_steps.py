@@ -139,7 +139,7 @@ def _log_law_reference(pi, lat):
 
 
 @pytest.mark.parametrize("encoding,p,q", FORMS)
-@pytest.mark.parametrize("mode", ["tilted-law", "tilted-arithmetic", "bridge"])
+@pytest.mark.parametrize("mode", ["tilted-law", "tilted-arithmetic", "chunked", "bridge"])
 def test_law_rows_vs_log_domain_reference(encoding, p, q, mode, monkeypatch):
     """n = 90 (several blocks and renaming cycles), skewed per-taxel probabilities, a tilt towards
     a far tail, against the untrimmed log-domain DP. "tilted-law" (trimmed by the tilted law):
@@ -148,7 +148,13 @@ def test_law_rows_vs_log_domain_reference(encoding, p, q, mode, monkeypatch):
     "tilted-arithmetic": SPAN_MAX 0, so the steps switch to the tilted arithmetic (ratios of tilts
     by daxpy) after the first block, nothing trimmed: every atom to 1e-12 relative. "bridge":
     trimmed by the bridge bounds for a region beyond the tilted mean: its mass to 1e-12
-    relative plus the run's own (absolute) error bound."""
+    relative plus the run's own (absolute) error bound. "chunked": as "tilted-arithmetic" with
+    every daxpy split into pieces of 5 elements (tilted_steps.AXPY_CHUNK)."""
+    if mode == "chunked":
+        from fusion_center.core import tilted_steps
+
+        monkeypatch.setattr(tilted_steps, "AXPY_CHUNK", 5)
+        mode = "tilted-arithmetic"
     if mode == "tilted-arithmetic":
         monkeypatch.setattr(tilted_dp, "SPAN_MAX", 0.0)
     rng = np.random.default_rng(hash((encoding, p, q, mode)) % 2**32)

@@ -38,6 +38,10 @@ from scipy.linalg.blas import daxpy
 
 MERGED = 2
 """Key (MERGED, b): the sum of the rows (0, b) and (1, b)."""
+AXPY_CHUNK = 8192
+"""daxpy is called on at most this many elements at a time: OpenBLAS runs longer vectors
+(> 10000) on several threads, whose waiting costs far more than it saves on a shared machine
+(a call at 3*10^4 taxels took minutes instead of seconds)."""
 
 
 def merged_bs(shift: np.ndarray) -> tuple[int, ...]:
@@ -219,9 +223,13 @@ class StepRunner:
         out = []
         for kind, dst, src, s, w in ops:
             if kind == "axpy":
-                out.append((3, rows[dst], rows[src], (n, w, (lo - s) * L, 1, lo * L, 1)))
+                for c0 in range(0, n, AXPY_CHUNK):
+                    out.append((3, rows[dst], rows[src], (min(AXPY_CHUNK, n - c0), w, (lo - s) * L + c0, 1,
+                                                          lo * L + c0, 1)))
             elif kind == "faxpy":
-                out.append((6, rows[dst], rows[src], (n, w[0], w[1], (lo - s) * L, lo * L)))
+                for c0 in range(0, n, AXPY_CHUNK):
+                    out.append((6, rows[dst], rows[src], (min(AXPY_CHUNK, n - c0), w[0], w[1], (lo - s) * L + c0,
+                                                          lo * L + c0)))
             elif kind == "scale":
                 out.append((4, rows[dst][lo * L:hi * L], None, w))
             else:
