@@ -1,12 +1,13 @@
 """The centre at skin scale: SYNC -> decision latency and memory at 4,096 taxels (issue 14).
 
     .venv/bin/python bench/skin_scale.py [--scene scenes/skin4096.toml ...] [--cycles 300]
-                                         [--shards 0] [--repeat 1]
+                                         [--shards 0] [--twins rig|player] [--repeat 1]
 
 Runs the scene's node twins and the fusion centre on python-can buses - by default all in
 this process on ``virtual`` buses (one per scene channel: 8 for skin4096), with ``--shards K``
 the twins in K ``node-sim`` processes (each serving a group of channels) and the centre here,
-on ``udp_multicast`` (loopback) - for ``--cycles`` SYNC cycles at the scene's SYNC period
+on ``udp_multicast`` (loopback); with ``--twins player`` bench/patch_player.py answers for the
+patch nodes at hardware speed instead (the centre measured alone) - for ``--cycles`` SYNC cycles at the scene's SYNC period
 (100 Hz for skin4096), and prints per scene:
 
 * latency SYNC -> record: from the master's SYNC transmission to the fused record (every
