@@ -287,10 +287,10 @@ def test_one_zero_weight_is_exact_beyond_the_sparse_limit(encoding, p, q):
         assert abs(a - float(b)) <= 1e-11 * float(b) + 1e-300, (a, b)
 
 
-def log_chain_reference(pi, p, q, low, high):
-    """An independent DP for {-1,+1}, p, q > 0 in the log domain (np.logaddexp), without
-    scaling or trimming: state (u_(i-1), u_i, e_1) and m = -n..n; U_G = 2^(p+q) m + 2^p e_1 +
-    2^q e_n compared with the edges in mpmath. Returns ln P(H1), ln P(undecided), ln P(H0)."""
+def log_chain_states(pi):
+    """An independent DP for {-1,+1}, p, q > 0 in the log domain (np.logaddexp), without scaling
+    or trimming: ``(L, mid)``, L[u_(n-1), u_n, e_1 + 1, m + mid] = ln P of that end state and
+    m = -n..n, where U_G = 2^(p+q) m + 2^p e_1 + 2^q e_n (e_n = u_n-term of the last run end)."""
     n = len(pi)
     size = 2 * n + 3
     mid = n + 1
@@ -316,6 +316,13 @@ def log_chain_reference(pi, p, q, low, high):
                         moved[:, :-1] = L[a, b, :, 1:]
                     new[b, c] = np.logaddexp(new[b, c], moved + (lp[i] if c else lq[i]))
         L = new
+    return L, mid
+
+
+def log_chain_reference(pi, p, q, low, high):
+    """:func:`log_chain_states` classified: U_G compared with the edges in mpmath. Returns
+    ln P(H1), ln P(undecided), ln P(H0)."""
+    L, mid = log_chain_states(pi)
     out = [[], [], []]
     P, Q = mp.mpf(2) ** mp.mpf(p), mp.mpf(2) ** mp.mpf(q)
     for a in (0, 1):
@@ -328,6 +335,19 @@ def log_chain_reference(pi, p, q, low, high):
                     out[0 if u >= high else (2 if u < low else 1)].append(row[j])
     from scipy.special import logsumexp
     return [float(logsumexp(v)) if v else None for v in out]
+
+
+def assert_logs_match_reference(ours, pd, pf, p, q, low, high) -> dict:
+    """Every rate's natural log in ``ours`` (both hypotheses) against :func:`log_chain_reference`
+    to 1e-11 (relative, on the log); returns {rate name: reference ln P}."""
+    refs = {}
+    for probs, names in ((pd, ("p_detect", "p_undecided_h1", "p_miss")),
+                         (pf, ("p_false_alarm", "p_undecided_h0", "p_reject"))):
+        for name, r in zip(names, log_chain_reference(probs, p, q, low, high)):
+            got = getattr(ours, "log_" + name)
+            assert got is not None and abs(got - r) <= 1e-11 * max(1.0, abs(r)), (p, q, name, got, r)
+            refs[name] = r
+    return refs
 
 
 def test_deep_tails_vs_a_log_domain_reference():
@@ -346,15 +366,10 @@ def test_deep_tails_vs_a_log_domain_reference():
         low, high = band.threshold_initial, band.threshold_final
         ours = preferential_error_rates(pd, pf, p, q, "pm1", low, high)
         assert ours.method == "chain"
-        for probs, names in ((pd, ("p_detect", "p_undecided_h1", "p_miss")),
-                             (pf, ("p_false_alarm", "p_undecided_h0", "p_reject"))):
-            ref = log_chain_reference(probs, p, q, low, high)
-            for name, r in zip(names, ref):
-                got = getattr(ours, "log_" + name)
-                assert got is not None and abs(got - r) <= 1e-11 * max(1.0, abs(r)), (p, q, name, got, r)
-                assert (name in ours.below_floor) == (r < math.log(1e-300)), name
-                if r < math.log(1e-300):
-                    assert ours.error_bounds[name] < -13
+        for name, r in assert_logs_match_reference(ours, pd, pf, p, q, low, high).items():
+            assert (name in ours.below_floor) == (r < math.log(1e-300)), name
+            if r < math.log(1e-300):
+                assert ours.error_bounds[name] < -13
         assert ours.below_floor  # this band puts the H0 rates of H1-or-undecided far below 1e-300
         shallow = preferential_error_rates(pd, pf, p, q, "pm1", low, high, deep=False)
         assert all(getattr(shallow, "log_" + k) is None for k in shallow.below_floor)
@@ -449,9 +464,13 @@ def test_01_non_integer_weights_exact_beyond_60_taxels(p, q):
     """{0,1} with a non-integer weight: the counts DP (runs of length 1 / longer runs / inner
     taxels) is exact beyond the old 60-taxel limit (was Monte Carlo); against a DP over the
     integer coefficients of 1, 2^p, 2^q, 2^(p+q) at n = 72, unequal pi."""
-    rng = np.random.default_rng(9)
-    n = 72
-    pi = rng.uniform(0.05, 0.7, n)
+    assert_counts_dp_matches_coefficient_law(np.random.default_rng(9).uniform(0.05, 0.7, 72), p, q)
+
+
+def assert_counts_dp_matches_coefficient_law(pi, p, q):
+    """The {0,1} counts DP ("exact-counts") against the DP over the integer coefficients of 1,
+    2^p, 2^q, 2^(p+q) (``coeff_chain_law``), for two bands, each rate to 1e-11 relative."""
+    n = len(pi)
     g = 2.0**p + 2.0**q + (n - 2) * 2.0 ** (p + q)
     law = coeff_chain_law(list(pi))
     for low, high in ((0.1 * g, 0.25 * g), (0.3 * g, 0.5 * g)):
@@ -599,13 +618,8 @@ def test_bridge_trimmed_rates_vs_log_domain_reference():
         band = preferential_threshold(n, 0.003, 0.48, p, q)
         low, high = band.threshold_initial, band.threshold_final
         ours = preferential_error_rates(pd, pf, p, q, "pm1", low, high)
-        for probs, names in ((pd, ("p_detect", "p_undecided_h1", "p_miss")),
-                             (pf, ("p_false_alarm", "p_undecided_h0", "p_reject"))):
-            ref = log_chain_reference(probs, p, q, low, high)
-            for name, r in zip(names, ref):
-                got = getattr(ours, "log_" + name)
-                assert got is not None and abs(got - r) <= 1e-11 * max(1.0, abs(r)), (p, q, name, got, r)
-                assert ours.error_bounds[name] < -13, (name, ours.error_bounds[name])
+        for name in assert_logs_match_reference(ours, pd, pf, p, q, low, high):
+            assert ours.error_bounds[name] < -13, (name, ours.error_bounds[name])
         assert ours.log_p_false_alarm < -800 * math.log(10.0)
 
 
@@ -751,15 +765,7 @@ def test_two_count_dp_exact_at_300_taxels(p, q):
     reference, too slow at 300), at n = 300 the method is exact and each hypothesis' three
     rates sum to 1."""
     rng = np.random.default_rng(21)
-    n = 90
-    pi = rng.uniform(0.05, 0.7, n)
-    g = 2.0**p + 2.0**q + (n - 2) * 2.0 ** (p + q)
-    law = coeff_chain_law(list(pi))
-    for low, high in ((0.1 * g, 0.25 * g), (0.3 * g, 0.5 * g)):
-        ours = preferential_error_rates(pi, pi, p, q, "01", low, high)
-        ref = classify_law(law, p, q, low, high)
-        for a, b in zip((ours.p_false_alarm, ours.p_undecided_h0, ours.p_reject), ref):
-            assert abs(a - b) <= 1e-11 * b + 1e-300, (a, b)
+    assert_counts_dp_matches_coefficient_law(rng.uniform(0.05, 0.7, 90), p, q)
     n = 300
     pd, pf = rng.uniform(0.3, 0.9, n), rng.uniform(0.05, 0.4, n)
     g = 2.0**p + 2.0**q + (n - 2) * 2.0 ** (p + q)

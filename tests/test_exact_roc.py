@@ -8,12 +8,17 @@ from __future__ import annotations
 
 import itertools
 import math
+import sys
+from pathlib import Path
 
 import mpmath as mp
 import numpy as np
 import pytest
 
 from fusion_center.core import exact_rates, montecarlo
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from test_exact_rates import log_chain_states  # noqa: E402 - the shared log-domain reference DP
 
 
 def brute_law(pi, p, q, encoding):
@@ -222,32 +227,10 @@ def test_error_plot_floor_reaches_the_exact_values(monkeypatch):
 
 
 def log_law_reference(pi, p, q):
-    """U_G's law for {-1,+1}, p, q > 0 by an independent log-domain DP (np.logaddexp, no scaling
-    or trimming): state (u_(i-1), u_i, e_1), m = -n..n, U_G = 2^(p+q) m + 2^p e_1 + 2^q e_n
-    (mpmath values, 40 digits). Returns {U_G: ln P}."""
-    n = len(pi)
-    size, mid, ninf = 2 * n + 3, n + 1, -np.inf
-    L = np.full((2, 2, 3, size), ninf)
-    lp, lq = np.log(pi), np.log1p(-np.asarray(pi))
-    for a in (0, 1):
-        for b in (0, 1):
-            e1 = (1 if a else -1) if b else 0
-            L[a, b, e1 + 1, mid] = (lp[0] if a else lq[0]) + (lp[1] if b else lq[1])
-    for i in range(2, n):
-        new = np.full_like(L, ninf)
-        for a in (0, 1):
-            for b in (0, 1):
-                for c in (0, 1):
-                    s = (1 if b else -1) if (a and c) else 0
-                    moved = np.full((3, size), ninf)
-                    if s == 0:
-                        moved = L[a, b]
-                    elif s == 1:
-                        moved[:, 1:] = L[a, b, :, :-1]
-                    else:
-                        moved[:, :-1] = L[a, b, :, 1:]
-                    new[b, c] = np.logaddexp(new[b, c], moved + (lp[i] if c else lq[i]))
-        L = new
+    """U_G's law for {-1,+1}, p, q > 0 from the independent log-domain DP of test_exact_rates
+    (np.logaddexp, no scaling or trimming; U_G in mpmath, 40 digits). Returns {U_G: ln P}."""
+    L, mid = log_chain_states(pi)
+    ninf = -np.inf
     out = {}
     with mp.workdps(40):
         P, Q = mp.mpf(2) ** mp.mpf(p), mp.mpf(2) ** mp.mpf(q)
