@@ -125,27 +125,33 @@ class SelectNotifiers:
                     return
                 raise
             for fd in ready:
-                handle = by_fd[fd]
-                try:
-                    # the frames this bus holds now, at most TURN_FRAMES: a flooded bus does not
-                    # starve the others (the rest stays in its socket, ready at the next select)
-                    for msg in itertools.islice(handle.drain(), TURN_FRAMES):
-                        handle.dispatch(msg)
-                except Exception as exc:  # noqa: BLE001 - as can.Notifier: note it, tell the listeners
+                # the rest of a flooded bus's frames stays in its socket, ready at the next select
+                if self._turn(by_fd[fd]) is None:
                     if self._stop.is_set():
                         return
-                    self._failed(handle, exc)
                     fds.remove(fd)  # as a can.Notifier's thread ends: this bus is not read again
 
-    @staticmethod
-    def _failed(handle: _Handle, exc: Exception) -> None:
-        handle.exception = exc
-        for listener in list(handle.listeners):
-            on_error = getattr(listener, "on_error", None)
-            if on_error is not None:
-                on_error(exc)
-        logger.error("receive thread: bus %s: %s: %s - no longer read", handle.bus.channel_info,
-                     type(exc).__name__, exc)
+    def _turn(self, handle: _Handle) -> int | None:
+        """One turn of a bus: the frames it holds now, at most TURN_FRAMES (a flooded bus does
+        not starve the others), handed to its listeners; returns how many. None when reading it
+        failed - as a can.Notifier: the exception noted on the handle, the listeners told
+        (``on_error``), one log line; not when the thread is stopping (a bus closed under it)."""
+        taken = 0
+        try:
+            for msg in itertools.islice(handle.drain(), TURN_FRAMES):
+                handle.dispatch(msg)
+                taken += 1
+        except Exception as exc:  # noqa: BLE001 - any failure of a bus ends its reading, not the thread
+            if not self._stop.is_set():
+                handle.exception = exc
+                for listener in list(handle.listeners):
+                    on_error = getattr(listener, "on_error", None)
+                    if on_error is not None:
+                        on_error(exc)
+                logger.error("receive thread: bus %s: %s: %s - no longer read", handle.bus.channel_info,
+                             type(exc).__name__, exc)
+            return None
+        return taken
 
     def stop(self, timeout: float = 5.0) -> None:
         self._stop.set()
@@ -177,6 +183,15 @@ def _virtual_queue_swappable(bus: can.BusABC) -> bool:
             and isinstance(getattr(bus, "channel", None), list) and any(q is bus.queue for q in bus.channel))
 
 
+def _move_queued(old: queue.Queue, new: queue.Queue) -> None:
+    """Every frame in ``old`` put in ``new``, in order."""
+    while True:
+        try:
+            new.put_nowait(old.get_nowait())
+        except queue.Empty:
+            return
+
+
 class VirtualNotifiers(SelectNotifiers):
     """One thread reading every python-can ``virtual`` bus of ``pairs``: each bus's receive queue
     becomes a :class:`_SignallingQueue` (frames already queued moved over, in order), the thread
@@ -192,18 +207,10 @@ class VirtualNotifiers(SelectNotifiers):
             with channels_lock:
                 old = bus.queue
                 new = _SignallingQueue(old.maxsize, self._signal)
-                while True:
-                    try:
-                        new.put_nowait(old.get_nowait())
-                    except queue.Empty:
-                        break
+                _move_queued(old, new)
                 bus.channel[next(k for k, q in enumerate(bus.channel) if q is old)] = new
                 bus.queue = new
-                while True:  # a sender that listed the channel's queues before the swap
-                    try:
-                        new.put_nowait(old.get_nowait())
-                    except queue.Empty:
-                        break
+                _move_queued(old, new)  # from a sender that listed the channel's queues before the swap
         super().__init__(pairs, timeout, name)
 
     def _run(self) -> None:
@@ -213,18 +220,13 @@ class VirtualNotifiers(SelectNotifiers):
             signal.wait(self.timeout)
             signal.clear()
             for handle in list(handles):
-                try:
-                    taken = 0
-                    for msg in itertools.islice(handle.drain(), TURN_FRAMES):  # as SelectNotifiers
-                        handle.dispatch(msg)
-                        taken += 1
-                    if taken == TURN_FRAMES:
-                        signal.set()  # frames left in its queue: no wait before the next turn
-                except Exception as exc:  # noqa: BLE001 - as can.Notifier: note it, tell the listeners
+                taken = self._turn(handle)
+                if taken is None:
                     if self._stop.is_set():
                         return
-                    self._failed(handle, exc)
                     handles.remove(handle)
+                elif taken == TURN_FRAMES:
+                    signal.set()  # frames left in its queue: no wait before the next turn
 
     def stop(self, timeout: float = 5.0) -> None:
         self._stop.set()
