@@ -30,6 +30,7 @@ import argparse
 import os
 import resource
 import sys
+import threading
 import time
 import uuid
 from pathlib import Path
@@ -84,20 +85,52 @@ def check_records(scene, records) -> dict:
 
 class CpuMeter:
     """CPU time (user + system, s) of this process and of ``pids`` (the node-sim shards) over
-    the ``with`` block: what a cycle costs the host, whatever else runs beside it."""
+    the ``with`` block: what a cycle costs the host, whatever else runs beside it; and per
+    thread of this process (``threads``: name -> s), read from /proc every ``poll_s`` so that a
+    thread ending inside the block (the SYNC producer) is counted to its last reading."""
 
-    def __init__(self, pids=()):
+    def __init__(self, pids=(), poll_s: float = 0.25):
         self.pids = list(pids)
+        self.poll_s = poll_s
+        self.threads: dict[str, float] = {}
 
     @staticmethod
     def _of(pid) -> float:
         if pid is None:
             usage = resource.getrusage(resource.RUSAGE_SELF)
             return usage.ru_utime + usage.ru_stime
-        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        return CpuMeter._stat(Path(f"/proc/{pid}/stat"))
+
+    @staticmethod
+    def _stat(path: Path) -> float:
+        fields = path.read_text().rsplit(")", 1)[1].split()
         return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")  # utime, stime
 
+    def _thread_times(self) -> dict[int, float]:
+        times = {}
+        for task in Path("/proc/self/task").iterdir():
+            try:
+                times[int(task.name)] = self._stat(task / "stat")
+            except (OSError, ValueError, IndexError):  # ended meanwhile
+                pass
+        return times
+
+    def _poll(self) -> None:
+        while not self._stop.wait(self.poll_s):
+            self._sample()
+
+    def _sample(self) -> None:
+        names = {t.native_id: t.name for t in threading.enumerate()}
+        for tid, seconds in self._thread_times().items():
+            if tid in names:
+                self._last[tid] = (names[tid], seconds)
+
     def __enter__(self):
+        self._first = self._thread_times()
+        self._last: dict[int, tuple[str, float]] = {}
+        self._stop = threading.Event()
+        self._poller = threading.Thread(target=self._poll, name="cpu-meter", daemon=True)
+        self._poller.start()
         self.t0 = time.perf_counter()
         self.start = [self._of(None)] + [self._of(pid) for pid in self.pids]
         return self
@@ -105,8 +138,14 @@ class CpuMeter:
     def __exit__(self, *exc):
         self.wall_s = time.perf_counter() - self.t0
         end = [self._of(None)] + [self._of(pid) for pid in self.pids]
+        self._stop.set()
+        self._poller.join()
+        self._sample()
         self.centre_s, *twins = [b - a for a, b in zip(self.start, end)]
         self.twins_s = sum(twins)
+        for tid, (name, seconds) in self._last.items():
+            if name != "cpu-meter":
+                self.threads[name] = self.threads.get(name, 0.0) + seconds - self._first.get(tid, 0.0)
         return False
 
 
@@ -237,6 +276,9 @@ def main(argv=None) -> int:
         print(f"  CPU per cycle: {'centre' if sharded else 'centre + twins'} {cpu.centre_s / n_cycles * 1e3:.2f} ms"
               f"{twins} (of a {scene.bus.sync_period_ms:g} ms period; {cpu.wall_s:.1f} s run, "
               f"load {os.getloadavg()[0]:.1f} at the end)")
+        busiest = sorted(cpu.threads.items(), key=lambda kv: -kv[1])[:4]
+        print("  CPU per cycle by thread of this process: " + ", ".join(
+            f"{name} {seconds / n_cycles * 1e3:.2f} ms" for name, seconds in busiest))
         print(f"  peak memory of this process: {rss_mb:.0f} MB (goal <= 300 MB: {rss_mb / 300:.2f}x)")
     return 0
 

@@ -279,3 +279,48 @@ def test_a_flooded_bus_does_not_starve_the_others():
     finally:
         for b in rx + tx:
             b.shutdown()
+
+
+class _FailsAfter(_Broken):
+    """Readable; yields ``frames`` then fails (the read of a bus that goes away mid-turn)."""
+
+    def __init__(self, frames):
+        super().__init__()
+        self._frames = list(frames)
+
+    def _recv_internal(self, timeout):
+        if self._frames:
+            return self._frames.pop(0), True
+        raise can.CanOperationError("gone")
+
+
+def test_a_batch_listener_gets_each_turn_in_one_call_and_the_frames_before_a_failure():
+    """A listener with ``on_messages_received`` gets the frames of a turn in one call, in order;
+    one without gets them one by one; a bus that fails mid-turn hands on what it read, then
+    tells the failure once."""
+    frames = [can.Message(arbitration_id=0x181, data=bytes([i]), is_extended_id=False) for i in range(5)]
+    bus = _FailsAfter(frames)
+    batches, singles, events = [], [], []
+
+    class Batch(can.Listener):
+        def on_messages_received(self, msgs):
+            batches.append([m.data[0] for m in msgs])
+            events.append("frames")
+
+        def on_message_received(self, msg):  # not used when the batch method is there
+            raise AssertionError("called one by one")
+
+        def on_error(self, exc):
+            events.append("error")
+
+    loop = SelectNotifiers([(bus, [Batch(), lambda m: singles.append(m.data[0])])], timeout=0.01)
+    try:
+        deadline = time.monotonic() + 2
+        while "error" not in events and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert batches == [[0, 1, 2, 3, 4]] and singles == [0, 1, 2, 3, 4]
+        assert events == ["frames", "error"]
+        assert isinstance(loop.handles[0].exception, can.CanOperationError)
+    finally:
+        loop.stop(1)
+        bus.shutdown()

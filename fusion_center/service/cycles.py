@@ -81,6 +81,7 @@ import numpy as np
 
 from taxel_net.scene import Scene
 from .cycle_layout import CycleLayout
+from .packed_decisions import PackedDecisions
 from .decoder import (
     HEARTBEAT_STATES,
     SlotDecoder,  # re-exported: the patch TPDO decoding lives in .decoder
@@ -169,6 +170,10 @@ class CycleAssembler:
         self.patch = bool(bus.patch_nodes)
         self.fd = bool(bus.fd)
         self.slot_got = np.zeros(len(layout.slot_tpdo), dtype=bool)
+        # packed decisions unpacked at the close (.packed_decisions); None: per frame
+        packed = PackedDecisions(layout, scene.n) if bus.patch_nodes else None
+        self.packed = packed if packed is not None and packed.usable else None
+        self.packed_places = self.packed.places if self.packed is not None else [None] * len(layout.slot_tpdo)
         self.lsb_mv = float(bus.raw_lsb_mv)
         self.primary = K_TPDO2 if bus.mode == "raw" else K_TPDO1
         self.synchronous_every_sync = bus.transmission_type == 1
@@ -492,9 +497,15 @@ class CycleAssembler:
 
     def _patch(self, t: int, raw: int, slot: int, data: bytes):
         """A TPDO of a patch node (``taxel_net.patches``): packed decisions or readings behind
-        the cycle tag (the full counter of the sampling SYNC), counted only in that SYNC's cycle."""
+        the cycle tag (the full counter of the sampling SYNC), counted only in that SYNC's cycle.
+        Packed decisions are kept as they came and unpacked at the close (:mod:`.packed_decisions`)."""
         counts = self.counts
-        bad, tag, values = self.layout.slot_decoders[slot].decode(data)
+        place = self.packed_places[slot]
+        if place is not None:
+            bad, tag = self.layout.slot_decoders[slot].check(data)
+            values = None
+        else:
+            bad, tag, values = self.layout.slot_decoders[slot].decode(data)
         if bad is not None:
             return self._bad(bad)
         if tag is not None:
@@ -508,12 +519,18 @@ class CycleAssembler:
         d = int(self.layout.slot_device[slot])
         self.last_heard[d] = t
         self.state[d] = STATE_OPERATIONAL
-        taxels = self.layout.slot_taxels[slot]
-        bits = self.layout.slot_is_bits[slot]
-        if bits:
-            self.held_decisions[taxels] = values
+        if place is not None:
+            first, stop, start, end = place
+            payload = data[start:end]
+            self.packed.held_bytes[first:stop] = payload
+            self.packed.heard[slot] = True
         else:
-            self.held_readings[taxels] = values
+            taxels = self.layout.slot_taxels[slot]
+            bits = self.layout.slot_is_bits[slot]
+            if bits:
+                self.held_decisions[taxels] = values
+            else:
+                self.held_readings[taxels] = values
         got = self.slot_got
         if tag is not None and self.is_open and not stale and got[slot] and self.synchronous_every_sync:
             self._duplicate(d)  # a second frame of this TPDO tagged with this cycle's SYNC
@@ -522,7 +539,10 @@ class CycleAssembler:
             self.late_since += 1
             return None
         got[slot] = True
-        if bits:
+        if place is not None:
+            self.packed.cycle_bytes[first:stop] = payload
+            counts[C_TPDO1] += 1
+        elif bits:
             self.decisions[taxels] = values
             self.got1[taxels] = True
             counts[C_TPDO1] += 1
@@ -627,6 +647,8 @@ class CycleAssembler:
         return None
 
     def _close(self, closed_by: str, t: int) -> ClosedCycle:
+        if self.packed is not None:
+            self.packed.unpack(self.slot_got, self.decisions, self.got1, self.held_decisions)
         primary_got = self.got2 if self.primary == K_TPDO2 else self.got1
         expected, missing, states = self.expected, self.missing, self.sync_state
         if self.patch:  # per device -> per taxel; a device is complete with all its TPDOs

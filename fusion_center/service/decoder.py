@@ -198,14 +198,21 @@ class SlotDecoder:
         self.lo = int(np.iinfo(self.dtype).min)  # "not valid"
         self.lsb = float(lsb_mv)
 
-    def decode(self, data: bytes):
+    def check(self, data: bytes):
+        """``(counter, tag)``: the refusals of :meth:`decode` (``counter`` None when the frame
+        fits) and the cycle tag, without the values."""
         if len(data) != self.length:
-            return C_BAD_DLC, None, None
+            return C_BAD_DLC, None
         end = self.end
         if data[end:] != self.tail or (self.pad_mask and data[end - 1] & self.pad_mask):
-            return C_BAD_VALUE, None, None
-        tag = data[0] if self.tagged else None
-        start = self.start
+            return C_BAD_VALUE, None
+        return None, (data[0] if self.tagged else None)
+
+    def decode(self, data: bytes):
+        bad, tag = self.check(data)
+        if bad is not None:
+            return bad, None, None
+        start, end = self.start, self.end
         if self.bits:  # eight decisions a byte, looked up as bytes: half the time of a numpy gather
             return None, tag, np.frombuffer(b"".join([_BITS_PM1_BYTES[b] for b in data[start:end]]),
                                             dtype=np.int8, count=self.count)

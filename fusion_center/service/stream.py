@@ -106,8 +106,8 @@ class EchoFilter:
                     del self._awaited[key]
 
     def is_echo(self, msg: can.Message, channel: int) -> bool:
-        if msg.is_extended_id or msg.is_error_frame or msg.is_fd:
-            return False
+        if not self._awaited or msg.is_extended_id or msg.is_error_frame or msg.is_fd:
+            return False  # none awaited (``sent`` is recorded before its frame goes out)
         now = self._clock()
         key = (channel, msg.arbitration_id, bytes(msg.data), bool(msg.is_remote_frame))
         with self._lock:
@@ -241,6 +241,23 @@ class EventStream:
         if closed or len(self._trace_queue) >= TRACE_BATCH:
             self._after_feed(closed)
 
+    def receive_all(self, msgs: Iterable[can.Message], channel: int) -> list[can.Message]:
+        """Frames of one channel in bus order, as :meth:`receive` one by one, under one take of
+        the stream lock; the cycles they close are evaluated after the last. Returns those the
+        assembler took as the answer an SDO request of the centre awaits (``solicited``), in order."""
+        solicited = self.assembler.solicited
+        answers = []
+        closed = False
+        with self.lock:
+            for msg in msgs:
+                closed |= self._feed_locked(msg, channel)
+                if solicited[channel]:
+                    solicited[channel] = False
+                    answers.append(msg)
+        if closed or len(self._trace_queue) >= TRACE_BATCH:
+            self._after_feed(closed)
+        return answers
+
     def transmit(self, channel: int, can_id: int, data: bytes, remote: bool = False) -> None:
         """Send a frame of the master on ``channel`` and feed it as an event (same order)."""
         self.transmit_all([(channel, can_id, data)], remote)
@@ -340,11 +357,19 @@ class _StreamListener(can.Listener):
             self.subscribers = network.subscribers  # COB-ID -> callbacks, updated by canopen
 
     def on_message_received(self, msg: can.Message) -> None:
+        self.on_messages_received((msg,))
+
+    def on_messages_received(self, msgs: Sequence[can.Message]) -> None:
+        """The frames of one receive turn (taxel_net.receiver), in order: fed to the stream
+        under one take of its lock; then the boot-ups they brought to the service and the SDO
+        answers among them to canopen."""
         try:
-            if self.echoes is not None and self.echoes.is_echo(msg, self.channel):
-                self.service.own_echoes += 1  # our own frame looped back (udp_multicast)
-                return
-            self.stream.receive(msg, self.channel)
+            echoes = self.echoes
+            if echoes is not None:  # our own frames looped back (udp_multicast) are dropped
+                foreign = [msg for msg in msgs if not echoes.is_echo(msg, self.channel)]
+                self.service.own_echoes += len(msgs) - len(foreign)
+                msgs = foreign
+            answers = self.stream.receive_all(msgs, self.channel)
             bootups = self.stream.assembler.bootups
             if bootups:
                 with self.stream.lock:
@@ -352,9 +377,7 @@ class _StreamListener(can.Listener):
                     bootups.clear()
                 for index in drained:
                     self.service.on_bootup(index)
-            solicited = self.stream.assembler.solicited
-            if solicited[self.channel]:  # this frame was an awaited SDO answer
-                solicited[self.channel] = False
+            for msg in answers:  # awaited SDO answers
                 if self.network is not None and msg.arbitration_id in self.subscribers:
                     self.canopen.on_message_received(msg)
         except Exception as exc:  # noqa: BLE001 - never let the Notifier thread die
