@@ -4,8 +4,8 @@
 filters what its twins consume (:data:`CONSUMED_FILTERS`: python-can filters, refreshed when
 the nodes' SYNC COB-ID changes) and dispatches them under the channel lock: NMT module
 control, SDO requests, SYNC (cycle numbering from the SYNC counter, CiA 301 length error and
-synchronous window, then every node samples its readings and the frames of that SYNC leave as
-one burst), heartbeats of other participants, LSS requests. The :class:`~node_sim.rig.Rig`
+synchronous window, then every node samples its readings - patch nodes as one batch,
+:class:`node_sim.patch.PatchSyncBatch` - and the frames of that SYNC leave as one burst), heartbeats of other participants, LSS requests. The :class:`~node_sim.rig.Rig`
 owns the channels and what they share (readings, silence faults, LSS devices).
 
 On a ``virtual`` bus the burst bypasses python-can's per-receiver deep copy
@@ -30,6 +30,7 @@ from . import lss as lssx
 from . import od as odx
 from .link import NodeLink, Scheduler
 from .node import TaxelNode
+from .patch import PatchSyncBatch
 
 if TYPE_CHECKING:
     from .rig import Rig
@@ -96,6 +97,10 @@ CONSUMED_FILTERS = [
 class Channel(can.Listener):
     """One CANopen network: a bus object, its notifier, the nodes, one lock, one timer thread."""
 
+    # patch nodes consuming the same SYNC are sampled as one (node_sim.patch.PatchSyncBatch);
+    # False: node by node through each SyncConsumer (the same frames, more CPU)
+    batch_patch_sync = True
+
     def __init__(self, rig: "Rig", index: int, name: str, bus: can.BusABC):
         self.rig = rig
         self.index = index
@@ -123,6 +128,8 @@ class Channel(can.Listener):
         self.frames_sent = 0
         self.notifier = None  # its receive handle (a can.Notifier or a taxel_net.receiver one)
         self._sync_map: dict[int, list[tuple[TaxelNode, Callable, int]]] | None = None
+        # per SYNC COB-ID, its patch nodes sampled as one (PatchSyncBatch), rebuilt with _sync_map
+        self._sync_batches: dict[int, PatchSyncBatch] = {}
         self._sync_ids: frozenset[int] | None = None  # the SYNC COB-IDs the bus filters let through
 
     def refresh_filters(self) -> None:
@@ -181,6 +188,10 @@ class Channel(can.Listener):
             for n in self.nodes.values():  # each node's SYNC consumer, by its SYNC COB-ID (0x1005)
                 self._sync_map.setdefault(n.sync.cob_id, []).append(
                     (n, n.sync.on_sync, self.scene_index[n.node_id]))
+            self._sync_batches = {
+                cob_id: PatchSyncBatch([(n, index) for n, _, index in group])
+                for cob_id, group in self._sync_map.items()
+                if self.patch and self.batch_patch_sync and all(PatchSyncBatch.batchable(n) for n, _, _ in group)}
             # the SYNC counter overflow value 0x1019 of the channel's nodes (the most common
             # one, should a master give them different values)
             overflows = [n.sync.overflow for n in self.nodes.values()]
@@ -207,7 +218,7 @@ class Channel(can.Listener):
                 self._last_counter = data[0] if data else None
                 self.cycle = self.sync_count - 1
                 return
-            self._on_sync(data, sync_nodes)
+            self._on_sync(data, sync_nodes, self._sync_batches.get(can_id))
         elif 0x701 <= can_id <= 0x77F and len(data) == 1:
             # a heartbeat / boot-up of another participant (the master): heartbeat consumers
             for node in self.nodes.values():
@@ -224,7 +235,8 @@ class Channel(can.Listener):
         for answer in lssx.answer_all(slaves, data):
             self.send(lssx.LSS_SLAVE_COB, answer)
 
-    def _on_sync(self, data: bytes, nodes: Sequence[tuple[TaxelNode, Callable, int]]) -> None:
+    def _on_sync(self, data: bytes, nodes: Sequence[tuple[TaxelNode, Callable, int]],
+                 batch: PatchSyncBatch | None = None) -> None:
         counter = data[0] if len(data) >= 1 else None
         if counter is not None and self._last_counter is not None:
             step = (counter - self._last_counter - 1) % self._overflow + 1
@@ -248,7 +260,10 @@ class Channel(can.Listener):
                     apply_silence(self.index, node, cycle)
                 elif node.silent:  # what _apply_silence does with no drop and no silent fault
                     node.silent = False
-                on_sync(cycle, readings[index], counter)  # node.sync.on_sync
+                if batch is None:
+                    on_sync(cycle, readings[index], counter)  # node.sync.on_sync
+            if batch is not None:  # the patch nodes, their detectors in one pass (silence set above)
+                batch.on_sync(cycle, readings, counter)
         finally:
             self.link.release()
         self.rig._schedule_prefetch(self, cycle)

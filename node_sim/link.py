@@ -117,6 +117,21 @@ class NodeLink:
         else:
             self._send_now(can_id, data)
 
+    def send_all(self, frames: list[tuple], sent: "tuple[_TpdoRuntime, ...]") -> None:
+        """:meth:`send` each of ``frames`` (``(can_id, data)`` or ``(can_id, data, True)``), then
+        :meth:`mark_sent` each of ``sent``: a node's TPDOs of one SYNC in one call."""
+        held = self._held
+        if held is not None:
+            held.extend(frames)
+            self._held_tx.extend(sent)
+            return
+        send = self._send_now
+        for frame in frames:
+            send(*frame)
+        now = time.monotonic()
+        for rt in sent:
+            rt.last_tx_time = now
+
     def mark_sent(self, rt: "_TpdoRuntime") -> None:
         if self._held is None:
             rt.last_tx_time = time.monotonic()

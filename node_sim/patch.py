@@ -26,15 +26,24 @@ FD, 64 mapping entries / 512 bits per PDO). What differs:
   ``LocalNode`` by a read callback, never copied into the data store per SYNC. Sub 0 of every
   patch array reads its number of entries for this node (``n``, or ``ceil(n / 8)`` for the
   packed bytes); a sub-index beyond it is refused (0x06090011) for reads, writes and mappings.
-* :class:`PatchTpdoEngine` - compiles each mapping once (on a change) into byte ranges of the
-  image (consecutive entries of one array become one slice), so a SYNC costs one ``join`` of
-  a few slices per TPDO; on CAN FD the data are padded with 0 to the next valid FD length.
+* :class:`PatchTpdoEngine` - compiles each mapping once (on a change) into a function of byte
+  ranges of the image (consecutive entries of one array become one slice), so a SYNC costs one
+  ``join`` of a few slices per TPDO (the tag and the packed decisions: one concatenation); on
+  CAN FD the data are padded with 0 to the next valid FD length. TPDOs all sent on every SYNC
+  (transmission type 1) leave in one call to the link.
 
 Start-up values (what :meth:`PatchNode.configure` gets from :func:`patch_startup_values`) make the
 node send exactly the frames :func:`taxel_net.patches.devices` describes for the device.
 
-Hot path: one SYNC is one call with the patch's readings (a numpy view of the rig's vector):
-about ten numpy operations on arrays of ``n`` values, then the TPDOs - no per-taxel Python loop.
+* :class:`PatchSyncBatch` - the patch nodes of a channel consuming the same SYNC, sampled as
+  one: :func:`detect` (the detector of eqs 1-4 and the fault checks, the one implementation
+  :meth:`PatchDetector.sample` also runs) once over the concatenated taxels of the nodes that
+  sample, the concatenated configuration cached until a node's detector re-reads its own; then
+  per node its slice of the results, its EMCY on a fault change, its TPDOs.
+
+Hot path: one SYNC of a channel is one :func:`detect` over its patch nodes' readings (a view of
+the rig's vector; about ten numpy calls when no sample repeats and every reading is in range),
+one ``packbits``, then per node a few slices and its TPDOs - no per-taxel Python loop.
 """
 
 from __future__ import annotations
@@ -52,9 +61,11 @@ from taxel_net.scene import KIND_NAMES, TAXEL_KINDS
 from . import od as odx
 from .emcy import FAULT_NONE, FAULT_OPEN_CIRCUIT, FAULT_STUCK
 from .link import NodeLink
+from .nmt import INITIALISING, OPERATIONAL
 from .node import TaxelNode
 from .pdo import TpdoEngine, _TpdoConfig
 from .sdo import ABORT_NOT_MAPPABLE, ABORT_SUBINDEX_NOT_IN_OD, ABORT_VALUE_RANGE, ABORT_VALUE_TOO_LOW
+from .sync import SyncConsumer
 
 PATCH_EDS_PATH = patch_eds_path()
 PATCH_FAULTS = 0x2022            # ARRAY UNSIGNED8: sensor-fault bits, the layout of 0x2020
@@ -82,6 +93,9 @@ def load_patch_od(node_id: int, eds_path=PATCH_EDS_PATH):
     return _import(str(path), path.stat().st_mtime, node_id)
 
 
+_ONE_BYTE = tuple(bytes((v,)) for v in range(256))
+
+
 class PatchImage:
     """The process image of one patch node (module docstring): bytes per image object."""
 
@@ -89,6 +103,7 @@ class PatchImage:
         self.n = n
         self.n_bytes = (n + 7) // 8
         self.tag = 0
+        self.tag_byte = _ONE_BYTE[0]     # 0x2021 as its one data byte
         self.decisions = bytes(self.n_bytes)
         self.faults = bytes(self.n_bytes)
         self.readings: np.ndarray = np.full(n, np.nan)   # X_i (mV) of the last SYNC
@@ -102,6 +117,7 @@ class PatchImage:
         self.decisions = decisions
         self.faults = faults
         self.tag = tag
+        self.tag_byte = _ONE_BYTE[tag]
         self._counts = {}
 
     def counts(self, index: int) -> bytes:
@@ -117,7 +133,7 @@ class PatchImage:
         if index == P.PATCH_DECISIONS:
             return self.decisions
         if index == P.PATCH_CYCLE_TAG:
-            return bytes((self.tag,))
+            return self.tag_byte
         if index == PATCH_FAULTS:
             return self.faults
         return self.counts(index)
@@ -129,6 +145,84 @@ class PatchImage:
     @staticmethod
     def entry_bytes(index: int) -> int:
         return 2 if index == P.PATCH_READINGS_I16 else 1
+
+
+NEVER_STUCK = np.iinfo(np.int64).max     # the stuck limit of a taxel whose 0x2002:2 is 0 (check off)
+
+
+def stuck_limit(stuck_samples: int) -> int:
+    """The run length of identical REAL32 samples at which a taxel is stuck: 0x2002:2, or
+    :data:`NEVER_STUCK` when it is 0 (the check is off)."""
+    return stuck_samples if stuck_samples > 0 else NEVER_STUCK
+
+
+@lru_cache(maxsize=64)
+def _constant(n: int, value) -> np.ndarray:
+    """A read-only array of ``n`` times ``value`` (its dtype), shared: the run lengths of
+    taxels that did not repeat their sample (1) and the fault bits of taxels that are fine."""
+    array = np.full(n, value)
+    array.flags.writeable = False
+    return array
+
+
+def detect(x: np.ndarray, zeta, noise, full_scale, stuck_after, stuck_min: int, last_raw: np.ndarray,
+           same: np.ndarray, valid: np.ndarray | None = None):
+    """The local detectors and sensor-fault checks of taxels with readings ``x`` (mV, float64),
+    one SYNC: ``(raw, same, open_circuit, faulted, present, any_faulted)``.
+
+    ``raw``: the REAL32 bit patterns of ``x`` (uint32; ``last_raw`` holds those of the previous
+    sample); ``same``: how many identical patterns in a row, the one of this SYNC included
+    (``same`` in: the counts before it, 0 before the first sample). ``open_circuit``: X_i not
+    finite or |X_i| >= full scale (0x2002:1); ``faulted``: open circuit, or stuck (``same``
+    reached ``stuck_after``, :func:`stuck_limit` of 0x2002:2; ``stuck_min``: its smallest
+    value). ``present``: u_i = +1, i.e. Y_i = X_i - N_i >= zeta_i (eqs 1-4: Y = X - N, eq 4;
+    u = +1 iff Y >= zeta, eqs 2-3; a NaN compares False) and the taxel not faulted (a faulted
+    taxel decides absent). ``valid`` (optional): False for entries that are no taxel (padding):
+    absent, not faulted. ``any_faulted``: some taxel is faulted.
+
+    ``zeta``, ``noise`` (per taxel; None: every N_i is 0, Y_i = X_i exactly), ``full_scale``
+    (a float or one value per taxel) and ``stuck_after`` (a number or one value per taxel)
+    broadcast against ``x``: one node (:meth:`PatchDetector.sample`) or the
+    concatenated taxels of a channel's patch nodes (:class:`PatchSyncBatch`). The common case
+    - no repeated sample, every reading in range - costs about ten numpy calls; then ``same``,
+    ``open_circuit`` and ``faulted`` are shared read-only arrays (never written in place).
+    Floating-point warnings (a reading beyond REAL32, inf - inf) are silenced only when a
+    reading is out of range."""
+    n = len(x)
+    if type(full_scale) is float:   # one full scale: its largest |X_i| tells (NaN: not below it)
+        in_range = None
+        all_in_range = bool(np.abs(x).max() < full_scale)
+    else:
+        in_range = np.abs(x) < full_scale
+        all_in_range = bool(in_range.all())
+    if all_in_range:   # finite readings below full scale (a REAL32): no floating-point warning
+        raw = x.astype("<f4").view("<u4")
+        present = (x >= zeta) if noise is None else (x - noise) >= zeta   # eqs 1-4
+    else:
+        with np.errstate(over="ignore", invalid="ignore"):    # beyond REAL32, inf - inf
+            raw = x.astype("<f4").view("<u4")
+            present = (x >= zeta) if noise is None else (x - noise) >= zeta
+    repeated = raw == last_raw
+    if repeated.any():
+        same = same * repeated
+        same += 1
+        stuck = same >= stuck_after
+    else:
+        same = _constant(n, 1)
+        stuck = same >= stuck_after if stuck_min <= 1 else None
+    if valid is not None:
+        present &= valid
+    if stuck is None and all_in_range:
+        no_fault = _constant(n, False)
+        return raw, same, no_fault, no_fault, present, False
+    if in_range is None:
+        in_range = np.abs(x) < full_scale                     # False: NaN, +-inf, |X| >= full scale
+    open_circuit = ~in_range
+    faulted = open_circuit | stuck if stuck is not None else open_circuit.copy()
+    if valid is not None:
+        faulted &= valid
+    present &= ~faulted
+    return raw, same, open_circuit, faulted, present, bool(faulted.any())
 
 
 class PatchDetector:
@@ -148,8 +242,9 @@ class PatchDetector:
         """Forget the fault state (NMT reset node / reset communication)."""
         self.fault = FAULT_NONE
         self.faulted = np.zeros(self.n, dtype=bool)
-        self._last_raw = np.full(self.n, -1, dtype=np.int64)   # no REAL32 pattern: first sample counts 1
-        self._same = np.zeros(self.n, dtype=np.int64)
+        self._last_raw = np.zeros(self.n, dtype=np.uint32)   # REAL32 patterns of the last sample
+        self._same = np.zeros(self.n, dtype=np.int64)         # 0: the first sample counts 1
+        self._no_faults = bytes(self._image.n_bytes)
 
     def invalidate(self, index: int | None = None, subindex: int | None = None) -> None:
         self._cfg = None
@@ -185,26 +280,30 @@ class PatchDetector:
 
     def sample(self, readings, counter: int | None = None) -> None:
         """X of one SYNC for every taxel (``readings``: n values, mV): faults, decisions
-        (eqs 1-4), process image."""
+        (eqs 1-4, :func:`detect`), process image. A channel's patch nodes sampling the same SYNC
+        are done together instead (:class:`PatchSyncBatch`: the same :func:`detect`)."""
         zeta, noise, full_scale, stuck_after = self.config()
         x = np.asarray(readings, dtype=np.float64)
-        with np.errstate(over="ignore", invalid="ignore"):
-            raw = x.astype("<f4").view("<u4").astype(np.int64)   # the REAL32 samples, as the one-taxel node
-        same = self._same
-        np.add(same, 1, out=same)
-        same[raw != self._last_raw] = 1
+        limit = stuck_limit(stuck_after)
+        raw, same, open_circuit, faulted, present, any_faulted = detect(
+            x, zeta, noise, full_scale, limit, limit, self._last_raw, self._same)
+        self.record(x, raw, same, np.packbits(present, bitorder="little").tobytes(), counter,
+                    faulted, open_circuit, any_faulted)
+
+    def record(self, x: np.ndarray, raw: np.ndarray, same: np.ndarray, decisions: bytes,
+               counter: int | None, faulted: np.ndarray, open_circuit: np.ndarray, any_faulted: bool,
+               faults: bytes | None = None) -> None:
+        """What :func:`detect` made of this node's readings ``x`` becomes its state: the REAL32
+        samples and run lengths of the stuck check, the fault state (EMCY on a change,
+        :meth:`_faults_changed`) and the process image (``decisions``: the packed bits of
+        0x2020; ``faults``: those of 0x2022, packed here from ``faulted`` when not given)."""
         self._last_raw = raw
-        with np.errstate(invalid="ignore"):
-            open_circuit = ~(np.abs(x) < full_scale)            # NaN, ±inf, |X| >= full scale
-            present = (x - noise) >= zeta                       # eqs 1-4; NaN compares False
-        faulted = open_circuit
-        if stuck_after > 0:
-            faulted = open_circuit | (same >= stuck_after)
-        if faulted.any() or self.fault != FAULT_NONE:
+        self._same = same
+        if any_faulted or self.fault != FAULT_NONE:
             self._faults_changed(faulted, open_circuit, x)
-            present &= ~faulted
-        self._image.update(x, np.packbits(present, bitorder="little").tobytes(),
-                           np.packbits(faulted, bitorder="little").tobytes(), counter or 0)
+        if faults is None:
+            faults = np.packbits(faulted, bitorder="little").tobytes() if any_faulted else self._no_faults
+        self._image.update(x, decisions, faults, counter or 0)
 
     def _faults_changed(self, faulted: np.ndarray, open_circuit: np.ndarray, x: np.ndarray) -> None:
         old = self.faulted
@@ -230,10 +329,60 @@ class PatchTpdoEngine(TpdoEngine):
                                           for k in range(N_TPDOS)),
                          max_bits=8 * (P.FD_DATA_MAX if fd else P.CLASSIC_DATA_MAX), fd=fd)
         self._image = node.image
+        self._every_sync = self._tagged_decisions = None   # what _activate finds
+        self._every_sync_runtimes: tuple = ()
+
+    def _activate(self):
+        active = super()._activate()
+        # every active TPDO synchronous, sent on every SYNC (transmission type 1, no SYNC start
+        # value): on_sync sends them without the general per-TPDO bookkeeping, which leaves
+        # them started with their SYNC count at 0 after every SYNC - as here
+        every_sync = bool(active) and all(cfg.transmission_type == 1 and not cfg.sync_start for _, cfg, _ in active)
+        self._every_sync = tuple((cfg.can_id, cfg.plan, rt) for _, cfg, rt in active) if every_sync else None
+        self._every_sync_runtimes = tuple(rt for _, _, rt in active)
+        # and each the cycle tag and a range of packed decisions (classic): (can_id, start, stop)
+        self._tagged_decisions = (tuple((cfg.can_id, *cfg.plan.tagged_decisions) for _, cfg, _ in active)
+                                  if every_sync and not self.fd
+                                  and all(hasattr(cfg.plan, "tagged_decisions") for _, cfg, _ in active)
+                                  else None)
+        if every_sync:
+            for rt in self._every_sync_runtimes:
+                rt.started = True
+                rt.sync_count = 0
+        return active
+
+    def on_sync(self, counter: int | None) -> None:
+        """A SYNC in OPERATIONAL for a live node: :meth:`TpdoEngine.on_sync`, or when every
+        active TPDO is sent on every SYNC, their frames in one :meth:`NodeLink.send_all`
+        (the same frames and run-time state)."""
+        if self._active is None:
+            self._activate()
+        every_sync = self._every_sync
+        if every_sync is None:
+            super().on_sync(counter)
+            return
+        tagged = self._tagged_decisions
+        if tagged is not None:
+            image = self._image
+            tag, decisions = image.tag_byte, image.decisions
+            frames = [(can_id, tag + decisions[first:stop]) for can_id, first, stop in tagged]
+            for (_, payload), rt in zip(frames, self._every_sync_runtimes):
+                rt.last_sent = payload
+        else:
+            frames = []
+            fd = self.fd
+            for can_id, payload_of, rt in every_sync:
+                payload = payload_of()
+                rt.last_sent = payload
+                frames.append((can_id, payload, True) if fd else (can_id, payload))
+        self._link.send_all(frames, self._every_sync_runtimes)
+        self.frames_sent += len(frames)
 
     def _compile(self, cfg: _TpdoConfig):
-        """``(runs, padding)``: runs ``(index, start, stop)`` of image bytes, or ``(index,
-        subindex, None)`` for another object (read from the OD at transmission)."""
+        """The payload of ``cfg`` as a function of no argument: byte ranges of the image
+        (consecutive entries of one array: one range) and other objects (read from the OD at
+        transmission), joined, then the FD padding; the cycle tag and one range of packed
+        decisions (the rig's patch TPDOs) is one concatenation."""
         runs: list[list] = []
         image = self._image
         length = 0
@@ -252,15 +401,32 @@ class PatchTpdoEngine(TpdoEngine):
             else:
                 runs.append([index, subindex, None])
         padding = bytes(P.fd_length(length) - length) if self.fd and length <= P.FD_DATA_MAX else b""
-        return tuple(tuple(r) for r in runs), padding
+        kinds = [r[0] for r in runs]
+        if not padding and kinds == [P.PATCH_CYCLE_TAG, P.PATCH_DECISIONS]:
+            first, stop = runs[1][1], runs[1][2]
+
+            def tagged_decisions() -> bytes:
+                return image.tag_byte + image.decisions[first:stop]
+
+            tagged_decisions.tagged_decisions = (first, stop)   # what on_sync sends without the call
+            return tagged_decisions
+        if not padding and kinds == [P.PATCH_DECISIONS]:
+            first, stop = runs[0][1], runs[0][2]
+            return lambda: image.decisions[first:stop]
+        runs = tuple(tuple(r) for r in runs)
+        data = image.data
+        local = self._objects.local
+
+        def payload() -> bytes:
+            parts = [data(i)[a:b] if b is not None else local.get_data(i, a) for i, a, b in runs]
+            if padding:
+                parts.append(padding)
+            return b"".join(parts)
+
+        return payload
 
     def _payload(self, cfg: _TpdoConfig) -> bytes:
-        runs, padding = cfg.plan
-        data = self._image.data
-        parts = [data(i)[a:b] if b is not None else self._objects.local.get_data(i, a) for i, a, b in runs]
-        if padding:
-            parts.append(padding)
-        return b"".join(parts)
+        return cfg.plan()
 
     def _check_mappable(self, entry: int) -> int:
         index, subindex = entry >> 16, (entry >> 8) & 0xFF
@@ -329,6 +495,148 @@ class PatchNode(TaxelNode):
         return self.detector.faulted
 
 
+class _BatchLayout:
+    """Where each sampling node's taxels sit in a :class:`PatchSyncBatch`'s concatenation, and
+    their configuration concatenated: each node's taxels start on a byte (its ``n`` padded to
+    a multiple of 8 with entries :func:`detect` masks out), so one ``packbits`` of the batch,
+    sliced per node, gives each node's packed bits. Built from the nodes' detectors and their
+    :meth:`PatchDetector.config` tuples (``configs``, held: a write or NMT reset makes a new
+    one, so a layout is current while every tuple it was built from is still its node's)."""
+
+    def __init__(self, detectors: list, taxels: list, configs: list):
+        self.detectors = detectors
+        self.configs = configs
+        sizes = [len(t) for t in taxels]
+        padded = [-(-n // 8) * 8 for n in sizes]
+        offsets = np.concatenate(([0], np.cumsum(padded)[:-1])).tolist()
+        self.spans = [(a, a + n, a // 8, (a + m) // 8) for a, n, m in zip(offsets, sizes, padded)]
+        self.pads = [m - n for n, m in zip(sizes, padded)]
+        self.padded = any(self.pads)
+
+        def concatenated(arrays, fill):
+            parts = []
+            for array, pad in zip(arrays, self.pads):
+                parts.append(array)
+                if pad:
+                    parts.append(np.full(pad, fill, dtype=np.asarray(array).dtype))
+            return np.concatenate(parts)
+
+        self.zeta = concatenated([c[0] for c in configs], 0.0)
+        self.noise = concatenated([c[1] for c in configs], 0.0)
+        scales = {float(c[2]) for c in configs}
+        self.full_scale = scales.pop() if len(scales) == 1 else np.repeat([float(c[2]) for c in configs], padded)
+        if not self.noise.any():
+            self.noise = None      # every N_i 0 (or -0): X_i - N_i is X_i
+        limits = [stuck_limit(c[3]) for c in configs]
+        self.stuck_after = np.repeat(np.array(limits, dtype=np.int64), padded)
+        self.stuck_min = min(limits)
+        self.valid = concatenated([np.ones(n, dtype=bool) for n in sizes], False) if self.padded else None
+        starts = [int(t[0]) for t in taxels]
+        consecutive = all(np.array_equal(t, np.arange(a, a + len(t))) for t, a in zip(taxels, starts)) \
+            and all(starts[k] + sizes[k] == starts[k + 1] for k in range(len(sizes) - 1))
+        # the readings of the batch: a view of the channel's readings when they are one run
+        self.gather = (slice(starts[0], starts[-1] + sizes[-1]) if consecutive and not self.padded
+                       else concatenated([np.asarray(t, dtype=np.intp) for t in taxels], starts[0]))
+        self.pad_raw = {p: np.zeros(p, dtype=np.uint32) for p in self.pads if p}
+        self.pad_same = {p: np.zeros(p, dtype=np.int64) for p in self.pads if p}
+        self.raw = self.same = None     # the last batch's results, whose slices the detectors hold
+        self.handed: list = []          # those slices, (last_raw, same) per detector
+
+    def current(self, configs: list) -> bool:
+        held = self.configs
+        return len(held) == len(configs) and all(a is b for a, b in zip(held, configs))
+
+    def state(self) -> tuple[np.ndarray, np.ndarray]:
+        """The detectors' REAL32 patterns of the last sample and run lengths, concatenated: the
+        last batch's arrays while every detector still holds its slices of them."""
+        detectors = self.detectors
+        handed = self.handed
+        if len(handed) == len(detectors) and all(
+                d._last_raw is r and d._same is c for d, (r, c) in zip(detectors, handed)):
+            return self.raw, self.same
+        raws, sames = [], []
+        for d, pad in zip(detectors, self.pads):
+            raws.append(d._last_raw)
+            sames.append(d._same)
+            if pad:
+                raws.append(self.pad_raw[pad])
+                sames.append(self.pad_same[pad])
+        return np.concatenate(raws), np.concatenate(sames)
+
+
+class PatchSyncBatch:
+    """The patch nodes of one channel that consume the same SYNC, sampled as one: what each
+    node's :meth:`node_sim.sync.SyncConsumer.on_sync` does, with the detectors (:func:`detect`,
+    eqs 1-4) run once over the concatenated taxels of the nodes that sample this SYNC.
+
+    A node samples unless it is silent or INITIALISING; in OPERATIONAL its TPDOs follow. The
+    concatenated configuration (:class:`_BatchLayout`) is rebuilt when a node's detector
+    configuration is re-read (an SDO or start-up write, an NMT reset swapping the data store)
+    or the set of sampling nodes changes. Then node by node, in channel order: its slice of
+    the results becomes its state, its fault change its EMCY (:meth:`PatchDetector.record`),
+    then its TPDOs - the frames of the SYNC in the order the nodes one by one send them.
+    ``entries``: ``(node, taxels)`` in channel order, ``taxels`` the node's readings in the
+    channel's vector (a slice or an index array)."""
+
+    def __init__(self, entries):
+        self._nodes = []
+        for node, taxels in entries:
+            if isinstance(taxels, slice):
+                taxels = np.arange(taxels.start or 0, taxels.stop)
+            self._nodes.append((node, node.detector, node.sync, node.nmt, node.pdo.on_sync,
+                                np.asarray(taxels, dtype=np.intp)))
+        self._layout: _BatchLayout | None = None
+
+    @staticmethod
+    def batchable(node) -> bool:
+        """A patch node whose SYNC consumer and detector are the ones this batch stands in for."""
+        return (isinstance(node, PatchNode) and type(node.detector) is PatchDetector
+                and type(node.sync) is SyncConsumer and "on_sync" not in vars(node.sync)
+                and "sample" not in vars(node.detector))
+
+    def on_sync(self, cycle: int, readings: np.ndarray, counter: int | None) -> None:
+        """SYNC ``cycle`` (``counter``: its counter byte, None without) with the channel's
+        readings: every node as its SYNC consumer would (class docstring)."""
+        sampling = []
+        for entry in self._nodes:
+            if entry[0].silent:
+                continue
+            state = entry[3].state
+            if state == INITIALISING:
+                continue
+            sampling.append((entry, state))
+        if not sampling:
+            return
+        configs = [entry[1].config() for entry, _ in sampling]
+        layout = self._layout
+        if layout is None or not layout.current(configs):
+            layout = self._layout = _BatchLayout([entry[1] for entry, _ in sampling],
+                                                 [entry[5] for entry, _ in sampling], configs)
+        x = readings[layout.gather]
+        last_raw, same = layout.state()
+        raw, same, open_circuit, faulted, present, any_faulted = detect(
+            x, layout.zeta, layout.noise, layout.full_scale, layout.stuck_after, layout.stuck_min,
+            last_raw, same, layout.valid)
+        decisions = np.packbits(present, bitorder="little").tobytes()
+        faults = np.packbits(faulted, bitorder="little").tobytes() if any_faulted else None
+        handed = []
+        for ((node, detector, sync, nmt, tpdos_on_sync, _), state), (a, b, p, q) in zip(sampling, layout.spans):
+            sync.last_cycle = cycle
+            sync.last_counter = counter
+            node_raw, node_same = raw[a:b], same[a:b]
+            handed.append((node_raw, node_same))
+            if any_faulted or detector.fault:
+                node_faulted = faulted[a:b]
+                detector.record(x[a:b], node_raw, node_same, decisions[p:q], counter, node_faulted,
+                                open_circuit[a:b], any_faulted and bool(node_faulted.any()),
+                                faults[p:q] if faults is not None else None)
+            else:
+                detector.record(x[a:b], node_raw, node_same, decisions[p:q], counter, None, None, False)
+            if state == OPERATIONAL:
+                tpdos_on_sync(counter)
+        layout.raw, layout.same, layout.handed = raw, same, handed
+
+
 def patch_startup_values(scene, device: P.Device, identity_serial: int) -> dict[tuple[int, int], object]:
     """Start-up values of ``device`` (a patch of ``scene``, :func:`taxel_net.patches.devices`):
     its taxels' arrays, the communication parameters of ``scene.bus`` and the TPDOs the device
@@ -381,5 +689,5 @@ def tpdo_mapping(tpdo: P.Tpdo) -> list[int]:
     return entries
 
 
-__all__ = ["PatchNode", "PatchDetector", "PatchImage", "PatchTpdoEngine", "load_patch_od",
+__all__ = ["PatchNode", "PatchDetector", "PatchImage", "PatchTpdoEngine", "PatchSyncBatch", "detect", "load_patch_od",
            "patch_startup_values", "tpdo_mapping", "PATCH_FAULTS", "PATCH_EDS_PATH"]
