@@ -89,7 +89,7 @@ class CpuMeter:
     thread of this process (``threads``: name -> s), read from /proc every ``poll_s`` so that a
     thread ending inside the block (the SYNC producer) is counted to its last reading."""
 
-    def __init__(self, pids=(), poll_s: float = 0.25):
+    def __init__(self, pids=(), poll_s: float = 1.0):
         self.pids = list(pids)
         self.poll_s = poll_s
         self.threads: dict[str, float] = {}

@@ -316,14 +316,23 @@ class AssemblerProcess:
         self.close()
 
     def receive(self, msg, channel: int) -> None:
+        self.receive_all((msg,), channel)
+
+    def receive_all(self, msgs, channel: int) -> None:
+        """Frames of one channel in bus order (a receive turn), under one take of the lock; the
+        parts they close are sent after the last."""
         from .stream import message_flags
 
+        closed_any = False
         with self.lock:
-            self.events += 1
-            parts = self.group.feed(quantise_timestamp(msg.timestamp), channel, msg.arbitration_id,
-                                    bytes(msg.data), message_flags(msg))
-            self._outbox.extend(parts)
-        if parts:
+            for msg in msgs:
+                self.events += 1
+                parts = self.group.feed(quantise_timestamp(msg.timestamp), channel, msg.arbitration_id,
+                                        bytes(msg.data), message_flags(msg))
+                if parts:
+                    self._outbox.extend(parts)
+                    closed_any = True
+        if closed_any:
             self._send()
 
     def _send(self) -> None:
@@ -352,8 +361,12 @@ class _PartListener(can.Listener):
         self.channel = channel
 
     def on_message_received(self, msg) -> None:
+        self.on_messages_received((msg,))
+
+    def on_messages_received(self, msgs) -> None:
+        """A receive turn's frames (taxel_net.receiver), in order."""
         try:
-            self.process.receive(msg, self.channel)
+            self.process.receive_all(msgs, self.channel)
         except Exception:  # noqa: BLE001 - never let the Notifier thread die
             logger.exception("assembler receive path failed")
 

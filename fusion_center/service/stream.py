@@ -236,10 +236,7 @@ class EventStream:
 
     def receive(self, msg: can.Message, channel: int) -> None:
         """A frame from the bus (or from a trace, in replay)."""
-        with self.lock:
-            closed = self._feed_locked(msg, channel)
-        if closed or len(self._trace_queue) >= TRACE_BATCH:
-            self._after_feed(closed)
+        self.receive_all((msg,), channel)
 
     def receive_all(self, msgs: Iterable[can.Message], channel: int) -> list[can.Message]:
         """Frames of one channel in bus order, as :meth:`receive` one by one, under one take of
