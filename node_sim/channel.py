@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING, Callable, Sequence
 import can
 
 from taxel_net.canmsg import TxMessage
+from taxel_net.udp_filter import set_filters
 from taxel_net.udp_wire import udp_multicast_burst_sender
 
 from . import lss as lssx
@@ -135,14 +136,16 @@ class Channel(can.Listener):
     def refresh_filters(self) -> None:
         """Let through what the nodes consume (:data:`CONSUMED_FILTERS` and their SYNC COB-IDs,
         0x080 while there is no node): python-can filters, in the kernel or the controller
-        where the interface can, else before a frame becomes a ``can.Message``
-        (:func:`taxel_net.receiver.udp_multicast_drain`) or at least before this listener."""
+        where the interface can (socketcan; udp_multicast: :func:`taxel_net.udp_filter.set_filters`
+        - the group's looped-back PDOs of the channel's own nodes never reach this process),
+        else before a frame becomes a ``can.Message`` (:func:`taxel_net.receiver.udp_multicast_drain`)
+        or at least before this listener."""
         ids = frozenset(n.sync.cob_id for n in self.nodes.values()) or frozenset((0x080,))
         if ids == self._sync_ids:
             return
         self._sync_ids = ids
-        self.bus.set_filters(CONSUMED_FILTERS + [{"can_id": i, "can_mask": 0x7FF, "extended": False}
-                                                 for i in sorted(ids)])
+        set_filters(self.bus, CONSUMED_FILTERS + [{"can_id": i, "can_mask": 0x7FF, "extended": False}
+                                                  for i in sorted(ids)])
 
     # -- python-can Listener
     def on_message_received(self, msg: can.Message) -> None:

@@ -1,0 +1,149 @@
+"""taxel_net/udp_filter.py: a udp_multicast bus's python-can filters in its socket's kernel filter
+drop exactly the datagrams the Python side would drop by their first bytes (peek_id +
+_matches), and nothing else - on python-can's own datagrams of random frames, and on
+datagrams of other layouts, cut short or of random bytes."""
+
+from __future__ import annotations
+
+import random
+import socket
+import sys
+import time
+from pathlib import Path
+
+import can
+import pytest
+from can.interfaces.udp_multicast.utils import pack_message
+
+from taxel_net.canmsg import tune_udp_multicast
+from taxel_net.udp_filter import MIN_LENGTH, compile_filters, set_filters
+from taxel_net.udp_wire import _matches, peek_id
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from test_service_multiprocess import multicast_port  # noqa: E402
+
+pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="SO_ATTACH_FILTER is Linux's")
+GROUP = "239.74.163.41"
+
+
+def random_filters(rng: random.Random) -> list[dict]:
+    filters = []
+    for _ in range(rng.randint(1, 6)):
+        f = {"can_id": rng.randrange(0x800), "can_mask": rng.choice([0x7FF, 0x780, 0x700, 0x7F0])}
+        if rng.random() < 0.3:
+            f = {"can_id": rng.randrange(2 ** 29), "can_mask": rng.choice([0x1FFFFFFF, 0x1FFFFF00])}
+            f["extended"] = True
+        elif rng.random() < 0.7:
+            f["extended"] = False
+        filters.append(f)
+    return filters
+
+
+def random_datagrams(rng: random.Random, n: int) -> list[bytes]:
+    out = []
+    for k in range(n):
+        extended = rng.random() < 0.2
+        can_id = rng.randrange(2 ** 29 if extended else 0x800)
+        if rng.random() < 0.5:  # IDs near the filters' values
+            can_id = rng.choice([0x080, 0x000, 0x181, 0x701, 0x7E5, 0x605]) if not extended else can_id
+        fd = rng.random() < 0.2
+        length = rng.choice([0, 1, 8] + ([12, 64] if fd else []))
+        msg = can.Message(arbitration_id=can_id, is_extended_id=extended, data=bytes(rng.randrange(256) for _ in range(length)),
+                          is_fd=fd, bitrate_switch=fd, timestamp=rng.choice([0.0, 1.5, time.time()]),
+                          channel=rng.choice([None, 3, "skin0"]))
+        data = pack_message(msg)
+        r = rng.random()
+        if r < 0.05:
+            data = data[:rng.randrange(len(data))]                        # cut short
+        elif r < 0.1:
+            data = bytes(rng.randrange(256) for _ in range(rng.randrange(1, 120)))  # no python-can frame
+        elif r < 0.15:
+            i = rng.randrange(len(data))
+            data = data[:i] + bytes([data[i] ^ (1 << rng.randrange(8))]) + data[i + 1:]  # one bit flipped
+        out.append(data)
+    return out
+
+
+def python_keeps(filters, data: bytes) -> bool:
+    """What the drain keeps by the first bytes (the rest is unpacked and filtered again)."""
+    peeked = peek_id(data)
+    return peeked is None or _matches(filters, *peeked)
+
+
+def kernel_keeps(filters, data: bytes) -> bool:
+    """What the kernel filter must keep: what Python keeps, and every datagram shorter than the
+    program reads (left to Python, which may drop it)."""
+    return len(data) < MIN_LENGTH or python_keeps(filters, data)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_the_kernel_drops_only_what_python_would_drop(seed):
+    rng = random.Random(seed)
+    port = multicast_port()
+    bus = can.Bus(interface="udp_multicast", channel=GROUP, port=port, hop_limit=0)
+    tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        tune_udp_multicast(bus)
+        filters = random_filters(rng)
+        assert set_filters(bus, filters) is True
+        datagrams = random_datagrams(rng, 400)
+        sock = bus._multicast._socket
+        got = []
+        for data in datagrams:
+            tx.sendto(data, (GROUP, port))
+            while True:
+                try:
+                    got.append(sock.recv(4096, socket.MSG_DONTWAIT))
+                except BlockingIOError:
+                    break
+        deadline = time.monotonic() + 1.0
+        expected = [d for d in datagrams if kernel_keeps(filters, d)]
+        while len(got) < len(expected) and time.monotonic() < deadline:
+            try:
+                got.append(sock.recv(4096, socket.MSG_DONTWAIT))
+            except BlockingIOError:
+                time.sleep(0.01)
+        time.sleep(0.05)
+        while True:
+            try:
+                got.append(sock.recv(4096, socket.MSG_DONTWAIT))
+            except BlockingIOError:
+                break
+        assert got == expected
+        assert len(expected) < len(datagrams)  # the filters dropped some: the kernel filter did work
+        assert set_filters(bus, None) is False
+        tx.sendto(datagrams[0], (GROUP, port))
+        time.sleep(0.05)
+        assert sock.recv(4096, socket.MSG_DONTWAIT) == datagrams[0]   # no kernel filter left
+    finally:
+        tx.close()
+        bus.shutdown()
+
+
+def test_frames_through_the_bus_are_what_python_filters_alone_give():
+    port = multicast_port()
+    rx = can.Bus(interface="udp_multicast", channel=GROUP, port=port, hop_limit=0)
+    tx = can.Bus(interface="udp_multicast", channel=GROUP, port=port, hop_limit=0)
+    try:
+        filters = [{"can_id": 0x080, "can_mask": 0x7FF, "extended": False},
+                   {"can_id": 0x600, "can_mask": 0x780, "extended": False}]
+        assert set_filters(rx, filters)
+        for can_id in (0x080, 0x181, 0x605, 0x701, 0x67F, 0x081):
+            tx.send(can.Message(arbitration_id=can_id, data=b"\x01", is_extended_id=False))
+        tx.send(can.Message(arbitration_id=0x080, data=b"\x01", is_extended_id=True))
+        got = []
+        while (msg := rx.recv(0.2)) is not None:
+            got.append((msg.arbitration_id, msg.is_extended_id))
+        assert got == [(0x080, False), (0x605, False), (0x67F, False)]
+    finally:
+        rx.shutdown()
+        tx.shutdown()
+
+
+def test_filters_the_program_cannot_express_are_left_to_python():
+    assert compile_filters([{"can_id": 2 ** 32, "can_mask": 0x7FF}]) is None
+    assert compile_filters([{"can_id": 0x80, "can_mask": 2 ** 33}]) is None
+    many = [{"can_id": k, "can_mask": 0x7FF} for k in range(1200)]
+    assert compile_filters(many) is None                   # more than a program holds
+    program = compile_filters([{"can_id": 0x80, "can_mask": 0x7FF}])
+    assert program is not None and len(program) % 8 == 0
