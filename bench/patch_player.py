@@ -37,6 +37,7 @@ from taxel_net import patches  # noqa: E402
 from taxel_net.canmsg import tune_udp_multicast  # noqa: E402
 from taxel_net.receiver import notifiers_for  # noqa: E402
 from taxel_net.scene import load_scene  # noqa: E402
+from taxel_net.udp_filter import set_filters  # noqa: E402
 from taxel_net.udp_wire import udp_multicast_burst_sender  # noqa: E402
 
 PRE_OPERATIONAL, OPERATIONAL, STOPPED = 0x7F, 0x05, 0x04
@@ -119,8 +120,10 @@ def main(argv=None) -> int:
     players = []
     for k, bus in enumerate(buses):
         tune_udp_multicast(bus)
-        bus.set_filters([{"can_id": 0x000, "can_mask": 0x7FF, "extended": False},
-                         {"can_id": 0x080, "can_mask": 0x7FF, "extended": False}])
+        # NMT and SYNC only, dropped in the kernel (the centre's other frames and the group's
+        # looped-back TPDOs never wake the player: it stands in for hardware, beside the centre)
+        set_filters(bus, [{"can_id": 0x000, "can_mask": 0x7FF, "extended": False},
+                          {"can_id": 0x080, "can_mask": 0x7FF, "extended": False}])
         players.append(ChannelPlayer(bus, [d for d in devices if d.channel == k], frames[k],
                                      udp_multicast_burst_sender(bus)))
     handles = notifiers_for([(bus, [p]) for bus, p in zip(buses, players)], name="player-receive")
