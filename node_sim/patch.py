@@ -285,12 +285,14 @@ class PatchDetector:
                     faulted, open_circuit, any_faulted)
 
     def record(self, x: np.ndarray, raw: np.ndarray, same: np.ndarray, decisions: bytes,
-               counter: int | None, faulted: np.ndarray, open_circuit: np.ndarray, any_faulted: bool,
-               faults: bytes | None = None) -> None:
+               counter: int | None, faulted: np.ndarray | None, open_circuit: np.ndarray | None,
+               any_faulted: bool, faults: bytes | None = None) -> None:
         """What :func:`detect` made of this node's readings ``x`` becomes its state: the REAL32
         samples and run lengths of the stuck check, the fault state (EMCY on a change,
         :meth:`_faults_changed`) and the process image (``decisions``: the packed bits of
-        0x2020; ``faults``: those of 0x2022, packed here from ``faulted`` when not given)."""
+        0x2020; ``faults``: those of 0x2022, packed here from ``faulted`` when not given).
+        ``faulted`` / ``open_circuit`` may be None when no taxel is faulted and the node had
+        no fault."""
         self._last_raw = raw
         self._same = same
         if any_faulted or self.fault != FAULT_NONE:
