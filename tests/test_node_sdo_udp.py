@@ -116,10 +116,28 @@ def test_57_concurrent_sdo_clients_lose_no_transfer_on_udp_multicast():
     """One node-sim process (57 nodes), one client per node in threads, all at once: expedited
     downloads and uploads of 0x2001:1 and segmented uploads of 0x1008; canopen's client makes no
     retry and waits 5 s, so a dropped datagram is a lost transfer. Every transfer completes and
-    the kernel dropped nothing on node-sim's sockets (Linux /proc/net/udp)."""
+    the kernel dropped nothing on node-sim's sockets (Linux /proc/net/udp) but what their
+    kernel filter drops (taxel_net.udp_filter: node-sim's own SDO answers looped back, counted
+    as drops too): a socket of this process on the group with node-sim's filters, read by a
+    thread, drops exactly those."""
+    from node_sim.channel import CONSUMED_FILTERS
+    from taxel_net.udp_filter import set_filters
     from test_service_multiprocess import GROUP, multicast_port
 
     port = multicast_port()
+    shadow = can.Bus(interface="udp_multicast", channel=GROUP, port=port, hop_limit=0)
+    raise_receive_buffer(shadow)
+    in_kernel = set_filters(shadow, CONSUMED_FILTERS + [{"can_id": 0x080, "can_mask": 0x7FF, "extended": False}])
+    shadow_inodes = {os.fstat(shadow._multicast._socket.fileno()).st_ino}
+    reading = threading.Event()
+    reading.set()
+
+    def read_shadow():
+        while reading.is_set():
+            shadow.recv(0.05)
+
+    shadow_reader = threading.Thread(target=read_shadow, daemon=True)
+    shadow_reader.start()
     sim = subprocess.Popen(
         [sys.executable, "-c", "import sys; from node_sim.cli import main; sys.exit(main())",
          "--scene", str(MATRIX), "--interface", "udp_multicast", "--channel", GROUP,
@@ -131,6 +149,7 @@ def test_57_concurrent_sdo_clients_lose_no_transfer_on_udp_multicast():
         assert "ready" in ready, sim.stderr.read() if sim.poll() is not None else ready
         inodes = _socket_inodes(sim.pid)
         drops_before = _udp_drops(inodes, port)
+        filtered_before = _udp_drops(shadow_inodes, port)
         network = canopen.Network()
         network.connect(interface="udp_multicast", channel=GROUP, port=port, hop_limit=0)
         raise_receive_buffer(network.bus)  # the clients' side too: this test is about node-sim
@@ -168,8 +187,12 @@ def test_57_concurrent_sdo_clients_lose_no_transfer_on_udp_multicast():
         for t in threads:
             t.join(300)
         drops_after = _udp_drops(inodes, port)
+        filtered_after = _udp_drops(shadow_inodes, port)
         network.disconnect()
     finally:
+        reading.clear()
+        shadow_reader.join(2)
+        shadow.shutdown()
         sim.terminate()
         try:
             sim.wait(10)
@@ -179,4 +202,5 @@ def test_57_concurrent_sdo_clients_lose_no_transfer_on_udp_multicast():
     failed = [r for r in outcomes if r != "ok"]
     assert len(outcomes) == 57 * transfers and failed == [], failed[:10]
     if drops_before is not None and drops_after is not None:
-        assert drops_after - drops_before == 0
+        assert drops_after - drops_before == filtered_after - filtered_before
+        assert (filtered_after - filtered_before > 0) == in_kernel  # node-sim's answers, filtered out
