@@ -12,7 +12,10 @@ be none).
 
 Where datagrams were dropped: the kernel's per-socket drop counter (``/proc/net/udp``, column
 ``drops``, for the sockets of the node-sim process and of this one) and the socket's receive
-buffer as ``ss`` reports it (``skmem rb``, bytes) when ``ss`` is installed.
+buffer as ``ss`` reports it (``skmem rb``, bytes) when ``ss`` is installed. A node-sim of this
+tree filters its sockets in the kernel (``taxel_net.udp_filter``): the counter then also holds
+its own SDO answers looped back and dropped there (one per transfer and segment), not losses;
+tests/test_node_sdo_udp.py tells the two apart.
 
     .venv/bin/python bench/sdo_udp_clients.py                       # 8 and 57 clients
     .venv/bin/python bench/sdo_udp_clients.py --clients 57 --transfers 60 --repeat 3
@@ -197,7 +200,7 @@ def main() -> None:
                 print(f"{label}: {r['clients']:3d} clients: {r['completed']}/{r['transfers']} transfers completed, "
                       f"{r['lost']} lost ({100 * r['lost'] / r['transfers']:.1f} %), {r['aborted']} aborted"
                       f"{' (' + ', '.join(f'0x{c:08X} x{n}' for c, n in sorted(r['codes'].items())) + ')' if r['codes'] else ''}, "
-                      f"{r['seconds']:.1f} s; datagrams dropped by the kernel: node-sim {r['sim_drops']}, "
+                      f"{r['seconds']:.1f} s; datagrams dropped by the kernel: node-sim {r['sim_drops']} (with its filter's), "
                       f"clients {r['client_drops']}; receive buffer (ss rb, bytes): node-sim {r['sim_rb']}, "
                       f"clients {r['client_rb']}", flush=True)
 
