@@ -148,7 +148,11 @@ class Detector:
         if cfg is None or self._cfg_store is not store:
             cfg = self.config()
         zeta, noise, full_scale, stuck_after = cfg
-        raw = _REAL32.pack(reading)
+        try:
+            raw = _REAL32.pack(reading)
+        except OverflowError:  # beyond REAL32: the sample is ±inf, as an IEEE conversion rounds it
+            reading = math.copysign(math.inf, reading)
+            raw = _REAL32.pack(reading)
         if raw == self._last_raw:
             self._same_count += 1
         else:

@@ -26,7 +26,7 @@ pairs: a fault that begins while the node cannot report (STOPPED) is reported wh
 again (:meth:`EmcyProducer.resume`, on entering PRE-OPERATIONAL / OPERATIONAL), and an error
 reset is sent only after a reported error (a fault that begins and ends unreported sends
 neither; one reported and cleared while stopped gets its error reset on resuming). An
-open-circuit reading of ±inf is sent as ±3.4e38 (the REAL32 field), NaN as NaN. Its SDO
+open-circuit reading of ±inf, or finite beyond REAL32, is sent as ±3.4e38 (the REAL32 field), NaN as NaN. Its SDO
 rules: 0x1003:0 accepts only 0 (clear the history: subs 1-8 dropped), 0x1014 refuses a
 29-bit CAN-ID (0x06090030).
 """
@@ -47,6 +47,8 @@ EMCY_NO_ERROR = 0x0000
 EMCY_OPEN_CIRCUIT = 0x5000
 EMCY_STUCK = 0x7300
 EMCY_HEARTBEAT = 0x8130       # life guard / heartbeat error (a consumed heartbeat lost)
+
+REAL32_MAX = 3.4028234663852886e38  # the largest finite IEEE 754 single
 
 FAULT_NONE = 0
 FAULT_STUCK = 1
@@ -161,7 +163,8 @@ class EmcyProducer:
         cob = self._objects.read(COB_ID_EMCY)
         if cob & COB_INVALID:
             return False
-        r = reading if math.isfinite(reading) or math.isnan(reading) else math.copysign(3.4e38, reading)
+        # the REAL32 field: ±inf and anything beyond REAL32 as ±3.4e38, NaN as NaN
+        r = reading if math.isnan(reading) or abs(reading) <= REAL32_MAX else math.copysign(3.4e38, reading)
         self._send(cob & 0x7FF, emcy_payload(code, register, fault_id, r))
         return True
 

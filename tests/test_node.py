@@ -607,3 +607,28 @@ def test_scene_silent_fault_window(channel):
         assert frames[1].timestamp < syncs[2] and frames[2].timestamp > syncs[4]
     finally:
         s.close()
+
+
+def test_a_reading_beyond_real32_is_an_infinite_sample_and_an_open_circuit(setup_factory):
+    """A finite reading no REAL32 holds (an injected source, a model gone wild) is sampled as the
+    IEEE conversion rounds it - ±inf: open circuit, overload flagged, its EMCY's REAL32 field
+    ±3.4e38 as for an infinite reading - and never stops the node's SYNC handling."""
+    def source(cycle):
+        big = 1e40 if cycle >= 2 else 3.0
+        return np.array([big, -big, 3.0])
+
+    s = setup_factory(source)
+    s.nmt(0x01)
+    assert wait_until(lambda: s.rig.node(1).state == 0x05)
+    s.sync(3, gap=0.003)
+    for node, sign, overload in ((1, 1, 0x02), (2, -1, 0x04)):
+        frame = s.monitor.wait_count(0x080 + node, 1)[0]
+        code, register, fault_id, reading = em.parse_emcy(bytes(frame.data))
+        assert (code, fault_id) == (0x5000, em.FAULT_OPEN_CIRCUIT)
+        assert reading == pytest.approx(sign * 3.4e38, rel=1e-6)
+        rn = s.remote[node]
+        assert rn.sdo[0x6150][1].raw == 0x01 | overload   # not valid + its overload
+        assert rn.sdo[0x6130][1].raw == sign * math.inf   # the sample: REAL32 ±inf
+        assert rn.sdo[0x2000].raw == -1
+    s.sync(1)                                             # the nodes keep answering SYNCs
+    assert s.monitor.wait_count(0x183, 4)
