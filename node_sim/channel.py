@@ -167,11 +167,15 @@ class Channel(can.Listener):
                 target = data[1]
                 nodes = list(self.nodes.values()) if target == 0 else (
                     [self.nodes[target]] if target in self.nodes else [])
-                for node in nodes:
-                    node.on_nmt(data[0])
-                self._sync_map = None  # resets restore 0x1005
-                if data[0] in (0x81, 0x82):
-                    self.refresh_filters()
+                self.link.hold()  # the boot-ups leave once the filters take what a master may answer
+                try:
+                    for node in nodes:
+                        node.on_nmt(data[0])
+                    self._sync_map = None  # resets restore 0x1005
+                    if data[0] in (0x81, 0x82):
+                        self.refresh_filters()
+                finally:
+                    self.link.release()
                 if target == 0 and data[0] in (0x81, 0x82):
                     # every node reset by the master: the simulated world restarts with the
                     # master's cycle 0 (a second master run sees the same scene as the first)
@@ -181,10 +185,16 @@ class Channel(can.Listener):
         if 0x601 <= can_id <= 0x67F:
             node = self.nodes.get(can_id - 0x600)
             if node is not None and len(data) == 8:
-                node.on_sdo_request(data)
-                self._sync_map = None  # 0x1005 may have changed
-                if self._sync_ids is None or node.sync.cob_id not in self._sync_ids:
-                    self.refresh_filters()
+                # the answer leaves once the filters take the SYNC COB-ID it may have moved: the
+                # master's next SYNC on it must not meet the old kernel filter (taxel_net.udp_filter)
+                self.link.hold()
+                try:
+                    node.on_sdo_request(data)
+                    self._sync_map = None  # 0x1005 may have changed
+                    if self._sync_ids is None or node.sync.cob_id not in self._sync_ids:
+                        self.refresh_filters()
+                finally:
+                    self.link.release()
             return
         if self._sync_map is None:
             self._sync_map = {}

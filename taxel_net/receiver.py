@@ -49,7 +49,9 @@ logger = logging.getLogger("taxel_net.receiver")
 
 TURN_FRAMES = 256  # frames handled from one bus before the next bus's turn
 # a listener with this method gets the frames of a turn in one call (its per-frame set-up - a
-# lock, a dispatch - once per turn: at 4,096 taxels the centre takes ~100 frames a cycle)
+# lock, a dispatch - once per turn: at 4,096 taxels the centre takes ~100 frames a cycle) when
+# every listener of the bus has it; such a listener does not change the bus's filters (the
+# turn's frames were all read, and filtered, before it sees the first)
 BATCH_METHOD = "on_messages_received"
 
 
@@ -107,18 +109,10 @@ class _Handle:
                 listener(msg)
 
     def dispatch_all(self, msgs: list[can.Message]) -> None:
-        """The frames of one turn, in order, to every listener: at once to a listener that has
-        ``on_messages_received(msgs)`` (:data:`BATCH_METHOD`), one by one to the others."""
+        """The frames of one turn, in order, to every listener at once (each has
+        ``on_messages_received``, :data:`BATCH_METHOD`)."""
         for listener in list(self.listeners):
-            on_batch = getattr(listener, BATCH_METHOD, None)
-            if on_batch is not None:
-                on_batch(msgs)
-            elif hasattr(listener, "on_message_received"):
-                for msg in msgs:
-                    listener.on_message_received(msg)
-            else:
-                for msg in msgs:
-                    listener(msg)
+            getattr(listener, BATCH_METHOD)(msgs)
 
 
 class SelectNotifiers:
@@ -156,11 +150,19 @@ class SelectNotifiers:
         (``on_error``), one log line; not when the thread is stopping (a bus closed under it)."""
         msgs: list[can.Message] = []
         try:
-            try:
-                msgs.extend(itertools.islice(handle.drain(), TURN_FRAMES))
-            finally:  # what was read before a failure is still handed on, then the failure told
-                if msgs:
-                    handle.dispatch_all(msgs)
+            if all(hasattr(listener, BATCH_METHOD) for listener in handle.listeners):
+                try:
+                    msgs.extend(itertools.islice(handle.drain(), TURN_FRAMES))
+                finally:  # what was read before a failure is still handed on, then the failure told
+                    if msgs:
+                        handle.dispatch_all(msgs)
+            else:
+                # frame by frame, read then handed on: the bus's filters apply to each frame as
+                # its listeners left them after the one before (node_sim's channels widen
+                # theirs when an SDO write moves a SYNC COB-ID)
+                for msg in itertools.islice(handle.drain(), TURN_FRAMES):
+                    msgs.append(msg)
+                    handle.dispatch(msg)
         except Exception as exc:  # noqa: BLE001 - any failure of a bus ends its reading, not the thread
             if not self._stop.is_set():
                 handle.exception = exc

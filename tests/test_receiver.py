@@ -295,11 +295,11 @@ class _FailsAfter(_Broken):
 
 
 def test_a_batch_listener_gets_each_turn_in_one_call_and_the_frames_before_a_failure():
-    """A listener with ``on_messages_received`` gets the frames of a turn in one call, in order;
-    one without gets them one by one; a bus that fails mid-turn hands on what it read, then
-    tells the failure once."""
+    """Listeners that all have ``on_messages_received`` get the frames of a turn in one call, in
+    order; a bus that fails mid-turn hands on what it read, then tells the failure once. With a
+    listener among them that has not, every listener gets the frames one by one, each read
+    after the one before was handled (the bus's filters as the listeners left them)."""
     frames = [can.Message(arbitration_id=0x181, data=bytes([i]), is_extended_id=False) for i in range(5)]
-    bus = _FailsAfter(frames)
     batches, singles, events = [], [], []
 
     class Batch(can.Listener):
@@ -307,20 +307,51 @@ def test_a_batch_listener_gets_each_turn_in_one_call_and_the_frames_before_a_fai
             batches.append([m.data[0] for m in msgs])
             events.append("frames")
 
-        def on_message_received(self, msg):  # not used when the batch method is there
-            raise AssertionError("called one by one")
+        def on_message_received(self, msg):
+            singles.append(msg.data[0])
 
         def on_error(self, exc):
             events.append("error")
 
-    loop = SelectNotifiers([(bus, [Batch(), lambda m: singles.append(m.data[0])])], timeout=0.01)
+    for others, want_batches, want_singles in (([], [[0, 1, 2, 3, 4]], []),
+                                               ([lambda m: None], [], [0, 1, 2, 3, 4])):
+        batches.clear(), singles.clear(), events.clear()
+        bus = _FailsAfter(frames)
+        loop = SelectNotifiers([(bus, [Batch(), *others])], timeout=0.01)
+        try:
+            deadline = time.monotonic() + 2
+            while "error" not in events and time.monotonic() < deadline:
+                time.sleep(0.01)
+            assert batches == want_batches and singles == want_singles
+            assert events[-1] == "error" and events.count("error") == 1
+            assert isinstance(loop.handles[0].exception, can.CanOperationError)
+        finally:
+            loop.stop(1)
+            bus.shutdown()
+
+
+def test_a_filter_widened_by_a_frame_lets_the_next_frame_of_the_turn_through():
+    """A plain listener that widens the bus's filters on a frame sees the frames after it that
+    the new filters let through, though they were queued in the same turn."""
+    names = f"widen-{random.random()}"
+    rx, tx = can.Bus(interface="virtual", channel=names), can.Bus(interface="virtual", channel=names)
+    got = []
+
+    def listener(msg):
+        got.append(msg.arbitration_id)
+        if msg.arbitration_id == 0x605:  # as node_sim's channel after an SDO write of 0x1005
+            rx.set_filters([{"can_id": 0x605, "can_mask": 0x7FF}, {"can_id": 0x081, "can_mask": 0x7FF}])
+
     try:
+        rx.set_filters([{"can_id": 0x605, "can_mask": 0x7FF}])
+        tx.send(can.Message(arbitration_id=0x605, data=b"\x01", is_extended_id=False))
+        tx.send(can.Message(arbitration_id=0x081, data=b"\x01", is_extended_id=False))
+        handles = notifiers_for([(rx, [listener])])
         deadline = time.monotonic() + 2
-        while "error" not in events and time.monotonic() < deadline:
+        while len(got) < 2 and time.monotonic() < deadline:
             time.sleep(0.01)
-        assert batches == [[0, 1, 2, 3, 4]] and singles == [0, 1, 2, 3, 4]
-        assert events == ["frames", "error"]
-        assert isinstance(loop.handles[0].exception, can.CanOperationError)
+        assert got == [0x605, 0x081]
+        handles[0].stop(1)
     finally:
-        loop.stop(1)
-        bus.shutdown()
+        rx.shutdown()
+        tx.shutdown()

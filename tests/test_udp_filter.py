@@ -147,3 +147,53 @@ def test_filters_the_program_cannot_express_are_left_to_python():
     assert compile_filters(many) is None                   # more than a program holds
     program = compile_filters([{"can_id": 0x80, "can_mask": 0x7FF}])
     assert program is not None and len(program) % 8 == 0
+
+
+def test_a_sync_sent_once_the_sdo_answer_came_reaches_the_twin_whose_cob_id_it_moved(monkeypatch):
+    """node_sim: an SDO write moving a node's SYNC COB-ID (0x1005) widens its channel's filters;
+    the answer leaves only once the kernel filter has the new COB-ID, so a master's SYNC sent on
+    it as soon as the answer came is heard - even with the filter's update slowed down."""
+    import struct as struct_
+
+    from node_sim.rig import Rig
+    from taxel_net import udp_filter
+    from taxel_net.scene import load_scene
+
+    compile_now = udp_filter.compile_filters
+
+    def slow_compile(filters):
+        time.sleep(0.05)
+        return compile_now(filters)
+
+    monkeypatch.setattr(udp_filter, "compile_filters", slow_compile)
+    root = Path(__file__).resolve().parent.parent
+    scene = load_scene(root / "scenes" / "gripper18.toml")
+    port = multicast_port()
+    master = can.Bus(interface="udp_multicast", channel=GROUP, port=port, hop_limit=0)
+    rig = Rig(scene, interface="udp_multicast", channel=[GROUP] * len(scene.bus.channels),
+              bus_kwargs={"port": port, "hop_limit": 0}).start()
+    try:
+        node_id = sorted(rig._channels[0].nodes)[0]
+        master.send(can.Message(arbitration_id=0x000, data=bytes([0x01, 0]), is_extended_id=False))
+        time.sleep(0.3)
+        while master.recv(0.05) is not None:
+            pass
+        master.send(can.Message(arbitration_id=0x600 + node_id, is_extended_id=False,
+                                data=bytes([0x23, 0x05, 0x10, 0]) + struct_.pack("<I", 0x010)))
+        deadline = time.monotonic() + 2
+        while time.monotonic() < deadline:
+            msg = master.recv(0.1)
+            if msg is not None and msg.arbitration_id == 0x580 + node_id:
+                break
+        assert msg is not None and msg.data[0] == 0x60                     # the write was taken
+        master.send(can.Message(arbitration_id=0x010, data=b"\x01", is_extended_id=False))
+        answers = []
+        deadline = time.monotonic() + 1
+        while time.monotonic() < deadline:
+            msg = master.recv(0.1)
+            if msg is not None and msg.arbitration_id == 0x180 + node_id:   # its TPDO1 on that SYNC
+                answers.append(msg.arbitration_id)
+        assert answers, "the SYNC on the new COB-ID was not heard"
+    finally:
+        rig.stop()
+        master.shutdown()
