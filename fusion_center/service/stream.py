@@ -366,6 +366,7 @@ class _StreamListener(can.Listener):
         """The frames of one receive turn (taxel_net.receiver), in order: fed to the stream
         under one take of its lock; then the boot-ups they brought to the service and the SDO
         answers among them to canopen."""
+        answers: list[can.Message] = []
         try:
             echoes = self.echoes
             if echoes is not None:  # our own frames looped back (udp_multicast) are dropped
@@ -380,13 +381,19 @@ class _StreamListener(can.Listener):
                     bootups.clear()
                 for index in drained:
                     self.service.on_bootup(index)
-            for msg in answers:  # awaited SDO answers
+        except Exception as exc:  # noqa: BLE001 - never let the Notifier thread die
+            self._internal_error(exc)
+        for msg in answers:  # awaited SDO answers, each on its own (one failing loses no other)
+            try:
                 if self.network is not None and msg.arbitration_id in self.subscribers:
                     self.canopen.on_message_received(msg)
-        except Exception as exc:  # noqa: BLE001 - never let the Notifier thread die
-            with self.stream.lock:
-                self.stream.assembler.count_internal_error()
-            self.stream.rate_log.warning("listener", "listener: %s: %s", type(exc).__name__, exc)
+            except Exception as exc:  # noqa: BLE001
+                self._internal_error(exc)
+
+    def _internal_error(self, exc: Exception) -> None:
+        with self.stream.lock:
+            self.stream.assembler.count_internal_error()
+        self.stream.rate_log.warning("listener", "listener: %s: %s", type(exc).__name__, exc)
 
     def on_error(self, exc: Exception) -> None:
         self.stream.rate_log.warning("bus_error", "bus error on channel %d: %s", self.channel, exc)
