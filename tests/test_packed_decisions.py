@@ -81,8 +81,9 @@ def random_stream(scene, rng, cycles, fd):
 @pytest.mark.parametrize("sizes, fd", [((10, 70), False), ((1, 7, 13, 192), False), ((64, 3), False),
                                        ((192, 100, 9), True)])
 @pytest.mark.parametrize("seed", [0, 1, 2])
-def test_unpacked_at_the_close_equals_unpacked_per_frame(sizes, fd, seed):
-    scene = patch_scene(sizes=sizes, fd=fd)
+@pytest.mark.parametrize("window_us", [0, 100])   # 100 µs: a synchronous window the later frames miss
+def test_unpacked_at_the_close_equals_unpacked_per_frame(sizes, fd, seed, window_us):
+    scene = patch_scene(sizes=sizes, fd=fd, window_us=window_us)
     packed, reference = CycleAssembler(scene), per_frame(scene)
     assert packed.packed is not None and packed.packed.usable
     boot(packed, scene)
@@ -95,6 +96,8 @@ def test_unpacked_at_the_close_equals_unpacked_per_frame(sizes, fd, seed):
     assert_same_closed(got, want)
     assert packed.counters() == reference.counters()
     assert reference.counters()["late"] > 0 and reference.malformed() > 0  # the stream has both
+    if window_us:
+        assert any(c.closed_by == "window" for c in want)
 
 
 def test_a_slot_never_heard_keeps_its_held_decisions_and_a_late_frame_updates_them():
