@@ -144,3 +144,21 @@ def test_when_the_centre_dies_the_twins_report_emcy_8130_and_go_pre_operational(
     # the centre saw them leave operational: the last records are fused without them
     last = records[-1]
     assert last["nodes_by_state"].get("pre-operational") and last["n_received"] == 0
+
+
+def test_a_thread_start_cut_short_by_ctrl_c_does_not_break_the_close():
+    """A Ctrl-C landing inside ``Thread.start`` of the master's heartbeat or SYNC thread leaves a
+    thread Python will not join ("cannot join thread before it is started"); the centre's close
+    goes on (tests/test_cli_bus.py's Ctrl-C during boot met it once in a CI run)."""
+    import threading
+
+    scene = load_scene(MATRIX)
+    with FusionService(scene, interface="virtual", channels=[f"cut-{uuid.uuid4().hex[:8]}"]) as service:
+        master = service.master
+        master._heartbeat_thread = threading.Thread(target=lambda: None)   # never started
+        master._sync_thread = threading.Thread(target=lambda: None)
+        with pytest.raises(RuntimeError):
+            master._sync_thread.join(0.1)                                  # what Python does
+        master.stop_heartbeat()
+        master.stop()
+        assert master.wait_sync_done(0.1) is True

@@ -197,6 +197,19 @@ def master_consumer_entry(scene: Scene) -> int:
     return scene.master.node_id << 16 | min(0xFFFF, max(CONSUMER_TIME_MIN_MS, 3 * period))
 
 
+
+def _join(thread: threading.Thread, timeout: float | None) -> None:
+    """``thread.join(timeout)``, also for a thread whose ``start()`` a Ctrl-C cut short (the
+    KeyboardInterrupt raised in the main thread after the OS thread began, before ``start``
+    saw it running): Python refuses to join that one ("cannot join thread before it is
+    started"), which turned the centre's orderly close into a traceback. Its stop event is set
+    by the caller; it ends by itself."""
+    try:
+        thread.join(timeout)
+    except RuntimeError:
+        if thread is threading.current_thread():
+            raise
+
 class Master:
     """NMT master + SYNC producer over a :class:`~fusion_center.service.stream.EventStream`."""
 
@@ -400,7 +413,7 @@ class Master:
     def stop_heartbeat(self) -> None:
         self._heartbeat_stop.set()
         if self._heartbeat_thread is not None:
-            self._heartbeat_thread.join(5)
+            _join(self._heartbeat_thread, 5)
             self._heartbeat_thread = None
 
     def _heartbeat_loop(self, period: float) -> None:
@@ -436,13 +449,13 @@ class Master:
     def wait_sync_done(self, timeout: float | None = None) -> bool:
         if self._sync_thread is None:
             return True
-        self._sync_thread.join(timeout)
+        _join(self._sync_thread, timeout)
         return not self._sync_thread.is_alive()
 
     def stop(self) -> None:
         self._stop.set()
         if self._sync_thread is not None:
-            self._sync_thread.join(5)
+            _join(self._sync_thread, 5)
 
     def _sync_loop(self, cycles: int, before_sync) -> None:
         period = self.scene.bus.sync_period_ms / 1000.0
