@@ -5,8 +5,9 @@ filters what its twins consume (:data:`CONSUMED_FILTERS`: python-can filters, re
 the nodes' SYNC COB-ID changes) and dispatches them under the channel lock: NMT module
 control, SDO requests, SYNC (cycle numbering from the SYNC counter, CiA 301 length error and
 synchronous window, then every node samples its readings - patch nodes as one batch,
-:class:`node_sim.patch.PatchSyncBatch` - and the frames of that SYNC leave as one burst), heartbeats of other participants, LSS requests. The :class:`~node_sim.rig.Rig`
-owns the channels and what they share (readings, silence faults, LSS devices).
+:class:`node_sim.patch_batch.PatchSyncBatch` - and the frames of that SYNC leave as one burst),
+heartbeats of other participants, LSS requests. The :class:`~node_sim.rig.Rig` owns the channels
+and what they share (readings, silence faults, LSS devices).
 
 On a ``virtual`` bus the burst bypasses python-can's per-receiver deep copy
 (:func:`virtual_burst_sender`), on a ``udp_multicast`` bus python-can's ``Message`` and
@@ -31,7 +32,7 @@ from . import lss as lssx
 from . import od as odx
 from .link import NodeLink, Scheduler
 from .node import TaxelNode
-from .patch import PatchSyncBatch
+from .patch_batch import PatchSyncBatch
 
 if TYPE_CHECKING:
     from .rig import Rig
@@ -98,7 +99,7 @@ CONSUMED_FILTERS = [
 class Channel(can.Listener):
     """One CANopen network: a bus object, its notifier, the nodes, one lock, one timer thread."""
 
-    # patch nodes consuming the same SYNC are sampled as one (node_sim.patch.PatchSyncBatch);
+    # patch nodes consuming the same SYNC are sampled as one (node_sim.patch_batch.PatchSyncBatch);
     # False: node by node through each SyncConsumer (the same frames, more CPU)
     batch_patch_sync = True
 
@@ -167,15 +168,12 @@ class Channel(can.Listener):
                 target = data[1]
                 nodes = list(self.nodes.values()) if target == 0 else (
                     [self.nodes[target]] if target in self.nodes else [])
-                self.link.hold()  # the boot-ups leave once the filters take what a master may answer
-                try:
+                with self.link.burst():  # the boot-ups leave once the filters take what a master may answer
                     for node in nodes:
                         node.on_nmt(data[0])
                     self._sync_map = None  # resets restore 0x1005
                     if data[0] in (0x81, 0x82):
                         self.refresh_filters()
-                finally:
-                    self.link.release()
                 if target == 0 and data[0] in (0x81, 0x82):
                     # every node reset by the master: the simulated world restarts with the
                     # master's cycle 0 (a second master run sees the same scene as the first)
@@ -187,14 +185,11 @@ class Channel(can.Listener):
             if node is not None and len(data) == 8:
                 # the answer leaves once the filters take the SYNC COB-ID it may have moved: the
                 # master's next SYNC on it must not meet the old kernel filter (taxel_net.udp_filter)
-                self.link.hold()
-                try:
+                with self.link.burst():
                     node.on_sdo_request(data)
                     self._sync_map = None  # 0x1005 may have changed
                     if self._sync_ids is None or node.sync.cob_id not in self._sync_ids:
                         self.refresh_filters()
-                finally:
-                    self.link.release()
             return
         if self._sync_map is None:
             self._sync_map = {}
@@ -266,8 +261,7 @@ class Channel(can.Listener):
         # the frames of this SYNC (EMCYs, TPDOs) go out back to back once every node has
         # sampled, in the order the nodes produced them (one burst, as on a real bus after
         # a SYNC): fewer thread switches between this notifier and the receivers' ones
-        self.link.hold()
-        try:
+        with self.link.burst():
             for node, on_sync, index in nodes:
                 if apply_silence is not None:
                     apply_silence(self.index, node, cycle)
@@ -277,8 +271,6 @@ class Channel(can.Listener):
                     on_sync(cycle, readings[index], counter)  # node.sync.on_sync
             if batch is not None:  # the patch nodes, their detectors in one pass (silence set above)
                 batch.on_sync(cycle, readings, counter)
-        finally:
-            self.link.release()
         self.rig._schedule_prefetch(self, cycle)
         # published last: once a waiter sees this cycle, every node has sampled it and sent its
         # TPDOs (and the read-ahead of the next readings is scheduled)

@@ -8,6 +8,7 @@ point and every timer callback runs with the channel lock held; nodes never bloc
 
 from __future__ import annotations
 
+import contextlib
 import heapq
 import itertools
 import logging
@@ -141,6 +142,15 @@ class NodeLink:
     def hold(self) -> None:
         self._held = []
         self._held_tx = []
+
+    @contextlib.contextmanager
+    def burst(self):
+        """:meth:`hold` for the ``with`` block, then :meth:`release` (also when it raises)."""
+        self.hold()
+        try:
+            yield self
+        finally:
+            self.release()
 
     def release(self) -> None:
         held, self._held = self._held, None

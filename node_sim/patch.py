@@ -35,15 +35,9 @@ FD, 64 mapping entries / 512 bits per PDO). What differs:
 Start-up values (what :meth:`PatchNode.configure` gets from :func:`patch_startup_values`) make the
 node send exactly the frames :func:`taxel_net.patches.devices` describes for the device.
 
-* :class:`PatchSyncBatch` - the patch nodes of a channel consuming the same SYNC, sampled as
-  one: :func:`detect` (the detector of eqs 1-4 and the fault checks, the one implementation
-  :meth:`PatchDetector.sample` also runs) once over the concatenated taxels of the nodes that
-  sample, the concatenated configuration cached until a node's detector re-reads its own; then
-  per node its slice of the results, its EMCY on a fault change, its TPDOs.
-
-Hot path: one SYNC of a channel is one :func:`detect` over its patch nodes' readings (a view of
-the rig's vector; about ten numpy calls when no sample repeats and every reading is in range),
-one ``packbits``, then per node a few slices and its TPDOs - no per-taxel Python loop.
+:func:`detect` is the detector of eqs 1-4 and the fault checks for any number of taxels: the
+one implementation :meth:`PatchDetector.sample` runs for a node and
+:class:`node_sim.patch_batch.PatchSyncBatch` for a channel's patch nodes at once.
 """
 
 from __future__ import annotations
@@ -61,11 +55,9 @@ from taxel_net.scene import KIND_NAMES, TAXEL_KINDS
 from . import od as odx
 from .emcy import FAULT_NONE, FAULT_OPEN_CIRCUIT, FAULT_STUCK
 from .link import NodeLink
-from .nmt import INITIALISING, OPERATIONAL
 from .node import TaxelNode
 from .pdo import TpdoEngine, _TpdoConfig
 from .sdo import ABORT_NOT_MAPPABLE, ABORT_SUBINDEX_NOT_IN_OD, ABORT_VALUE_RANGE, ABORT_VALUE_TOO_LOW
-from .sync import SyncConsumer
 
 PATCH_EDS_PATH = patch_eds_path()
 PATCH_FAULTS = 0x2022            # ARRAY UNSIGNED8: sensor-fault bits, the layout of 0x2020
@@ -182,8 +174,8 @@ def detect(x: np.ndarray, zeta, noise, full_scale, stuck_after, stuck_min: int, 
 
     ``zeta``, ``noise`` (per taxel; None: every N_i is 0, Y_i = X_i exactly), ``full_scale``
     (a float or one value per taxel) and ``stuck_after`` (a number or one value per taxel)
-    broadcast against ``x``: one node (:meth:`PatchDetector.sample`) or the
-    concatenated taxels of a channel's patch nodes (:class:`PatchSyncBatch`). The common case
+    broadcast against ``x``: one node (:meth:`PatchDetector.sample`) or the concatenated taxels
+    of a channel's patch nodes (:class:`node_sim.patch_batch.PatchSyncBatch`). The common case
     - no repeated sample, every reading in range - costs about ten numpy calls; then ``same``,
     ``open_circuit`` and ``faulted`` are shared read-only arrays (never written in place).
     Floating-point warnings (a reading beyond REAL32, inf - inf) are silenced only when a
@@ -275,7 +267,8 @@ class PatchDetector:
     def sample(self, readings, counter: int | None = None) -> None:
         """X of one SYNC for every taxel (``readings``: n values, mV): faults, decisions
         (eqs 1-4, :func:`detect`), process image. A channel's patch nodes sampling the same SYNC
-        are done together instead (:class:`PatchSyncBatch`: the same :func:`detect`)."""
+        are done together instead (:class:`node_sim.patch_batch.PatchSyncBatch`: the same
+        :func:`detect`)."""
         zeta, noise, full_scale, stuck_after = self.config()
         x = np.asarray(readings, dtype=np.float64)
         limit = stuck_limit(stuck_after)
@@ -491,148 +484,6 @@ class PatchNode(TaxelNode):
         return self.detector.faulted
 
 
-class _BatchLayout:
-    """Where each sampling node's taxels sit in a :class:`PatchSyncBatch`'s concatenation, and
-    their configuration concatenated: each node's taxels start on a byte (its ``n`` padded to
-    a multiple of 8 with entries :func:`detect` masks out), so one ``packbits`` of the batch,
-    sliced per node, gives each node's packed bits. Built from the nodes' detectors and their
-    :meth:`PatchDetector.config` tuples (``configs``, held: a write or NMT reset makes a new
-    one, so a layout is current while every tuple it was built from is still its node's)."""
-
-    def __init__(self, detectors: list, taxels: list, configs: list):
-        self.detectors = detectors
-        self.configs = configs
-        sizes = [len(t) for t in taxels]
-        padded = [-(-n // 8) * 8 for n in sizes]
-        offsets = np.concatenate(([0], np.cumsum(padded)[:-1])).tolist()
-        self.spans = [(a, a + n, a // 8, (a + m) // 8) for a, n, m in zip(offsets, sizes, padded)]
-        self.pads = [m - n for n, m in zip(sizes, padded)]
-        self.padded = any(self.pads)
-
-        def concatenated(arrays, fill):
-            parts = []
-            for array, pad in zip(arrays, self.pads):
-                parts.append(array)
-                if pad:
-                    parts.append(np.full(pad, fill, dtype=np.asarray(array).dtype))
-            return np.concatenate(parts)
-
-        self.zeta = concatenated([c[0] for c in configs], 0.0)
-        self.noise = concatenated([c[1] for c in configs], 0.0)
-        scales = {float(c[2]) for c in configs}
-        self.full_scale = scales.pop() if len(scales) == 1 else np.repeat([float(c[2]) for c in configs], padded)
-        if not self.noise.any():
-            self.noise = None      # every N_i 0 (or -0): X_i - N_i is X_i
-        limits = [stuck_limit(c[3]) for c in configs]
-        self.stuck_after = np.repeat(np.array(limits, dtype=np.int64), padded)
-        self.stuck_min = min(limits)
-        self.valid = concatenated([np.ones(n, dtype=bool) for n in sizes], False) if self.padded else None
-        starts = [int(t[0]) for t in taxels]
-        consecutive = all(np.array_equal(t, np.arange(a, a + len(t))) for t, a in zip(taxels, starts)) \
-            and all(starts[k] + sizes[k] == starts[k + 1] for k in range(len(sizes) - 1))
-        # the readings of the batch: a view of the channel's readings when they are one run
-        self.gather = (slice(starts[0], starts[-1] + sizes[-1]) if consecutive and not self.padded
-                       else concatenated([np.asarray(t, dtype=np.intp) for t in taxels], starts[0]))
-        self.pad_raw = {p: np.zeros(p, dtype=np.uint32) for p in self.pads if p}
-        self.pad_same = {p: np.zeros(p, dtype=np.int64) for p in self.pads if p}
-        self.raw = self.same = None     # the last batch's results, whose slices the detectors hold
-        self.handed: list = []          # those slices, (last_raw, same) per detector
-
-    def current(self, configs: list) -> bool:
-        held = self.configs
-        return len(held) == len(configs) and all(a is b for a, b in zip(held, configs))
-
-    def state(self) -> tuple[np.ndarray, np.ndarray]:
-        """The detectors' REAL32 patterns of the last sample and run lengths, concatenated: the
-        last batch's arrays while every detector still holds its slices of them."""
-        detectors = self.detectors
-        handed = self.handed
-        if len(handed) == len(detectors) and all(
-                d._last_raw is r and d._same is c for d, (r, c) in zip(detectors, handed)):
-            return self.raw, self.same
-        raws, sames = [], []
-        for d, pad in zip(detectors, self.pads):
-            raws.append(d._last_raw)
-            sames.append(d._same)
-            if pad:
-                raws.append(self.pad_raw[pad])
-                sames.append(self.pad_same[pad])
-        return np.concatenate(raws), np.concatenate(sames)
-
-
-class PatchSyncBatch:
-    """The patch nodes of one channel that consume the same SYNC, sampled as one: what each
-    node's :meth:`node_sim.sync.SyncConsumer.on_sync` does, with the detectors (:func:`detect`,
-    eqs 1-4) run once over the concatenated taxels of the nodes that sample this SYNC.
-
-    A node samples unless it is silent or INITIALISING; in OPERATIONAL its TPDOs follow. The
-    concatenated configuration (:class:`_BatchLayout`) is rebuilt when a node's detector
-    configuration is re-read (an SDO or start-up write, an NMT reset swapping the data store)
-    or the set of sampling nodes changes. Then node by node, in channel order: its slice of
-    the results becomes its state, its fault change its EMCY (:meth:`PatchDetector.record`),
-    then its TPDOs - the frames of the SYNC in the order the nodes one by one send them.
-    ``entries``: ``(node, taxels)`` in channel order, ``taxels`` the node's readings in the
-    channel's vector (a slice or an index array)."""
-
-    def __init__(self, entries):
-        self._nodes = []
-        for node, taxels in entries:
-            if isinstance(taxels, slice):
-                taxels = np.arange(taxels.start or 0, taxels.stop)
-            self._nodes.append((node, node.detector, node.sync, node.nmt, node.pdo.on_sync,
-                                np.asarray(taxels, dtype=np.intp)))
-        self._layout: _BatchLayout | None = None
-
-    @staticmethod
-    def batchable(node) -> bool:
-        """A patch node whose SYNC consumer and detector are the ones this batch stands in for."""
-        return (isinstance(node, PatchNode) and type(node.detector) is PatchDetector
-                and type(node.sync) is SyncConsumer and "on_sync" not in vars(node.sync)
-                and "sample" not in vars(node.detector))
-
-    def on_sync(self, cycle: int, readings: np.ndarray, counter: int | None) -> None:
-        """SYNC ``cycle`` (``counter``: its counter byte, None without) with the channel's
-        readings: every node as its SYNC consumer would (class docstring)."""
-        sampling = []
-        for entry in self._nodes:
-            if entry[0].silent:
-                continue
-            state = entry[3].state
-            if state == INITIALISING:
-                continue
-            sampling.append((entry, state))
-        if not sampling:
-            return
-        configs = [entry[1].config() for entry, _ in sampling]
-        layout = self._layout
-        if layout is None or not layout.current(configs):
-            layout = self._layout = _BatchLayout([entry[1] for entry, _ in sampling],
-                                                 [entry[5] for entry, _ in sampling], configs)
-        x = readings[layout.gather]
-        last_raw, same = layout.state()
-        raw, same, open_circuit, faulted, present, any_faulted = detect(
-            x, layout.zeta, layout.noise, layout.full_scale, layout.stuck_after, layout.stuck_min,
-            last_raw, same, layout.valid)
-        decisions = np.packbits(present, bitorder="little").tobytes()
-        faults = np.packbits(faulted, bitorder="little").tobytes() if any_faulted else None
-        handed = []
-        for ((node, detector, sync, nmt, tpdos_on_sync, _), state), (a, b, p, q) in zip(sampling, layout.spans):
-            sync.last_cycle = cycle
-            sync.last_counter = counter
-            node_raw, node_same = raw[a:b], same[a:b]
-            handed.append((node_raw, node_same))
-            if any_faulted or detector.fault:
-                node_faulted = faulted[a:b]
-                detector.record(x[a:b], node_raw, node_same, decisions[p:q], counter, node_faulted,
-                                open_circuit[a:b], any_faulted and np.count_nonzero(node_faulted) > 0,
-                                faults[p:q] if faults is not None else None)
-            else:
-                detector.record(x[a:b], node_raw, node_same, decisions[p:q], counter, None, None, False)
-            if state == OPERATIONAL:
-                tpdos_on_sync(counter)
-        layout.raw, layout.same, layout.handed = raw, same, handed
-
-
 def patch_startup_values(scene, device: P.Device, identity_serial: int) -> dict[tuple[int, int], object]:
     """Start-up values of ``device`` (a patch of ``scene``, :func:`taxel_net.patches.devices`):
     its taxels' arrays, the communication parameters of ``scene.bus`` and the TPDOs the device
@@ -685,5 +536,5 @@ def tpdo_mapping(tpdo: P.Tpdo) -> list[int]:
     return entries
 
 
-__all__ = ["PatchNode", "PatchDetector", "PatchImage", "PatchTpdoEngine", "PatchSyncBatch", "detect", "load_patch_od",
+__all__ = ["PatchNode", "PatchDetector", "PatchImage", "PatchTpdoEngine", "detect", "load_patch_od",
            "patch_startup_values", "tpdo_mapping", "PATCH_FAULTS", "PATCH_EDS_PATH"]

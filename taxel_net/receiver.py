@@ -145,9 +145,9 @@ class SelectNotifiers:
     def _turn(self, handle: _Handle) -> int | None:
         """One turn of a bus: the frames it holds now, at most TURN_FRAMES (a flooded bus does
         not starve the others), read, then handed to its listeners (:meth:`_Handle.dispatch_all`);
-        returns how many. None when reading it
-        failed - as a can.Notifier: the exception noted on the handle, the listeners told
-        (``on_error``), one log line; not when the thread is stopping (a bus closed under it)."""
+        returns how many. None when reading it failed - as a can.Notifier: the exception noted on
+        the handle, the listeners told (``on_error``), one log line; not when the thread is
+        stopping (a bus closed under it)."""
         msgs: list[can.Message] = []
         try:
             if all(hasattr(listener, BATCH_METHOD) for listener in handle.listeners):

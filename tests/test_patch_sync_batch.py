@@ -1,4 +1,4 @@
-"""The channel-level batch of patch-node detectors (node_sim.patch.PatchSyncBatch) against the
+"""The channel-level batch of patch-node detectors (node_sim.patch_batch.PatchSyncBatch) against the
 per-node reference: the same frames, byte for byte and in the same order, the same EMCYs and
 the same process images.
 
@@ -23,6 +23,7 @@ import numpy as np
 import pytest
 
 from node_sim import patch as patchx
+from node_sim import patch_batch
 from node_sim.pdo import TpdoEngine
 from node_sim.rig import Rig
 from taxel_net import patches as P
@@ -300,7 +301,7 @@ def test_a_stale_batch_is_caught(tmp_path, rigs, monkeypatch):
     reference, reference_buses = rigs(scene)
     make_reference(reference)
     wanted = run_script(reference, reference_buses, cycles=12)
-    monkeypatch.setattr(patchx._BatchLayout, "current",     # the same nodes: current, whatever was re-read
+    monkeypatch.setattr(patch_batch._BatchLayout, "current",     # the same nodes: current, whatever was re-read
                         lambda self, configs: len(configs) == len(self.configs))
     rig, buses = rigs(scene)
     with pytest.raises(AssertionError, match="sync of cycle 7"):
