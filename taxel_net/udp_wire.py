@@ -23,6 +23,7 @@ then uses ``bus.recv`` / ``bus.send``).
 from __future__ import annotations
 
 import logging
+import math
 import socket
 import struct
 import time
@@ -82,6 +83,52 @@ def _matches(filters, can_id: int, extended: bool) -> bool:
     return False
 
 
+# the fields of python-can's ``pack_message`` map, the keyword arguments of ``can.Message``
+PACKED_FIELDS = frozenset(("timestamp", "arbitration_id", "is_extended_id", "is_remote_frame", "is_error_frame",
+                           "channel", "dlc", "data", "is_fd", "bitrate_switch", "error_state_indicator"))
+_new_message = can.Message.__new__
+
+
+def message_from_fields(fields: dict, timestamp: float) -> can.Message:
+    """``can.Message(check=True, **fields)`` with ``timestamp`` in place of the map's: what
+    python-can's ``UdpMulticastBus`` makes of a datagram it read (``unpack_message(data,
+    replace={"timestamp": ...}, check=True)``), the same attributes of the same types, the same
+    errors. A data frame whose fields are exactly what ``pack_message`` writes and pass every
+    check of ``Message._check`` (an 11- or 29-bit ID in range, ``bytes`` data of the DLC's
+    length, at most 8 bytes classic or 64 FD, no bit-rate switch or error state indicator on a
+    classic frame) has its attributes set directly, in half the constructor's time (0.9 against
+    1.8 µs; ~100 datagrams a cycle at skin scale); any other map goes through the constructor."""
+    if len(fields) == 11 and 0.0 <= timestamp < math.inf:
+        try:  # eleven fields, each of pack_message's names: exactly its map
+            can_id, extended, remote, error, channel, dlc, data, fd, brs, esi, _ = (
+                fields["arbitration_id"], fields["is_extended_id"], fields["is_remote_frame"],
+                fields["is_error_frame"], fields["channel"], fields["dlc"], fields["data"], fields["is_fd"],
+                fields["bitrate_switch"], fields["error_state_indicator"], fields["timestamp"])
+        except KeyError:
+            pass
+        else:
+            if (type(can_id) is int and type(data) is bytes and type(dlc) is int and remote is False
+                    and error is False and dlc == len(data)
+                    and (0 <= can_id < 0x800 if extended is False else extended is True and 0 <= can_id < 0x20000000)
+                    and (dlc <= 64 if fd is True else fd is False and dlc <= 8 and not brs and not esi)):
+                msg = _new_message(can.Message)
+                msg.timestamp = timestamp
+                msg.arbitration_id = can_id
+                msg.is_extended_id = extended
+                msg.is_remote_frame = False
+                msg.is_error_frame = False
+                msg.channel = channel
+                msg.is_fd = fd
+                msg.is_rx = True
+                msg.bitrate_switch = brs
+                msg.error_state_indicator = esi
+                msg.data = bytearray(data)
+                msg.dlc = dlc
+                return msg
+    fields["timestamp"] = timestamp
+    return can.Message(check=True, **fields)
+
+
 def udp_multicast_drain(bus: can.BusABC) -> Callable[[], Iterator[can.Message]] | None:
     """For a python-can 4.x ``UdpMulticastBus`` with kernel nanosecond time stamps: a function
     yielding the frames its socket holds now, without blocking - what ``bus.recv(0)`` returns in
@@ -109,7 +156,7 @@ def udp_multicast_drain(bus: can.BusABC) -> Callable[[], Iterator[can.Message]] 
     recvmsg = sock.recvmsg
     dontwait = socket.MSG_DONTWAIT
     unpackb = msgpack.unpackb
-    Message = can.Message
+    from_fields = message_from_fields
     undecodable = [0, float("-inf")]  # datagrams skipped, time of the last log line
 
     def drain() -> Iterator[can.Message]:
@@ -136,8 +183,7 @@ def udp_multicast_drain(bus: can.BusABC) -> Callable[[], Iterator[can.Message]] 
                 if filters is not None and not _matches(filters, fields.get("arbitration_id", 0),
                                                         fields.get("is_extended_id", True)):
                     continue
-                fields["timestamp"] = seconds + nanoseconds * 1.0e-9
-                msg = Message(check=True, **fields)
+                msg = from_fields(fields, seconds + nanoseconds * 1.0e-9)
             except Exception as exc:  # noqa: BLE001 - not a python-can frame: counted, skipped
                 # (UdpMulticastBus.recv raises here, and a raising bus is no longer read: one stray
                 # datagram on the group would deafen the receiver for good)

@@ -13,7 +13,7 @@ from can.interfaces.udp_multicast.utils import pack_message
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from taxel_net.udp_wire import peek_id, udp_multicast_burst_sender
+from taxel_net.udp_wire import PACKED_FIELDS, message_from_fields, peek_id, udp_multicast_burst_sender
 
 ROOT = Path(__file__).resolve().parent.parent
 GROUP = "239.74.163.41"
@@ -27,6 +27,66 @@ messages = st.one_of(
     st.builds(lambda i, n: can.Message(arbitration_id=i, data=bytes(n), is_extended_id=False, is_fd=True,
                                        bitrate_switch=True), st.integers(0, 0x7FF), st.sampled_from(FD_LENGTHS)),
 )
+
+
+SLOTS = tuple(name for name in can.Message.__slots__ if name != "__weakref__")
+odd_values = st.one_of(st.booleans(), st.none(), st.integers(-2, 0x2000_0001), st.sampled_from((0x7FF, 0x800, 0x1FFF_FFFF)),
+                       st.floats(allow_nan=True), st.binary(max_size=65), st.text(max_size=2),
+                       st.lists(st.integers(0, 255), max_size=3))
+
+
+def constructed(fields: dict, timestamp: float):
+    """What python-can's constructor makes of the map (``unpack_message(..., replace=..., check=True)``):
+    the message's attributes with their types, or the exception's type."""
+    try:
+        msg = can.Message(check=True, **{**fields, "timestamp": timestamp})
+    except Exception as exc:  # noqa: BLE001 - compared by type
+        return type(exc)
+    return [(name, type(getattr(msg, name)), getattr(msg, name)) for name in SLOTS]
+
+
+def made(fields: dict, timestamp: float):
+    try:
+        msg = message_from_fields(dict(fields), timestamp)
+    except Exception as exc:  # noqa: BLE001 - compared by type
+        return type(exc)
+    assert type(msg) is can.Message
+    return [(name, type(getattr(msg, name)), getattr(msg, name)) for name in SLOTS]
+
+
+@settings(max_examples=400, deadline=None)
+@given(messages, st.floats(0, 4e9), st.data())
+def test_message_from_fields_is_python_cans_constructor(msg, timestamp, data):
+    """A datagram's map made a ``can.Message`` directly gives the same attributes, of the same
+    types, as python-can's ``Message(check=True, **fields)`` - and the same error where that
+    refuses the map: for every frame python-can packs, and for maps with a field changed to a
+    value of another type or out of range, a field dropped or one added."""
+    fields = msgpack.unpackb(pack_message(msg), raw=False)
+    assert fields.keys() == PACKED_FIELDS
+    assert made(fields, timestamp) == constructed(fields, timestamp)
+    changed = dict(fields)
+    for _ in range(data.draw(st.integers(1, 3))):
+        key = data.draw(st.sampled_from(sorted(PACKED_FIELDS) + ["is_rx", "other"]))
+        if data.draw(st.booleans()) and key in changed:
+            del changed[key]
+        else:
+            changed[key] = data.draw(odd_values)
+    stamp = data.draw(st.one_of(st.just(timestamp), st.floats(allow_nan=True, allow_infinity=True)))
+    assert made(changed, stamp) == constructed(changed, stamp)
+
+
+@pytest.mark.parametrize("field, value", [
+    ("arbitration_id", 0x800), ("arbitration_id", -1), ("dlc", 9), ("dlc", 7), ("is_remote_frame", True),
+    ("is_error_frame", 1), ("bitrate_switch", True), ("error_state_indicator", 1), ("data", bytearray(8)),
+    ("is_fd", 1), ("is_extended_id", 0)])
+def test_message_from_fields_refuses_or_passes_on_what_the_constructor_would(field, value):
+    """The borders of the direct path, one field at a time on a classic 8-byte frame: each value
+    either made into the same message as the constructor's or refused with its error."""
+    fields = msgpack.unpackb(pack_message(can.Message(arbitration_id=0x181, data=bytes(8), is_extended_id=False)),
+                             raw=False)
+    fields[field] = value
+    assert made(fields, 12.5) == constructed(fields, 12.5)
+    assert made(fields, -1.0) == constructed(fields, -1.0) is ValueError
 
 
 @settings(max_examples=300, deadline=None)
