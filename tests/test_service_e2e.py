@@ -107,8 +107,16 @@ def test_dropped_node_is_missing_within_its_consumer_time_and_recovers(matrix, t
     assert records[first_missing]["t"] - last_heard > consumer
     assert records[first_missing - 1]["t"] - last_heard <= consumer + 1e-6
     assert all(18 in r["missing_nodes"] for r in records[first_missing:restore_at])
-    # recovery: it reports again after restore_node (no boot-up needed)
-    back = records[restore_at + 2:]
+    # recovery: it reports again after restore_node (no boot-up needed) - its first frame after
+    # the restore comes within a few cycles however loaded the host (the rig's thread answers
+    # SYNC 40 when it gets the CPU) and from then on it is never missing: every record whose
+    # SYNC came after that frame - but the first, which the frame may have reached the centre
+    # after (stamped by the rig before the SYNC, queued behind it) - has node 18 heard
+    first_back = min(t for t in heard if t >= records[restore_at]["t"])
+    after = [r for r in records[restore_at:] if r["t"] > first_back]
+    assert after and after[0]["cycle"] <= restore_at + 10
+    back = after[1:]
+    assert len(back) >= cycles - restore_at - 12
     assert all(18 not in r["missing_nodes"] for r in back)
     # and is silent (its PDO late for the window) no more often than the node most often late on
     # this host: the recovery is complete, whatever the load
