@@ -171,3 +171,73 @@ def test_exact_track_known_onset_speed_and_distance():
     assert s.distance == pytest.approx(0.5 * 29, rel=1e-12) and s.speed == pytest.approx(25.0, rel=1e-12)
     assert not states[40].contact and not states[41].slipping
     assert not states[-1].slipping and states[-1].force_ratio == pytest.approx(2.0 / 3.0)
+
+
+def _exact_slope(times, points):
+    """Least-squares slope of an (n, 2) track in 60-digit arithmetic (mpmath), an independent
+    reference for the tracker's running fit."""
+    import mpmath
+
+    with mpmath.workdps(60):
+        t = [mpmath.mpf(float(v)) for v in times]
+        mean_t = mpmath.fsum(t) / len(t)
+        denom = mpmath.fsum((v - mean_t) ** 2 for v in t)
+        slope = []
+        for axis in (0, 1):
+            p = [mpmath.mpf(float(q[axis])) for q in points]
+            mean_p = mpmath.fsum(p) / len(p)
+            slope.append(mpmath.fsum((a - mean_t) * (b - mean_p) for a, b in zip(t, p)) / denom)
+        return [float(v) for v in slope], float(t[-1] - t[0])
+
+
+@pytest.mark.parametrize("t0", [0.0, 3600.0, 86400.0 * 30])
+def test_tracker_fits_a_long_episode_as_the_exact_least_squares_line(t0):
+    """Thousands of cycles of one slip (an object sliding for a minute at 100 Hz), the clock an
+    hour or a month into a run: velocity and distance of the tracker's running fit against the
+    least-squares line through every point since the onset, computed in 60 digits - and the
+    last-15 window against line_fit_velocity on those points."""
+    rng = np.random.default_rng(11)
+    n, onset = 6000, 40
+    times = t0 + np.arange(n) * PERIOD
+    k = np.clip(np.arange(n) - onset, 0, None)
+    # the centroid on a 2-unit taxel grid: the true path rounded to the grid, plus jitter
+    path = np.column_stack([20.0 + 0.013 * k, 30.0 - 0.007 * k])
+    centroids = np.round(path / 2.0) * 2.0 + rng.normal(0.0, 0.05, (n, 2))
+    tracker = SlipTracker(0.3, 1.5, period=PERIOD)
+    windowed = SlipTracker(0.3, 1.5, period=PERIOD, fit_window=15)
+    for t, c in zip(times, centroids):
+        state = tracker.update(t, [c])
+        state_w = windowed.update(t, [c])
+    assert state.slipping and state.criterion == "motion"
+    since = state.onset_index
+    slope, duration = _exact_slope(times[since:], centroids[since:])
+    np.testing.assert_allclose(state.velocity, slope, rtol=1e-9)
+    assert state.distance == pytest.approx(np.hypot(*slope) * duration, rel=1e-9)
+    assert state.velocity_per_cycle == pytest.approx(np.asarray(slope) * PERIOD, rel=1e-9)
+    np.testing.assert_allclose(state_w.velocity, line_fit_velocity(times[-15:], centroids[-15:]), rtol=1e-12)
+    assert state_w.distance == pytest.approx(state.distance, rel=1e-12)
+
+
+def test_tracker_memory_stays_flat_over_hours_of_cycles():
+    """What the tracker keeps does not grow with the cycles it has seen, in contact or slipping
+    (the service runs it for hours at 100 Hz): the memory it allocates between cycle 2,000 and
+    cycle 6,000 of a slip episode stays under what 1,000 kept points would take."""
+    import tracemalloc
+
+    tracker = SlipTracker(0.3, 0.5, period=PERIOD, fit_window=15)
+    point = np.array([10.0, 10.0])
+
+    def run(first, count):
+        for k in range(first, first + count):
+            tracker.update(k * PERIOD, [point + (0.02 * k, 0.0)])
+
+    run(0, 2000)
+    assert tracker.update(2000 * PERIOD, [point + (40.0, 0.0)]).slipping
+    tracemalloc.start()
+    try:
+        before = tracemalloc.get_traced_memory()[0]
+        run(2001, 4000)
+        grown = tracemalloc.get_traced_memory()[0] - before
+    finally:
+        tracemalloc.stop()
+    assert grown < 1000 * 48, grown  # a kept float is 24-32 bytes, a kept centroid over 100

@@ -218,6 +218,44 @@ def detect_slip(times, centroids, tangential, grip_force, mu, *, noise_band: flo
 
 
 # --------------------------------------------------------------------------- incremental
+class _RunningLineFit:
+    """The least-squares line of a growing (t, x, y) track, one point at a time in constant
+    time and memory: Welford's updates of the means and of the co-moments ``sum (t - mean_t)^2``
+    and ``sum (t - mean_t)(p - mean_p)`` (the centred sums :func:`line_fit_velocity` forms in
+    one pass over the points, here without keeping them), on times since the first point. A
+    live slip episode lasts as long as the object keeps sliding - minutes, at 100 cycles a
+    second - and refitting every point at every cycle made the tracker's cost and memory grow
+    with it."""
+
+    __slots__ = ("n", "t_first", "t_last", "mean_t", "mean_x", "mean_y", "m2_t", "c_tx", "c_ty")
+
+    def __init__(self):
+        self.n = 0
+        self.t_first = self.t_last = self.mean_t = self.mean_x = self.mean_y = 0.0
+        self.m2_t = self.c_tx = self.c_ty = 0.0
+
+    def add(self, t: float, point) -> None:
+        x, y = float(point[0]), float(point[1])
+        self.n += 1
+        if self.n == 1:
+            self.t_first = t
+        self.t_last = t
+        tau = t - self.t_first  # exact (both multiples of the ulp at t): the fit's times stay small
+        dt = tau - self.mean_t  # a month into a run, the clock's own ulp would cost 2e-8 of the slope
+        self.mean_t += dt / self.n
+        self.mean_x += (x - self.mean_x) / self.n
+        self.mean_y += (y - self.mean_y) / self.n
+        self.m2_t += dt * (tau - self.mean_t)
+        self.c_tx += dt * (x - self.mean_x)
+        self.c_ty += dt * (y - self.mean_y)
+
+    def velocity(self) -> np.ndarray:
+        """The fitted slope d(position)/dt; zeros for fewer than 2 points (as line_fit_velocity)."""
+        if self.n < 2 or self.m2_t == 0:
+            return np.zeros(2)
+        return np.array([self.c_tx / self.m2_t, self.c_ty / self.m2_t])
+
+
 class SlipTracker:
     """Per-cycle slip detector for the live fusion centre (same model as :func:`detect_slip`).
 
@@ -250,13 +288,30 @@ class SlipTracker:
         self._motion_run = 0
         keep = max(self.motion_consecutive, self.force_consecutive)
         self._recent: deque[tuple[int, float, np.ndarray]] = deque(maxlen=keep)
-        self._track_t: list[float] = []
-        self._track_c: list[np.ndarray] = []
+        self._track = _RunningLineFit()  # since the onset: velocity (full fit), distance
+        self._window: deque[tuple[float, np.ndarray]] = deque(maxlen=self.fit_window or 1)  # last fit_window
         self._onset: tuple[int, float, int, str] | None = None
 
     def reset(self) -> None:
         """Forget the current contact episode (e.g. after the gripper re-grasps)."""
         self._new_episode()
+
+    def _track_point(self, t: float, centroid: np.ndarray) -> None:
+        self._track.add(t, centroid)
+        if self.fit_window is not None:
+            self._window.append((t, centroid))
+
+    def _kinematics(self):
+        """:func:`_kinematics` of the track since the onset, from the running fit (and the
+        last ``fit_window`` points for the velocity)."""
+        track = self._track
+        full_v = track.velocity()
+        distance = float(np.hypot(*full_v) * (track.t_last - track.t_first)) if track.n >= 2 else 0.0
+        if self.fit_window is not None and track.n > self.fit_window:
+            v = line_fit_velocity([w[0] for w in self._window], np.array([w[1] for w in self._window]))
+        else:
+            v = full_v
+        return v, v * self._period(), float(np.hypot(*v)), distance
 
     def _period(self) -> float:
         if self.period is not None:
@@ -270,7 +325,7 @@ class SlipTracker:
         if (total_tangential is None) != (grip_force is None):
             raise ParameterError("total_tangential/grip_force", (total_tangential, grip_force),
                                  "give both (force criterion) or neither (motion only)")
-        if self._last_time is not None:
+        if self._last_time is not None and self.period is None:  # only _period() reads them
             self._dts.append(t - self._last_time)
         self._last_time = t
         self.cycle += 1
@@ -307,17 +362,15 @@ class SlipTracker:
             if hits:
                 onset_idx, criterion = min(hits)
                 back = [(ti, ci) for k, ti, ci in self._recent if k >= onset_idx]
-                self._track_t = [b[0] for b in back]
-                self._track_c = [b[1] for b in back]
+                for ti, ci in back:
+                    self._track_point(ti, ci)
                 self._onset = (onset_idx, back[0][0], self.cycle, criterion)
         else:
-            self._track_t.append(t)
-            self._track_c.append(centroid)
+            self._track_point(t, centroid)
 
         if self._onset is None:
             return SlipState(self.cycle, t, True, centroid, displacement, ratio, False, None, None, None, None)
-        v, v_cycle, speed, distance = _kinematics(np.asarray(self._track_t), np.asarray(self._track_c),
-                                                  self.fit_window, self._period())
+        v, v_cycle, speed, distance = self._kinematics()
         onset_idx, onset_t, flagged, criterion = self._onset
         return SlipState(self.cycle, t, True, centroid, displacement, ratio, True, onset_idx, onset_t,
                          flagged, criterion, v, v_cycle, speed, distance)
