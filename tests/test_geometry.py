@@ -306,3 +306,27 @@ def test_contact_area_beyond_the_float_range_is_inf():
 def test_centroid_counts_a_shared_location_once():
     np.testing.assert_array_equal(active_centroid([(0, 0), (0, 0), (2, 0)]), [1.0, 0.0])
     assert np.all(np.isnan(active_centroid([])))
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.data())
+def test_locations_centroid_is_active_centroid_of_the_subset_bit_for_bit(data):
+    """A fixed layout's centroid of any subset (taxels sharing a location - R-cells - counted
+    once) equals active_centroid of the subset's rows exactly: the same distinct rows in the
+    same order, the same mean; an empty subset gives (nan, nan)."""
+    n_locations = data.draw(st.integers(1, 40))
+    coords = st.one_of(st.integers(-50, 50).map(float), st.floats(-1e6, 1e6, allow_nan=False))
+    locations = data.draw(st.lists(st.tuples(coords, coords), min_size=n_locations, max_size=n_locations))
+    # every location once or twice (an R-cell's pair), shuffled
+    points = [p for p in locations for _ in range(data.draw(st.integers(1, 2)))]
+    points = data.draw(st.permutations(points))
+    xy = np.array(points, dtype=float) + 0.0  # no -0.0: np.unique keeps either sign of a zero
+    layout = geometry.Locations(xy)
+    mask = np.array(data.draw(st.lists(st.booleans(), min_size=len(xy), max_size=len(xy))))
+    got = layout.centroid(mask)
+    want = geometry.active_centroid(xy[mask])
+    assert got.shape == (2,)
+    if not mask.any():
+        assert np.isnan(got).all() and np.isnan(want).all()
+    else:
+        assert got.tolist() == want.tolist()

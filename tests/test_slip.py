@@ -1,5 +1,7 @@
 """Slip model (fusion_center.core.slip) on synthetic traces with known onset, speed and distance."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -241,3 +243,19 @@ def test_tracker_memory_stays_flat_over_hours_of_cycles():
     finally:
         tracemalloc.stop()
     assert grown < 1000 * 48, grown  # a kept float is 24-32 bytes, a kept centroid over 100
+
+
+def test_update_centroid_is_update_and_refuses_a_bad_centroid():
+    """The centroid entry point (the centre's layout computes the centroid) gives the states
+    update gives from the active rows, and a centroid that is not one finite point or (nan,
+    nan) is refused with the field named, the tracker left as it was."""
+    rng = np.random.default_rng(5)
+    times, active, ft, fg, _ = synthetic_trace(rng, n=80, onset=30)
+    by_rows, by_centroid = SlipTracker(0.3, 1.5, period=PERIOD), SlipTracker(0.3, 1.5, period=PERIOD)
+    for t, a, f, g in zip(times, active, ft, fg):
+        a_state, b_state = by_rows.update(t, a, f, g), by_centroid.update_centroid(t, active_centroid(a), f, g)
+        np.testing.assert_equal(dataclasses.asdict(a_state), dataclasses.asdict(b_state))
+    for bad in ([1.0, np.nan], [np.inf, 0.0], [1.0, 2.0, 3.0], 5.0):
+        with pytest.raises(ParameterError, match="centroid"):
+            by_centroid.update_centroid(times[-1] + 1.0, bad)
+    assert by_centroid.update_centroid(times[-1] + 1.0, [np.nan, np.nan]).contact is False

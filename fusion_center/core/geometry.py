@@ -25,7 +25,7 @@ except ImportError:  # pragma: no cover - older scipy
 from taxel_net.errors import ParameterError
 
 __all__ = ["as_points", "convex_hull", "polygon_area", "signed_polygon_area", "contact_area",
-           "active_centroid"]
+           "active_centroid", "Locations"]
 
 
 def as_points(points, name: str = "points") -> np.ndarray:
@@ -225,3 +225,25 @@ def active_centroid(points) -> np.ndarray:
     if len(pts) == 0:
         return np.array([np.nan, np.nan])
     return np.unique(pts, axis=0).mean(axis=0)
+
+
+class Locations:
+    """The distinct locations of a fixed set of points - a scene's taxels, two of an R-cell
+    sharing one - sorted once, for the centroid of any subset of them: :meth:`centroid` of a
+    mask is ``active_centroid(points[mask])`` bit for bit (the same sorted distinct rows, the
+    same mean) without sorting the subset again each cycle (the centre's slip tracker at
+    4,096 taxels: ``np.unique`` of the active rows was most of its cost per cycle)."""
+
+    def __init__(self, points):
+        pts = as_points(points)
+        self.rows, inverse = np.unique(pts, axis=0, return_inverse=True)
+        self.row_of = np.asarray(inverse).reshape(-1)  # the distinct row of each point
+
+    def centroid(self, mask) -> np.ndarray:
+        """Centroid of the distinct locations of the points where ``mask`` (bool, one per
+        point) is set; (nan, nan) for none."""
+        seen = np.zeros(len(self.rows), dtype=bool)
+        seen[self.row_of[np.asarray(mask, dtype=bool)]] = True
+        if not seen.any():
+            return np.array([np.nan, np.nan])
+        return self.rows[seen].mean(axis=0)

@@ -319,6 +319,19 @@ class SlipTracker:
         return float(np.median(self._dts)) if self._dts else 1.0
 
     def update(self, t, active_xy, total_tangential=None, grip_force=None) -> SlipState:
+        """One cycle: ``active_xy`` the coordinates of the taxels deciding u_i = +1 (their
+        distinct locations' centroid is what moves, :func:`~.geometry.active_centroid`)."""
+        return self.update_centroid(t, active_centroid(as_points(active_xy, "active_xy")),
+                                    total_tangential, grip_force)
+
+    def update_centroid(self, t, centroid, total_tangential=None, grip_force=None) -> SlipState:
+        """:meth:`update` given the centroid of the active taxels' distinct locations - (nan,
+        nan) for no contact - as a fixed layout computes it for any subset
+        (:class:`~.geometry.Locations`)."""
+        centroid = np.asarray(centroid, dtype=float)
+        if centroid.shape != (2,) or np.isinf(centroid).any() or np.isnan(centroid[0]) != np.isnan(centroid[1]):
+            raise ParameterError("centroid", centroid.tolist() if centroid.ndim else centroid,
+                                 "must be one finite (x, y), or (nan, nan) for no contact")
         t = float(t)
         if not np.isfinite(t) or (self._last_time is not None and t <= self._last_time):
             raise ParameterError("t", t, f"time must be finite and > the previous one ({self._last_time})")
@@ -329,7 +342,6 @@ class SlipTracker:
             self._dts.append(t - self._last_time)
         self._last_time = t
         self.cycle += 1
-        centroid = active_centroid(as_points(active_xy, "active_xy"))
         contact = bool(np.isfinite(centroid[0]))
         if not contact:
             self._new_episode()

@@ -61,6 +61,7 @@ class PhysicalEvaluation:
 
             self.slip = SlipTracker(scene.forces.mu, noise_band=self._noise_band(),
                                     period=scene.bus.sync_period_ms * 1e-3)
+            self.locations = geometry.Locations(self.xy)  # the present taxels' centroid per cycle
         self._last_slip_t: float | None = None
 
     @staticmethod
@@ -164,10 +165,11 @@ class PhysicalEvaluation:
         if self._last_slip_t is not None and t_seconds <= self._last_slip_t:
             return None
         self._last_slip_t = t_seconds
+        centroid = self.locations.centroid(present_mask)
         if total_tangential is not None and grip_force is not None:
-            state = self.slip.update(t_seconds, self.xy[present_mask], total_tangential, grip_force)
+            state = self.slip.update_centroid(t_seconds, centroid, total_tangential, grip_force)
         else:
-            state = self.slip.update(t_seconds, self.xy[present_mask])
+            state = self.slip.update_centroid(t_seconds, centroid)
         return {
             "contact": state.contact,
             "slipping": state.slipping,
