@@ -35,6 +35,7 @@ from typing import TYPE_CHECKING, Callable, Iterable, Sequence
 import can
 
 from taxel_net.canmsg import TxMessage
+from .common_frames import CommonFrames
 from .cycles import (
     FLAG_ERROR,
     FLAG_EXTENDED,
@@ -190,6 +191,8 @@ class EventStream:
         self._trace_queue: list[can.Message] = []
         self._trace_lock = threading.Lock()  # taken before ``lock``, never while holding it
         self.echoes: EchoFilter | None = None  # set by the service on udp_multicast
+        # the common frames of a receive turn fed in one loop (None: each by _feed_locked)
+        self.common: CommonFrames | None = CommonFrames.for_assembler(assembler)
 
     def _feed_locked(self, msg: can.Message, channel: int) -> bool:
         """Feed one event (stream lock held); True when it closed a cycle."""
@@ -241,12 +244,30 @@ class EventStream:
     def receive_all(self, msgs: Iterable[can.Message], channel: int) -> list[can.Message]:
         """Frames of one channel in bus order, as :meth:`receive` one by one, under one take of
         the stream lock; the cycles they close are evaluated after the last. Returns those the
-        assembler took as the answer an SDO request of the centre awaits (``solicited``), in order."""
+        assembler took as the answer an SDO request of the centre awaits (``solicited``), in order.
+
+        With no trace, runs of common frames (patch TPDOs of packed decisions the open cycle
+        takes) are fed by :attr:`common` in one loop, every other frame by :meth:`_feed_locked`:
+        the same result as feeding each by :meth:`_feed_locked` (:mod:`.common_frames`)."""
         solicited = self.assembler.solicited
         answers = []
         closed = False
+        if not isinstance(msgs, (list, tuple)):
+            msgs = list(msgs)
         with self.lock:
-            for msg in msgs:
+            common = self.common if self.trace is None else None
+            index, count = 0, len(msgs)
+            while index < count:
+                if common is not None:
+                    fed, last_us = common.feed(msgs, index, channel, self.first_us)
+                    if fed:
+                        self.fed += fed
+                        self.last_us = last_us
+                        index += fed
+                        if index == count:
+                            break
+                msg = msgs[index]
+                index += 1
                 closed |= self._feed_locked(msg, channel)
                 if solicited[channel]:
                     solicited[channel] = False
