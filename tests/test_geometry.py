@@ -330,3 +330,37 @@ def test_locations_centroid_is_active_centroid_of_the_subset_bit_for_bit(data):
         assert np.isnan(got).all() and np.isnan(want).all()
     else:
         assert got.tolist() == want.tolist()
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.data())
+def test_locations_contact_area_is_contact_area_of_the_subset(data):
+    """The layout's area of a subset is contact_area of the subset's rows, the same float: on
+    grids (collinear rows, R-cell pairs), on random floats across magnitudes, above
+    SMALL_SET_MAX (Qhull's path) and on layouts whose extent overflows (the error or inf of
+    contact_area itself)."""
+    kind = data.draw(st.sampled_from(["grid", "floats", "large", "huge"]))
+    if kind == "grid":
+        side = data.draw(st.integers(1, 9))
+        pitch = data.draw(st.sampled_from([1.0, 0.1, 2.5, 1e-7, 3e5]))
+        xy = np.array([(i * pitch, j * pitch) for i in range(side) for j in range(side)] * 2)  # R-cell pairs
+    elif kind == "large":  # rows drawn with repeats from 150 random locations: masks around 128 rows
+        rng = np.random.default_rng(data.draw(st.integers(0, 2**32 - 1)))
+        pool = rng.uniform(0.0, 1e3, (150, 2))
+        xy = pool[rng.integers(0, 150, data.draw(st.integers(130, 300)))]
+    else:
+        big = 1e300 if kind == "huge" else 1e6
+        coords = st.floats(-big, big, allow_nan=False, allow_infinity=False)
+        xy = np.array(data.draw(st.lists(st.tuples(coords, coords), min_size=1, max_size=60)))
+    layout = geometry.Locations(xy)
+    for _ in range(3):
+        mask = np.array(data.draw(st.lists(st.booleans(), min_size=len(xy), max_size=len(xy))))
+        try:
+            want = geometry.contact_area(xy[mask])
+        except ParameterError as exc:
+            with pytest.raises(ParameterError) as raised:
+                layout.contact_area(mask)
+            assert str(raised.value) == str(exc)
+            continue
+        got = layout.contact_area(mask)
+        assert got == want or (np.isnan(got) and np.isnan(want)), (got, want)

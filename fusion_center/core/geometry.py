@@ -229,15 +229,63 @@ def active_centroid(points) -> np.ndarray:
 
 class Locations:
     """The distinct locations of a fixed set of points - a scene's taxels, two of an R-cell
-    sharing one - sorted once, for the centroid of any subset of them: :meth:`centroid` of a
-    mask is ``active_centroid(points[mask])`` bit for bit (the same sorted distinct rows, the
-    same mean) without sorting the subset again each cycle (the centre's slip tracker at
-    4,096 taxels: ``np.unique`` of the active rows was most of its cost per cycle)."""
+    sharing one - sorted once, for the centroid and the contact area of any subset of them:
+    :meth:`centroid` of a mask is ``active_centroid(points[mask])`` bit for bit (the same
+    sorted distinct rows, the same mean) and :meth:`contact_area` is ``contact_area(points[mask])``,
+    without sorting and converting the subset again each cycle (at 4,096 taxels ``np.unique``
+    of the active rows was most of the slip tracker's cost per cycle, and the conversion to
+    exact integers most of a new contact pattern's area)."""
 
     def __init__(self, points):
         pts = as_points(points)
+        self.points = pts
         self.rows, inverse = np.unique(pts, axis=0, return_inverse=True)
         self.row_of = np.asarray(inverse).reshape(-1)  # the distinct row of each point
+        self._exact = None  # (the rows in _exact_chain's integers, denominator), at the first area
+
+    def _exact_rows(self):
+        """Every distinct row as exact integers over one common power-of-two denominator, less
+        the first row (``_exact_chain``'s coordinates, once for the whole layout); None when
+        the layout's extent overflows a float (then each subset is left to contact_area)."""
+        if self._exact is None:
+            unique = [tuple(row) for row in self.rows.tolist()]
+            try:
+                _check_extent(unique)
+            except ParameterError:
+                self._exact = (None, 0)
+                return self._exact
+            rx = [x.as_integer_ratio() for x, _ in unique]
+            ry = [y.as_integer_ratio() for _, y in unique]
+            den = max(max(d for _, d in rx), max(d for _, d in ry))
+            x0, y0 = rx[0][0] * (den // rx[0][1]), ry[0][0] * (den // ry[0][1])
+            self._exact = ([(a * (den // b) - x0, c * (den // d) - y0, k)
+                            for k, ((a, b), (c, d)) in enumerate(zip(rx, ry))], den)
+        return self._exact
+
+    def contact_area(self, mask) -> float:
+        """``contact_area(points[mask])`` (eq 35 on the hull of the subset), the same float:
+        up to ``SMALL_SET_MAX`` points the hull's exact integer area over the layout's common
+        denominator - the same rational as over the subset's own, so the same correctly
+        rounded division - from rows sorted and converted once; above, or for a layout whose
+        extent overflows, contact_area itself."""
+        mask = np.asarray(mask, dtype=bool)
+        scaled, den = self._exact_rows()
+        if scaled is None or np.count_nonzero(mask) > SMALL_SET_MAX:
+            return contact_area(self.points[mask])
+        seen = np.zeros(len(self.rows), dtype=bool)
+        seen[self.row_of[mask]] = True
+        subset = [scaled[i] for i in np.flatnonzero(seen).tolist()]  # lexicographic, as _exact_chain's
+        if len(subset) <= 2:
+            return 0.0
+        lower = _half_chain(subset)
+        subset.reverse()
+        upper = _half_chain(subset)
+        ring = lower[:-1] + upper[:-1]
+        twice_area = sum(a[0] * b[1] - b[0] * a[1] for a, b in zip(ring, ring[1:] + ring[:1]))
+        try:
+            return twice_area / (2 * den * den)
+        except OverflowError:
+            return math.inf
 
     def centroid(self, mask) -> np.ndarray:
         """Centroid of the distinct locations of the points where ``mask`` (bool, one per

@@ -55,13 +55,14 @@ class PhysicalEvaluation:
         self.xy = np.array([[t.x, t.y] for t in taxels], dtype=float) if has_xy else None
         self.total_area = geometry.contact_area(self.xy) if has_xy and self.n >= 3 else 0.0
         self._areas: dict[bytes, float] = {}
+        # the taxels' distinct locations sorted once: a cycle's area and centroid from its mask
+        self.locations = geometry.Locations(self.xy) if has_xy else None
         self.slip = None
         if slip and self.xy is not None:
             from ..core.slip import SlipTracker
 
             self.slip = SlipTracker(scene.forces.mu, noise_band=self._noise_band(),
                                     period=scene.bus.sync_period_ms * 1e-3)
-            self.locations = geometry.Locations(self.xy)  # the present taxels' centroid per cycle
         self._last_slip_t: float | None = None
 
     @staticmethod
@@ -100,7 +101,7 @@ class PhysicalEvaluation:
         if area is None:
             if len(self._areas) > 1024:
                 self._areas.clear()
-            area = self._areas[key] = geometry.contact_area(self.xy[present_mask])
+            area = self._areas[key] = self.locations.contact_area(present_mask)
         return area
 
     def forces(self, readings: np.ndarray, present_mask: np.ndarray) -> tuple[dict, float | None, float | None]:
