@@ -1,5 +1,5 @@
-"""The common frame of a receive turn, fed in one loop: a patch TPDO of packed decisions that
-the open cycle takes and that does not close it (issue 14, skin scale).
+"""The common frame of a receive turn, fed in one loop: a well-formed patch TPDO of packed
+decisions that the open cycle takes without completing it, or that is late (issue 14, skin scale).
 
 At 4,096 taxels (``scenes/skin4096.toml``) 88 of the ~100 frames of a cycle are such TPDOs.
 Fed one by one, each went through ``EventStream._feed_locked`` -> ``quantise_timestamp`` ->
@@ -8,16 +8,24 @@ Fed one by one, each went through ``EventStream._feed_locked`` -> ``quantise_tim
 :meth:`CommonFrames.feed` does the same work for a run of such frames in one loop: the scene's
 constants and the assembler's state bound to locals once per run, one dict lookup a frame
 giving everything about its TPDO, the per-device and per-slot arrays written through
-memoryviews, counters added once at the end of the run.
+memoryviews, counters added once at the end of the run. Late frames - answers to an earlier
+SYNC (stamped before the open cycle's, or tagged with another counter) or with no cycle open -
+are common too: a loaded host hands over many (a sixth of the TPDOs in a replay captured while
+the host ran a test suite beside the centre).
 
 It stops at the first frame that is anything else - a flag, a COB-ID that is no packed patch
-TPDO, a wrong length or padding, a tag or time stamp of another cycle, a repeat, no cycle open,
-a frame that ends the synchronous window or completes the cycle, held events, an exception
+TPDO, a wrong length, padding or tag, a repeat within the open cycle (a duplicate node-ID
+when tagged), a frame that ends the synchronous window or completes the cycle, an exception
 (``None`` data, an odd time stamp) - having changed nothing for it, and the stream feeds that
 frame through the general path (:meth:`~.stream.EventStream._feed_locked`), which decides,
 counts and raises exactly as before; the next run starts after it. So a turn gives the same
 closed cycles, counters and records as feeding its frames one by one
 (tests/test_common_frames.py, on random streams).
+
+Events held behind the open cycle's window (``cycles`` module docstring, "Bus order": SYNC k+1
+handled before the last answers to SYNC k, as a loaded host hands them over) change nothing
+here: the general path too feeds a node frame stamped inside the window at once, and releases
+what is held only when a frame ends the window or completes the cycle - which are not common.
 """
 
 from __future__ import annotations
@@ -25,7 +33,7 @@ from __future__ import annotations
 import sys
 from typing import Sequence
 
-from .cycle_records import C_TPDO1
+from .cycle_records import C_LATE, C_TPDO1
 from .decoder import K_PATCH, STATE_OPERATIONAL
 
 __all__ = ["CommonFrames"]
@@ -73,17 +81,19 @@ class CommonFrames:
         left to the general path, which raises its stamp to it."""
         assembler = self.assembler
         if (assembler.packed is not self.packed or first_us is None or type(assembler.t0_us) is not int
-                or type(assembler.last_us) is not int or not assembler.is_open or assembler.held):
-            return 0, 0  # nothing fed yet (or not the stream's integer µs), no cycle open, held events
+                or type(assembler.last_us) is not int):
+            return 0, 0  # nothing fed yet (or not the stream's integer µs)
         try:
             table = self.tables[channel]
         except (IndexError, TypeError):
             return 0, 0
         t0 = assembler.t0_us
         last = assembler.last_us
+        is_open = assembler.is_open
         sync_raw = assembler.sync_raw
         sync_counter = assembler.sync_counter
-        window_end = sync_raw + assembler.window_us if assembler.window_us else NO_WINDOW_END
+        overflow = assembler.sync_overflow
+        window_end = sync_raw + assembler.window_us if is_open and assembler.window_us else NO_WINDOW_END
         every_sync = assembler.synchronous_every_sync
         pending = assembler.pending
         fd = self.fd
@@ -95,6 +105,7 @@ class CommonFrames:
         last_heard = memoryview(assembler.last_heard)
         state = memoryview(assembler.state)
         us = 0
+        late = 0  # of the frames fed here
         index = start  # the first frame not fed here
         for index in range(start, len(msgs)):
             msg = msgs[index]
@@ -107,16 +118,25 @@ class CommonFrames:
                     break
                 slot, device, length, tail, pad_mask, tagged, first, stop, payload_start, end = tpdo
                 data = msg.data
-                if (len(data) != length or (tail and data[end:] != tail) or (pad_mask and data[end - 1] & pad_mask)
-                        or (tagged and data[0] != sync_counter) or got[slot]):
-                    break  # malformed, another cycle's tag (the open cycle's counter is in range), a repeat
+                if len(data) != length or (tail and data[end:] != tail) or (pad_mask and data[end - 1] & pad_mask):
+                    break  # malformed
                 stamp = round(msg.timestamp * 1e6)  # quantise_timestamp; None, inf, NaN raise
                 raw = stamp - t0
-                if stamp.__class__ is not int or stamp < first_us or raw < sync_raw or raw > window_end:
-                    break  # before the stream's start (to be raised to it), the open cycle's SYNC or after its window
-                closes = every_sync and expected[device]
-                if closes and pending == 1:
-                    break  # the cycle's last awaited TPDO: it closes the cycle
+                if stamp.__class__ is not int or stamp < first_us or raw > window_end:
+                    break  # stamped before the stream's start (raised to it there) or after the open window
+                if not is_open or raw < sync_raw or (tagged and data[0] != sync_counter):
+                    # no cycle open, or an answer to an earlier SYNC (stamped before the open
+                    # cycle's, or tagged with another counter): late
+                    if tagged and not 1 <= data[0] <= overflow:
+                        break  # a tag no SYNC carries: malformed
+                    accepted = closes = False
+                else:
+                    if got[slot]:
+                        break  # a repeat: late, and a duplicate node-ID when tagged
+                    accepted = True
+                    closes = every_sync and expected[device]
+                    if closes and pending == 1:
+                        break  # the cycle's last awaited TPDO: it closes the cycle
             except Exception:  # noqa: BLE001 - the general path counts it (internal_error) as before
                 break
             us = stamp
@@ -127,6 +147,9 @@ class CommonFrames:
             payload = data[payload_start:end]
             held_bytes[first:stop] = payload
             heard[slot] = True
+            if not accepted:
+                late += 1
+                continue
             got[slot] = True
             cycle_bytes[first:stop] = payload
             if closes:
@@ -137,5 +160,8 @@ class CommonFrames:
         if fed:
             assembler.last_us = last
             assembler.pending = pending
-            assembler.counts[C_TPDO1] += fed
+            counts = assembler.counts
+            counts[C_TPDO1] += fed - late
+            counts[C_LATE] += late
+            assembler.late_since += late
         return fed, us
