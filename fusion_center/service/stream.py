@@ -246,9 +246,10 @@ class EventStream:
         the stream lock; the cycles they close are evaluated after the last. Returns those the
         assembler took as the answer an SDO request of the centre awaits (``solicited``), in order.
 
-        With no trace, runs of common frames (patch TPDOs of packed decisions the open cycle
-        takes) are fed by :attr:`common` in one loop, every other frame by :meth:`_feed_locked`:
-        the same result as feeding each by :meth:`_feed_locked` (:mod:`.common_frames`)."""
+        With no trace, runs of common frames (well-formed patch TPDOs of packed decisions that
+        do not complete the open cycle, nor end its window) are fed by :attr:`common` in one
+        loop, every other frame by :meth:`_feed_locked`: the same result as feeding each by
+        :meth:`_feed_locked` (:mod:`.common_frames`)."""
         solicited = self.assembler.solicited
         answers = []
         closed = False
