@@ -90,3 +90,90 @@ def test_awaited_frames_are_bounded(monkeypatch):
     assert not echoes.is_echo(frame(data=b"\x00"), 0)  # the two oldest were forgotten
     assert not echoes.is_echo(frame(data=b"\x01"), 0)
     assert all(echoes.is_echo(frame(data=bytes([c])), 0) for c in range(2, 6))
+
+
+def test_foreign_is_is_echo_frame_by_frame_on_random_traffic():
+    """A turn's frames through ``foreign`` (looked up only when one carries an awaited COB-ID)
+    leave what ``is_echo`` one frame at a time leaves, and the two filters await the same frames
+    after: random sends, failed sends, turns of echoes, foreign copies and other frames, on
+    three channels, the clock moving past the echo window now and then."""
+    import random
+
+    rng = random.Random(7)
+    clock = Clock()
+    batch, single = EchoFilter(clock), EchoFilter(clock)
+    ids = (0x000, 0x080, 0x601, 0x181, 0x702)
+    sent = []  # (channel, id, data, remote) of frames sent, echo not yet seen
+    for step in range(3000):
+        op = rng.random()
+        if op < 0.3:
+            key = (rng.randrange(3), rng.choice(ids[:3]), bytes([rng.randrange(3)]), rng.random() < 0.1)
+            if key[3]:
+                key = key[:2] + (b"", True)
+            for f in (batch, single):
+                f.sent(*key)
+            sent.append(key)
+            if rng.random() < 0.1:  # the send failed
+                for f in (batch, single):
+                    f.forget(*key)
+                sent.pop()
+        elif op < 0.9:
+            channel = rng.randrange(3)
+            turn = []
+            for _ in range(rng.randrange(1, 8)):
+                if sent and rng.random() < 0.4:
+                    ch, can_id, data, remote = sent.pop(rng.randrange(len(sent)))
+                    if ch != channel and rng.random() < 0.5:
+                        continue
+                    turn.append(frame(can_id, data, remote))
+                else:
+                    turn.append(frame(rng.choice(ids), bytes([rng.randrange(3)])))
+            kept = batch.foreign(turn, channel)
+            assert list(kept) == [m for m in turn if not single.is_echo(m, channel)], step
+        else:
+            clock.now += rng.choice((0.01, 0.3, ECHO_WINDOW_S + 0.01))
+        assert len(batch) == len(single)
+        # the COB-ID index counts exactly the frames awaited (else the turns it lets through
+        # unlooked-at could hold an echo, or every turn would be looked up)
+        counts = {}
+        for (_, can_id, _, _), times in batch._awaited.items():
+            counts[can_id] = counts.get(can_id, 0) + len(times)
+        assert batch._awaited_ids == counts
+    assert len(batch) > 0  # the traffic left frames awaited: the comparison was not all empty
+
+
+def test_the_streams_frames_on_udp_multicast_reach_python_can_and_come_back_as_echoes():
+    """The master's frames written straight on the udp_multicast socket (data frames; a remote
+    frame through ``bus.send``): a python-can receiver on each group gets them - ID, data, RTR,
+    in order - and the stream's own sockets' copies are all absorbed as echoes, nothing else."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from test_cycles_patch import patch_scene  # noqa: E402
+    from test_service_multiprocess import multicast_port  # noqa: E402
+
+    from fusion_center.service.cycles import CycleAssembler
+
+    groups = [("239.74.163.51", multicast_port()), ("239.74.163.52", multicast_port())]  # a port each:
+    # a socket bound to a port hears every group joined on it (Linux, IP_MULTICAST_ALL)
+    own = [can.Bus(interface="udp_multicast", channel=g, port=p, hop_limit=0) for g, p in groups]
+    other = [can.Bus(interface="udp_multicast", channel=g, port=p, hop_limit=0) for g, p in groups]
+    try:
+        events = stream.EventStream(CycleAssembler(patch_scene(sizes=(10, 70))), buses=own)
+        events.echoes = EchoFilter()
+        events.transmit_all([(0, 0x080, b"\x01"), (1, 0x080, b"\x01")])
+        events.transmit_all([(1, 0x000, bytes((0x01, 0x00)))])
+        events.transmit_all([(0, 0x701, b"")], remote=True)
+        assert events._senders[0] is not None  # the direct path was taken
+        want = [[(0x080, b"\x01", False), (0x701, b"", True)], [(0x080, b"\x01", False), (0x000, b"\x01\x00", False)]]
+        for k, bus in enumerate(other):
+            got = [bus.recv(2.0) for _ in want[k]]
+            assert [(m.arbitration_id, bytes(m.data), m.is_remote_frame) for m in got] == want[k]
+        for k, bus in enumerate(own):
+            copies = [bus.recv(2.0) for _ in want[k]]
+            assert list(events.echoes.foreign(copies, k)) == []
+        assert len(events.echoes) == 0
+    finally:
+        for bus in own + other:
+            bus.shutdown()
