@@ -143,13 +143,14 @@ class EchoFilter:
             return True
 
     def foreign(self, msgs: Sequence[can.Message], channel: int) -> Sequence[can.Message]:
-        """The frames of a receive turn that are not echoes (:meth:`is_echo` of each, in order):
-        ``msgs`` itself when none carries a COB-ID a frame awaiting its echo was sent with - most
-        turns at skin scale, PDOs while only SYNCs await their echo - without looking each up."""
+        """The frames of a receive turn that are not echoes (:meth:`is_echo` of each, in order),
+        looked up only where a frame carries a COB-ID a frame awaiting its echo was sent with (at
+        skin scale a channel's SYNC echo comes in the turn of the ten PDOs answering it);
+        ``msgs`` itself when no frame does."""
         ids = self._awaited_ids
         if not ids or not any(msg.arbitration_id in ids for msg in msgs):
             return msgs
-        return [msg for msg in msgs if not self.is_echo(msg, channel)]
+        return [msg for msg in msgs if msg.arbitration_id not in ids or not self.is_echo(msg, channel)]
 
 
 class RateLimitedLog:
