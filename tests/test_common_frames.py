@@ -240,3 +240,61 @@ def test_the_common_path_feeds_a_turn_of_one_cycle_in_one_loop_and_leaves_its_la
 def test_without_packed_decisions_there_is_no_common_path():
     assert EventStream(CycleAssembler(patch_scene(sizes=(10, 70), mode="raw"))).common is None
     assert EventStream(CycleAssembler(patch_scene(sizes=(10, 70)))).common is not None
+
+
+def _part_fields(part) -> dict:
+    import dataclasses
+
+    out = {}
+    for name, value in dataclasses.asdict(part).items():
+        if isinstance(value, np.ndarray):
+            value = (value.dtype.str, value.tolist())
+        elif isinstance(value, tuple):
+            value = [(v.dtype.str, v.tolist()) if isinstance(v, np.ndarray) else v for v in value]
+        out[name] = value
+    return out
+
+
+@pytest.mark.parametrize("sizes, node_channels, fd", SCENES)
+@pytest.mark.parametrize("window_us", [0, 4000])
+def test_an_assembler_process_feeds_its_turns_as_it_would_frame_by_frame(sizes, node_channels, fd, window_us):
+    """`fusion-center assemble` takes the common path too: the parts it would send the fuser,
+    its event count and its assembler's state are those of feeding every frame on its own, on
+    the same random turns (late, stale, repeated, cut, flagged frames, other kinds; a frame
+    whose data makes the feed raise ends its turn in both)."""
+    from fusion_center.service.assembler_process import AssemblerProcess
+
+    channels = ("c0", "c1") if node_channels else ("c0",)
+    scene = patch_scene(sizes=sizes, fd=fd, window_us=window_us, channels=channels, node_channels=node_channels)
+    rng = np.random.default_rng(11)
+    turn_list = turns(rng, boot_events(scene) + mixed_stream(scene, rng, 60, fd))
+    runs = []
+    for common in (True, False):
+        proc = AssemblerProcess(scene, range(len(channels)), fuser=("127.0.0.1", 9), interface="virtual")
+        fed_common = [0]
+        if common:
+            assert proc.common is not None
+            feed_run = proc.common.feed
+
+            def counted(*args, feed_run=feed_run, fed_common=fed_common):
+                fed, last_us = feed_run(*args)
+                fed_common[0] += fed
+                return fed, last_us
+
+            proc.common.feed = counted
+        else:
+            proc.common = None
+        proc._send = lambda: None  # the parts stay in the outbox
+        raised = []
+        for k, (ch, turn) in enumerate(turn_list):
+            try:
+                proc.receive_all(messages(turn), ch)
+            except Exception as exc:  # noqa: BLE001 - compared between the two runs
+                raised.append((k, type(exc)))
+        runs.append((proc, raised, fed_common[0]))
+    (got, got_raised, fed), (want, want_raised, _) = runs
+    assert got_raised == want_raised and want_raised  # the raising frames are in the turns
+    assert len(want._outbox) >= 40 and fed > sum(len(t) for _, t in turn_list) // 4
+    assert [_part_fields(p) for p in got._outbox] == [_part_fields(p) for p in want._outbox]
+    assert got.events == want.events
+    assert_same_state(got.group.assembler, want.group.assembler)

@@ -22,6 +22,7 @@ from taxel_net.scene import Scene
 from .assembler_parts import (AUTHKEY_ENV, LOG_INTERVAL_S, NMT_RESETS, PROTOCOL, CyclePart, RateLimitedLog,
                               authkey_for, group_layout, scene_fingerprint, shutdown_connection,
                               tune_connection)
+from .common_frames import CommonFrames
 from .cycle_records import ClosedCycle, EmcyEvent, quantise_timestamp
 
 logger = logging.getLogger("fusion_center.service.assemblers")
@@ -113,6 +114,8 @@ class AssemblerProcess:
         self.scene = scene
         self.group = GroupAssembler(scene, channels)
         self.layout = self.group.layout
+        # the group's patch TPDOs of packed decisions fed a run at a time (None: the scene has none)
+        self.common = CommonFrames.for_assembler(self.group.assembler)
         self._gc_held = False  # holds taxel_net.gcfreeze once connected, until closed
         names = list(channel_names) if channel_names is not None else list(scene.bus.channels)
         if len(names) != len(scene.bus.channels):
@@ -323,9 +326,24 @@ class AssemblerProcess:
         parts they close are sent after the last."""
         from .stream import message_flags
 
+        if not isinstance(msgs, (list, tuple)):
+            msgs = list(msgs)
         closed_any = False
+        assembler = self.group.assembler
         with self.lock:
-            for msg in msgs:
+            common = self.common
+            index, count = 0, len(msgs)
+            while index < count:
+                if common is not None:  # a run of common frames in one loop (.common_frames); they
+                    # close nothing, and their time stamps are not before the first event's
+                    fed, _ = common.feed(msgs, index, channel, assembler.t0_us)
+                    if fed:
+                        self.events += fed
+                        index += fed
+                        if index == count:
+                            break
+                msg = msgs[index]
+                index += 1
                 self.events += 1
                 parts = self.group.feed(quantise_timestamp(msg.timestamp), channel, msg.arbitration_id,
                                         bytes(msg.data), message_flags(msg))
