@@ -20,7 +20,9 @@ when tagged), a frame that ends the synchronous window or completes the cycle, a
 frame through the general path (:meth:`~.stream.EventStream._feed_locked`), which decides,
 counts and raises exactly as before; the next run starts after it. So a turn gives the same
 closed cycles, counters and records as feeding its frames one by one
-(tests/test_common_frames.py, on random streams).
+(tests/test_common_frames.py, on random streams). An assembler process
+(:class:`~.assembler_process.AssemblerProcess`, ``fusion-center assemble``) feeds its turns
+the same way, its group's frames through ``GroupAssembler.feed`` for the rest.
 
 Events held behind the open cycle's window (``cycles`` module docstring, "Bus order": SYNC k+1
 handled before the last answers to SYNC k, as a loaded host hands them over) change nothing
