@@ -345,8 +345,15 @@ class AssemblerProcess:
                 msg = msgs[index]
                 index += 1
                 self.events += 1
-                parts = self.group.feed(quantise_timestamp(msg.timestamp), channel, msg.arbitration_id,
-                                        bytes(msg.data), message_flags(msg))
+                try:
+                    parts = self.group.feed(quantise_timestamp(msg.timestamp), channel, msg.arbitration_id,
+                                            bytes(msg.data), message_flags(msg))
+                except Exception as exc:  # noqa: BLE001 - as the centre's stream: counted, logged, the turn goes on
+                    # (raised out of here it would end the reading of the bus for good)
+                    if assembler.events < self.events:
+                        assembler.count_internal_error()
+                    self._log.warning("internal_error", f"receive path: {type(exc).__name__}: {exc}")
+                    continue
                 if parts:
                     self._outbox.extend(parts)
                     closed_any = True
