@@ -364,3 +364,20 @@ def test_locations_contact_area_is_contact_area_of_the_subset(data):
             continue
         got = layout.contact_area(mask)
         assert got == want or (np.isnan(got) and np.isnan(want)), (got, want)
+
+
+def test_locations_contact_area_refuses_a_subset_whose_extent_overflows_as_contact_area_does():
+    """A layout whose differences from its first point are finite while a subset's from its own
+    first point are not (1e308 above and below a point of x = 0): the subset is refused with
+    contact_area's own error, not given an area; an empty layout's empty subset is 0.0."""
+    pts = np.array([[-1.0, 0.0], [0.0, -1e308], [0.0, 1e308], [1.0, 0.0]])
+    mask = np.array([False, True, True, True])
+    with pytest.raises(ParameterError) as want:
+        geometry.contact_area(pts[mask])
+    with pytest.raises(ParameterError) as got:
+        geometry.Locations(pts).contact_area(mask)
+    assert str(got.value) == str(want.value)
+    assert geometry.Locations(pts).contact_area(np.array([True, False, False, True])) == 0.0  # a segment
+    empty = geometry.Locations(np.zeros((0, 2)))
+    assert empty.contact_area(np.zeros(0, dtype=bool)) == 0.0
+    assert np.isnan(empty.centroid(np.zeros(0, dtype=bool))).all()

@@ -259,3 +259,26 @@ def test_update_centroid_is_update_and_refuses_a_bad_centroid():
         with pytest.raises(ParameterError, match="centroid"):
             by_centroid.update_centroid(times[-1] + 1.0, bad)
     assert by_centroid.update_centroid(times[-1] + 1.0, [np.nan, np.nan]).contact is False
+
+
+def test_bad_input_leaves_the_tracker_as_it_was():
+    """A cycle refused (active rows not finite, their centroid overflowing, a bad centroid, a
+    time not after the last) changes nothing: the same cycle then goes through as if the bad
+    one had never come; the centroid handed in is kept as a copy."""
+    tracker, reference = SlipTracker(0.3, 0.5, reference_cycles=1), SlipTracker(0.3, 0.5, reference_cycles=1)
+    for tr in (tracker, reference):
+        tr.update(0.0, [(0.0, 0.0)])
+    for bad in ([[np.nan, 1.0]], [[1e308, 0.0], [1e308, 0.5]], [[1.0, 2.0, 3.0]]):
+        with pytest.raises(ParameterError, match="active_xy"):
+            tracker.update(1.0, bad)
+    with pytest.raises(ParameterError, match="centroid"):
+        tracker.update_centroid(1.0, [np.inf, 0.0])
+    with pytest.raises(ParameterError, match="t"):
+        tracker.update(0.0, [(1.0, 0.0)])
+    buffer = np.array([2.0, 0.0])
+    got = tracker.update_centroid(1.0, buffer)
+    buffer[:] = 50.0  # the caller reuses its buffer
+    want = reference.update(1.0, [(2.0, 0.0)])
+    np.testing.assert_equal(dataclasses.asdict(got), dataclasses.asdict(want))
+    np.testing.assert_equal(dataclasses.asdict(tracker.update(2.0, [(4.0, 0.0)])),
+                            dataclasses.asdict(reference.update(2.0, [(4.0, 0.0)])))

@@ -246,12 +246,15 @@ class Locations:
     def _exact_rows(self):
         """Every distinct row as exact integers over one common power-of-two denominator, less
         the first row (``_exact_chain``'s coordinates, once for the whole layout); None when
-        the layout's extent overflows a float (then each subset is left to contact_area)."""
+        the layout's extent (largest minus smallest coordinate) overflows a float - then a
+        subset's may too, and each subset is left to contact_area - or the layout is empty.
+        Below, every subset's coordinate differences are finite (no larger than the extent)."""
         if self._exact is None:
             unique = [tuple(row) for row in self.rows.tolist()]
-            try:
-                _check_extent(unique)
-            except ParameterError:
+            with np.errstate(over="ignore"):
+                extent = self.rows.max(axis=0) - self.rows.min(axis=0) if unique else np.full(2, np.inf)
+            if not np.isfinite(extent).all():
+                # empty, or some subset's differences may overflow: contact_area decides each
                 self._exact = (None, 0)
                 return self._exact
             rx = [x.as_integer_ratio() for x, _ in unique]
@@ -270,7 +273,7 @@ class Locations:
         extent overflows, contact_area itself."""
         mask = np.asarray(mask, dtype=bool)
         scaled, den = self._exact_rows()
-        if scaled is None or np.count_nonzero(mask) > SMALL_SET_MAX:
+        if not scaled or np.count_nonzero(mask) > SMALL_SET_MAX:
             return contact_area(self.points[mask])
         seen = np.zeros(len(self.rows), dtype=bool)
         seen[self.row_of[mask]] = True

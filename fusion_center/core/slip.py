@@ -320,15 +320,21 @@ class SlipTracker:
 
     def update(self, t, active_xy, total_tangential=None, grip_force=None) -> SlipState:
         """One cycle: ``active_xy`` the coordinates of the taxels deciding u_i = +1 (their
-        distinct locations' centroid is what moves, :func:`~.geometry.active_centroid`)."""
-        return self.update_centroid(t, active_centroid(as_points(active_xy, "active_xy")),
-                                    total_tangential, grip_force)
+        distinct locations' centroid is what moves, :func:`~.geometry.active_centroid`). Bad
+        input raises ParameterError and leaves the tracker as it was."""
+        points = as_points(active_xy, "active_xy")
+        with np.errstate(over="ignore"):
+            centroid = active_centroid(points)
+        if np.isinf(centroid).any():
+            raise ParameterError("active_xy", [points.min(axis=0).tolist(), points.max(axis=0).tolist()],
+                                 "the centroid of the points must be finite (their mean overflows a float)")
+        return self.update_centroid(t, centroid, total_tangential, grip_force)
 
     def update_centroid(self, t, centroid, total_tangential=None, grip_force=None) -> SlipState:
         """:meth:`update` given the centroid of the active taxels' distinct locations - (nan,
         nan) for no contact - as a fixed layout computes it for any subset
-        (:class:`~.geometry.Locations`)."""
-        centroid = np.asarray(centroid, dtype=float)
+        (:class:`~.geometry.Locations`); kept as a copy."""
+        centroid = np.array(centroid, dtype=float)
         if centroid.shape != (2,) or np.isinf(centroid).any() or np.isnan(centroid[0]) != np.isnan(centroid[1]):
             raise ParameterError("centroid", centroid.tolist() if centroid.ndim else centroid,
                                  "must be one finite (x, y), or (nan, nan) for no contact")
