@@ -114,8 +114,10 @@ def check_records(scene, records) -> dict:
             wrong += received_present != physics_present
         else:
             degraded += 1
-            # the received nodes' decisions must still be this cycle's
-            absent = set(r["nodes_by_state"].get("silent", [])) | set(r["nodes_by_state"].get("missing", []))
+            # the received nodes' decisions must still be this cycle's; the others are every node
+            # the record lists by state: missing, silent, and live ones not operational at the
+            # SYNC (stopped, pre-operational, ...: no PDO, CiA 301)
+            absent = set().union(*r["nodes_by_state"].values())
             wrong += received_present != (physics_present - absent)
     return {"records": len(records), "complete": complete, "degraded": degraded, "undecided": undecided,
             "misattributed": wrong}
