@@ -99,19 +99,37 @@ def _exact_chain(unique: list[tuple[float, float]]) -> tuple[list[tuple[float, f
     points. Returns (vertices counter-clockwise from the lexicographically smallest point,
     twice the hull's area in units of ``1/D**2`` (eq 35 in exact integers), ``D``).
     """
+    scaled, den = _exact_integers(unique)
+    ring, twice_area = _exact_ring(scaled)
+    return [unique[p[2]] for p in ring], twice_area, den
+
+
+def _exact_integers(unique: list[tuple[float, float]]) -> tuple[list[tuple[int, int, int]], int]:
+    """``(x, y, k)`` of each point ``unique[k]`` as exact ints over the common denominator ``D``
+    (returned), less the first point (``_exact_chain``)."""
     rx = [x.as_integer_ratio() for x, _ in unique]
     ry = [y.as_integer_ratio() for _, y in unique]
     den = max(max(d for _, d in rx), max(d for _, d in ry))  # powers of two: the lcm is the max
     x0 = rx[0][0] * (den // rx[0][1])
     y0 = ry[0][0] * (den // ry[0][1])
-    scaled = [(a * (den // b) - x0, c * (den // d) - y0, k)
-              for k, ((a, b), (c, d)) in enumerate(zip(rx, ry))]
+    return [(a * (den // b) - x0, c * (den // d) - y0, k) for k, ((a, b), (c, d)) in enumerate(zip(rx, ry))], den
+
+
+def _exact_ring(scaled: list[tuple[int, int, int]]) -> tuple[list[tuple[int, int, int]], int]:
+    """The hull of >= 3 lexicographically sorted distinct integer points (Andrew's monotone
+    chain, counter-clockwise from the first) and twice its area (eq 35 in exact integers)."""
     lower = _half_chain(scaled)
-    scaled.reverse()
-    upper = _half_chain(scaled)
+    upper = _half_chain(scaled[::-1])
     ring = lower[:-1] + upper[:-1]
-    twice_area = sum(a[0] * b[1] - b[0] * a[1] for a, b in zip(ring, ring[1:] + ring[:1]))
-    return [unique[p[2]] for p in ring], twice_area, den
+    return ring, sum(a[0] * b[1] - b[0] * a[1] for a, b in zip(ring, ring[1:] + ring[:1]))
+
+
+def _area_of(twice_area: int, den: int) -> float:
+    """``twice_area / (2 D^2)`` correctly rounded (int / int); inf beyond the largest float."""
+    try:
+        return twice_area / (2 * den * den)  # 0 for a segment
+    except OverflowError:  # true area beyond the largest float: rounds to inf
+        return math.inf
 
 
 def _qhull(pts: np.ndarray) -> np.ndarray:
@@ -209,10 +227,7 @@ def contact_area(points) -> float:
         return 0.0
     _check_extent(unique)
     _, twice_area, den = _exact_chain(unique)
-    try:
-        return twice_area / (2 * den * den)  # int / int: correctly rounded (0 for a segment)
-    except OverflowError:  # true area beyond the largest float: rounds to inf
-        return math.inf
+    return _area_of(twice_area, den)
 
 
 def active_centroid(points) -> np.ndarray:
@@ -257,12 +272,7 @@ class Locations:
                 # empty, or some subset's differences may overflow: contact_area decides each
                 self._exact = (None, 0)
                 return self._exact
-            rx = [x.as_integer_ratio() for x, _ in unique]
-            ry = [y.as_integer_ratio() for _, y in unique]
-            den = max(max(d for _, d in rx), max(d for _, d in ry))
-            x0, y0 = rx[0][0] * (den // rx[0][1]), ry[0][0] * (den // ry[0][1])
-            self._exact = ([(a * (den // b) - x0, c * (den // d) - y0, k)
-                            for k, ((a, b), (c, d)) in enumerate(zip(rx, ry))], den)
+            self._exact = _exact_integers(unique)
         return self._exact
 
     def contact_area(self, mask) -> float:
@@ -280,15 +290,7 @@ class Locations:
         subset = [scaled[i] for i in np.flatnonzero(seen).tolist()]  # lexicographic, as _exact_chain's
         if len(subset) <= 2:
             return 0.0
-        lower = _half_chain(subset)
-        subset.reverse()
-        upper = _half_chain(subset)
-        ring = lower[:-1] + upper[:-1]
-        twice_area = sum(a[0] * b[1] - b[0] * a[1] for a, b in zip(ring, ring[1:] + ring[:1]))
-        try:
-            return twice_area / (2 * den * den)
-        except OverflowError:
-            return math.inf
+        return _area_of(_exact_ring(subset)[1], den)
 
     def centroid(self, mask) -> np.ndarray:
         """Centroid of the distinct locations of the points where ``mask`` (bool, one per
