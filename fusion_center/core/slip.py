@@ -132,12 +132,16 @@ class SlipState:
 
 
 def _kinematics(times: np.ndarray, track: np.ndarray, fit_window: int | None, period: float):
-    full_v = line_fit_velocity(times, track)
-    distance = float(np.hypot(*full_v) * (times[-1] - times[0])) if len(times) >= 2 else 0.0
-    if fit_window is not None and len(times) > fit_window:
-        v = line_fit_velocity(times[-fit_window:], track[-fit_window:])
-    else:
-        v = full_v
+    window = (times[-fit_window:], track[-fit_window:]) if fit_window is not None and len(times) > fit_window else None
+    return _motion(line_fit_velocity(times, track), times[-1] - times[0] if len(times) >= 2 else 0.0, window, period)
+
+
+def _motion(full_v: np.ndarray, span: float, window: tuple | None, period: float):
+    """(velocity, velocity per cycle, speed, distance) of a slip from the fit over the whole
+    track since the onset (slope ``full_v`` over ``span`` time units: the distance) and, when
+    given, the ``(times, positions)`` of its last ``fit_window`` points (the velocity)."""
+    distance = float(np.hypot(*full_v) * span)
+    v = line_fit_velocity(*window) if window is not None else full_v
     return v, v * period, float(np.hypot(*v)), distance
 
 
@@ -305,13 +309,11 @@ class SlipTracker:
         """:func:`_kinematics` of the track since the onset, from the running fit (and the
         last ``fit_window`` points for the velocity)."""
         track = self._track
-        full_v = track.velocity()
-        distance = float(np.hypot(*full_v) * (track.t_last - track.t_first)) if track.n >= 2 else 0.0
+        window = None
         if self.fit_window is not None and track.n > self.fit_window:
-            v = line_fit_velocity([w[0] for w in self._window], np.array([w[1] for w in self._window]))
-        else:
-            v = full_v
-        return v, v * self._period(), float(np.hypot(*v)), distance
+            window = ([w[0] for w in self._window], np.array([w[1] for w in self._window]))
+        return _motion(track.velocity(), track.t_last - track.t_first if track.n >= 2 else 0.0, window,
+                       self._period())
 
     def _period(self) -> float:
         if self.period is not None:
