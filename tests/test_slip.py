@@ -212,9 +212,9 @@ def test_tracker_fits_a_long_episode_as_the_exact_least_squares_line(t0):
         state_w = windowed.update(t, [c])
     assert state.slipping and state.criterion == "motion"
     since = state.onset_index
-    slope, duration = _exact_slope(times[since:], centroids[since:])
+    slope, track_span = _exact_slope(times[since:], centroids[since:])
     np.testing.assert_allclose(state.velocity, slope, rtol=1e-9)
-    assert state.distance == pytest.approx(np.hypot(*slope) * duration, rel=1e-9)
+    assert state.distance == pytest.approx(np.hypot(*slope) * track_span, rel=1e-9)
     assert state.velocity_per_cycle == pytest.approx(np.asarray(slope) * PERIOD, rel=1e-9)
     np.testing.assert_allclose(state_w.velocity, line_fit_velocity(times[-15:], centroids[-15:]), rtol=1e-12)
     assert state_w.distance == pytest.approx(state.distance, rel=1e-12)
