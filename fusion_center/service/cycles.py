@@ -303,10 +303,13 @@ class CycleAssembler:
                 if self.held and not self.is_open:  # it completed the cycle: feed what was held
                     self._release(out)
                 return
+            # only a SYNC that would open a cycle is SYNC k+1: a malformed one (wrong length, a
+            # counter no SYNC carries) is counted where it stands and changes no cycle
+            next_sync = kind == K_SYNC and channel == 0 and self._opens_cycle(data)
             if self.held:
                 release = (
                     len(self.held) >= HOLD_MAX
-                    or (kind == K_SYNC and channel == 0)
+                    or next_sync
                     or (kind == K_NMT and len(data) == 2 and data[1] == 0 and data[0] != NMT_START))
                 if release:
                     self._release(out)
@@ -314,7 +317,7 @@ class CycleAssembler:
                 else:
                     self.held.append((t, raw, channel, data, flags, entry))
                 return
-            if kind == K_SYNC and channel == 0:
+            if next_sync:
                 self.held.append((t, raw, channel, data, flags, entry))  # SYNC k+1 while k's window is open
                 return
         self._push(out, self._feed(t, raw, channel, data, flags, entry))
@@ -576,16 +579,21 @@ class CycleAssembler:
                 return self._close("complete", t)
         return None
 
+    def _opens_cycle(self, data: bytes) -> bool:
+        """Whether a SYNC with this payload is well formed (CiA 301: DLC 1 with a counter
+        1..0x1019 where the scene has a counter, DLC 0 where it has none) - the one check
+        :meth:`_sync` counts and :meth:`_route` holds by."""
+        if self.sync_overflow:
+            return len(data) == 1 and 1 <= data[0] <= self.sync_overflow
+        return len(data) == 0
+
     def _sync(self, t: int, channel: int, data: bytes, raw: int | None = None):
         counter = None
+        if not self._opens_cycle(data):
+            wrong_length = len(data) != (1 if self.sync_overflow else 0)
+            return self._bad(C_BAD_DLC if wrong_length else C_BAD_VALUE)
         if self.sync_overflow:
-            if len(data) != 1:
-                return self._bad(C_BAD_DLC)
             counter = data[0]
-            if not 1 <= counter <= self.sync_overflow:
-                return self._bad(C_BAD_VALUE)
-        elif len(data) != 0:
-            return self._bad(C_BAD_DLC)
         self.counts[C_SYNC] += 1
         if channel != 0:
             return None  # one cycle per SYNC instant: channel 0's SYNC opens it (the master
