@@ -137,7 +137,7 @@ def run(args) -> int:
     nominal_ms = scene.bus.sync_period_ms
     scene = slowed_down(scene, args.slow_down)
     drops = parse_drops(args.drop_node, scene)
-    check_trace_target(args.log, scene)
+    check_trace_target(args.log)
     _, summary = run_demo(scene, cycles, drops=drops, json_lines=args.json_lines, trace=args.log,
                           live=not args.no_live, boot_timeout=args.boot_timeout, keep_records=False)
     if args.slow_down != 1.0:

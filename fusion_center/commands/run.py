@@ -16,7 +16,7 @@ def add_common_outputs(parser: argparse.ArgumentParser) -> None:
                         help="decision log: one JSON object per cycle, flushed every cycle")
     parser.add_argument("--log", metavar="TRACE", default=None,
                         help="raw CAN trace via python-can's Logger; format by extension "
-                             "(.log candump, .asc Vector, .blf, .csv); replay it with `fusion-center replay`. "
+                             "(.log candump, .asc Vector, .blf); replay it with `fusion-center replay`. "
                              ".log/.asc/.csv are flushed at every cycle (a crash loses at most the cycle in "
                              "flight); .blf keeps its current container in memory until the end: prefer .log "
                              "for a trace that must survive a crash")
@@ -267,7 +267,7 @@ def run(args) -> int:
 
     setup_logging()
     scene, cycles = load_run_scene(args)
-    check_trace_target(args.log, scene)
+    check_trace_target(args.log)
     bus = resolve_bus(args, scene)
     options = dict(interface=bus.interface, channels=bus.channels, bitrate=bus.bitrate, bus_kwargs=bus.kwargs,
                    json_lines=args.json_lines, trace=args.log, keep_records=False)

@@ -27,40 +27,51 @@ TRACE_SUFFIXES = tuple(sorted(_WRITERS))
 CHANNELLESS_SUFFIXES = (".csv", ".db")
 # formats whose reader numbers channels from 1 (PCAN-View's TRC: the writer adds 1)
 ONE_BASED_SUFFIXES = (".trc",)
+# formats python-can writes with frames lost or changed, so a replay of the run could not
+# reproduce it (issue 21): what each cannot carry. ``--log`` refuses them; replay still reads
+# such traces made by other tools (their limits in docs/service.md)
+LOSSY_SUFFIXES = {
+    ".csv": "records no frame's CAN FD flag, bit-rate switch, direction or channel",
+    ".db": "records no frame's CAN FD flag, bit-rate switch, direction or channel",
+    ".trc": "writer drops CAN FD, remote and error frames",
+}
 # replay refuses a trace whose frames of node-IDs or COB-IDs the scene does not have exceed
 # this fraction of its frames (a trace of another scene), unless --force
 FOREIGN_FRACTION_MAX = 0.02
 
 
-def check_trace_target(path, scene: Scene | None = None) -> None:
+def check_trace_target(path) -> None:
     """Refuse, before a run starts, a ``--log`` path replay could not use: an extension python-
     can does not write or cannot read back (``.txt``), a writer whose optional package is not
-    installed (``.mf4`` needs asammdf), a format without channels (``.csv``, ``.db``) for a
-    scene with several channels. Raises :class:`UsageError` (one line)."""
+    installed (``.mf4`` needs asammdf), a format that cannot carry every frame a bus delivers
+    (:data:`LOSSY_SUFFIXES`: ``.csv``, ``.db``, ``.trc``), so that the replay of every trace
+    the centre writes reproduces the run's records byte for byte. Raises :class:`UsageError`
+    (one line)."""
     if path is None:
         return
     p = Path(path)
     suffix = p.suffix.lower()
-    readable = [s for s in TRACE_SUFFIXES if s in _READERS]
+    readable = [s for s in TRACE_SUFFIXES if s in _READERS and s not in LOSSY_SUFFIXES]
     if suffix not in _WRITERS:
         raise UsageError(f"--log {str(path)!r}: unknown trace format {p.suffix!r} "
                          f"(python-can writes and reads back {', '.join(readable)})")
     if suffix not in _READERS:
         raise UsageError(f"--log {str(path)!r}: python-can writes {suffix} but cannot read it back, so it "
                          f"cannot be replayed (use {', '.join(readable)})")
+    if suffix in LOSSY_SUFFIXES:
+        raise UsageError(f"--log {str(path)!r}: python-can's {suffix} {LOSSY_SUFFIXES[suffix]}, so a replay "
+                         "could not reproduce the run; record .log, .asc or .blf (python -m can.logconvert "
+                         f"run.log run{suffix} converts a copy)")
     if suffix == ".mf4":
         try:
             import asammdf  # noqa: F401
         except ImportError:
             raise UsageError(f"--log {str(path)!r}: .mf4 needs the asammdf package (pip install "
                              "'python-can[mf4]'), not installed here; .blf or .log need nothing more") from None
-    if scene is not None and suffix in CHANNELLESS_SUFFIXES and len(scene.bus.channels) > 1:
-        raise UsageError(f"--log {str(path)!r}: {suffix} stores no channel, and scene {scene.name!r} has "
-                         f"{len(scene.bus.channels)} channels: use .log, .asc, .blf or .trc")
 
 
 def open_trace_writer(path) -> can.Listener:
-    """``can.Logger(path)``: the format follows the extension (.log candump, .asc, .blf, .csv...)."""
+    """``can.Logger(path)``: the format follows the extension (.log candump, .asc, .blf)."""
     check_trace_target(path)
     try:
         return can.Logger(str(Path(path)))
