@@ -15,7 +15,8 @@ Four panels over the SYNC cycle, read from the per-cycle records (``--json-lines
    run summary's ``latency_ms``.
 
 The figure is written to ``OUT.partial.png`` and renamed when complete: a failed plot leaves
-no complete-looking file. A log that cannot be read (missing, not JSON lines, not decision
+no complete-looking file. An ``OUT`` that is not a regular file (a FIFO, a device) is written
+in place, never renamed over nor removed. A log that cannot be read (missing, not JSON lines, not decision
 records) exits 2 with one line naming the file and the line.
 """
 
@@ -25,6 +26,7 @@ import argparse
 import json
 import math
 import os
+import tempfile
 from pathlib import Path
 
 HELP = "plot a run's decision log (RUN.jsonl): U_G vs threshold, decisions vs truth, nodes, late frames, SYNC timing"
@@ -225,6 +227,7 @@ def draw(series: dict, title: str, out: Path) -> None:
 
 def run(args) -> int:
     from taxel_net.errors import UsageError
+    from taxel_net.outputs import OutputPath
 
     log = Path(args.log)
     out = Path(args.out) if args.out else log.with_suffix(".png")
@@ -241,15 +244,23 @@ def run(args) -> int:
     series = read_log(log)
     meta = series["meta"]
     title = f"{log.name} ({meta.get('mode') or '?'} mode)"
-    partial = out.with_name(out.stem + ".partial" + out.suffix)
+    # the partial file keeps the suffix (matplotlib takes the format from it); a FIFO or a
+    # device is written in place, never renamed over nor removed (taxel_net.outputs)
+    target = OutputPath(out, lambda t: t.stem + ".partial" + t.suffix, option="--out")
     try:
-        draw(series, title, partial)
-        os.replace(partial, out)
+        if target.in_place:  # a FIFO cannot seek (PNG writers do): draw first, then write it out
+            with tempfile.TemporaryDirectory() as scratch:
+                drawn = Path(scratch) / ("figure" + out.suffix)
+                draw(series, title, drawn)
+                with open(target.write_path, "wb") as sink:
+                    sink.write(drawn.read_bytes())
+        else:
+            draw(series, title, target.write_path)
+        target.commit()
     except OSError as exc:
         raise UsageError(f"--out {str(out)!r} cannot be written: {exc.strerror or exc}") from None
     finally:
-        if partial.exists():
-            partial.unlink()
+        target.discard_partial()
     errors = f", {series['errors']} cycles whose evaluation failed" if series["errors"] else ""
     print(f"wrote {out} ({len(series['cycle'])} cycles{errors})")
     return 0

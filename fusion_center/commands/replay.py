@@ -22,9 +22,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args) -> int:
-    from pathlib import Path
 
     from taxel_net.errors import UsageError
+    from taxel_net.outputs import discard_stale
     from taxel_net.scene import load_scene
     from ..service import replay_trace
     from ..service.records import dumps
@@ -37,9 +37,8 @@ def run(args) -> int:
         try:
             check_trace(scene, args.trace)  # before anything is written
         except UsageError:
-            out = Path(args.json_lines) if args.json_lines else None
-            if out is not None and out.exists():
-                out.unlink()  # a log of an earlier replay must not pass for this one's
+            if args.json_lines:
+                discard_stale(args.json_lines)  # a log of an earlier replay must not pass for this one's
             raise
     on_record = None if args.json_lines else (lambda r: print(dumps(r)))
     records, counters = replay_trace(scene, args.trace, json_lines=args.json_lines, on_record=on_record)

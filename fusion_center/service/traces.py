@@ -6,7 +6,6 @@ reproduces the live records exactly.
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 from typing import Callable
 
@@ -15,6 +14,7 @@ from can.io.logger import MESSAGE_WRITERS as _WRITERS  # what python-can writes,
 from can.io.player import MESSAGE_READERS as _READERS  # ... and reads back
 
 from taxel_net.errors import UsageError
+from taxel_net.outputs import OutputPath
 from taxel_net.scene import Scene
 from .cycles import ClosedCycle, CycleAssembler
 from .pipeline import CyclePipeline
@@ -103,24 +103,25 @@ def replay_trace(scene: Scene, trace_path, *, json_lines=None, truth: bool = Tru
     line naming the file and the position). ``json_lines`` is written to ``OUT.partial`` and
     renamed to ``OUT`` only when the whole trace was read: a failed replay leaves no complete-
     looking log (the partial one stays as ``OUT.partial``, and an ``OUT`` of an earlier run is
-    removed).
+    removed). An ``OUT`` that is not a regular file (``/dev/null``, a FIFO, ``/dev/stdout``) is
+    written in place and never renamed over nor removed (:class:`taxel_net.outputs.OutputPath`).
     """
     p = Path(trace_path)
     name = str(trace_path)
     suffix = p.suffix.lower()
-    out = Path(json_lines) if json_lines is not None else None
+    out = OutputPath(json_lines, option="--json-lines") if json_lines is not None else None
     try:
         reader = _open_reader(p)
     except UsageError:
-        if out is not None and out.exists():
-            out.unlink()  # a log of an earlier replay must not pass for this one's
+        if out is not None:
+            out.discard_stale()  # a log of an earlier replay must not pass for this one's
         raise
     assembler = CycleAssembler(scene)
     pipeline = CyclePipeline(scene, truth=truth)
     closed_cycles: list[ClosedCycle] = []
     stream = EventStream(assembler, on_closed=closed_cycles.append)
     records: list[dict] = []
-    partial = out.with_name(out.name + ".partial") if out is not None else None
+    partial = out.write_path if out is not None else None
     writer = RecordWriter(partial) if partial is not None else None
     frames = 0
     ok = False
@@ -149,9 +150,9 @@ def replay_trace(scene: Scene, trace_path, *, json_lines=None, truth: bool = Tru
         if writer is not None:
             writer.close()
             if ok:
-                os.replace(partial, out)
-            elif out.exists():
-                out.unlink()  # a log of an earlier replay must not pass for this one's
+                out.commit()
+            else:
+                out.discard_stale()  # a log of an earlier replay must not pass for this one's
         _stop(reader)
     return records, assembler.counters()
 

@@ -1,0 +1,212 @@
+"""Output paths that are not regular files are written in place, never renamed over nor
+deleted (issue 21, item 2): ``replay --json-lines /dev/null`` as root turned the device into a
+regular file, and a failed replay deleted it. Tested with a FIFO, a character device made with
+``mknod`` (root only: skipped otherwise), a link to a FIFO (as ``/dev/stdout`` is to a pipe),
+a link to a regular file, and a directory."""
+
+from __future__ import annotations
+
+import os
+import stat
+import subprocess
+import sys
+import threading
+from pathlib import Path
+
+import pytest
+
+from fusion_center.commands.demo import run_demo
+from fusion_center.service import replay_trace
+from taxel_net.errors import UsageError
+from taxel_net.outputs import OutputPath, discard_stale
+from taxel_net.scene import load_scene
+
+ROOT = Path(__file__).resolve().parent.parent
+CLI = [sys.executable, "-c", "import sys; from fusion_center.cli import main; sys.exit(main())"]
+TINY = """\
+[scene]
+name = "tiny3"
+seed = 3
+
+[bus]
+heartbeat_producer_ms = 50
+
+[kinds.R]
+zeta_mv = 1.5
+noise_mv = 0.2
+
+[[taxels]]
+node_id = 3
+kind = "R"
+
+[[taxels]]
+node_id = 4
+kind = "R"
+
+[[taxels]]
+node_id = 5
+kind = "R"
+
+[object]
+model = "script"
+present = [[3, 7]]
+readings_mv = [3.0, 3.0, 0.5]
+
+[fusion]
+tuple = "pm1"
+"""
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    """A short demo: (scene path, its trace, its live decision log, the trace cut in a line)."""
+    d = tmp_path_factory.mktemp("outputs")
+    scene = d / "tiny3.toml"
+    scene.write_text(TINY)
+    trace, live = d / "run.log", d / "live.jsonl"
+    run_demo(load_scene(scene), 20, json_lines=live, trace=trace)
+    text = trace.read_bytes()
+    cut = d / "cut.log"
+    cut.write_bytes(text[: int(len(text) * 0.6)] + b"(12")  # a line cut short after ~10 cycles
+    return scene, trace, live, cut
+
+
+def cli(*args):
+    return subprocess.run(CLI + [str(a) for a in args], cwd=ROOT, capture_output=True, text=True, timeout=120)
+
+
+class FifoReader:
+    """Reads a FIFO to its end in a thread (what a user's ``cat FIFO`` does)."""
+
+    def __init__(self, path: Path):
+        self.path, self.data = path, b""
+        self.thread = threading.Thread(target=self._read, daemon=True)
+        self.thread.start()
+
+    def _read(self):
+        with open(self.path, "rb") as f:
+            self.data = f.read()
+
+    def result(self) -> bytes:
+        self.thread.join(60)
+        if self.thread.is_alive():  # the writer never opened it: unblock the reader
+            os.close(os.open(self.path, os.O_WRONLY | os.O_NONBLOCK))
+            self.thread.join(5)
+        return self.data
+
+
+def null_device(path: Path) -> Path:
+    try:
+        os.mknod(path, 0o666 | stat.S_IFCHR, os.makedev(1, 3))  # a throw-away /dev/null
+    except PermissionError:
+        pytest.skip("mknod needs root (CAP_MKNOD): the character-device case runs as root only")
+    return path
+
+
+def assert_still_null_device(path: Path):
+    st = os.lstat(path)
+    assert stat.S_ISCHR(st.st_mode) and st.st_rdev == os.makedev(1, 3), oct(st.st_mode)
+
+
+def test_replay_into_a_character_device_leaves_the_device(run, tmp_path):
+    scene, trace, _, cut = run
+    dev = null_device(tmp_path / "null")
+    done = cli("replay", "--scene", scene, trace, "--json-lines", dev)
+    assert done.returncode == 0, done.stderr
+    assert_still_null_device(dev)
+    assert os.listdir(tmp_path) == ["null"]  # no .partial beside it
+    for bad in (cut, tmp_path / "absent.log"):  # a failed replay: after some records, and before any
+        done = cli("replay", "--scene", scene, bad, "--json-lines", dev)
+        assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1, done.stderr
+        assert_still_null_device(dev)
+    done = cli("replay", "--scene", scene, "--mode", "raw", trace, "--json-lines", dev)
+    assert done.returncode == 2 and "--force" in done.stderr  # refused by the trace checks, before the replay
+    assert_still_null_device(dev)
+
+
+def test_replay_into_a_fifo_streams_the_records_and_leaves_the_fifo(run, tmp_path):
+    scene, trace, live, cut = run
+    fifo = tmp_path / "records"
+    os.mkfifo(fifo)
+    reader = FifoReader(fifo)
+    done = cli("replay", "--scene", scene, trace, "--json-lines", fifo)
+    assert done.returncode == 0, done.stderr
+    assert reader.result() == live.read_bytes()
+    assert stat.S_ISFIFO(os.lstat(fifo).st_mode) and os.listdir(tmp_path) == ["records"]
+    reader = FifoReader(fifo)  # a failed replay (the cut is found before any record): the FIFO stays
+    done = cli("replay", "--scene", scene, cut, "--json-lines", fifo)
+    assert done.returncode == 2 and str(cut) in done.stderr
+    assert live.read_bytes().startswith(reader.result())
+    assert stat.S_ISFIFO(os.lstat(fifo).st_mode) and os.listdir(tmp_path) == ["records"]
+
+
+def test_a_link_to_a_fifo_stays_a_link(run, tmp_path):
+    """As ``--json-lines /dev/stdout`` (a link to the terminal or a pipe)."""
+    scene, trace, live, _ = run
+    fifo, link = tmp_path / "pipe", tmp_path / "stdout"
+    os.mkfifo(fifo)
+    link.symlink_to(fifo)
+    reader = FifoReader(fifo)
+    records, _ = replay_trace(load_scene(scene), trace, json_lines=link)
+    assert reader.result() == live.read_bytes() and len(records) == 20
+    assert link.is_symlink() and os.readlink(link) == str(fifo) and stat.S_ISFIFO(os.lstat(fifo).st_mode)
+
+
+def test_a_link_to_a_regular_file_stays_a_link_and_its_target_is_the_output(run, tmp_path):
+    scene, trace, live, cut = run
+    target, link = tmp_path / "run42.jsonl", tmp_path / "latest.jsonl"
+    target.write_text("old\n")
+    link.symlink_to(target)
+    replay_trace(load_scene(scene), trace, json_lines=link)
+    assert link.is_symlink() and target.read_bytes() == live.read_bytes()
+    assert sorted(os.listdir(tmp_path)) == ["latest.jsonl", "run42.jsonl"]
+    with pytest.raises(UsageError, match="unreadable"):
+        replay_trace(load_scene(scene), cut, json_lines=link)
+    # a failed replay: the earlier log must not pass for this one's; the link is kept
+    assert link.is_symlink() and not target.exists() and (tmp_path / "run42.jsonl.partial").exists()
+
+
+def test_a_regular_file_is_still_replaced_whole_or_removed(run, tmp_path):
+    scene, trace, live, cut = run
+    out = tmp_path / "out.jsonl"
+    out.write_text("earlier\n")
+    replay_trace(load_scene(scene), trace, json_lines=out)
+    assert out.read_bytes() == live.read_bytes() and not (tmp_path / "out.jsonl.partial").exists()
+    with pytest.raises(UsageError):
+        replay_trace(load_scene(scene), cut, json_lines=out)
+    assert not out.exists() and (tmp_path / "out.jsonl.partial").exists()
+
+
+def test_a_directory_is_refused_in_one_line(run, tmp_path):
+    scene, trace, _, _ = run
+    done = cli("replay", "--scene", scene, trace, "--json-lines", tmp_path)
+    assert done.returncode == 2 and done.stderr.count("\n") == 1 and "is a directory" in done.stderr, done.stderr
+    assert tmp_path.is_dir() and os.listdir(tmp_path) == []
+
+
+def test_plot_into_a_fifo_writes_the_png_in_place(run, tmp_path):
+    _, _, live, _ = run
+    fifo = tmp_path / "figure.png"
+    os.mkfifo(fifo)
+    reader = FifoReader(fifo)
+    done = cli("plot", live, "--out", fifo)
+    assert done.returncode == 0, done.stderr
+    assert reader.result().startswith(b"\x89PNG\r\n\x1a\n")
+    assert stat.S_ISFIFO(os.lstat(fifo).st_mode) and os.listdir(tmp_path) == ["figure.png"]
+
+
+def test_output_path_and_discard_stale_by_file_type(tmp_path):
+    fifo = tmp_path / "f"
+    os.mkfifo(fifo)
+    assert OutputPath(fifo).in_place and OutputPath(fifo).write_path == fifo
+    assert not discard_stale(fifo) and fifo.exists()
+    regular = tmp_path / "r"
+    regular.write_text("x")
+    out = OutputPath(regular)
+    assert not out.in_place and out.write_path == tmp_path / "r.partial"
+    assert discard_stale(regular) and not regular.exists()
+    new = OutputPath(tmp_path / "new")
+    assert not new.in_place and new.write_path == tmp_path / "new.partial"
+    assert not discard_stale(tmp_path / "new")
+    with pytest.raises(UsageError, match=r"--json-lines .*is a directory"):
+        OutputPath(tmp_path, option="--json-lines")
