@@ -21,7 +21,7 @@ only.
 
 * ``hello`` (assembler -> fuser, the first message): ``scene`` a map ``{"scene": str, "n": int,
   "channels": int, "mode": str, "patch_nodes": bool, "sync_counter": int, "fd": bool}`` (the
-  fingerprint both sides must share), ``channels`` an array of 1..256 distinct ints (the scene
+  fingerprint both sides must share; str <= 1000 chars), ``channels`` an array of 1..256 distinct ints (the scene
   channels served), ``host`` str (<= 255 chars), ``pid`` int >= 0, ``numbered_from_reset`` bool.
 * ``welcome`` (fuser -> assembler): ``group`` str (the group's name, ``0-3`` / ``0,2,5``).
 * ``refused`` (fuser -> assembler, then the fuser closes): ``why`` str (<= 1000 chars). This
@@ -244,7 +244,7 @@ def decode_hello(data: bytes) -> dict:
     if not isinstance(scene, dict) or set(scene) != set(SCENE_KEYS):
         raise BadMessage(f"hello: scene {_shown(scene)}: expected a map of {sorted(SCENE_KEYS)}")
     for key, kind in SCENE_KEYS.items():
-        if type(scene[key]) is not kind or (kind is str and len(scene[key]) > HOST_MAX):
+        if type(scene[key]) is not kind or (kind is str and len(scene[key]) > WHY_MAX):
             raise BadMessage(f"hello: scene {key} {_shown(scene[key])}: expected {kind.__name__}")
     channels = m["channels"]
     if (not isinstance(channels, list) or not 1 <= len(channels) <= CHANNELS_MAX
