@@ -1,6 +1,6 @@
 """Cycle assemblers in other processes, one fuser (issue 14, "Beyond one host"): two
 ``fusion-center assemble`` processes (one per scene channel) feed the fuser over
-multiprocessing.connection while the fuser is the CANopen master on udp_multicast; the merge
+multiprocessing.connection (the messages of assembler_wire; tests/test_assembler_wire.py) while the fuser is the CANopen master on udp_multicast; the merge
 itself (parts out of order, a missing part) as a unit."""
 
 from __future__ import annotations
@@ -316,33 +316,43 @@ def test_assembler_reconnects_retries_a_refusal_and_gives_up_after_reconnect_tim
     the first try to come back, takes the second; then it is gone for good: exit 1, one line."""
     from multiprocessing.connection import Listener
 
-    from fusion_center.service.assembler_parts import authkey_for
+    from fusion_center.service.assembler_parts import remove_key_file, write_key_file
+    from fusion_center.service.assembler_wire import (HELLO_MAX, decode_hello, encode_refused, encode_welcome,
+                                                      handshake)
 
     path = _scene_file(tmp_path)
-    listener = Listener(("127.0.0.1", 0), authkey=authkey_for("127.0.0.1", "--fuser"))
+    listener = Listener(("127.0.0.1", 0))
     port = listener.address[1]
+    key, key_path = write_key_file(port)  # as `run --assemblers` on loopback: this run's key
+
+    def accept():
+        conn = listener.accept()
+        handshake(conn, key, server=True)
+        return conn
+
     proc = _assemble(path, "1", port, None, "--reconnect-timeout", "1", interface="virtual",
                      channels=["rc-a", "rc-b"])
     try:
         hellos = []
-        conn = listener.accept()
-        hellos.append(conn.recv())
-        conn.send({"kind": "welcome", "group": "1"})
+        conn = accept()
+        hellos.append(decode_hello(conn.recv_bytes(HELLO_MAX)))
+        conn.send_bytes(encode_welcome("1"))
         line = proc.stdout.readline()
         assert "ready" in line, (line, proc.stderr.read() if proc.poll() is not None else "")
         conn.close()  # no bye: a broken connection
-        conn = listener.accept()
-        hellos.append(conn.recv())
-        conn.send({"kind": "refused", "why": "scene channel(s) [1] are already served by another assembler"})
+        conn = accept()
+        hellos.append(decode_hello(conn.recv_bytes(HELLO_MAX)))
+        conn.send_bytes(encode_refused("scene channel(s) [1] are already served by another assembler"))
         conn.close()
-        conn = listener.accept()
-        hellos.append(conn.recv())
-        conn.send({"kind": "welcome", "group": "1"})
+        conn = accept()
+        hellos.append(decode_hello(conn.recv_bytes(HELLO_MAX)))
+        conn.send_bytes(encode_welcome("1"))
         assert [h["channels"] for h in hellos] == [[1], [1], [1]]
         assert len({h["pid"] for h in hellos}) == 1  # the same process came back
         conn.close()
     finally:
         listener.close()  # nobody listens any more
+        remove_key_file(key_path, key)
     rc, out, err = _finish(proc, timeout=120)
     assert rc == 1, (rc, out, err)
     assert "1 reconnects" in out, out
@@ -490,6 +500,7 @@ def test_a_fuser_killed_and_started_again_gets_its_assemblers_back(tmp_path):
 
 
 def test_without_a_sync_counter_only_an_assembler_that_heard_the_reset_comes_back(tmp_path):
+    from fusion_center.service.assembler_wire import decode_hello, encode_hello
     from fusion_center.service.assemblers import AssembledFusionService, scene_fingerprint
 
     path = _scene_file(tmp_path)
@@ -497,7 +508,7 @@ def test_without_a_sync_counter_only_an_assembler_that_heard_the_reset_comes_bac
     scene = load_scene(path)
     service = AssembledFusionService(scene, listen=("127.0.0.1", 47999), interface="virtual",
                                      channels=["nc-a", "nc-b"])
-    hello = {"kind": "hello", "protocol": 1, "scene": scene_fingerprint(scene), "channels": [1]}
+    hello = decode_hello(encode_hello(scene_fingerprint(scene), [1], "host", 1, False))
     assert service._check_hello(hello) is None  # before the run's SYNCs: numbered from the reset to come
     service.merger.opened(None, 0, 0.0)
     why = service._check_hello(hello)  # a process started mid-run numbers from its own first SYNC

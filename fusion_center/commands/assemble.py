@@ -31,8 +31,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--serve", required=True, metavar="CHANNELS",
                         help="scene channel indices this assembler serves: 0-3, 0,2,5 or a mix")
     parser.add_argument("--fuser", required=True, metavar="HOST:PORT",
-                        help="where `fusion-center run --assemblers HOST:PORT` listens (beyond loopback: "
-                             "the same FUSION_CENTER_AUTHKEY on both hosts)")
+                        help="where `fusion-center run --assemblers HOST:PORT` listens (on loopback the key "
+                             "of this user's fuser is found by itself; beyond loopback, or a fuser of another "
+                             "user: the same FUSION_CENTER_AUTHKEY on both sides)")
     parser.add_argument("--connect-timeout", type=float, default=30.0, metavar="S",
                         help="seconds to keep trying to reach the fuser (default 30)")
     parser.add_argument("--reconnect-timeout", type=float, default=60.0, metavar="S",
@@ -92,7 +93,8 @@ def run(args) -> int:
             pass
     counters = process.group.assembler.counters()
     print(f"fusion-center assemble: {process.parts_sent} cycles sent, {process.parts_unsent} not sent, "
-          f"{process.events} frames, {process.reconnects} reconnects; " + ", ".join(f"{k} {v}" for k, v in counters.items() if v), flush=True)
+          f"{process.events} frames, {process.reconnects} reconnects, {process.bad_messages} bad messages from "
+          "the fuser; " + ", ".join(f"{k} {v}" for k, v in counters.items() if v), flush=True)
     if process.closed.is_set() and not process.bye and not stop.is_set():
         print(f"fusion-center assemble: {process.gave_up or 'the fuser went away'}", file=sys.stderr)
         return 1

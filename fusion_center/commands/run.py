@@ -50,7 +50,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_common_outputs(parser)
     parser.add_argument("--assemblers", metavar="HOST:PORT", default=None,
                         help="listen there for `fusion-center assemble` processes (other processes or hosts) and "
-                             "fuse their cycles instead of assembling them here (docs/service.md)")
+                             "fuse their cycles instead of assembling them here (beyond loopback: the same "
+                             "FUSION_CENTER_AUTHKEY on every host; on loopback without it a key of this run's, "
+                             "in a file only this user can read; docs/service.md)")
 
 
 def setup_logging() -> None:
@@ -200,7 +202,8 @@ def format_summary(summary: dict) -> list[str]:
         lines.append(("assemblers", f"{a['parts']} parts ({', '.join(f'{k} {v}' for k, v in a['by_group'].items())}); "
                                     f"cycles complete {a['complete']}, degraded {a['degraded']} "
                                     f"({a['parts_missing']} parts missing), late parts {a['late_parts']}, "
-                                    f"unmatched {a['unmatched_parts']}; reconnects {_reconnects(a)}; SYNC -> part sent p50 "
+                                    f"unmatched {a['unmatched_parts']}; reconnects {_reconnects(a)}; "
+                                    f"refused {_by_kind(a.get('refused'))}; SYNC -> part sent p50 "
                                     f"{_fmt_ms(a['to_send_ms']['p50'])}, p99 {_fmt_ms(a['to_send_ms']['p99'])}; "
                                     f"part transport p50 {_fmt_ms(a['transport_ms']['p50'])}, "
                                     f"p99 {_fmt_ms(a['transport_ms']['p99'])}"))
@@ -217,7 +220,12 @@ def format_summary(summary: dict) -> list[str]:
 
 def _reconnects(a: dict) -> str:
     """``0`` or ``3 (1 2, 0 1)``: groups that came back during the run, how often."""
-    by = a.get("reconnects") or {}
+    return _by_kind(a.get("reconnects"))
+
+
+def _by_kind(by: dict | None) -> str:
+    """``0`` or ``3 (key 2, message 1)``: a total and its parts."""
+    by = by or {}
     total = sum(by.values())
     return f"{total} ({', '.join(f'{k} {v}' for k, v in by.items())})" if total else "0"
 

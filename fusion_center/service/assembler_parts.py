@@ -1,7 +1,14 @@
 """What assemblers and fuser share (issue 14, "Beyond one host"; :mod:`.assemblers`): addresses
 and keys of the ``multiprocessing.connection`` transport, channel groups and their sub-scenes,
 the scene fingerprint both sides compare, and :class:`CyclePart`, the one message an assembler
-sends per closed cycle.
+sends per closed cycle (on the wire: :mod:`.assembler_wire`).
+
+**Keys.** ``$FUSION_CENTER_AUTHKEY`` when set (the same value on every host and for every user
+of the link). Without it only loopback addresses, and the key is the fuser's own: a random key
+per run that ``run --assemblers`` writes to :func:`key_file` (mode 0600 in a directory of mode
+0700 of the user's, removed at its end) and ``assemble`` reads at every try to connect - so an
+assembler of the same user on the same host needs nothing, and another local user's process
+cannot join (issue 21; it would take that user's files).
 """
 
 from __future__ import annotations
@@ -10,7 +17,10 @@ import dataclasses
 import ipaddress
 import logging
 import os
+import secrets
 import socket
+import stat
+import tempfile
 import threading
 import time
 from dataclasses import dataclass
@@ -25,8 +35,6 @@ from taxel_net.scene import Scene
 logger = logging.getLogger("fusion_center.service.assemblers")
 
 AUTHKEY_ENV = "FUSION_CENTER_AUTHKEY"
-DEFAULT_AUTHKEY = b"taxel-can loopback"  # only for loopback addresses (module docstring)
-PROTOCOL = 1  # version of the hello / part messages
 LOG_INTERVAL_S = 10.0  # disconnect / reconnect warnings: at most one of a kind in this time
 COB_SYNC = 0x080
 NMT_RESETS = (0x81, 0x82)
@@ -56,15 +64,111 @@ def is_loopback(host: str) -> bool:
         return False
 
 
-def authkey_for(host: str, flag: str) -> bytes:
-    """The shared key: ``$FUSION_CENTER_AUTHKEY``; without it only a loopback address."""
+def authkey_for(host: str, flag: str) -> bytes | None:
+    """The shared key ``$FUSION_CENTER_AUTHKEY``; without it None on a loopback address (the
+    fuser's per-run key in :func:`key_file`), else :class:`UsageError`."""
     key = os.environ.get(AUTHKEY_ENV, "")
     if key:
         return key.encode()
     if not is_loopback(host):
         raise UsageError(f"{flag} {host!r}: beyond this host the assemblers and the fuser need a shared key: "
                          f"set {AUTHKEY_ENV} (the same value on every host), or use 127.0.0.1")
-    return DEFAULT_AUTHKEY
+    return None
+
+
+def key_dir() -> str:
+    """The user's directory of fuser keys: ``$XDG_RUNTIME_DIR/taxel-can`` (else in the temporary
+    directory, ``taxel-can-UID``)."""
+    runtime = os.environ.get("XDG_RUNTIME_DIR", "")
+    if runtime and os.path.isabs(runtime):
+        return os.path.join(runtime, "taxel-can")
+    return os.path.join(tempfile.gettempdir(), f"taxel-can-{os.geteuid()}")
+
+
+def key_file(port: int) -> str:
+    """Where the fuser listening on loopback port ``port`` keeps its key."""
+    return os.path.join(key_dir(), f"fuser-{int(port)}.key")
+
+
+def _private(st: os.stat_result, path: str, what: str) -> None:
+    if st.st_uid != os.geteuid() or st.st_mode & 0o077:
+        raise UsageError(f"{what} {path!r} is owned by uid {st.st_uid} with mode {stat.S_IMODE(st.st_mode):04o}: "
+                         f"it must be this user's (uid {os.geteuid()}) and closed to others (0700 / 0600); "
+                         f"remove it, or set {AUTHKEY_ENV} on both sides")
+
+
+def _check_key_dir(create: bool) -> str | None:
+    path = key_dir()
+    if create:
+        try:
+            os.mkdir(path, 0o700)
+        except FileExistsError:
+            pass
+        except OSError as exc:
+            raise UsageError(f"fuser key directory {path!r}: cannot create it ({exc.strerror or exc}); "
+                             f"set {AUTHKEY_ENV} on both sides") from None
+    try:
+        st = os.lstat(path)
+    except FileNotFoundError:
+        return None
+    if not stat.S_ISDIR(st.st_mode):
+        raise UsageError(f"fuser key directory {path!r} is not a directory; remove it, or set {AUTHKEY_ENV}")
+    _private(st, path, "fuser key directory")
+    return path
+
+
+def write_key_file(port: int) -> tuple[bytes, str]:
+    """A new random key for the fuser on loopback port ``port``, written (0600) to
+    :func:`key_file`: (key, path)."""
+    _check_key_dir(create=True)
+    key = secrets.token_hex(32).encode()
+    path = key_file(port)
+    tmp = f"{path}.{os.getpid()}.{secrets.token_hex(4)}"
+    try:
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o600)
+        try:
+            os.write(fd, key)
+        finally:
+            os.close(fd)
+        os.replace(tmp, path)
+    except OSError as exc:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        raise UsageError(f"fuser key file {path!r}: cannot write it ({exc.strerror or exc}); "
+                         f"set {AUTHKEY_ENV} on both sides") from None
+    return key, path
+
+
+def read_key_file(port: int) -> bytes | None:
+    """The key of this user's fuser on loopback port ``port`` (None: there is none);
+    :class:`UsageError` when the file or its directory is not this user's alone."""
+    if _check_key_dir(create=False) is None:
+        return None
+    path = key_file(port)
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW)
+    except FileNotFoundError:
+        return None
+    except OSError as exc:
+        raise UsageError(f"fuser key file {path!r}: cannot read it ({exc.strerror or exc})") from None
+    try:
+        _private(os.fstat(fd), path, "fuser key file")
+        key = os.read(fd, 256).strip()
+    finally:
+        os.close(fd)
+    return key or None
+
+
+def remove_key_file(path: str, key: bytes) -> None:
+    """Remove the fuser's key file if it still holds ``key`` (not a newer fuser's). Never raises."""
+    try:
+        with open(path, "rb") as f:
+            if f.read(256).strip() == key:
+                os.unlink(path)
+    except OSError:
+        pass
 
 
 def check_serve(channels: Sequence[int], scene: Scene, text: str | None = None) -> list[int]:

@@ -19,9 +19,11 @@ from taxel_net import gcfreeze
 from taxel_net.errors import UsageError
 from taxel_net.patches import devices as scene_devices, node_label
 from taxel_net.scene import Scene
-from .assembler_parts import (AUTHKEY_ENV, LOG_INTERVAL_S, NMT_RESETS, PROTOCOL, CyclePart, RateLimitedLog,
-                              authkey_for, group_layout, scene_fingerprint, shutdown_connection,
+from .assembler_parts import (AUTHKEY_ENV, LOG_INTERVAL_S, NMT_RESETS, CyclePart, RateLimitedLog, authkey_for,
+                              group_layout, key_file, read_key_file, scene_fingerprint, shutdown_connection,
                               tune_connection)
+from .assembler_wire import (ANSWER_MAX, HANDSHAKE_TIMEOUT_S, PROTOCOL, BadMessage, Deadline, decode_answer,
+                             encode_hello, encode_part, handshake, recv_frame)
 from .common_frames import CommonFrames
 from .cycle_records import ClosedCycle, EmcyEvent, quantise_timestamp
 
@@ -33,6 +35,15 @@ RECONNECT_MAX_S = 2.0    # ... up to this
 
 class Refused(Exception):
     """The fuser answered the hello with a refusal (the reason is the message)."""
+
+
+class NoKey(Exception):
+    """No ``$FUSION_CENTER_AUTHKEY`` and no key file of a fuser on that loopback port (yet)."""
+
+
+class Unanswered(Exception):
+    """The fuser did not finish the key handshake and answer the hello in time."""
+
 
 class GroupAssembler:
     """A ``CycleAssembler`` over one channel group, its cycles numbered by SYNC and turned
@@ -108,6 +119,8 @@ class AssemblerProcess:
     between tries, for up to ``reconnect_timeout_s``; then :attr:`closed` is set with
     :attr:`gave_up` saying why."""
 
+    handshake_timeout_s = HANDSHAKE_TIMEOUT_S  # connect -> the fuser's answer to the hello, else closed
+
     def __init__(self, scene: Scene, channels: Sequence[int], *, fuser: tuple[str, int], interface: str,
                  channel_names: Sequence[str] | None = None, bitrate: int | None = None,
                  bus_kwargs: dict | None = None, authkey: bytes | None = None, reconnect_timeout_s: float = 60.0):
@@ -126,6 +139,7 @@ class AssemblerProcess:
         self.bitrate = bitrate
         self.bus_kwargs = dict(bus_kwargs or {})
         self.fuser = fuser
+        # None: the key of this user's fuser on that loopback port, read at every try (assembler_parts)
         self.authkey = authkey if authkey is not None else authkey_for(fuser[0], "--fuser")
         self.buses = []
         self.notifiers = []
@@ -140,6 +154,7 @@ class AssemblerProcess:
         self.bye = False
         self.reconnect_timeout_s = float(reconnect_timeout_s)
         self.reconnects = 0
+        self.bad_messages = 0              # frames from the fuser that were no message of the protocol
         self.gave_up: str | None = None    # why the fuser is given up (closed without bye)
         self._stop = threading.Event()     # close(): no more reconnecting
         self._log = RateLimitedLog(logger)
@@ -170,28 +185,48 @@ class AssemblerProcess:
             raise
         return self
 
+    def _key(self) -> bytes:
+        if self.authkey is not None:
+            return self.authkey
+        key = read_key_file(self.fuser[1])
+        if key is None:
+            raise NoKey(f"no key file {key_file(self.fuser[1])!r} of a fuser of this user (`fusion-center run "
+                        f"--assemblers` writes it; another user's fuser: set {AUTHKEY_ENV} on both sides)")
+        return key
+
     def _dial(self):
-        """One try: connect, hello, welcome -> the connection. Raises :class:`Refused`, OSError,
-        EOFError (closed during the hello) or multiprocessing's AuthenticationError."""
+        """One try: connect, key handshake, hello, welcome -> the connection. Raises :class:`Refused`,
+        :class:`NoKey`, :class:`Unanswered` (the fuser took longer than HANDSHAKE_TIMEOUT_S),
+        :class:`~.assembler_wire.BadMessage`, OSError, EOFError (closed during the hello) or
+        multiprocessing's AuthenticationError. Nothing received is unpickled (:mod:`.assembler_wire`)."""
         from multiprocessing.connection import Client
 
-        conn = Client(self.fuser, authkey=self.authkey)
-        tune_connection(conn)
+        key = self._key()
+        conn = Client(self.fuser)  # no authkey: the handshake below, under a deadline
+        deadline = Deadline(conn, self.handshake_timeout_s)
         try:
-            conn.send({"kind": "hello", "protocol": PROTOCOL, "scene": scene_fingerprint(self.scene),
-                       "channels": list(self.layout.channels), "host": socket.gethostname(), "pid": os.getpid(),
-                       "numbered_from_reset": self.group.heard_reset})
-            answer = conn.recv()
-        except BaseException:
+            tune_connection(conn)
+            handshake(conn, key, server=False)
+            conn.send_bytes(encode_hello(scene_fingerprint(self.scene), self.layout.channels, socket.gethostname(),
+                                         os.getpid(), self.group.heard_reset))
+            answer = decode_answer(recv_frame(conn, ANSWER_MAX), ("welcome", "refused"))
+        except BaseException as exc:
+            deadline.cancel()
             conn.close()
+            if deadline.expired and isinstance(exc, (EOFError, OSError)):
+                raise Unanswered(f"no answer to the hello within {self.handshake_timeout_s:g} s") from None
             raise
-        if not isinstance(answer, dict) or answer.get("kind") != "welcome":
+        deadline.cancel()
+        if answer["kind"] != "welcome":
             conn.close()
-            raise Refused(answer.get("why") if isinstance(answer, dict) else answer)
+            raise Refused(answer["why"])
         return conn
 
     def connect(self, timeout_s: float = 30.0) -> None:
-        """Connect to the fuser (retrying while it is not listening yet), say hello."""
+        """Connect to the fuser (retrying while it is not listening yet, and while its key file
+        is missing or stale), say hello."""
+        from multiprocessing.connection import AuthenticationError
+
         host, port = self.fuser
         deadline = time.monotonic() + timeout_s
         while True:
@@ -202,6 +237,23 @@ class AssemblerProcess:
                 raise UsageError(f"--fuser {host}:{port}: refused: {exc}") from None
             except EOFError:
                 raise UsageError(f"--fuser {host}:{port}: the connection closed during the hello") from None
+            except UsageError:
+                raise
+            except BadMessage as exc:
+                raise UsageError(f"--fuser {host}:{port}: not a fuser of protocol {PROTOCOL}: {exc}") from None
+            except (NoKey, AuthenticationError) as exc:
+                # a key file not written yet, or one of the fuser before (replaced as the new one starts)
+                if (isinstance(exc, NoKey) or self.authkey is None) and time.monotonic() < deadline:
+                    time.sleep(0.1)
+                    continue
+                if isinstance(exc, NoKey):
+                    raise UsageError(f"--fuser {host}:{port}: {exc}") from None
+                hint = (f"the same {AUTHKEY_ENV} on both sides?" if self.authkey is not None else
+                        f"the key in {key_file(port)!r} is not this fuser's: a fuser of another user? Then set "
+                        f"{AUTHKEY_ENV} on both sides")
+                raise UsageError(f"--fuser {host}:{port}: {type(exc).__name__}: {exc} ({hint})") from None
+            except Unanswered as exc:
+                raise UsageError(f"--fuser {host}:{port}: {exc} (is it a fuser?)") from None
             except (ConnectionRefusedError, socket.timeout, OSError) as exc:
                 if isinstance(exc, ConnectionRefusedError) or getattr(exc, "errno", None) in (111, 113, 110):
                     if time.monotonic() < deadline:
@@ -209,9 +261,8 @@ class AssemblerProcess:
                         continue
                 raise UsageError(f"--fuser {host}:{port}: cannot connect ({exc.strerror or exc}) within "
                                  f"{timeout_s:g} s: is `fusion-center run --assemblers {host}:{port}` running?") from None
-            except Exception as exc:  # noqa: BLE001 - multiprocessing.AuthenticationError
-                raise UsageError(f"--fuser {host}:{port}: {type(exc).__name__}: {exc} (the same "
-                                 f"{AUTHKEY_ENV} on both sides?)") from None
+            except Exception as exc:  # noqa: BLE001 - anything else: one line
+                raise UsageError(f"--fuser {host}:{port}: {type(exc).__name__}: {exc}") from None
         self.conn = conn
         threading.Thread(target=self._watch, name="fuser-watch", daemon=True).start()
         if not self._gc_held:  # the set-up is not traversed by the cyclic collector (as the centre's run)
@@ -223,12 +274,16 @@ class AssemblerProcess:
         while True:
             conn = self.conn
             try:
-                while conn is not None:
-                    message = conn.recv()
-                    if isinstance(message, dict) and message.get("kind") == "bye":
-                        self.bye = True
-                        self.closed.set()
-                        return
+                while conn is not None:  # the fuser sends nothing but its bye after the welcome
+                    decode_answer(recv_frame(conn, ANSWER_MAX), ("bye",))
+                    self.bye = True
+                    self.closed.set()
+                    return
+            except BadMessage as exc:
+                self.bad_messages += 1
+                host, port = self.fuser
+                self._log.warning("bad message", f"the fuser {host}:{port} sent what is not a bye of protocol "
+                                                 f"{PROTOCOL} ({exc}): connection closed, reconnecting")
             except (EOFError, OSError):
                 pass
             with self._send_lock:
@@ -370,7 +425,13 @@ class AssemblerProcess:
                     continue
                 part.sent_at = time.time()
                 try:
-                    conn.send(part)
+                    data = encode_part(part)
+                except Exception as exc:  # noqa: BLE001 - a part that cannot be encoded: not sent, the rest go on
+                    self.parts_unsent += 1
+                    self._log.warning("encode", f"a part not sent: {type(exc).__name__}: {exc}")
+                    continue
+                try:
+                    conn.send_bytes(data)
                     self.parts_sent += 1
                 except (OSError, ValueError):
                     self.parts_unsent += 1

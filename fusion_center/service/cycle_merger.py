@@ -32,6 +32,9 @@ class MergeStats:
     duplicate_parts: int = 0
     by_group: dict = field(default_factory=dict)  # group -> parts received
     reconnects: dict = field(default_factory=dict)  # group -> times it came back during the run
+    # connections refused by kind (assemblers._refuse_peer): key (no key handshake), timeout (no
+    # hello in time), message (not a message of the protocol), hello (a hello refused), busy
+    refused: dict = field(default_factory=dict)
     # where a part's time goes (same-host clocks; across hosts only as good as their sync):
     to_send: LatencyHistogram = field(default_factory=LatencyHistogram)    # SYNC sent -> part sent
     transport: LatencyHistogram = field(default_factory=LatencyHistogram)  # part sent -> received
@@ -40,6 +43,7 @@ class MergeStats:
         out = {k: v for k, v in vars(self).items() if not isinstance(v, LatencyHistogram)}
         out["by_group"] = dict(self.by_group)
         out["reconnects"] = dict(self.reconnects)
+        out["refused"] = dict(self.refused)
         for name in ("to_send", "transport"):
             h = getattr(self, name)
             out[f"{name}_ms"] = {f"p{q}": None if h.percentile(q) is None else round(h.percentile(q), 3)
@@ -112,6 +116,10 @@ class CycleMerger:
         with self.lock:
             if self.groups.pop(name, None) is not None:
                 self.gone.add(name)
+
+    def count_refused(self, kind: str) -> None:
+        with self.lock:
+            self.stats.refused[kind] = self.stats.refused.get(kind, 0) + 1
 
     def covered(self) -> set[int]:
         with self.lock:
