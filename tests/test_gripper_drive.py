@@ -285,3 +285,30 @@ def test_lost_master_abort_connection(option, state_after, force_kept):
             b.wait(lambda: b.values[0x603F] == 0, "error code cleared")
     finally:
         b.close()
+
+
+def test_rpdo_length_error_and_mapping_rules(bench):
+    b, node = bench, bench.node
+    node.state = "OPERATION ENABLED"
+    node.emcy.reset()
+    b.rpdo.stop()
+    b.net.send_message(0x200 + NODE, bytes([0x06, 0x00]))      # 2 of the 8 mapped bytes: not processed
+    b.emcy(0x8210)
+    b.syncs(3)
+    assert node.state == "OPERATION ENABLED"                   # the short frame's controlword not applied
+    with pytest.raises(SdoAbortedError) as info:
+        node.sdo[0x1600][0].raw = 0                            # mapping while the RPDO is valid
+    assert info.value.code == 0x06010000
+    node.sdo[0x1400][1].raw = 0x80000200 + NODE                # not valid: now it may be mapped
+    node.sdo[0x1600][0].raw = 0
+    with pytest.raises(SdoAbortedError) as info:
+        node.sdo[0x1600][1].raw = 0x60410010                   # the statusword is read-only
+    assert info.value.code == 0x06040041
+    with pytest.raises(SdoAbortedError) as info:
+        node.sdo[0x1600][1].raw = 0x60400020                   # controlword is 16 bits, not 32
+    assert info.value.code == 0x06040041
+    node.sdo[0x1600][1].raw = 0x60400010
+    node.sdo[0x1600][0].raw = 1
+    node.sdo[0x1400][1].raw = 0x200 + NODE
+    b.net.send_message(0x200 + NODE, bytes([0x06, 0x00]))      # now 2 bytes is the whole RPDO
+    b.wait(lambda: node.state == "READY TO SWITCH ON", "shutdown applied at the next SYNC")
