@@ -14,6 +14,8 @@ service's state; :class:`TaxelNode` composes them:
 * :mod:`.sdo` - SDO server: canopen's server behind the CiA 301 checks, abort codes;
 * :mod:`.pdo` - TPDO engine: SYNC-driven (types 0..240, SYNC start value) and event-driven
   (254/255, inhibit time, event timer) TPDOs;
+* :mod:`.rpdo` - RPDO engine: receive PDOs applied at the next SYNC (types 0..240) or at once
+  (254/255), length errors (EMCY 0x8210); used by the gripper drive;
 * :mod:`.sync` - SYNC consumer (0x1005): what a SYNC triggers;
 * :mod:`.emcy` - EMCY producer, error register 0x1001, error history 0x1003;
 * :mod:`.detector` - the application: the local detector of the chapter (eqs 1-4,
@@ -25,6 +27,10 @@ service's state; :class:`TaxelNode` composes them:
   timers);
 * :mod:`.rig` - :class:`Rig`; :mod:`.physics` - readings and ground truth; :mod:`.cli` - the
   ``node-sim`` command.
+
+* :mod:`.gripper` - a second device kind (issue 22): the gripper drive, one jaw axis of an electric
+  parallel gripper as a CiA 402 drive (``eds/gripper_drive.eds``, ``docs/gripper-drive.md``),
+  composed of the same service modules;
 
 * :mod:`.lss` - the LSS slave (CiA 305: switch state, configure node-ID and bit timing, store,
   inquire, identify, Fastscan).

@@ -14,6 +14,10 @@ Codes (CiA 301 error-code classes):
 * ``0x7300`` sensor — stuck reading: M (0x2002:2) consecutive identical raw samples
   (the code CiA 402/404-style devices use for a sensor fault).
 
+A device-profile error (the gripper drive's CiA 402 faults, :mod:`node_sim.gripper.drive`) is
+reported with :meth:`EmcyProducer.device_error`: its own code, error register bit 0 plus the bits the
+device gives, the same pairing with its error reset.
+
 Error register bits set on a fault: bit 0 (generic error, mandatory whenever any error is
 active) and bit 5 (device-profile specific).
 
@@ -87,6 +91,8 @@ class EmcyProducer:
         self._reported = False     # its EMCY was sent (an error reset is owed when it clears)
         self._comm_error = False   # a heartbeat consumed by this node is lost (0x1016)
         self._comm_reported = False
+        self._device: tuple[int, int] | None = None   # a device-profile error (code, register bits)
+        self._device_reported = False
 
     def reset(self) -> None:
         """NMT reset: the fault state is forgotten (the detector starts afresh)."""
@@ -94,9 +100,13 @@ class EmcyProducer:
         self._reported = False
         self._comm_error = False
         self._comm_reported = False
+        self._device = None
+        self._device_reported = False
 
     def _register(self) -> int:
         register = ERR_REG_SENSOR_FAULT if self._active is not None else 0
+        if self._device is not None:
+            register |= ERR_REG_GENERIC | self._device[1]
         if self._comm_error:
             register |= ERR_REG_GENERIC | ERR_REG_COMMUNICATION
         return register
@@ -124,6 +134,25 @@ class EmcyProducer:
         elif self._comm_reported:
             self._comm_reported = not self.send(EMCY_NO_ERROR, register)
 
+    def device_error(self, code: int | None, bits: int = 0) -> None:
+        """A device-profile error began (``code``, e.g. a CiA 402 drive fault; ``bits``: its error
+        register bits besides bit 0) or ended (None): 0x1001 and 0x1003 updated, the EMCY sent (its
+        error reset only after a reported error)."""
+        if code is None:
+            if self._device is None:
+                return
+            self._device = None
+            register = self._register()
+            self._objects.store(ERROR_REGISTER, 0, register)
+            if self._device_reported:
+                self._device_reported = not self.send(EMCY_NO_ERROR, register)
+            return
+        self._device = (code, bits)
+        register = self._register()
+        self._objects.store(ERROR_REGISTER, 0, register)
+        self._push_history(code)
+        self._device_reported = self.send(code, register)
+
     def resume(self) -> None:
         """The node can report again (PRE-OPERATIONAL / OPERATIONAL entered): send what the
         master has not been told — the EMCY of a fault that began while it could not
@@ -132,6 +161,10 @@ class EmcyProducer:
             self._reported = self.send(*self._active)
         elif self._active is None and self._reported:
             self._reported = not self.send(EMCY_NO_ERROR, self._register())
+        if self._device is not None and not self._device_reported:
+            self._device_reported = self.send(self._device[0], self._register())
+        elif self._device is None and self._device_reported:
+            self._device_reported = not self.send(EMCY_NO_ERROR, self._register())
         if self._comm_error and not self._comm_reported:
             self._comm_reported = self.send(EMCY_HEARTBEAT, self._register())
         elif not self._comm_error and self._comm_reported:

@@ -16,6 +16,7 @@ from canopen.objectdictionary import ODArray, ODRecord, ODVariable, datatypes
 
 from taxel_net.errors import ParameterError
 from node_sim import od as odx
+from taxel_net.resources import gripper_eds_path
 
 EDS = str(odx.EDS_PATH)
 
@@ -140,26 +141,34 @@ def test_missing_eds_is_a_parameter_error(tmp_path):
 
 # ------------------------------------------------------------------------ other EDS tools
 
-def test_eds_utils_reads_and_validates_the_file_as_shipped():
+# the EDS files the tools below read: the taxel node's and the gripper drive's (issue 22), each with
+# two objects ``odg list`` must show
+TOOL_EDS = [pytest.param(EDS, ("0x1019", "0x2001"), id="taxel_node"),
+            pytest.param(str(gripper_eds_path()), ("0x6041", "0x2100"), id="gripper_drive")]
+
+
+@pytest.mark.parametrize("eds, listed", TOOL_EDS)
+def test_eds_utils_reads_and_validates_the_file_as_shipped(eds, listed):
     """eds-utils (PyPI ``eds-utils``): its reader finds no error and ``eds-validate`` exits 0
     with nothing to report (it splits sections on blank lines and entries on '=', so the file
     has no free comment block and no '=' inside a value)."""
     from eds_utils.core.file_io.read_eds import read_eds
 
-    eds, errors = read_eds(str(EDS))
+    _, errors = read_eds(str(eds))
     assert errors == []
     run = subprocess.run([sys.executable, "-c", "from eds_utils.eds_validate import eds_validate; eds_validate()",
-                          str(EDS)], capture_output=True, text=True, timeout=120)
+                          str(eds)], capture_output=True, text=True, timeout=120)
     assert run.returncode == 0 and run.stdout.strip() == "" and run.stderr == "", run
 
 
-def test_objdictgen_loads_the_file_as_shipped():
+@pytest.mark.parametrize("eds, listed", TOOL_EDS)
+def test_objdictgen_loads_the_file_as_shipped(eds, listed):
     """objdictgen (CanFestival's ``odg``): loads the EDS with every object canopen sees."""
     from objdictgen.node import Node
 
-    node = Node.LoadFile(str(EDS))
-    od = canopen.import_od(EDS, 1)
+    node = Node.LoadFile(str(eds))
+    od = canopen.import_od(str(eds), 1)
     assert sorted(node.GetIndexes()) == sorted(obj.index for obj in od.values())
-    run = subprocess.run([sys.executable, "-m", "objdictgen", "list", str(EDS)],
+    run = subprocess.run([sys.executable, "-m", "objdictgen", "list", str(eds)],
                          capture_output=True, text=True, timeout=120)
-    assert run.returncode == 0 and "0x1019" in run.stdout and "0x2001" in run.stdout, run
+    assert run.returncode == 0 and all(token in run.stdout for token in listed), run

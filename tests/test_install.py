@@ -47,11 +47,14 @@ def wheel(tmp_path_factory) -> Path:
 def test_wheel_carries_the_eds_and_every_bundled_scene(wheel):
     names = set(zipfile.ZipFile(wheel).namelist())
     assert "taxel_net/eds/taxel_node.eds" in names
+    assert "taxel_net/eds/gripper_drive.eds" in names   # the gripper-drive twin (issue 22)
     for scene in (ROOT / "scenes").rglob("*"):
         if scene.is_file():
             assert f"taxel_net/scenes/{scene.relative_to(ROOT / 'scenes').as_posix()}" in names, scene
     # the packaged EDS is the repository's one copy, byte for byte
     assert zipfile.ZipFile(wheel).read("taxel_net/eds/taxel_node.eds") == (ROOT / "eds" / "taxel_node.eds").read_bytes()
+    assert zipfile.ZipFile(wheel).read("taxel_net/eds/gripper_drive.eds") == \
+        (ROOT / "eds" / "gripper_drive.eds").read_bytes()
 
 
 @pytest.fixture(scope="module")
