@@ -16,6 +16,7 @@ The object and its task come from a scene's ``[grasp]`` table (:mod:`taxel_net.s
 equations, conventions and fields: ``docs/grasp-world.md``.
 """
 
+from .coupling import JawCoupling
 from .world import DONE, IDLE, TRUTH_FIELDS, GraspWorld, Truth
 
-__all__ = ["GraspWorld", "Truth", "TRUTH_FIELDS", "IDLE", "DONE"]
+__all__ = ["GraspWorld", "JawCoupling", "Truth", "TRUTH_FIELDS", "IDLE", "DONE"]

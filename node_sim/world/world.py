@@ -100,6 +100,12 @@ class GraspWorld:
         if self._start_step is None:
             self._start_step = self.steps
 
+    def leave_behind(self) -> None:
+        """The object resting on the table is out of the gripper's reach for good (the jaws were
+        closed when the approach ended): it stays there, never gripped."""
+        if self.state.mode is Mode.TABLE:
+            self.state.mode = Mode.LEFT
+
     @property
     def phase(self) -> str:
         return IDLE if self.task_s is None else self.timeline.phase_at(self.task_s)
