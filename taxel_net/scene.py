@@ -17,6 +17,7 @@ from pathlib import Path
 from taxel_net.errors import SceneError
 from taxel_net.patches import COB_ID_FIRST, COB_ID_LAST, PATCH_TAXELS_MAX, RAW_FORMATS
 from taxel_net.patches import devices as patch_devices
+from taxel_net.scene_grasp import GraspSpec, load_grasp
 
 # 0x2001:3 taxel kind codes (UNSIGNED8); 0 is "unset" and refused by the node.
 TAXEL_KINDS: dict[str, int] = {"R": 1, "C": 2, "P": 3, "LC": 4, "TBS": 5, "IR": 6}
@@ -175,6 +176,7 @@ class Scene:
     stages: tuple[str, ...] = ("fusion",)  # requested; the pipeline builds only what the scene supports
     faults: tuple[FaultSpec, ...] = ()
     master: MasterSpec = field(default_factory=MasterSpec)
+    grasp: GraspSpec | None = None         # [grasp]: the grasp world's object and task (scene_grasp.py)
 
     @property
     def n(self) -> int:
@@ -212,7 +214,7 @@ _INT_TAXEL_FIELDS = ("node_id", "channel")
 _STR_TAXEL_FIELDS = ("kind", "jaw", "axis")
 
 _TOP_KEYS = ("scene", "bus", "kinds", "taxels", "taxels_file", "per_taxel", "object", "fusion",
-             "forces", "outputs", "faults", "master")
+             "forces", "outputs", "faults", "master", "grasp")
 _SCENE_KEYS = ("name", "description", "seed", "cycles")
 _BUS_KEYS = ("bitrate", "sync_period_ms", "sync_counter", "heartbeat_producer_ms",
              "heartbeat_consumer_ms", "mode", "transmission_type", "inhibit_time_100us",
@@ -452,7 +454,7 @@ def load_scene(path) -> Scene:
             _Where(sp, "bus").fail("tpdo_cob_id_base", f"0x{bus.tpdo_cob_id_base:03X}", str(exc))
     return Scene(path=sp, name=name, description=description, seed=seed, cycles=cycles, bus=bus,
                  taxels=taxels, object=obj, fusion=fusion, forces=forces, stages=tuple(stages),
-                 faults=faults, master=master)
+                 faults=faults, master=master, grasp=load_grasp(sp, doc["grasp"]) if "grasp" in doc else None)
 
 
 def _load_master(sp: str, top: _Where, raw, bus: BusSpec, taxels: tuple[TaxelSpec, ...]) -> MasterSpec:
