@@ -32,6 +32,9 @@ service's state; :class:`TaxelNode` composes them:
   parallel gripper as a CiA 402 drive (``eds/gripper_drive.eds``, ``docs/gripper-drive.md``),
   composed of the same service modules;
 
+* :mod:`.world` - the grasp world (issue 22 part 2): an object held by friction between the gripper
+  drive's jaws through a task, on its own clock (``docs/grasp-world.md``); pure, imported on use;
+
 * :mod:`.lss` - the LSS slave (CiA 305: switch state, configure node-ID and bit timing, store,
   inquire, identify, Fastscan).
 
