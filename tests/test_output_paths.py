@@ -21,40 +21,12 @@ from taxel_net.errors import UsageError
 from taxel_net.outputs import OutputPath, discard_stale
 from taxel_net.scene import load_scene
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from test_replay_checks import scene_text  # noqa: E402
+
 ROOT = Path(__file__).resolve().parent.parent
 CLI = [sys.executable, "-c", "import sys; from fusion_center.cli import main; sys.exit(main())"]
-TINY = """\
-[scene]
-name = "tiny3"
-seed = 3
-
-[bus]
-heartbeat_producer_ms = 50
-
-[kinds.R]
-zeta_mv = 1.5
-noise_mv = 0.2
-
-[[taxels]]
-node_id = 3
-kind = "R"
-
-[[taxels]]
-node_id = 4
-kind = "R"
-
-[[taxels]]
-node_id = 5
-kind = "R"
-
-[object]
-model = "script"
-present = [[3, 7]]
-readings_mv = [3.0, 3.0, 0.5]
-
-[fusion]
-tuple = "pm1"
-"""
+TINY = scene_text("tiny3")  # three nodes: a short demo
 
 
 @pytest.fixture(scope="module")
