@@ -184,7 +184,7 @@ def main(argv: list[str] | None = None) -> int:
         from .rig import Rig
 
         scene = load_scene(args.scene)
-        odx.check_eds(args.eds)
+        odx.check_eds(args.eds, "taxel node")
         interface, channels, bitrate, bus_kwargs = resolve_bus(args, scene)
         rig = Rig(scene, interface=interface, channel=channels, bitrate=bitrate, seed=args.seed,
                   eds_path=args.eds, bus_kwargs=bus_kwargs, serve_channels=args.serve)
