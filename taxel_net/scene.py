@@ -14,6 +14,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from taxel_net.errors import SceneError
+from taxel_net.gripper import GripperSpec, load_gripper
 from taxel_net.patches import COB_ID_FIRST, COB_ID_LAST, PATCH_TAXELS_MAX, RAW_FORMATS
 from taxel_net.patches import devices as patch_devices
 from taxel_net.scene_fields import Where as _Where
@@ -182,6 +183,7 @@ class Scene:
     stages: tuple[str, ...] = ("fusion",)  # requested; the pipeline builds only what the scene supports
     faults: tuple[FaultSpec, ...] = ()
     master: MasterSpec = field(default_factory=MasterSpec)
+    gripper: GripperSpec | None = None     # [gripper]: a CiA 402 gripper drive on the bus (taxel_net.gripper)
 
     @property
     def n(self) -> int:
@@ -219,7 +221,7 @@ _INT_TAXEL_FIELDS = ("node_id", "channel")
 _STR_TAXEL_FIELDS = ("kind", "jaw", "axis")
 
 _TOP_KEYS = ("scene", "bus", "kinds", "taxels", "taxels_file", "per_taxel", "object", "fusion",
-             "forces", "outputs", "faults", "master")
+             "forces", "outputs", "faults", "master", "gripper")
 _SCENE_KEYS = ("name", "description", "seed", "cycles")
 _BUS_KEYS = ("bitrate", "sync_period_ms", "sync_counter", "heartbeat_producer_ms",
              "heartbeat_consumer_ms", "mode", "transmission_type", "inhibit_time_100us",
@@ -361,9 +363,10 @@ def load_scene(path) -> Scene:
             patch_devices(Scene(path=sp, name=name, bus=bus, taxels=taxels))
         except ValueError as exc:
             _Where(sp, "bus").fail("tpdo_cob_id_base", f"0x{bus.tpdo_cob_id_base:03X}", str(exc))
+    gripper = load_gripper(sp, doc["gripper"], bus, taxels, master) if "gripper" in doc else None
     return Scene(path=sp, name=name, description=description, seed=seed, cycles=cycles, bus=bus,
                  taxels=taxels, object=obj, fusion=fusion, forces=forces, stages=tuple(stages),
-                 faults=faults, master=master)
+                 faults=faults, master=master, gripper=gripper)
 
 
 def _load_master(sp: str, top: _Where, raw, bus: BusSpec, taxels: tuple[TaxelSpec, ...]) -> MasterSpec:
