@@ -1,4 +1,5 @@
-"""``node-sim``: start every taxel node twin of a scene on a CAN bus and run until stopped.
+"""``node-sim``: start every node twin of a scene on a CAN bus and run until stopped (the taxel
+or patch nodes, and the gripper drive of a ``[gripper]`` table: ``docs/gripper-drive.md``).
 
     node-sim --scene scenes/matrix57.toml [-i INTERFACE] [-c CH[,CH]] [-b BITRATE]
              [--bus-kwargs KEY=VALUE ...] [--seed S] [--serve 0-3]
@@ -12,7 +13,7 @@ its own process reaches nobody). One bus per scene channel (``bus.channels``): `
 ``-c a -c b``) gives one bus channel per scene channel (default: the scene's channel names).
 ``-b`` takes 125k..1M (``500k``, ``1M`` or a number); ``--bus-option KEY=VALUE`` (repeatable)
 is the older spelling of ``--bus-kwargs``. Prints one "ready" line on stdout once every node
-has sent its boot-up, then runs until SIGINT/SIGTERM and shuts down cleanly (exit 0). A bad
+(and the drive) has sent its boot-up, then runs until SIGINT/SIGTERM and shuts down cleanly (exit 0). A bad
 scene, an unknown interface, a bit rate out of range, a channel that cannot be opened or a
 missing EDS exit 2 with one line.
 
@@ -184,7 +185,7 @@ def main(argv: list[str] | None = None) -> int:
         from .rig import Rig
 
         scene = load_scene(args.scene)
-        odx.check_eds(args.eds)
+        odx.check_eds(args.eds, "taxel node")
         interface, channels, bitrate, bus_kwargs = resolve_bus(args, scene)
         rig = Rig(scene, interface=interface, channel=channels, bitrate=bitrate, seed=args.seed,
                   eds_path=args.eds, bus_kwargs=bus_kwargs, serve_channels=args.serve)
@@ -201,6 +202,8 @@ def main(argv: list[str] | None = None) -> int:
         served = [rig.channel_names[i] for i in rig.served]
         taxels = sum(1 for t in scene.taxels if t.channel in rig.served)
         hosts = f"{len(rig.nodes)} patch nodes ({taxels} taxels)" if scene.bus.patch_nodes else f"{taxels} nodes"
+        if rig.gripper is not None:
+            hosts += f" and gripper drive {rig.gripper.node_id}"
         print(f"node-sim: ready: {hosts} of scene {scene.name!r} on {interface} "
               f"channel(s) {', '.join(served)}", flush=True)
         while not stop.wait(0.2):

@@ -76,10 +76,13 @@ FULL_SCALE = (FAULT_DETECTION, 1)
 STUCK_SAMPLES = (FAULT_DETECTION, 2)
 
 
-def check_eds(eds_path=EDS_PATH) -> Path:
+def check_eds(eds_path=EDS_PATH, device: str = "") -> Path:
+    """``eds_path`` as a Path if it is a file, else ParameterError naming that file (and
+    ``device``, whose EDS it is: "patch node", "gripper drive", ...; any EDS of a twin comes here)."""
     path = Path(eds_path)
     if not path.is_file():
-        raise ParameterError("eds", str(path), "the taxel node EDS file must exist (eds/taxel_node.eds)")
+        whose = f"the {device} EDS" if device else "an EDS"
+        raise ParameterError("eds", str(path), f"no such file: {whose} (CiA 306) must be an existing file")
     return path
 
 

@@ -42,6 +42,14 @@ called only when its cycle's SYNC arrives (it may depend on state set just befor
 "silent" faults (scene) and :meth:`Rig.drop_node` make a node dead (no frame out, none
 processed) until the fault ends / :meth:`Rig.restore_node`.
 
+Gripper drive (issue 22): a scene with a ``[gripper]`` table gets its CiA 402 drive
+(:class:`node_sim.gripper.host.DriveHost`, ``docs/gripper-drive.md``) on that scene channel, if
+served: a bus object of its own on the channel (the interface, bit rate and keywords of the
+channel's), configured with ``taxel_net.gripper.startup_values`` (the ``[gripper]`` parameters,
+0x1017 / 0x1019 / 0x1006 / 0x1016 from ``bus`` and ``master``), booted after the taxel nodes.
+:attr:`Rig.gripper` is that host (None without one); the world acts on ``rig.gripper.drive``
+inside ``with rig.gripper.lock:``.
+
 SYNC hot path: the frames of one SYNC leave as one burst after every node has sampled
 (``NodeLink.hold``/``release``; inhibit times start when the burst is sent), on a ``virtual``
 bus without python-can's per-receiver deep copy (:func:`node_sim.channel.virtual_burst_sender`).
@@ -68,6 +76,7 @@ from taxel_net.scene import TAXEL_KINDS, Scene
 from . import lss as lssx
 from . import od as odx
 from .channel import Channel
+from .gripper.host import GRIPPER_EDS_PATH, DriveHost
 from .node import TaxelNode
 from .od import COB_INVALID
 from .patch import PATCH_EDS_PATH, PatchNode, patch_startup_values
@@ -100,7 +109,8 @@ class Rig:
     def __init__(self, scene: Scene, interface: str = "virtual", channel: str | Sequence[str] | None = None,
                  bitrate: int | None = None, reading_source: ReadingSource | None = None,
                  seed: int | None = None, eds_path=odx.EDS_PATH, bus_kwargs: Mapping | None = None,
-                 patch_eds_path=PATCH_EDS_PATH, serve_channels: Sequence[int] | None = None):
+                 patch_eds_path=PATCH_EDS_PATH, serve_channels: Sequence[int] | None = None,
+                 gripper_eds_path=GRIPPER_EDS_PATH):
         if not isinstance(scene, Scene):
             raise ParameterError("scene", type(scene).__name__, "must be a taxel_net.scene.Scene")
         if scene.n == 0:
@@ -134,6 +144,9 @@ class Rig:
         self.devices = patches.devices(self.scene) if scene.bus.patch_nodes else None
         self.patch_eds_path = odx.check_eds(patch_eds_path) if self.devices is not None else None
         self._reading_source = reading_source
+        # the gripper drive of [gripper] (issue 22): its own bus object on its scene channel
+        self.gripper_eds_path = gripper_eds_path
+        self.gripper: DriveHost | None = None
         self._channels: list[Channel] = []             # the served channels, in index order
         self._channel_at: dict[int, Channel] = {}       # scene channel index -> its channel
         self._dropped: set[tuple[int, int]] = set()
@@ -150,6 +163,11 @@ class Rig:
         for i, t in enumerate(scene.taxels):
             if not 0 <= t.channel < len(names):
                 raise ParameterError(f"taxels[{i}].channel", t.channel, f"must index bus.channels (0..{len(names) - 1})")
+        g = scene.gripper
+        if g is not None and (not 0 <= g.channel < len(names)
+                              or any(t.node_id == g.node_id and t.channel == g.channel for t in scene.taxels)):
+            raise ParameterError("gripper", (g.channel, g.node_id), "the drive needs a channel of bus.channels and a "
+                                 "node-ID no taxel has on that channel (the scene loader checks this)")
 
     # ------------------------------------------------------------------ life cycle
     def __enter__(self) -> "Rig":
@@ -214,6 +232,7 @@ class Rig:
                     for node in ch.nodes.values():
                         self._apply_silence(ch.index, node, 0)
                         node.power_on()
+            self._start_gripper()
         except BaseException:
             self.stop()
             raise
@@ -226,6 +245,9 @@ class Rig:
 
     def stop(self) -> None:
         """Stop timers, notifiers and buses (idempotent)."""
+        if self.gripper is not None:
+            self.gripper.stop()
+            self.gripper = None
         for ch in self._channels:
             ch.scheduler.stop()
         if self._prefetch_thread is not None:
@@ -253,6 +275,23 @@ class Rig:
             gcfreeze.release()
 
     # ------------------------------------------------------------------ configuration
+    def _start_gripper(self) -> None:
+        """The scene's gripper drive, when it has one on a served channel: a
+        :class:`~node_sim.gripper.host.DriveHost` on a bus object of its own on that channel
+        (the same interface, bit rate and keywords as the channel's), configured with the
+        scene's start-up values, booted after the taxel nodes."""
+        g = self.scene.gripper
+        if g is None or g.channel not in self._channel_at:
+            return
+        kwargs = dict(self.bus_kwargs)
+        if self.bitrate is not None:
+            kwargs["bitrate"] = self.bitrate
+        if self.scene.bus.fd:
+            kwargs.setdefault("fd", True)
+        self.gripper = DriveHost.for_scene(self.scene, self.interface, self.channel_names[g.channel], kwargs,
+                                           self.gripper_eds_path)
+        self.gripper.start()
+
     def _lss_device(self) -> tuple[tuple[int, int, int], frozenset[int]]:
         """What the EDS says of every device: 0x1018:1-3 (vendor-ID, product code, revision
         number) and the bit rates it supports ([DeviceInfo] BaudRate_*), bit/s."""

@@ -9,15 +9,23 @@ This is I/O (it reads files), so it is *not* part of the numerical core.
 from __future__ import annotations
 
 import csv
-import math
 import tomllib
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from taxel_net.errors import SceneError
+from taxel_net.gripper import GripperSpec, load_gripper
 from taxel_net.patches import COB_ID_FIRST, COB_ID_LAST, PATCH_TAXELS_MAX, RAW_FORMATS
 from taxel_net.patches import devices as patch_devices
 from taxel_net.scene_grasp import GraspSpec, load_grasp
+from taxel_net.scene_fields import Where as _Where
+from taxel_net.scene_fields import array as _list
+from taxel_net.scene_fields import boolean as _bool
+from taxel_net.scene_fields import distinct_strings as _distinct_strings
+from taxel_net.scene_fields import integer as _int
+from taxel_net.scene_fields import number as _num
+from taxel_net.scene_fields import string as _str
+from taxel_net.scene_fields import table as _table
 
 # 0x2001:3 taxel kind codes (UNSIGNED8); 0 is "unset" and refused by the node.
 TAXEL_KINDS: dict[str, int] = {"R": 1, "C": 2, "P": 3, "LC": 4, "TBS": 5, "IR": 6}
@@ -177,6 +185,7 @@ class Scene:
     faults: tuple[FaultSpec, ...] = ()
     master: MasterSpec = field(default_factory=MasterSpec)
     grasp: GraspSpec | None = None         # [grasp]: the grasp world's object and task (scene_grasp.py)
+    gripper: GripperSpec | None = None     # [gripper]: a CiA 402 gripper drive on the bus (taxel_net.gripper)
 
     @property
     def n(self) -> int:
@@ -214,7 +223,7 @@ _INT_TAXEL_FIELDS = ("node_id", "channel")
 _STR_TAXEL_FIELDS = ("kind", "jaw", "axis")
 
 _TOP_KEYS = ("scene", "bus", "kinds", "taxels", "taxels_file", "per_taxel", "object", "fusion",
-             "forces", "outputs", "faults", "master", "grasp")
+             "forces", "outputs", "faults", "master", "grasp", "gripper")
 _SCENE_KEYS = ("name", "description", "seed", "cycles")
 _BUS_KEYS = ("bitrate", "sync_period_ms", "sync_counter", "heartbeat_producer_ms",
              "heartbeat_consumer_ms", "mode", "transmission_type", "inhibit_time_100us",
@@ -233,102 +242,6 @@ CYCLES_MAX = 10**10               # > 3 years of 10 ms cycles
 _FORCES_KEYS = ("mu", "unit", "inclusion_angle_deg")
 _OUTPUTS_KEYS = ("stages",)
 _FAULT_KEYS = ("node_id", "channel", "fault", "from_cycle", "until_cycle")
-
-
-class _Where:
-    """Where a value comes from: the file and how a key is named in messages."""
-
-    def __init__(self, path: str, prefix: str = "", csv_line: int | None = None):
-        self.path = path
-        self.prefix = prefix
-        self.csv_line = csv_line
-
-    def name(self, key: str) -> str:
-        if self.csv_line is not None:
-            return f"line {self.csv_line}, column {key}"
-        return f"{self.prefix}.{key}" if self.prefix else key
-
-    def fail(self, key: str, value: object, problem: str):
-        raise SceneError(self.path, self.name(key), value, problem)
-
-
-def _is_int(v) -> bool:
-    return isinstance(v, int) and not isinstance(v, bool)
-
-
-def _is_num(v) -> bool:
-    return (isinstance(v, (int, float))) and not isinstance(v, bool)
-
-
-def _table(w: _Where, key: str, value, allowed: tuple[str, ...]) -> dict:
-    """A sub-table: must be a dict whose keys are all in ``allowed``."""
-    if not isinstance(value, dict):
-        w.fail(key, value, "must be a table")
-    sub = _Where(w.path, w.name(key) if key else w.prefix)
-    for k in value:
-        if k not in allowed:
-            sub.fail(k, value[k], f"unknown key (allowed: {', '.join(allowed)})")
-    return value
-
-
-def _int(w: _Where, key: str, v, lo: int | None = None, hi: int | None = None, allowed: str = "") -> int:
-    if not _is_int(v):
-        w.fail(key, v, "must be an integer")
-    if (lo is not None and v < lo) or (hi is not None and v > hi):
-        w.fail(key, v, allowed or f"must lie in {lo}..{hi}")
-    return v
-
-
-def _num(w: _Where, key: str, v, lo: float | None = None, hi: float | None = None,
-         lo_open: bool = False, hi_open: bool = False) -> float:
-    if not _is_num(v):
-        w.fail(key, v, "must be a number")
-    v = float(v)
-    if not math.isfinite(v):
-        w.fail(key, v, "must be finite")
-    bad = ((lo is not None and (v <= lo if lo_open else v < lo))
-           or (hi is not None and (v >= hi if hi_open else v > hi)))
-    if bad:
-        lb = "-inf" if lo is None else f"{lo:g}"
-        ub = "inf" if hi is None else f"{hi:g}"
-        w.fail(key, v, f"must lie in {'(' if lo_open or lo is None else '['}{lb}, "
-                       f"{ub}{')' if hi_open or hi is None else ']'}")
-    return v
-
-
-def _bool(w: _Where, key: str, v) -> bool:
-    if not isinstance(v, bool):
-        w.fail(key, v, "must be true or false")
-    return v
-
-
-def _str(w: _Where, key: str, v, choices: tuple[str, ...] | None = None) -> str:
-    if not isinstance(v, str):
-        w.fail(key, v, "must be a string")
-    if choices is not None and v not in choices:
-        w.fail(key, v, f"must be one of {', '.join(choices)}")
-    return v
-
-
-def _list(w: _Where, key: str, v, length: int | None = None) -> list:
-    if not isinstance(v, list):
-        w.fail(key, v, "must be an array")
-    if length is not None and len(v) != length:
-        w.fail(key, v, f"must have {length} entries (has {len(v)})")
-    return v
-
-
-def _distinct_strings(w: _Where, key: str, raw, choices: tuple[str, ...] | None = None) -> list[str]:
-    """An array of strings (each one of ``choices`` when given), none listed twice."""
-    out: list[str] = []
-    for i, v in enumerate(_list(w, key, raw)):
-        _str(w, f"{key}[{i}]", v, choices)
-        if v == "":
-            w.fail(f"{key}[{i}]", v, "must not be empty")
-        if v in out:
-            w.fail(f"{key}[{i}]", v, "listed twice")
-        out.append(v)
-    return out
 
 
 def _kind_field(w: _Where, key: str, v) -> float:
@@ -452,9 +365,11 @@ def load_scene(path) -> Scene:
             patch_devices(Scene(path=sp, name=name, bus=bus, taxels=taxels))
         except ValueError as exc:
             _Where(sp, "bus").fail("tpdo_cob_id_base", f"0x{bus.tpdo_cob_id_base:03X}", str(exc))
+    gripper = load_gripper(sp, doc["gripper"], bus, taxels, master) if "gripper" in doc else None
     return Scene(path=sp, name=name, description=description, seed=seed, cycles=cycles, bus=bus,
                  taxels=taxels, object=obj, fusion=fusion, forces=forces, stages=tuple(stages),
-                 faults=faults, master=master, grasp=load_grasp(sp, doc["grasp"]) if "grasp" in doc else None)
+                 faults=faults, master=master, gripper=gripper,
+                 grasp=load_grasp(sp, doc["grasp"]) if "grasp" in doc else None)
 
 
 def _load_master(sp: str, top: _Where, raw, bus: BusSpec, taxels: tuple[TaxelSpec, ...]) -> MasterSpec:

@@ -238,6 +238,26 @@ def test_rig_parameter_errors():
         rig.drop_node(1)
 
 
+@pytest.mark.parametrize("which", ["taxel", "patch", "gripper"])
+def test_a_missing_eds_is_named_in_the_error(tmp_path, which):
+    """The one-line error names the missing file and no other (it named eds/taxel_node.eds
+    whichever EDS was missing)."""
+    from node_sim.gripper.host import DriveHost
+    from node_sim.patch import load_patch_od
+
+    missing = tmp_path / f"no_{which}.eds"
+    with pytest.raises(ParameterError) as info:
+        if which == "taxel":
+            Rig(load_scene("matrix57"), eds_path=missing)
+        elif which == "patch":
+            load_patch_od(1, missing)
+        else:
+            DriveHost(5, "virtual", uid(), eds_path=missing).start()
+    text = str(info.value)
+    assert str(missing) in text and "taxel_node.eds" not in text and "\n" not in text
+    assert ("patch node" in text) == (which == "patch")
+
+
 def test_bus_filters_follow_the_sync_cob_id_and_keep_out_the_pdos():
     """The twins' bus lets through what they consume (python-can filters: in the kernel on
     socketcan, before a Message is made on udp_multicast): when an SDO moves 0x1005 to

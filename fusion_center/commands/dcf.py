@@ -28,6 +28,14 @@ number the node reports in 0x1018:4: the patch twin reports its device's
 for each of its taxels), although its EDS says ``LSS_Supported=0`` (the scene loader refuses
 LSS node-ID assignment with patch nodes): the key names the device's identity, which it has.
 
+A scene with a ``[gripper]`` table has one more node, its CiA 402 gripper drive: ``--node`` with
+the drive's node-ID (``C:N`` off channel 0) writes its DCF, and ``--all`` writes it beside the
+taxels' (``<scene>_gripper_node032.dcf``), from ``eds/gripper_drive.eds``
+(``taxel_net.resources.gripper_eds_path``) with the drive's start-up values
+(``taxel_net.gripper.startup_values``: what the twin starts with, the ``[gripper]`` parameters,
+0x1017 / 0x1019 / 0x1006 / 0x1016:1 / 0x1018:4) as ``ParameterValue``; NodeName says
+``gripper drive N (CiA 402)``; LSS_SerialNumber is its 0x1018:4.
+
     fusion-center dcf --scene S --node N -o FILE.dcf     (N, or C:N for a node of channel C > 0)
     fusion-center dcf --scene S --all -o DIR             (one file per node)
 """
@@ -153,33 +161,63 @@ def _format(value, data_type: int) -> str:
 def dcf_text(scene, index: int, eds_text: str, name: str | None = None) -> str:
     """The DCF of node ``index`` of ``scene`` (:func:`node_index`: the taxel's index in a
     one-taxel scene, the patch node's in a patch scene), made from the EDS text ``eds_text``."""
-    from taxel_net.errors import UsageError
-
     from ..service.lss import expected_serial
 
     d = _devices(scene)[index]
+    patch = "patch " if scene.bus.patch_nodes else ""
+    # 0x1018:4 of the node; a patch node's is its first taxel's (the same for all of them)
+    serial = expected_serial(scene, scene.taxels[d.taxels[0]])
+    return _dcf(scene, eds_text, configured_values(scene, index), d.node_id, d.channel,
+                node_description(scene, index), serial, f"{patch}node {d.label}", name)
+
+
+def drive_dcf_text(scene, eds_text: str, name: str | None = None) -> str:
+    """The DCF of the scene's gripper drive (``[gripper]``) from the drive's EDS text: its
+    start-up values (:func:`taxel_net.gripper.startup_values`) as ``ParameterValue``."""
+    from taxel_net.gripper import identity_serial, startup_values
+    from taxel_net.patches import node_label
+
+    g = scene.gripper
+    return _dcf(scene, eds_text, startup_values(scene), g.node_id, g.channel, drive_description(scene),
+                identity_serial(scene), f"gripper drive {node_label(g.channel, g.node_id)}", name)
+
+
+def drive_description(scene) -> str:
+    return f"gripper drive {scene.gripper.node_id} (CiA 402)"
+
+
+def drive_file_name(scene) -> str:
+    """``<scene>_gripper_node032.dcf`` (``_ch1`` before ``_gripper`` off channel 0)."""
+    g = scene.gripper
+    channel = f"_ch{g.channel}" if g.channel else ""
+    return f"{scene.name}{channel}_gripper_node{g.node_id:03d}.dcf"
+
+
+def _dcf(scene, eds_text: str, configured: dict, node_id: int, channel: int, node_name: str, serial: int,
+         what: str, name: str | None) -> str:
+    """The EDS text with a ParameterValue for each of ``configured`` and the commissioning."""
+    from taxel_net.errors import UsageError
+
     sections, types = _eds_entries(eds_text)
     if "DEVICECOMISSIONING" in sections:
         raise UsageError("EDS already has a [DeviceComissioning] section: give the EDS, not a DCF")
     values: dict[str, list[str]] = {}
-    for (obj, sub), value in configured_values(scene, index).items():
+    for (obj, sub), value in configured.items():
         key = f"{obj:04X}SUB{sub:X}"
         if key not in sections and sub == 0:
             key = f"{obj:04X}"
         if types.get(key) is None:
             raise UsageError(f"EDS has no entry 0x{obj:04X}:{sub} (the node's configuration writes it)")
         values[key] = [f"ParameterValue={_format(value, types[key])}"]
-    label = d.label
     commissioning = [
         "[DeviceComissioning]",
-        f"NodeID={d.node_id}",
-        f"NodeName={node_description(scene, index)}",
+        f"NodeID={node_id}",
+        f"NodeName={node_name}",
         f"Baudrate={scene.bus.bitrate // 1000}",
-        f"NetNumber={d.channel + 1}",
-        f"NetworkName={scene.bus.channels[d.channel]}",
+        f"NetNumber={channel + 1}",
+        f"NetworkName={scene.bus.channels[channel]}",
         "CANopenManager=0",
-        # 0x1018:4 of the node; a patch node's is its first taxel's (the same for all of them)
-        f"LSS_SerialNumber=0x{expected_serial(scene, scene.taxels[d.taxels[0]]):08X}",
+        f"LSS_SerialNumber=0x{serial:08X}",
         "",
     ]
     out: list[str] = []
@@ -208,14 +246,36 @@ def dcf_text(scene, index: int, eds_text: str, name: str | None = None) -> str:
                 out.append(f"FileName={name or 'node.dcf'}")
                 line = f"LastEDS={line.partition('=')[2].strip()}"  # CiA 306: the EDS it comes from
             elif key == "Description":
-                patch = "patch " if scene.bus.patch_nodes else ""
-                line = f"{line} - DCF of {patch}node {label} of scene {scene.name}"
+                line = f"{line} - DCF of {what} of scene {scene.name}"
         out.append(line)
     close_section()
     if "DUMMYUSAGE" not in sections:
         out.append("")
         out.extend(commissioning)
     return "\n".join(out).rstrip("\n") + "\n"
+
+
+def _drive_eds_text() -> str:
+    from taxel_net.errors import UsageError
+    from taxel_net.resources import gripper_eds_path
+
+    source = gripper_eds_path()
+    try:
+        return source.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise UsageError(f"EDS file {str(source)!r} cannot be read: {exc}") from None
+
+
+def is_drive(scene, text: str) -> bool:
+    """``--node`` ``N`` / ``C:N`` names the scene's gripper drive."""
+    g = scene.gripper
+    if g is None:
+        return False
+    channel, sep, node = text.rpartition(":")
+    try:
+        return (int(node, 0), int(channel, 0) if sep else 0) == (g.node_id, g.channel)
+    except ValueError:
+        return False
 
 
 def run(args) -> int:
@@ -226,9 +286,10 @@ def run(args) -> int:
     from taxel_net.scene import load_scene
 
     scene = load_scene(args.scene)
+    drive = not args.all and is_drive(scene, args.node)
     source = Path(args.eds) if args.eds else patch_eds_path() if scene.bus.patch_nodes else eds_path()
     try:
-        eds_text = source.read_text(encoding="utf-8")
+        eds_text = _drive_eds_text() if drive else source.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
         raise UsageError(f"EDS file {str(source)!r} cannot be read: {exc}") from None
     out = Path(args.output)
@@ -241,19 +302,28 @@ def run(args) -> int:
             for index in range(n):
                 name = file_name(scene, index)
                 (out / name).write_text(dcf_text(scene, index, eds_text, name), encoding="utf-8")
+            if scene.gripper is not None:
+                name = drive_file_name(scene)
+                (out / name).write_text(drive_dcf_text(scene, _drive_eds_text(), name), encoding="utf-8")
             print(f"{n} DCFs of scene {scene.name!r} written to {out}"
-                  + (f" (one per patch node, {scene.n} taxels)" if scene.bus.patch_nodes else ""))
+                  + (f" (one per patch node, {scene.n} taxels)" if scene.bus.patch_nodes else "")
+                  + (f", and the gripper drive's ({drive_file_name(scene)})" if scene.gripper is not None else ""))
             return 0
-        index = node_index(scene, args.node)
+        index = None if drive else node_index(scene, args.node)
+        name = drive_file_name(scene) if drive else file_name(scene, index)
         if args.output == "-":
-            sys.stdout.write(dcf_text(scene, index, eds_text, file_name(scene, index)))
+            sys.stdout.write(drive_dcf_text(scene, eds_text, name) if drive else dcf_text(scene, index, eds_text, name))
             return 0
         if out.is_dir():
-            out = out / file_name(scene, index)
-        text = dcf_text(scene, index, eds_text, out.name)
+            out = out / name
+        text = drive_dcf_text(scene, eds_text, out.name) if drive else dcf_text(scene, index, eds_text, out.name)
         out.write_text(text, encoding="utf-8")
     except OSError as exc:
         raise UsageError(f"-o {args.output!r}: cannot write: {exc.strerror or exc}") from None
+    if drive:
+        print(f"DCF of gripper drive {args.node} (CiA 402) of scene {scene.name!r} written to {out}: "
+              f"{text.count('ParameterValue=')} parameter values")
+        return 0
     what = node_description(scene, index).partition(" (")[2].rstrip(")")
     kind = "patch node" if scene.bus.patch_nodes else "node"
     print(f"DCF of {kind} {args.node} ({what}) of scene {scene.name!r} written to {out}: "

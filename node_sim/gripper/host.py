@@ -74,6 +74,16 @@ class DriveHost:
         self.cycle = -1                     # SYNCs processed - 1
         self._sync_length_error = False
 
+    @classmethod
+    def for_scene(cls, scene, interface: str, channel: str, bus_kwargs: Mapping | None = None,
+                  eds_path=GRIPPER_EDS_PATH) -> "DriveHost":
+        """The drive of ``scene``'s ``[gripper]`` table (not started) on bus channel ``channel``
+        (the scene channel ``scene.gripper.channel`` is opened as), with the scene's start-up
+        values (:func:`taxel_net.gripper.startup_values`)."""
+        from taxel_net.gripper import startup_values
+
+        return cls(scene.gripper.node_id, interface, channel, bus_kwargs, startup_values(scene), eds_path)
+
     def __enter__(self) -> "DriveHost":
         return self.start()
 

@@ -1,0 +1,159 @@
+"""The gripper drive of a scene's ``[gripper]`` table on the rig (node_sim.rig, issue 22): booted
+beside the taxel nodes with the scene's start-up values (read back over SDO by a canopen master,
+restored by NMT reset-node), driven by canopen's BaseNode402 with the scene's parameters, and
+absent when the scene has no table or its channel is not served.
+
+Expected values by hand from scenes/grasp_drive.toml: rated force 140.0 N per jaw (0x2103 = 1400),
+max torque 800 ‰, slope 4000 ‰/s = 40 ‰ per 10 ms SYNC, stroke 2..60 mm."""
+
+from __future__ import annotations
+
+import dataclasses
+import subprocess
+import sys
+import threading
+import time
+import uuid
+from pathlib import Path
+
+import canopen
+import numpy as np
+import pytest
+from canopen.profiles.p402 import BaseNode402
+
+from node_sim.gripper.drive import GRIPPER_EDS_PATH
+from node_sim.rig import Rig
+from taxel_net.errors import ParameterError
+from taxel_net.gripper import startup_values
+from taxel_net.scene import load_scene
+
+ROOT = Path(__file__).resolve().parent.parent
+DRIVE = 32
+MASTER = 127
+WAIT_S = 5.0
+
+
+def scene_on(channel: str):
+    scene = load_scene("grasp_drive")
+    return dataclasses.replace(scene, bus=dataclasses.replace(scene.bus, channels=(channel,)))
+
+
+@pytest.fixture
+def rig_and_master():
+    channel = f"g22b-{uuid.uuid4().hex[:8]}"
+    scene = scene_on(channel)
+    net = canopen.Network()
+    net.connect(interface="virtual", channel=channel)
+    boots: list[int] = []
+    net.subscribe(0x700 + DRIVE, lambda cob, data, ts: boots.append(data[0]) if data == b"\x00" else None)
+    rig = Rig(scene, interface="virtual", reading_source=lambda c: np.zeros(scene.n)).start()
+    try:
+        yield rig, net, scene, boots
+    finally:
+        net.disconnect()
+        rig.stop()
+
+
+def wait(condition, what: str) -> None:
+    deadline = time.monotonic() + WAIT_S
+    while not condition():
+        assert time.monotonic() < deadline, what
+        time.sleep(0.005)
+
+
+def test_the_drive_boots_with_the_scene_start_up_values(rig_and_master):
+    rig, net, scene, boots = rig_and_master
+    assert rig.gripper is not None and rig.gripper.node_id == DRIVE
+    node = canopen.RemoteNode(DRIVE, str(GRIPPER_EDS_PATH))
+    net.add_node(node)
+    node.sdo.RESPONSE_TIMEOUT = 2.0
+    wait(lambda: boots, "the drive's boot-up")
+    expected = startup_values(scene)
+    got = {(i, s): (node.sdo[i].raw if s == 0 else node.sdo[i][s].raw) for i, s in expected}
+    assert got == expected
+    # by hand from the scene file
+    assert (got[(0x2103, 0)], got[(0x6072, 0)], got[(0x6087, 0)]) == (1400, 800, 4000)
+    assert (got[(0x607D, 1)], got[(0x607D, 2)], got[(0x6060, 0)]) == (2000, 60000, 4)
+    assert got[(0x1016, 1)] == MASTER << 16 | 150 and got[(0x1017, 0)] == 50
+    assert node.sdo[0x6064].raw == 60000                      # the jaws start open (0x607D:2)
+    # the taxels are there as before
+    assert sorted(nid for _, nid in rig.nodes) == [1, 2, 3, 4, 5, 6]
+    # reset node: the start-up values, not the SDO-written ones
+    node.sdo[0x2103].raw = 500
+    boots.clear()
+    node.nmt.send_command(0x81)
+    wait(lambda: boots, "boot-up after reset node")
+    assert node.sdo[0x2103].raw == 1400
+
+
+def test_base_node_402_grips_with_the_scene_parameters(rig_and_master):
+    rig, net, scene, boots = rig_and_master
+    node = BaseNode402(DRIVE, str(GRIPPER_EDS_PATH))
+    net.add_node(node)
+    heartbeat = net.send_periodic(0x700 + MASTER, b"\x05", 0.05)
+    net.sync.start(0.01)
+    rpdo = None
+    try:
+        node.nmt.wait_for_heartbeat(WAIT_S)
+        node.setup_402_state_machine()
+        node.nmt.state = "OPERATIONAL"
+        rpdo = node.rpdo[1]
+        rpdo.start(0.01)
+        assert node.op_mode == "PROFILED TORQUE"                  # 0x6060 = 4 at start-up
+        node.state = "OPERATION ENABLED"
+        assert node.state == "OPERATION ENABLED"
+        with rig.gripper.lock:
+            rig.gripper.drive.jaw_blocked_at(30.0)
+        node.rpdo_pointers[0x6071].raw = 1000                     # beyond max torque 800: clamped
+        deadline = time.monotonic() + WAIT_S
+        while not (node.tpdo_values.get(0x2100) == 4 and node.tpdo_values.get(0x6077) == 800):
+            assert time.monotonic() < deadline, node.tpdo_values
+            node.check_statusword()
+        assert node.tpdo_values[0x2101] == 1120                   # 800 ‰ x 140.0 N = 112.0 N per jaw
+        assert node.statusword & 0x0800                           # internal limit: the clamp
+        with rig.gripper.lock:
+            assert rig.gripper.drive.grip_force_n == pytest.approx(112.0)
+    finally:
+        if rpdo is not None:
+            rpdo.stop()
+        net.sync.stop()
+        heartbeat.stop()
+
+
+def test_no_drive_without_the_table_or_on_a_channel_not_served():
+    channel = f"g22b-{uuid.uuid4().hex[:8]}"
+    plain = load_scene("gripper18")
+    plain = dataclasses.replace(plain, bus=dataclasses.replace(plain.bus, channels=(channel,)))
+    with Rig(plain, reading_source=lambda c: np.zeros(plain.n)) as rig:
+        assert rig.gripper is None
+    two = scene_on(channel)
+    two = dataclasses.replace(two, bus=dataclasses.replace(two.bus, channels=(channel, channel + "b")),
+                              gripper=dataclasses.replace(two.gripper, channel=1))
+    with Rig(two, reading_source=lambda c: np.zeros(two.n), serve_channels=[0]) as rig:
+        assert rig.gripper is None
+    with Rig(two, reading_source=lambda c: np.zeros(two.n)) as rig:
+        assert rig.gripper is not None and rig.gripper.channel == channel + "b"
+
+
+def test_a_scene_object_with_a_colliding_node_id_is_refused():
+    """The loader refuses it (tests/test_scene_gripper.py); a Scene built in code is checked by the rig."""
+    scene = scene_on(f"g22b-{uuid.uuid4().hex[:8]}")
+    bad = dataclasses.replace(scene, gripper=dataclasses.replace(scene.gripper, node_id=3))
+    with pytest.raises(ParameterError) as info:
+        Rig(bad)
+    assert "gripper" in str(info.value) and "\n" not in str(info.value)
+
+
+def test_node_sim_says_the_drive_is_ready():
+    proc = subprocess.Popen([sys.executable, "-m", "node_sim.cli", "--scene", "grasp_drive", "-i", "virtual",
+                             "-c", f"g22b-{uuid.uuid4().hex[:8]}"], cwd=ROOT, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    lines: list[str] = []
+    reader = threading.Thread(target=lambda: lines.append(proc.stdout.readline()), daemon=True)
+    reader.start()
+    reader.join(60)
+    proc.terminate()
+    rc = proc.wait(timeout=30)
+    line = lines[0] if lines else ""
+    assert line.startswith("node-sim: ready: 6 nodes and gripper drive 32 of scene 'grasp_drive'"), line
+    assert rc == 0, proc.stderr.read()
