@@ -208,13 +208,17 @@ class GroupLayout:
 
 def group_layout(scene: Scene, channels: Sequence[int]) -> GroupLayout:
     """The scene restricted to ``channels`` (renumbered 0..k-1 in their order): same taxels,
-    node-IDs and TPDO COB-IDs (a channel's TPDOs are numbered over its own nodes)."""
+    node-IDs and TPDO COB-IDs (a channel's TPDOs are numbered over its own nodes), and the
+    gripper drive where its channel is served."""
     served = tuple(sorted(set(int(c) for c in channels)))
     new = {c: k for k, c in enumerate(served)}
     taxels = [i for i, t in enumerate(scene.taxels) if t.channel in new]
     sub_taxels = tuple(dataclasses.replace(scene.taxels[i], channel=new[scene.taxels[i].channel]) for i in taxels)
     bus = dataclasses.replace(scene.bus, channels=tuple(scene.bus.channels[c] for c in served))
-    sub = dataclasses.replace(scene, taxels=sub_taxels, bus=bus, faults=())
+    drive = scene.gripper  # the gripper drive goes with its channel (renumbered), else it is not this group's
+    if drive is not None:
+        drive = dataclasses.replace(drive, channel=new[drive.channel]) if drive.channel in new else None
+    sub = dataclasses.replace(scene, taxels=sub_taxels, bus=bus, faults=(), gripper=drive)
     full_index = {(d.channel, d.node_id): k for k, d in enumerate(scene_devices(scene))}
     devs = [full_index[(served[d.channel], d.node_id)] for d in scene_devices(sub)]
     return GroupLayout(served, np.array(taxels, dtype=np.intp), np.array(devs, dtype=np.intp), sub)

@@ -39,6 +39,7 @@ COUNTER_NAMES: tuple[str, ...] = (
     "sdo_abort",       # SDO abort transfer (server -> client, command byte 0x80)
     "time",            # TIME stamp object
     "lss",             # CiA 305 layer setting service frame (0x7E4 / 0x7E5, 8 bytes)
+    "drive",           # a frame of the scene's gripper drive ([gripper]: its PDOs, heartbeat, EMCY, SDO)
     "bad_dlc",         # known COB-ID, wrong data length
     "bad_value",       # known COB-ID, value outside its domain (u_i not ±1, state, counter...)
     "unknown_cob_id",  # COB-ID of no node/object in the scene
@@ -58,6 +59,7 @@ C_REMOTE, C_ERROR, C_EXTENDED, C_INTERNAL = (
     _C["remote_frame"], _C["error_frame"], _C["extended_id"], _C["internal_error"])
 C_FD = _C["fd_frame"]
 C_MASTER_HEARTBEAT = _C["master_heartbeat"]
+C_DRIVE = _C["drive"]
 MALFORMED = ("bad_dlc", "bad_value", "unknown_cob_id", "remote_frame", "error_frame", "extended_id", "fd_frame")
 _MALFORMED_IDX = frozenset(_C[name] for name in MALFORMED)
 

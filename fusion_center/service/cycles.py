@@ -93,6 +93,7 @@ from .decoder import (
     K_SYNC,
     K_LSS,
     K_MASTER_HEARTBEAT,
+    K_DRIVE,
     K_PATCH,
     K_TIME,
     K_TPDO1,
@@ -125,6 +126,7 @@ from .cycle_records import (  # noqa: F401 - re-exported: the assembler's vocabu
     C_LATE,
     C_LSS,
     C_MASTER_HEARTBEAT,
+    C_DRIVE,
     C_NMT,
     C_REMOTE,
     C_SDO,
@@ -497,6 +499,9 @@ class CycleAssembler:
             if data[0] not in HEARTBEAT_STATES:
                 return self._bad(C_BAD_VALUE)
             counts[C_MASTER_HEARTBEAT] += 1
+            return None
+        if kind == K_DRIVE:  # the gripper drive's frames: the taxels' cycles do not use them
+            counts[C_DRIVE] += 1
             return None
         # K_TIME
         if size != 6:

@@ -51,6 +51,7 @@ K_TIME = 9
 K_LSS = 10  # CiA 305 LSS: 0x7E5 master -> slaves, 0x7E4 slave -> master
 K_MASTER_HEARTBEAT = 11  # the master's own heartbeat, 0x700 + [master] node_id (CiA 302)
 K_PATCH = 12  # a TPDO of a patch node (taxel_net.patches): the table's index is its slot, not a node
+K_DRIVE = 13  # a frame of the scene's gripper drive ([gripper], taxel_net.gripper): counted, not a taxel's
 
 COB_NMT = 0x000
 COB_SYNC = 0x080
@@ -100,8 +101,8 @@ def build_cob_tables(scene: Scene, devices=None) -> list[dict[int, tuple[int, in
     chapter's one-taxel layout the device index is the taxel index.
 
     Channel-wide objects (NMT, SYNC, TIME, LSS, the master's heartbeat 0x700 + ``[master]
-    node_id`` while it is on) map to taxel index -1. COB-IDs of node-IDs the scene does not name
-    are absent: the assembler counts them as ``unknown_cob_id``. A taxel's own COB-IDs win over
+    node_id`` while it is on) and the gripper drive's COB-IDs (``[gripper]``: ``K_DRIVE``) map
+    to taxel index -1. COB-IDs of node-IDs the scene does not name are absent: the assembler counts them as ``unknown_cob_id``. A taxel's own COB-IDs win over
     the master's heartbeat (the scene loader refuses that collision; a scene built in code may
     still have it).
     """
@@ -113,6 +114,11 @@ def build_cob_tables(scene: Scene, devices=None) -> list[dict[int, tuple[int, in
     if scene.master_heartbeat_ms > 0:
         for table in tables:
             table[BASE_HEARTBEAT + scene.master.node_id] = (K_MASTER_HEARTBEAT, -1)
+    if scene.gripper is not None:  # the drive's own COB-IDs (CiA 301 pre-defined set) on its channel
+        from taxel_net.gripper import drive_cob_ids
+
+        for cob_id in drive_cob_ids(scene.gripper.node_id):
+            tables[scene.gripper.channel][cob_id] = (K_DRIVE, -1)
     if scene.bus.patch_nodes:
         if devices is None:
             from taxel_net.patches import devices as scene_devices

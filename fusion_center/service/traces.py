@@ -224,6 +224,8 @@ def check_trace(scene: Scene, trace_path) -> dict:
     nodes = [set() for _ in range(n_channels)]
     for t in scene.taxels:
         nodes[t.channel].add(t.node_id)
+    if scene.gripper is not None:  # the gripper drive is a node of the scene too
+        nodes[scene.gripper.channel].add(scene.gripper.node_id)
     bases = (BASE_EMCY, BASE_TPDO1, BASE_TPDO2, BASE_SDO_RESPONSE, BASE_SDO_REQUEST, BASE_HEARTBEAT)
     # the master's own heartbeat (CiA 302), when the scene's master produces one
     master_heartbeat = BASE_HEARTBEAT + scene.master.node_id if scene.master_heartbeat_ms > 0 else COB_NMT
