@@ -7,7 +7,8 @@ modes (0x6502 = 0x00000009), the option codes of quick stop 0x605A, fault reacti
 abort connection 0x6007, and the vendor grip objects 0x2100-0x2110 (grip state, grip force in
 0.1 N per jaw, jaw width in 0.1 mm, rated grip force, simulated fault).
 
-The file is generated (like ``eds/taxel_patch.eds``) so that every object is written out the
+The file is generated (like ``eds/taxel_patch.eds``, with the same writer, CiA 301 communication
+objects and file skeleton from ``eds/eds_writer.py``) so that every object is written out the
 same way; the generated file is checked in and ``tests/test_gripper_eds.py`` checks that this
 script reproduces it byte for byte.
 
@@ -25,15 +26,16 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+import eds_writer   # eds/, on sys.path when run as a script
+from eds_writer import (INTEGER8, INTEGER16, INTEGER32, UNSIGNED8, UNSIGNED16, UNSIGNED32, Writer,
+                        communication_profile)
+
 HERE = Path(__file__).resolve().parent
 OUT = HERE / "gripper_drive.eds"
 
 PRODUCT_CODE = 0x00007A10    # the taxel node is 0x7A01, the patch node 0x7A02
 DEVICE_TYPE = 0x00020192     # CiA 402 (0x0192), type 0x02: servo drive
 SUPPORTED_MODES = 0x00000009  # 0x6502 bit 0 profile position, bit 3 profile torque
-
-UNSIGNED8, UNSIGNED16, UNSIGNED32 = 0x0005, 0x0006, 0x0007
-INTEGER8, INTEGER16, INTEGER32, VISIBLE_STRING = 0x0002, 0x0003, 0x0004, 0x0009
 
 # the default PDO mappings (index << 16 | sub << 8 | bits)
 RPDO1 = [0x60400010, 0x60710010, 0x607A0020]               # controlword, target torque, target position
@@ -59,97 +61,27 @@ COMMENTS = [
 ]
 
 
-class Writer:
-    def __init__(self) -> None:
-        self.lines: list[str] = []
-
-    def section(self, name: str, **entries) -> None:
-        self.lines.append(f"[{name}]")
-        for key, value in entries.items():
-            self.lines.append(f"{key}={value}")
-        self.lines.append("")
-
-    def var(self, name: str, parameter: str, data_type: int, access: str, default, mappable: bool = False,
-            low=None, high=None) -> None:
-        entries = {"ParameterName": parameter, "ObjectType": "0x7", "DataType": f"0x{data_type:04X}",
-                   "AccessType": access, "DefaultValue": default}
-        if low is not None:
-            entries["LowLimit"] = low
-        if high is not None:
-            entries["HighLimit"] = high
-        entries["PDOMapping"] = int(mappable)
-        self.section(name, **entries)
-
-    def compound(self, index: int, parameter: str, object_type: int, subs: int) -> None:
-        self.section(f"{index:04X}", ParameterName=parameter, ObjectType=f"0x{object_type:X}", SubNumber=subs + 1)
-
-    def mapping(self, index: int, parameter: str, default: list[int]) -> None:
-        self.compound(index, parameter, 0x9, MAX_MAPPED)
-        self.var(f"{index:04X}sub0", "Number of mapped objects", UNSIGNED8, "rw", len(default), low=0,
-                 high=MAX_MAPPED)
-        for sub in range(1, MAX_MAPPED + 1):
-            value = default[sub - 1] if sub <= len(default) else 0
-            self.var(f"{index:04X}sub{sub:X}", f"Mapping entry {sub}", UNSIGNED32, "rw", f"0x{value:08X}")
-
-
-def objects() -> tuple[list[int], list[int], list[int], Writer]:
+def objects() -> tuple[list[int], list[int], Writer]:
     w = Writer()
-    mandatory = [0x1000, 0x1001, 0x1018]
-    optional = [0x1003, 0x1005, 0x1006, 0x1007, 0x1008, 0x1014, 0x1016, 0x1017, 0x1019, 0x1029, 0x1200,
-                0x1400, 0x1600, 0x1800, 0x1801, 0x1A00, 0x1A01,
-                0x603F, 0x6040, 0x6041, 0x605A, 0x605E, 0x6007, 0x6060, 0x6061, 0x6064, 0x6067, 0x6071,
-                0x6072, 0x6074, 0x6076, 0x6077, 0x607A, 0x607D, 0x6081, 0x6087, 0x6502]
+    # 1029h sub 1 = 1: no NMT state change on a communication error - the drive keeps sending its
+    # TPDOs; 0x6007 decides what the drive does
+    optional = communication_profile(w, device_type=DEVICE_TYPE, device_name="taxel-can gripper drive twin",
+                                     product_code=PRODUCT_CODE, cycle_period_us=10000, communication_error=1)
+    optional += [0x1400, 0x1600, 0x1800, 0x1801, 0x1A00, 0x1A01,
+                 0x603F, 0x6040, 0x6041, 0x605A, 0x605E, 0x6007, 0x6060, 0x6061, 0x6064, 0x6067, 0x6071,
+                 0x6072, 0x6074, 0x6076, 0x6077, 0x607A, 0x607D, 0x6081, 0x6087, 0x6502]
     optional.sort()
     manufacturer = [0x2100, 0x2101, 0x2102, 0x2103, 0x2110]
 
-    w.var("1000", "Device type", UNSIGNED32, "ro", f"0x{DEVICE_TYPE:08X}")
-    w.var("1001", "Error register", UNSIGNED8, "ro", 0, mappable=True)
-    w.compound(0x1003, "Pre-defined error field", 0x8, 8)
-    w.var("1003sub0", "Number of errors", UNSIGNED8, "rw", 0)
-    for sub in range(1, 9):
-        w.var(f"1003sub{sub}", f"Standard error field {sub}", UNSIGNED32, "ro", 0)
-    w.var("1005", "COB-ID SYNC", UNSIGNED32, "rw", "0x00000080")
-    w.var("1006", "Communication cycle period", UNSIGNED32, "rw", 10000)
-    w.var("1007", "Synchronous window length", UNSIGNED32, "rw", 0)
-    w.var("1008", "Manufacturer device name", VISIBLE_STRING, "const", "taxel-can gripper drive twin")
-    w.var("1014", "COB-ID EMCY", UNSIGNED32, "rw", "$NODEID+0x80")
-    w.compound(0x1016, "Consumer heartbeat time", 0x8, 2)
-    w.var("1016sub0", "Highest sub-index supported", UNSIGNED8, "ro", 2)
-    for sub in (1, 2):
-        w.var(f"1016sub{sub}", f"Consumer heartbeat time {sub}", UNSIGNED32, "rw", 0)
-    w.var("1017", "Producer heartbeat time", UNSIGNED16, "rw", 0)
-    w.compound(0x1018, "Identity object", 0x9, 4)
-    w.var("1018sub0", "Highest sub-index supported", UNSIGNED8, "ro", 4)
-    w.var("1018sub1", "Vendor-ID", UNSIGNED32, "ro", "0x00000000")
-    w.var("1018sub2", "Product code", UNSIGNED32, "ro", f"0x{PRODUCT_CODE:08X}")
-    w.var("1018sub3", "Revision number", UNSIGNED32, "ro", "0x00010000")
-    w.var("1018sub4", "Serial number", UNSIGNED32, "ro", "0x00000000")
-    w.var("1019", "Synchronous counter overflow value", UNSIGNED8, "rw", 0, low=0, high=240)
-    w.compound(0x1029, "Error behaviour", 0x8, 1)
-    w.var("1029sub0", "Highest sub-index supported", UNSIGNED8, "ro", 1)
-    # 1: no NMT state change - the drive keeps sending its TPDOs; 0x6007 decides what the drive does
-    w.var("1029sub1", "Communication error", UNSIGNED8, "rw", 1, low=0, high=2)
-    w.compound(0x1200, "SDO server parameter", 0x9, 2)
-    w.var("1200sub0", "Highest sub-index supported", UNSIGNED8, "ro", 2)
-    w.var("1200sub1", "COB-ID client to server", UNSIGNED32, "ro", "$NODEID+0x600")
-    w.var("1200sub2", "COB-ID server to client", UNSIGNED32, "ro", "$NODEID+0x580")
     w.compound(0x1400, "RPDO communication parameter 1", 0x9, 2)
     w.var("1400sub0", "Highest sub-index supported", UNSIGNED8, "ro", 2)
     w.var("1400sub1", "COB-ID used by RPDO", UNSIGNED32, "rw", "$NODEID+0x00000200")
     w.var("1400sub2", "Transmission type", UNSIGNED8, "rw", 1)
-    w.mapping(0x1600, "RPDO mapping parameter 1", RPDO1)
+    w.mapping(0x1600, "RPDO mapping parameter 1", RPDO1, MAX_MAPPED)
     for k in (0, 1):
-        index = 0x1800 + k
-        w.section(f"{index:04X}", ParameterName=f"TPDO communication parameter {k + 1}", ObjectType="0x9",
-                  SubNumber=6)
-        w.var(f"{index:04X}sub0", "Highest sub-index supported", UNSIGNED8, "ro", 6)
-        w.var(f"{index:04X}sub1", "COB-ID used by TPDO", UNSIGNED32, "rw", f"$NODEID+0x{0x40000180 + 0x100 * k:08X}")
-        w.var(f"{index:04X}sub2", "Transmission type", UNSIGNED8, "rw", 1)
-        w.var(f"{index:04X}sub3", "Inhibit time", UNSIGNED16, "rw", 0)
-        w.var(f"{index:04X}sub5", "Event timer", UNSIGNED16, "rw", 0)
-        w.var(f"{index:04X}sub6", "SYNC start value", UNSIGNED8, "rw", 0)
-    w.mapping(0x1A00, "TPDO mapping parameter 1", TPDO1)
-    w.mapping(0x1A01, "TPDO mapping parameter 2", TPDO2)
+        w.tpdo_communication(k, f"$NODEID+0x{0x40000180 + 0x100 * k:08X}")
+    w.mapping(0x1A00, "TPDO mapping parameter 1", TPDO1, MAX_MAPPED)
+    w.mapping(0x1A01, "TPDO mapping parameter 2", TPDO2, MAX_MAPPED)
 
     # vendor grip objects
     w.var("2100", "Grip state", UNSIGNED8, "ro", 0, mappable=True, low=0, high=5)
@@ -182,41 +114,17 @@ def objects() -> tuple[list[int], list[int], list[int], Writer]:
     w.var("6081", "Profile velocity", UNSIGNED32, "rw", 50000, mappable=True)
     w.var("6087", "Torque slope", UNSIGNED32, "rw", 5000, mappable=True)
     w.var("6502", "Supported drive modes", UNSIGNED32, "ro", f"0x{SUPPORTED_MODES:08X}")
-    return mandatory, optional, manufacturer, w
+    return optional, manufacturer, w
 
 
 def render() -> str:
-    mandatory, optional, manufacturer, body = objects()
-    w = Writer()
-    w.section("FileInfo", FileName="gripper_drive.eds", FileVersion=1, FileRevision=1, EDSVersion="4.0",
-              Description="taxel-can gripper drive (one jaw axis of an electric parallel gripper, CiA 402)",
-              CreationTime="12:00PM", CreationDate="01-01-2025", CreatedBy="taxel-can",
-              ModificationTime="12:00PM", ModificationDate="01-01-2025", ModifiedBy="taxel-can")
-    w.section("DeviceInfo", VendorName="taxel-can (no CiA vendor-ID assigned)", VendorNumber="0x00000000",
-              ProductName="gripper drive twin", ProductNumber=f"0x{PRODUCT_CODE:08X}",
-              RevisionNumber="0x00010000", OrderCode="TAXEL-GRIPPER",
-              BaudRate_10=0, BaudRate_20=0, BaudRate_50=0, BaudRate_125=1, BaudRate_250=1, BaudRate_500=1,
-              BaudRate_800=0, BaudRate_1000=1, SimpleBootUpMaster=0, SimpleBootUpSlave=1, Granularity=8,
-              DynamicChannelsSupported=0, GroupMessaging=0, NrOfRXPDO=1, NrOfTXPDO=2, LSS_Supported=0)
-    w.section("DummyUsage", **{f"Dummy{i:04d}": 0 for i in range(1, 8)})
-    w.section("Comments", Lines=len(COMMENTS), **{f"Line{i}": line for i, line in enumerate(COMMENTS, start=1)})
-    for name, indexes in (("MandatoryObjects", mandatory), ("OptionalObjects", optional),
-                          ("ManufacturerObjects", manufacturer)):
-        w.section(name, SupportedObjects=len(indexes),
-                  **{str(i): f"0x{index:04X}" for i, index in enumerate(indexes, start=1)})
-    return "\n".join(w.lines + body.lines)
-
-
-def main(argv: list[str]) -> int:
-    text = render()
-    if "--check" in argv:
-        same = OUT.is_file() and OUT.read_text() == text
-        print(f"{OUT}: {'up to date' if same else 'differs from make_gripper_eds.py'}")
-        return 0 if same else 1
-    OUT.write_text(text)
-    print(f"wrote {OUT} ({len(text)} bytes)")
-    return 0
+    optional, manufacturer, body = objects()
+    return eds_writer.render(
+        body, optional=optional, manufacturer=manufacturer, comments=COMMENTS, file_name=OUT.name,
+        description="taxel-can gripper drive (one jaw axis of an electric parallel gripper, CiA 402)",
+        product_name="gripper drive twin", product_code=PRODUCT_CODE, order_code="TAXEL-GRIPPER",
+        rpdos=1, tpdos=2)
 
 
 if __name__ == "__main__":
-    sys.exit(main(sys.argv[1:]))
+    sys.exit(eds_writer.main(sys.argv[1:], OUT, render, Path(__file__).name))
