@@ -60,11 +60,18 @@ def check_trace_target(path, scene: Scene | None = None) -> None:
 
 
 def open_trace_writer(path) -> can.Listener:
-    """``can.Logger(path)``: the format follows the extension (.log candump, .asc, .blf, .csv...)."""
+    """The trace writer of ``path``'s format, by extension: python-can's (``can.Logger``: .log
+    candump, .asc, .blf, .trc, .csv, .mf4) but ``.db`` (:class:`~.trace_writers.SqliteTraceWriter`,
+    python-can's schema, one transaction a cycle). The stream hands its frames to the operating
+    system at every cycle's close (:func:`~.trace_writers.flush_to_os`)."""
+    import sqlite3
+
+    from .trace_writers import open_writer
+
     check_trace_target(path)
     try:
-        return can.Logger(str(Path(path)))
-    except (OSError, ValueError, NotImplementedError, ImportError) as exc:
+        return open_writer(path)
+    except (OSError, ValueError, NotImplementedError, ImportError, sqlite3.Error) as exc:
         raise UsageError(f"--log {str(path)!r}: cannot be written: {exc}") from None
 
 
