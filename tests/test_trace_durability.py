@@ -1,13 +1,25 @@
-"""A trace loses at most the cycle in flight, in every format the centre writes: the writer hands
-every frame to the OS at each cycle's close (fusion_center/service/trace_writers.py)."""
+"""A trace loses at most the cycle in flight, in every format the centre writes, and replay reads
+what a killed run left: the writer hands every frame to the OS at each cycle's close
+(fusion_center/service/trace_writers.py); a trace its writer never closed (a BLF with its opening
+header, an ASC without its End TriggerBlock) is read up to its last complete container or line,
+with a warning; one cut after its writer closed it is refused."""
 
+import json
+import logging
+import os
+import shutil
+import signal
+import sqlite3
+import subprocess
 import sys
+import time
 from pathlib import Path
 
 import can
 import pytest
 
 from fusion_center.commands.demo import run_demo
+from fusion_center.service import replay_trace
 from fusion_center.service.cycles import CycleAssembler
 from fusion_center.service.stream import EventStream
 from fusion_center.service.traces import open_trace_writer
@@ -125,3 +137,105 @@ def test_db_trace_of_a_file_that_is_no_database_is_one_line(tmp_path):
     with pytest.raises(UsageError) as info:
         open_trace_writer(path)
     assert str(path) in str(info.value) and "\n" not in str(info.value)
+
+
+# --------------------------------------------------------------------------- a killed run's trace
+def unclosed_copy(matrix, frames, tmp_path, suffix):
+    """A trace as a SIGKILL leaves it (copied before the writer stops), and the file size and
+    frames fed at each cycle's close."""
+    path = tmp_path / f"live{suffix}"
+    bounds = []
+    stream = write_through_stream(matrix, frames, path, lambda fed, cycles: bounds.append((path.stat().st_size, fed)))
+    killed = tmp_path / f"killed{suffix}"
+    shutil.copyfile(path, killed)
+    stream.close_trace()
+    return path, killed, bounds
+
+
+@pytest.mark.parametrize("suffix", [".blf", ".asc"])
+def test_unclosed_trace_replays_to_its_last_complete_unit_with_a_warning(matrix, frames, tmp_path, suffix, caplog):
+    """A trace its writer never closed replays like the closed one up to where it ends, and says
+    so; cut inside a cycle's container (BLF) or line (ASC), it gives the frames of every complete
+    one before the cut - never a frame of the torn one."""
+    closed, killed, bounds = unclosed_copy(matrix, frames, tmp_path, suffix)
+    full, _ = replay_trace(matrix, closed)
+    with caplog.at_level(logging.WARNING, logger="fusion_center.service"):
+        records, _ = replay_trace(matrix, killed)
+    assert records == full[:len(records)] and len(records) >= len(full) - 1
+    notes = [r.getMessage() for r in caplog.records if "never closed by its writer" in r.getMessage()]
+    assert len(notes) == 1 and str(killed) in notes[0]
+    data = killed.read_bytes()
+    for (end, fed), (next_end, next_fed) in list(zip(bounds, bounds[1:]))[::5]:
+        for cut in (end, end + 1, (end + next_end) // 2, next_end - 1):
+            torn = tmp_path / f"torn{suffix}"
+            torn.write_bytes(data[:cut])
+            got = replay_reads(torn)
+            assert [m.arbitration_id for m in got] == [m.arbitration_id for m, _ in frames[:len(got)]]
+            assert [bytes(m.data) for m in got] == [bytes(m.data) for m, _ in frames[:len(got)]]
+            if suffix == ".blf":  # whole containers only: a cycle's frames, all or none
+                assert len(got) == fed, (cut, end, next_end, len(got), fed)
+            else:  # whole lines only
+                assert fed <= len(got) < next_fed, (cut, end, next_end, len(got), fed)
+
+
+def replay_reads(path) -> list[can.Message]:
+    """The frames replay's reader takes from ``path``."""
+    from fusion_center.service.traces import _open_reader, _stop
+
+    reader = _open_reader(path, notify=False)
+    try:
+        return list(reader)
+    finally:
+        _stop(reader)
+
+
+def test_blf_cut_after_its_writer_closed_it_is_refused(matrix, frames, tmp_path):
+    closed, _, _ = unclosed_copy(matrix, frames, tmp_path, ".blf")
+    cut = tmp_path / "cut.blf"
+    cut.write_bytes(closed.read_bytes()[:closed.stat().st_size * 2 // 3])
+    with pytest.raises(UsageError) as info:
+        replay_trace(matrix, cut)
+    assert "truncated or altered" in str(info.value) and str(cut) in str(info.value)
+
+
+@pytest.mark.parametrize("suffix", FORMATS)
+def test_sigkill_leaves_every_recorded_cycle_in_the_trace(tmp_path, suffix):
+    """`fusion-center demo --log` killed by SIGKILL after N records: the trace read back (python-
+    can's reader, then `fusion-center replay`) holds every cycle up to at least N - 1, and replay
+    gives the live records. Before: .blf lost 17-33 cycles, .db 3-6."""
+    log, trace = tmp_path / "live.jsonl", tmp_path / f"t{suffix}"
+    proc = subprocess.Popen(CLI + ["demo", "--cycles", "5000", "--no-live", "--json-lines", str(log), "--log", str(trace)],
+                            cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline:
+            if log.exists() and log.read_bytes().count(b"\n") >= 60:
+                break
+            if proc.poll() is not None:
+                pytest.fail(f"demo exited early: {proc.stderr.read().decode()[-2000:]}")
+            time.sleep(0.02)
+        else:
+            pytest.fail("demo wrote no 60 records in 120 s")
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait(30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(30)
+        proc.stderr.close()
+    live = log.read_text().splitlines()
+    n = len(live)
+    assert n >= 60
+    syncs = sum(map(is_sync, read_on_disk(trace)))
+    assert syncs >= n - 1, (syncs, n)
+    out = tmp_path / "replayed.jsonl"
+    done = subprocess.run(CLI + ["replay", "--scene", str(MATRIX), str(trace), "--json-lines", str(out)],
+                          cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert "Traceback" not in done.stderr
+    replayed = out.read_text().splitlines()
+    assert len(replayed) >= n - 1, (len(replayed), n)
+    assert replayed == live[:len(replayed)]
+    assert json.loads(replayed[-1])["cycle"] == len(replayed) - 1
+    warned = [line for line in done.stderr.splitlines() if "never closed by its writer" in line]
+    assert len(warned) == (1 if suffix in (".blf", ".asc") else 0), done.stderr

@@ -6,6 +6,9 @@ reproduces the live records exactly.
 
 from __future__ import annotations
 
+import io
+import locale
+import logging
 import os
 from pathlib import Path
 from typing import Callable
@@ -27,6 +30,7 @@ TRACE_SUFFIXES = tuple(sorted(_WRITERS))
 CHANNELLESS_SUFFIXES = (".csv", ".db")
 # formats whose reader numbers channels from 1 (PCAN-View's TRC: the writer adds 1)
 ONE_BASED_SUFFIXES = (".trc",)
+logger = logging.getLogger("fusion_center.service")
 # replay refuses a trace whose frames of node-IDs or COB-IDs the scene does not have exceed
 # this fraction of its frames (a trace of another scene), unless --force
 FOREIGN_FRACTION_MAX = 0.02
@@ -94,9 +98,10 @@ def replay_trace(scene: Scene, trace_path, *, json_lines=None, truth: bool = Tru
     Returns (records, counters). The open cycle at the end of the trace is not reported
     (live runs end theirs with an NMT broadcast, which is in the trace).
 
-    A trace of any content - binary, wrong format, truncated, a BLF file its writer never
-    closed, an ASC file without its ``End TriggerBlock`` - raises :class:`UsageError` (one
-    line naming the file and the position). ``json_lines`` is written to ``OUT.partial`` and
+    A trace of any content - binary, wrong format, truncated, a BLF file cut after its writer
+    closed it - raises :class:`UsageError` (one line naming the file and the position); one its
+    writer never closed (a killed run: a BLF with its opening header, an ASC without its ``End
+    TriggerBlock``) is read up to its last complete container or line, with a warning. ``json_lines`` is written to ``OUT.partial`` and
     renamed to ``OUT`` only when the whole trace was read: a failed replay leaves no complete-
     looking log (the partial one stays as ``OUT.partial``, and an ``OUT`` of an earlier run is
     removed).
@@ -152,8 +157,15 @@ def replay_trace(scene: Scene, trace_path, *, json_lines=None, truth: bool = Tru
     return records, assembler.counters()
 
 
-def _open_reader(p: Path):
-    """``can.LogReader`` of a complete trace, or :class:`UsageError` (one line naming it)."""
+def _open_reader(p: Path, *, notify: bool = True):
+    """``can.LogReader`` of a trace, or :class:`UsageError` (one line naming it).
+
+    A trace its writer never closed - a run killed (SIGKILL, a crash, a power cut): a BLF whose
+    header is still the one written at its opening, an ASC without its ``End TriggerBlock`` - is
+    read up to its last complete container (BLF) or line (ASC), which holds every cycle but the
+    one in flight (the centre hands the trace to the OS at each cycle's close); with ``notify``,
+    a warning line says so. A trace cut or altered after its writer closed it is refused
+    (:func:`_check_complete`)."""
     name = str(p)
     if not p.is_file():
         raise UsageError(f"trace {name!r} not found")
@@ -162,11 +174,25 @@ def _open_reader(p: Path):
     except Exception as exc:  # noqa: BLE001 - any content: one line naming the file
         raise UsageError(f"trace {name!r} cannot be read: {_one_line(exc)}") from None
     try:
-        _check_complete(p, reader)
+        unclosed = _check_complete(p, reader)
     except UsageError:
         _stop(reader)
         raise
-    return reader
+    if unclosed is None:
+        return reader
+    end, what = unclosed
+    size = p.stat().st_size
+    if notify:
+        why = ("never closed by its writer (the run was killed?)" if what == "container" else
+               "no 'End TriggerBlock': never closed by its writer (the run was killed?) or cut")
+        logger.warning("trace %r: %s: read up to its last complete %s (%d of its %d bytes)", name, why, what, end, size)
+    if end == size:
+        return reader
+    _stop(reader)
+    try:
+        return _READERS[p.suffix.lower()](_prefix_file(p, end, text=what == "line"))
+    except Exception as exc:  # noqa: BLE001 - any content: one line naming the file
+        raise UsageError(f"trace {name!r} cannot be read: {_one_line(exc)}") from None
 
 
 def _patch_tpdo_tables(scene: Scene) -> tuple[list[dict[int, int]], list[dict[int, int]]]:
@@ -232,7 +258,7 @@ def check_trace(scene: Scene, trace_path) -> dict:
     foreign_nodes: dict[int, int] = {}
     foreign_cobs: dict[int, int] = {}
     tpdo = {BASE_TPDO1: 0, BASE_TPDO2: 0}
-    reader = _open_reader(p)
+    reader = _open_reader(p, notify=False)  # replay_trace says it, after this check
     try:
         for msg in reader:
             frames += 1
@@ -307,27 +333,109 @@ def _stop(reader) -> None:
             pass
 
 
-def _check_complete(path: Path, reader) -> None:
-    """Formats that say where they end: a BLF header carries the file size (written when the
-    writer closes the file), an ASC file that begins a trigger block (``Begin Triggerblock``,
-    as python-can and Vector tools write it) ends with ``End TriggerBlock`` (can-utils'
-    ``log2asc`` writes no trigger block: nothing to check)."""
+def _check_complete(path: Path, reader) -> tuple[int, str] | None:
+    """Formats that say where they end: a BLF header carries the file size (python-can's writer
+    writes it when it closes the file; at the opening it writes the header's own size), an ASC
+    file that begins a trigger block (``Begin Triggerblock``, as python-can and Vector tools write
+    it) ends with ``End TriggerBlock`` (can-utils' ``log2asc`` writes no trigger block: nothing to
+    check).
+
+    Returns None for a complete trace (or a format that cannot tell), ``(end, unit)`` for one
+    its writer never closed - ``end`` is the end of its last complete ``unit`` ("container" of
+    a BLF, "line" of an ASC) - and raises :class:`UsageError` for a BLF whose header's size is
+    neither the file's nor the one written at the opening (cut or altered after it was closed)."""
+    from can.io.blf import FILE_HEADER_STRUCT
+
     suffix = path.suffix.lower()
     size = path.stat().st_size
     if suffix == ".blf":
         declared = getattr(reader, "file_size", None)
-        if declared is not None and declared != size:
-            raise UsageError(f"trace {str(path)!r}: truncated or never closed by its writer "
-                             f"(BLF header: {declared} bytes, file: {size} bytes)")
-    elif suffix == ".asc":
+        if declared is None or declared == size:
+            return None
+        with open(path, "rb") as f:
+            header_length = FILE_HEADER_STRUCT.unpack(f.read(FILE_HEADER_STRUCT.size))[1]  # read by BLFReader
+        if declared == header_length < size:
+            return _blf_complete_end(path, header_length, size), "container"
+        raise UsageError(f"trace {str(path)!r}: truncated or altered after its writer closed it "
+                         f"(BLF header: {declared} bytes, file: {size} bytes)")
+    if suffix == ".asc":
         with open(path, "rb") as f:
             begins = b"begin triggerblock" in f.read(4096).lower()
             f.seek(max(0, size - 256))
             tail = f.read().split(b"\n")
         if not begins:
-            return
+            return None
         last = next((line.strip() for line in reversed(tail) if line.strip()), b"")
         if last != b"End TriggerBlock":
-            raise UsageError(f"trace {str(path)!r}: truncated (an ASC trace ends with 'End TriggerBlock'; "
-                             f"the last line is {last[:60].decode('latin-1')!r})")
+            return _last_line_end(path, size), "line"
+    return None
 
+
+def _blf_complete_end(path: Path, start: int, size: int) -> int:
+    """The end of a BLF's last complete object (its LOG_CONTAINERs, one a cycle from the centre),
+    walking the object headers from ``start`` as python-can's BLFReader reads them (size, then
+    ``size % 4`` padding bytes). At an object that does not begin with ``LOBJ`` the walk stops
+    and the file's size is returned: the reader then fails there, as on any corrupted trace."""
+    from can.io.blf import OBJ_HEADER_BASE_STRUCT
+
+    base = OBJ_HEADER_BASE_STRUCT.size
+    pos = start
+    with open(path, "rb") as f:
+        while pos + base <= size:
+            f.seek(pos)
+            signature, _, _, obj_size, _ = OBJ_HEADER_BASE_STRUCT.unpack(f.read(base))
+            if signature != b"LOBJ" or obj_size < base:
+                return size
+            end = pos + obj_size + obj_size % 4
+            if end > size:
+                break  # the container being written when the writer stopped
+            pos = end
+    return pos
+
+
+def _last_line_end(path: Path, size: int) -> int:
+    """The end of a text file's last complete line (after its last newline; 0 without one)."""
+    chunk = 4096
+    with open(path, "rb") as f:
+        pos = size
+        while pos > 0:
+            start = max(0, pos - chunk)
+            f.seek(start)
+            found = f.read(pos - start).rfind(b"\n")
+            if found >= 0:
+                return start + found + 1
+            pos = start
+    return 0
+
+
+class _Prefix(io.RawIOBase):
+    """The first ``limit`` bytes of a file, read-only (a trace read up to its last complete
+    container or line)."""
+
+    def __init__(self, path: Path, limit: int):
+        self._file = open(path, "rb")
+        self._left = limit
+
+    def readable(self) -> bool:
+        return True
+
+    def readinto(self, buffer) -> int:
+        n = min(len(buffer), self._left)
+        if n <= 0:
+            return 0
+        got = self._file.readinto(memoryview(buffer)[:n]) or 0
+        self._left -= got
+        return got
+
+    def close(self) -> None:
+        self._file.close()
+        super().close()
+
+
+def _prefix_file(path: Path, limit: int, *, text: bool):
+    """A file object of ``path``'s first ``limit`` bytes, as python-can's readers open theirs
+    (binary, or text in the locale's encoding)."""
+    raw = io.BufferedReader(_Prefix(path, limit))
+    if not text:
+        return raw
+    return io.TextIOWrapper(raw, encoding=locale.getpreferredencoding(False))
