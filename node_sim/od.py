@@ -76,11 +76,38 @@ FULL_SCALE = (FAULT_DETECTION, 1)
 STUCK_SAMPLES = (FAULT_DETECTION, 2)
 
 
-def check_eds(eds_path=EDS_PATH) -> Path:
+def check_eds(eds_path=EDS_PATH, reference=EDS_PATH) -> Path:
+    """The path of an EDS the twins can load, or :class:`~taxel_net.errors.ParameterError` (one
+    line): a file that does not exist; :class:`~taxel_net.errors.EdsError` (a ParameterError
+    naming the file and what is wrong or missing): one canopen cannot import or that is no valid
+    CiA 306 file (:func:`taxel_net.eds_file.import_eds`), or that lacks an object of the shipped
+    EDS ``reference`` (``eds/taxel_node.eds``, ``eds/taxel_patch.eds`` for patch nodes), declares
+    it with another object, data or access type or PDO mapping, or without its default value
+    (:func:`taxel_net.eds_file.check_objects`): the twins implement those objects. Values and
+    limits may differ, objects may be added. Checked once per file version (a shipped EDS is
+    not checked: ``tests/test_eds_input.py`` checks it)."""
     path = Path(eds_path)
     if not path.is_file():
         raise ParameterError("eds", str(path), "the taxel node EDS file must exist (eds/taxel_node.eds)")
+    ref = Path(reference)
+    if path.resolve() != ref.resolve():
+        stat = path.stat()
+        _check_against(str(path), stat.st_mtime_ns, stat.st_size, str(ref))
     return path
+
+
+@lru_cache(maxsize=8)
+def _check_against(path: str, mtime_ns: int, size: int, reference: str) -> None:
+    from taxel_net.eds_file import check_objects, import_eds
+
+    od = import_eds(path, 1)  # node-ID 1: the $NODEID defaults are read as a twin reads them
+    check_objects(od, _reference_od(reference), path,
+                  f"node-sim's twin implements every object of {Path(reference).name}")
+
+
+@lru_cache(maxsize=2)
+def _reference_od(reference: str) -> ObjectDictionary:
+    return canopen.import_od(reference, 1)
 
 
 def load_od(node_id: int, eds_path=EDS_PATH) -> ObjectDictionary:
@@ -115,9 +142,19 @@ def _real_limits_cached(path: str, mtime: float) -> dict[tuple[int, int], tuple[
 
 def real_limits(eds_path=EDS_PATH) -> dict[tuple[int, int], tuple[float, float]]:
     """``{(index, subindex): (low, high)}`` of the REAL32/REAL64 entries of the EDS that carry
-    ``LowLimit``/``HighLimit`` (the limits canopen 2.4.1 drops at import)."""
-    path = check_eds(eds_path)
-    return dict(_real_limits_cached(str(path), path.stat().st_mtime))
+    ``LowLimit``/``HighLimit`` (the limits canopen 2.4.1 drops at import). The file's content is
+    checked where its dictionary is loaded (:func:`load_od`, ``node_sim.patch.load_patch_od``:
+    :func:`check_eds`, with the reference of its kind of node); a limit that is no number is an
+    :class:`~taxel_net.errors.EdsError` here too."""
+    from taxel_net.errors import EdsError
+
+    path = Path(eds_path)
+    if not path.is_file():
+        raise ParameterError("eds", str(path), "the taxel node EDS file must exist (eds/taxel_node.eds)")
+    try:
+        return dict(_real_limits_cached(str(path), path.stat().st_mtime))
+    except (configparser.Error, ValueError, UnicodeDecodeError) as exc:
+        raise EdsError(path, "cannot be read: " + " ".join(f"{type(exc).__name__}: {exc}".split())) from None
 
 
 def variable(od: ObjectDictionary, index: int, subindex: int = 0):

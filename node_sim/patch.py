@@ -81,7 +81,7 @@ def load_patch_od(node_id: int, eds_path=PATCH_EDS_PATH):
     if not isinstance(node_id, int) or not 1 <= node_id <= 127:
         from taxel_net.errors import ParameterError
         raise ParameterError("node_id", node_id, "CANopen node-ID must be an integer 1..127")
-    path = odx.check_eds(eds_path)
+    path = odx.check_eds(eds_path, reference=PATCH_EDS_PATH)
     return _import(str(path), path.stat().st_mtime, node_id)
 
 

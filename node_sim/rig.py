@@ -132,7 +132,8 @@ class Rig:
         self.eds_path = odx.check_eds(eds_path)
         # patch nodes (issue 14): one twin per device of taxel_net.patches.devices
         self.devices = patches.devices(self.scene) if scene.bus.patch_nodes else None
-        self.patch_eds_path = odx.check_eds(patch_eds_path) if self.devices is not None else None
+        self.patch_eds_path = (odx.check_eds(patch_eds_path, reference=PATCH_EDS_PATH)
+                               if self.devices is not None else None)
         self._reading_source = reading_source
         self._channels: list[Channel] = []             # the served channels, in index order
         self._channel_at: dict[int, Channel] = {}       # scene channel index -> its channel

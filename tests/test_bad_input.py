@@ -77,7 +77,7 @@ def test_broken_eds(tmp_path):
     torn.write_text("".join(eds)[:3000])  # mid-line
     binary = tmp_path / "bin.eds"
     binary.write_bytes(bytes(range(256)))
-    for path, needle in ((cut, "0x2001:1 is missing"), (torn, "cannot be read"), (binary, "cannot be read")):
+    for path, needle in ((cut, "0x2001:1 is missing"), (torn, "has no ParameterName"), (binary, "not a text file")):
         with pytest.raises(UsageError) as info:
             with FusionService(scene, channels=["eds-test"], eds_path=path):
                 pass

@@ -150,9 +150,10 @@ def _format(value, data_type: int) -> str:
     return str(int(value))
 
 
-def dcf_text(scene, index: int, eds_text: str, name: str | None = None) -> str:
+def dcf_text(scene, index: int, eds_text: str, name: str | None = None, *, eds_name: str | None = None) -> str:
     """The DCF of node ``index`` of ``scene`` (:func:`node_index`: the taxel's index in a
-    one-taxel scene, the patch node's in a patch scene), made from the EDS text ``eds_text``."""
+    one-taxel scene, the patch node's in a patch scene), made from the EDS text ``eds_text``
+    (of the file ``eds_name``, named in the errors)."""
     from taxel_net.errors import UsageError
 
     from ..service.lss import expected_serial
@@ -160,14 +161,16 @@ def dcf_text(scene, index: int, eds_text: str, name: str | None = None) -> str:
     d = _devices(scene)[index]
     sections, types = _eds_entries(eds_text)
     if "DEVICECOMISSIONING" in sections:
-        raise UsageError("EDS already has a [DeviceComissioning] section: give the EDS, not a DCF")
+        raise UsageError(f"EDS{f' file {eds_name!r}' if eds_name else ''} already has a [DeviceComissioning] "
+                         "section: give the EDS, not a DCF")
     values: dict[str, list[str]] = {}
     for (obj, sub), value in configured_values(scene, index).items():
         key = f"{obj:04X}SUB{sub:X}"
         if key not in sections and sub == 0:
             key = f"{obj:04X}"
         if types.get(key) is None:
-            raise UsageError(f"EDS has no entry 0x{obj:04X}:{sub} (the node's configuration writes it)")
+            raise UsageError(f"EDS{f' file {eds_name!r}' if eds_name else ''} has no entry 0x{obj:04X}:{sub} "
+                             "(the node's configuration writes it)")
         values[key] = [f"ParameterValue={_format(value, types[key])}"]
     label = d.label
     commissioning = [
@@ -227,6 +230,10 @@ def run(args) -> int:
 
     scene = load_scene(args.scene)
     source = Path(args.eds) if args.eds else patch_eds_path() if scene.bus.patch_nodes else eds_path()
+    if args.eds:  # a user's EDS: one line for any content canopen or configparser would stumble on
+        from taxel_net.eds_file import import_eds
+
+        import_eds(source, 1)  # EdsError (a ParameterError: exit 2) naming the file
     try:
         eds_text = source.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
@@ -240,17 +247,18 @@ def run(args) -> int:
             n = len(_devices(scene))
             for index in range(n):
                 name = file_name(scene, index)
-                (out / name).write_text(dcf_text(scene, index, eds_text, name), encoding="utf-8")
+                (out / name).write_text(dcf_text(scene, index, eds_text, name, eds_name=str(source)),
+                                        encoding="utf-8")
             print(f"{n} DCFs of scene {scene.name!r} written to {out}"
                   + (f" (one per patch node, {scene.n} taxels)" if scene.bus.patch_nodes else ""))
             return 0
         index = node_index(scene, args.node)
         if args.output == "-":
-            sys.stdout.write(dcf_text(scene, index, eds_text, file_name(scene, index)))
+            sys.stdout.write(dcf_text(scene, index, eds_text, file_name(scene, index), eds_name=str(source)))
             return 0
         if out.is_dir():
             out = out / file_name(scene, index)
-        text = dcf_text(scene, index, eds_text, out.name)
+        text = dcf_text(scene, index, eds_text, out.name, eds_name=str(source))
         out.write_text(text, encoding="utf-8")
     except OSError as exc:
         raise UsageError(f"-o {args.output!r}: cannot write: {exc.strerror or exc}") from None
