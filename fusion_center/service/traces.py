@@ -101,8 +101,9 @@ def replay_trace(scene: Scene, trace_path, *, json_lines=None, truth: bool = Tru
     A trace of any content - binary, wrong format, truncated, a BLF file cut after its writer
     closed it - raises :class:`UsageError` (one line naming the file and the position); one its
     writer never closed (a killed run: a BLF with its opening header, an ASC without its ``End
-    TriggerBlock``) is read up to its last complete container or line, with a warning. ``json_lines`` is written to ``OUT.partial`` and
-    renamed to ``OUT`` only when the whole trace was read: a failed replay leaves no complete-
+    TriggerBlock``) is read up to its last complete container or line, with a warning.
+    ``json_lines`` is written to ``OUT.partial`` and renamed to ``OUT`` only when the whole
+    trace was read: a failed replay leaves no complete-
     looking log (the partial one stays as ``OUT.partial``, and an ``OUT`` of an earlier run is
     removed).
     """
