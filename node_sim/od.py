@@ -33,9 +33,12 @@ import canopen
 from canopen.objectdictionary import ObjectDictionary, datatypes
 
 from taxel_net.errors import ParameterError
-from taxel_net.resources import eds_path
+from taxel_net.resources import eds_path, gripper_eds_path, patch_eds_path
 
 EDS_PATH = eds_path()  # eds/taxel_node.eds, in the checkout or installed (taxel_net.resources)
+# the shipped EDS of each device kind: what a user's EDS for that kind must declare (the twins
+# implement every object of it)
+SHIPPED_EDS = {"taxel node": EDS_PATH, "patch node": patch_eds_path(), "gripper drive": gripper_eds_path()}
 
 # CiA 301 communication area (0x1000-0x1FFF): restored by NMT reset-communication
 COMM_AREA = range(0x1000, 0x2000)
@@ -76,21 +79,50 @@ FULL_SCALE = (FAULT_DETECTION, 1)
 STUCK_SAMPLES = (FAULT_DETECTION, 2)
 
 
-def check_eds(eds_path=EDS_PATH, device: str = "") -> Path:
-    """``eds_path`` as a Path if it is a file, else ParameterError naming that file (and
-    ``device``, whose EDS it is: "patch node", "gripper drive", ...; any EDS of a twin comes here)."""
+def check_eds(eds_path=EDS_PATH, device: str | None = None) -> Path:
+    """The path of an EDS the twins can load, or :class:`~taxel_net.errors.ParameterError` (one
+    line naming the file and ``device``, whose EDS it is: "taxel node" (the default), "patch
+    node", "gripper drive"): a file that does not exist; :class:`~taxel_net.errors.EdsError` (a
+    ParameterError naming the file and what is wrong or missing): one canopen cannot import or
+    that is no valid CiA 306 file (:func:`taxel_net.eds_file.import_eds`), or that lacks an object
+    of the shipped EDS of its device kind (:data:`SHIPPED_EDS`), declares it with another object,
+    data or access type or PDO mapping, or without its default value
+    (:func:`taxel_net.eds_file.check_objects`): the twins implement those objects. Values and
+    limits may differ, objects may be added. Checked once per file version (a shipped EDS is
+    not checked: ``tests/test_eds_input.py`` and ``tests/test_gripper_eds.py`` check them)."""
     path = Path(eds_path)
     if not path.is_file():
         whose = f"the {device} EDS" if device else "an EDS"
         raise ParameterError("eds", str(path), f"no such file: {whose} (CiA 306) must be an existing file")
+    resolved = path.resolve()
+    if any(resolved == shipped.resolve() for shipped in SHIPPED_EDS.values()):
+        return path
+    reference = SHIPPED_EDS[device or "taxel node"]
+    stat = path.stat()
+    _check_against(str(path), stat.st_mtime_ns, stat.st_size, str(reference))
     return path
 
 
-def load_od(node_id: int, eds_path=EDS_PATH) -> ObjectDictionary:
-    """Import the taxel node EDS for ``node_id`` (1..127) with ``canopen.import_od``."""
+@lru_cache(maxsize=8)
+def _check_against(path: str, mtime_ns: int, size: int, reference: str) -> None:
+    from taxel_net.eds_file import check_objects, import_eds
+
+    od = import_eds(path, 1)  # node-ID 1: the $NODEID defaults are read as a twin reads them
+    check_objects(od, _reference_od(reference), path,
+                  f"node-sim's twin implements every object of {Path(reference).name}")
+
+
+@lru_cache(maxsize=2)
+def _reference_od(reference: str) -> ObjectDictionary:
+    return canopen.import_od(reference, 1)
+
+
+def load_od(node_id: int, eds_path=EDS_PATH, device: str | None = None) -> ObjectDictionary:
+    """Import the EDS of a ``device`` kind (:func:`check_eds`; the taxel node's by default) for
+    ``node_id`` (1..127) with ``canopen.import_od``."""
     if not isinstance(node_id, int) or not 1 <= node_id <= 127:
         raise ParameterError("node_id", node_id, "CANopen node-ID must be an integer 1..127")
-    path = check_eds(eds_path)
+    path = check_eds(eds_path, device)
     return canopen.import_od(str(path), node_id)
 
 
@@ -118,9 +150,19 @@ def _real_limits_cached(path: str, mtime: float) -> dict[tuple[int, int], tuple[
 
 def real_limits(eds_path=EDS_PATH) -> dict[tuple[int, int], tuple[float, float]]:
     """``{(index, subindex): (low, high)}`` of the REAL32/REAL64 entries of the EDS that carry
-    ``LowLimit``/``HighLimit`` (the limits canopen 2.4.1 drops at import)."""
-    path = check_eds(eds_path)
-    return dict(_real_limits_cached(str(path), path.stat().st_mtime))
+    ``LowLimit``/``HighLimit`` (the limits canopen 2.4.1 drops at import). The file's content is
+    checked where its dictionary is loaded (:func:`load_od`, ``node_sim.patch.load_patch_od``:
+    :func:`check_eds`, with the reference of its kind of node); a limit that is no number is an
+    :class:`~taxel_net.errors.EdsError` here too."""
+    from taxel_net.errors import EdsError
+
+    path = Path(eds_path)
+    if not path.is_file():
+        raise ParameterError("eds", str(path), "the taxel node EDS file must exist (eds/taxel_node.eds)")
+    try:
+        return dict(_real_limits_cached(str(path), path.stat().st_mtime))
+    except (configparser.Error, ValueError, UnicodeDecodeError) as exc:
+        raise EdsError(path, "cannot be read: " + " ".join(f"{type(exc).__name__}: {exc}".split())) from None
 
 
 def variable(od: ObjectDictionary, index: int, subindex: int = 0):

@@ -142,7 +142,8 @@ class Rig:
         self.eds_path = odx.check_eds(eds_path)
         # patch nodes (issue 14): one twin per device of taxel_net.patches.devices
         self.devices = patches.devices(self.scene) if scene.bus.patch_nodes else None
-        self.patch_eds_path = odx.check_eds(patch_eds_path) if self.devices is not None else None
+        self.patch_eds_path = (odx.check_eds(patch_eds_path, "patch node")
+                               if self.devices is not None else None)
         self._reading_source = reading_source
         # the gripper drive of [gripper] (issue 22): its own bus object on its scene channel
         self.gripper_eds_path = gripper_eds_path

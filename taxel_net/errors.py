@@ -31,5 +31,17 @@ class SceneError(ValueError):
         super().__init__(f"{path}: {field}={value!r}: {problem}")
 
 
+class EdsError(ParameterError):
+    """An EDS file (CiA 306) that cannot be used: the message names the file, then the line or the
+    section, key and value, or the object that is missing (``taxel_net.eds_file``). A
+    :class:`ParameterError` (parameter ``eds``): the CLIs print it as one line and exit 2."""
+
+    def __init__(self, path, problem: str):
+        self.path = str(path)
+        self.problem = problem
+        self.name, self.value, self.allowed = "eds", self.path, problem
+        ValueError.__init__(self, f"EDS file {self.path!r}: {problem}")
+
+
 class UsageError(Exception):
     """A bad input at the command or service level (unknown interface, unreadable file...): exit 2."""

@@ -77,7 +77,7 @@ def test_broken_eds(tmp_path):
     torn.write_text("".join(eds)[:3000])  # mid-line
     binary = tmp_path / "bin.eds"
     binary.write_bytes(bytes(range(256)))
-    for path, needle in ((cut, "0x2001:1 is missing"), (torn, "cannot be read"), (binary, "cannot be read")):
+    for path, needle in ((cut, "0x2001:1 is missing"), (torn, "has no ParameterName"), (binary, "not a text file")):
         with pytest.raises(UsageError) as info:
             with FusionService(scene, channels=["eds-test"], eds_path=path):
                 pass
@@ -107,9 +107,10 @@ def test_complete_trace_replays(traces, tmp_path, suffix):
     assert out.read_text().count("\n") >= 15 and not (tmp_path / "o.jsonl.partial").exists()
 
 
+# an .asc cut (no End TriggerBlock) or a .blf its writer never closed is read up to its last
+# complete line or container, with a warning: tests/test_trace_durability.py
 @pytest.mark.parametrize("suffix, cut, needle", [
-    (".blf", 0.6, "truncated or never closed"),
-    (".asc", 0.6, "End TriggerBlock"),
+    (".blf", 0.6, "truncated or altered after its writer closed it"),
     (".log", 0.6, "unreadable after frame"),
     (".blf", None, "cannot be read"),
 ])

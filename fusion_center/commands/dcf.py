@@ -158,9 +158,10 @@ def _format(value, data_type: int) -> str:
     return str(int(value))
 
 
-def dcf_text(scene, index: int, eds_text: str, name: str | None = None) -> str:
+def dcf_text(scene, index: int, eds_text: str, name: str | None = None, *, eds_name: str | None = None) -> str:
     """The DCF of node ``index`` of ``scene`` (:func:`node_index`: the taxel's index in a
-    one-taxel scene, the patch node's in a patch scene), made from the EDS text ``eds_text``."""
+    one-taxel scene, the patch node's in a patch scene), made from the EDS text ``eds_text``
+    (of the file ``eds_name``, named in the errors)."""
     from ..service.lss import expected_serial
 
     d = _devices(scene)[index]
@@ -168,7 +169,7 @@ def dcf_text(scene, index: int, eds_text: str, name: str | None = None) -> str:
     # 0x1018:4 of the node; a patch node's is its first taxel's (the same for all of them)
     serial = expected_serial(scene, scene.taxels[d.taxels[0]])
     return _dcf(scene, eds_text, configured_values(scene, index), d.node_id, d.channel,
-                node_description(scene, index), serial, f"{patch}node {d.label}", name)
+                node_description(scene, index), serial, f"{patch}node {d.label}", name, eds_name)
 
 
 def drive_dcf_text(scene, eds_text: str, name: str | None = None) -> str:
@@ -194,20 +195,22 @@ def drive_file_name(scene) -> str:
 
 
 def _dcf(scene, eds_text: str, configured: dict, node_id: int, channel: int, node_name: str, serial: int,
-         what: str, name: str | None) -> str:
+         what: str, name: str | None, eds_name: str | None = None) -> str:
     """The EDS text with a ParameterValue for each of ``configured`` and the commissioning."""
     from taxel_net.errors import UsageError
 
     sections, types = _eds_entries(eds_text)
     if "DEVICECOMISSIONING" in sections:
-        raise UsageError("EDS already has a [DeviceComissioning] section: give the EDS, not a DCF")
+        raise UsageError(f"EDS{f' file {eds_name!r}' if eds_name else ''} already has a [DeviceComissioning] "
+                         "section: give the EDS, not a DCF")
     values: dict[str, list[str]] = {}
     for (obj, sub), value in configured.items():
         key = f"{obj:04X}SUB{sub:X}"
         if key not in sections and sub == 0:
             key = f"{obj:04X}"
         if types.get(key) is None:
-            raise UsageError(f"EDS has no entry 0x{obj:04X}:{sub} (the node's configuration writes it)")
+            raise UsageError(f"EDS{f' file {eds_name!r}' if eds_name else ''} has no entry 0x{obj:04X}:{sub} "
+                             "(the node's configuration writes it)")
         values[key] = [f"ParameterValue={_format(value, types[key])}"]
     commissioning = [
         "[DeviceComissioning]",
@@ -288,6 +291,10 @@ def run(args) -> int:
     scene = load_scene(args.scene)
     drive = not args.all and is_drive(scene, args.node)
     source = Path(args.eds) if args.eds else patch_eds_path() if scene.bus.patch_nodes else eds_path()
+    if args.eds:  # a user's EDS: one line for any content canopen or configparser would stumble on
+        from taxel_net.eds_file import import_eds
+
+        import_eds(source, 1)  # EdsError (a ParameterError: exit 2) naming the file
     try:
         eds_text = _drive_eds_text() if drive else source.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
@@ -301,7 +308,8 @@ def run(args) -> int:
             n = len(_devices(scene))
             for index in range(n):
                 name = file_name(scene, index)
-                (out / name).write_text(dcf_text(scene, index, eds_text, name), encoding="utf-8")
+                (out / name).write_text(dcf_text(scene, index, eds_text, name, eds_name=str(source)),
+                                        encoding="utf-8")
             if scene.gripper is not None:
                 name = drive_file_name(scene)
                 (out / name).write_text(drive_dcf_text(scene, _drive_eds_text(), name), encoding="utf-8")
@@ -312,11 +320,13 @@ def run(args) -> int:
         index = None if drive else node_index(scene, args.node)
         name = drive_file_name(scene) if drive else file_name(scene, index)
         if args.output == "-":
-            sys.stdout.write(drive_dcf_text(scene, eds_text, name) if drive else dcf_text(scene, index, eds_text, name))
+            sys.stdout.write(drive_dcf_text(scene, eds_text, name) if drive
+                             else dcf_text(scene, index, eds_text, name, eds_name=str(source)))
             return 0
         if out.is_dir():
             out = out / name
-        text = drive_dcf_text(scene, eds_text, out.name) if drive else dcf_text(scene, index, eds_text, out.name)
+        text = (drive_dcf_text(scene, eds_text, out.name) if drive
+                else dcf_text(scene, index, eds_text, out.name, eds_name=str(source)))
         out.write_text(text, encoding="utf-8")
     except OSError as exc:
         raise UsageError(f"-o {args.output!r}: cannot write: {exc.strerror or exc}") from None

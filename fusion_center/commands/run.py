@@ -15,11 +15,11 @@ def add_common_outputs(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json-lines", metavar="OUT", default=None,
                         help="decision log: one JSON object per cycle, flushed every cycle")
     parser.add_argument("--log", metavar="TRACE", default=None,
-                        help="raw CAN trace via python-can's Logger; format by extension "
+                        help="raw CAN trace via python-can's writers; format by extension "
                              "(.log candump, .asc Vector, .blf); replay it with `fusion-center replay`. "
-                             ".log/.asc/.csv are flushed at every cycle (a crash loses at most the cycle in "
-                             "flight); .blf keeps its current container in memory until the end: prefer .log "
-                             "for a trace that must survive a crash")
+                             "Handed to the OS at every cycle's close (.blf: a container a cycle): a crash "
+                             "loses at most the cycle in flight. .trc, .csv, .db and .mf4 are refused (they "
+                             "drop frames or keep nothing of a killed run): convert a copy with can.logconvert")
     parser.add_argument("--no-live", action="store_true", help="no live terminal view (off anyway without a TTY)")
     parser.add_argument("--boot-timeout", type=float, default=3.0, metavar="S",
                         help="seconds to wait for the nodes' boot-ups; later ones are missing (default 3)")

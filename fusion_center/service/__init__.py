@@ -18,6 +18,8 @@ One module per job:
 * :mod:`.fusion_service` - :class:`FusionService` (buses, evaluation of closed cycles, the
   decision log) and :class:`RunSummary`;
 * :mod:`.traces` - trace writer, channel of a traced frame, offline replay;
+* :mod:`.trace_writers` - the trace's flush at each cycle's close, for every format (BLF's
+  container, the SQLite writer);
 * :mod:`.live` - the rich live view.
 """
 

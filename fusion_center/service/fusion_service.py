@@ -32,7 +32,8 @@ import can
 
 from taxel_net.canmsg import tune_udp_multicast
 from taxel_net import gcfreeze
-from taxel_net.errors import UsageError
+from taxel_net.eds_file import import_eds
+from taxel_net.errors import EdsError, UsageError
 from taxel_net.receiver import notifiers_for
 from taxel_net.resources import eds_path, patch_eds_path
 from taxel_net.scene import Scene
@@ -159,10 +160,9 @@ class FusionService:
         if not self.eds_path.is_file():
             raise UsageError(f"EDS file {str(self.eds_path)!r} not found (needed for the SDO configuration)")
         try:
-            od = canopen.import_od(str(self.eds_path))
-        except Exception as exc:  # noqa: BLE001 - any content: one line naming the file
-            raise UsageError(f"EDS file {str(self.eds_path)!r} cannot be read: "
-                             + " ".join(f"{type(exc).__name__}: {exc}".split())) from None
+            od = import_eds(self.eds_path)  # any content: one line naming the file (taxel_net.eds_file)
+        except EdsError as exc:
+            raise UsageError(str(exc)) from None
         from .master import node_configuration
 
         for index in range(0 if self.scene.bus.patch_nodes else self.scene.n):  # every object the SDO configuration writes

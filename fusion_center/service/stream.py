@@ -16,7 +16,8 @@ event is time-stamped (integer µs, clamped to be monotonic), queued for the tra
 the :class:`CycleAssembler`. The trace (``can.Logger``) is written outside the stream lock,
 in stream order, after every closed cycle has been evaluated (and every
 :data:`TRACE_BATCH` events between cycles), so a killed process loses at most the trace of
-the cycle in flight (plus what the logger's file buffer holds). ``replay``
+the cycle in flight: at each cycle's close the writer hands what it holds to the OS
+(:func:`~.trace_writers.flush_to_os`). ``replay``
 (:mod:`fusion_center.service.traces`) feeds a trace through the same class, so it
 reproduces the live records exactly.
 
@@ -37,6 +38,7 @@ import can
 from taxel_net.canmsg import TxMessage
 from taxel_net.udp_wire import udp_multicast_burst_sender
 from .common_frames import CommonFrames
+from .trace_writers import flush_to_os
 from .cycles import (
     FLAG_ERROR,
     FLAG_EXTENDED,
@@ -360,9 +362,9 @@ class EventStream:
 
     def flush_trace(self, to_disk: bool = False) -> None:
         """Write the queued trace messages, in stream order (any thread, outside the stream lock);
-        ``to_disk`` (at every cycle close): also flush the writer's file buffer to the OS, so a
-        SIGKILL loses at most the cycle in flight (text formats; a BLF writer keeps its current
-        container in memory until it is full or closed)."""
+        ``to_disk`` (at every cycle close): also hand everything the writer holds to the OS
+        (:func:`~.trace_writers.flush_to_os`: a file's buffer, BLF's container, SQLite's
+        transaction), so a SIGKILL loses at most the cycle in flight, in every format."""
         with self._trace_lock:
             with self.lock:
                 batch = self._trace_queue
@@ -379,13 +381,11 @@ class EventStream:
                     self.trace_errors += 1
                     self.rate_log.warning("trace", "trace write failed: %s: %s", type(exc).__name__, exc)
             if to_disk:
-                file = getattr(trace, "file", None)
                 try:
-                    if file is not None and not file.closed:
-                        file.flush()
-                except (OSError, ValueError) as exc:
+                    flush_to_os(trace)
+                except Exception as exc:  # noqa: BLE001 - e.g. disk full: count, log, go on
                     self.trace_errors += 1
-                    self.rate_log.warning("trace", "trace flush failed: %s", exc)
+                    self.rate_log.warning("trace", "trace flush failed: %s: %s", type(exc).__name__, exc)
 
     def close_trace(self) -> None:
         """Write what is queued, then stop the trace writer (``can.Logger``) and detach it."""

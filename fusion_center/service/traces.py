@@ -6,6 +6,9 @@ reproduces the live records exactly.
 
 from __future__ import annotations
 
+import io
+import locale
+import logging
 from pathlib import Path
 from typing import Callable
 
@@ -27,14 +30,20 @@ TRACE_SUFFIXES = tuple(sorted(_WRITERS))
 CHANNELLESS_SUFFIXES = (".csv", ".db")
 # formats whose reader numbers channels from 1 (PCAN-View's TRC: the writer adds 1)
 ONE_BASED_SUFFIXES = (".trc",)
-# formats python-can writes with frames lost or changed, so a replay of the run could not
-# reproduce it (issue 21): what each cannot carry. ``--log`` refuses them; replay still reads
-# such traces made by other tools (their limits in docs/service.md)
-LOSSY_SUFFIXES = {
-    ".csv": "records no frame's CAN FD flag, bit-rate switch, direction or channel",
-    ".db": "records no frame's CAN FD flag, bit-rate switch, direction or channel",
-    ".trc": "writer drops CAN FD, remote and error frames",
+# formats --log refuses (issue 21), and why: python-can writes them with frames lost or changed,
+# so a replay of the run could not reproduce it, or writes nothing before the run ends, so a
+# killed run loses the whole trace. Replay still reads such traces made by other tools (their
+# limits in docs/service.md); the centre writes .log, .asc and .blf, each handed to the OS at
+# every cycle's close (trace_writers.flush_to_os)
+REFUSED_TRACE_SUFFIXES = {
+    ".csv": "records no frame's CAN FD flag, bit-rate switch, direction or channel, so a replay could "
+            "not reproduce the run",
+    ".db": "records no frame's CAN FD flag, bit-rate switch, direction or channel, so a replay could "
+           "not reproduce the run",
+    ".trc": "writer drops CAN FD, remote and error frames, so a replay could not reproduce the run",
+    ".mf4": "writer (asammdf) writes the file only when the run ends, so a killed run loses all of it",
 }
+logger = logging.getLogger("fusion_center.service")
 # replay refuses a trace whose frames of node-IDs or COB-IDs the scene does not have exceed
 # this fraction of its frames (a trace of another scene), unless --force
 FOREIGN_FRACTION_MAX = 0.02
@@ -43,35 +52,31 @@ FOREIGN_FRACTION_MAX = 0.02
 def check_trace_target(path) -> None:
     """Refuse, before a run starts, a ``--log`` path replay could not use: an extension python-
     can does not write or cannot read back (``.txt``), a writer whose optional package is not
-    installed (``.mf4`` needs asammdf), a format that cannot carry every frame a bus delivers
-    (:data:`LOSSY_SUFFIXES`: ``.csv``, ``.db``, ``.trc``), so that the replay of every trace
-    the centre writes reproduces the run's records byte for byte. Raises :class:`UsageError`
-    (one line)."""
+    installed, a format that cannot carry every frame a bus delivers or keeps nothing of a
+    killed run (:data:`REFUSED_TRACE_SUFFIXES`: ``.csv``, ``.db``, ``.trc``, ``.mf4``), so that
+    the replay of every trace the centre writes reproduces the run's records byte for byte and
+    a killed run loses at most the cycle in flight. Raises :class:`UsageError` (one line)."""
     if path is None:
         return
     p = Path(path)
     suffix = p.suffix.lower()
-    readable = [s for s in TRACE_SUFFIXES if s in _READERS and s not in LOSSY_SUFFIXES]
+    readable = [s for s in TRACE_SUFFIXES if s in _READERS and s not in REFUSED_TRACE_SUFFIXES]
     if suffix not in _WRITERS:
         raise UsageError(f"--log {str(path)!r}: unknown trace format {p.suffix!r} "
                          f"(python-can writes and reads back {', '.join(readable)})")
     if suffix not in _READERS:
         raise UsageError(f"--log {str(path)!r}: python-can writes {suffix} but cannot read it back, so it "
                          f"cannot be replayed (use {', '.join(readable)})")
-    if suffix in LOSSY_SUFFIXES:
-        raise UsageError(f"--log {str(path)!r}: python-can's {suffix} {LOSSY_SUFFIXES[suffix]}, so a replay "
-                         "could not reproduce the run; record .log, .asc or .blf (python -m can.logconvert "
+    if suffix in REFUSED_TRACE_SUFFIXES:
+        raise UsageError(f"--log {str(path)!r}: python-can's {suffix} {REFUSED_TRACE_SUFFIXES[suffix]}; "
+                         "record .log, .asc or .blf (python -m can.logconvert "
                          f"run.log run{suffix} converts a copy)")
-    if suffix == ".mf4":
-        try:
-            import asammdf  # noqa: F401
-        except ImportError:
-            raise UsageError(f"--log {str(path)!r}: .mf4 needs the asammdf package (pip install "
-                             "'python-can[mf4]'), not installed here; .blf or .log need nothing more") from None
 
 
 def open_trace_writer(path) -> can.Listener:
-    """``can.Logger(path)``: the format follows the extension (.log candump, .asc, .blf)."""
+    """The trace writer of ``path``'s format, by extension: python-can's (``can.Logger``: .log
+    candump, .asc, .blf); :func:`check_trace_target` refuses the others. The stream hands its
+    frames to the operating system at every cycle's close (:func:`~.trace_writers.flush_to_os`)."""
     check_trace_target(path)
     try:
         return can.Logger(str(Path(path)))
@@ -98,10 +103,12 @@ def replay_trace(scene: Scene, trace_path, *, json_lines=None, truth: bool = Tru
     Returns (records, counters). The open cycle at the end of the trace is not reported
     (live runs end theirs with an NMT broadcast, which is in the trace).
 
-    A trace of any content - binary, wrong format, truncated, a BLF file its writer never
-    closed, an ASC file without its ``End TriggerBlock`` - raises :class:`UsageError` (one
-    line naming the file and the position). ``json_lines`` is written to ``OUT.partial`` and
-    renamed to ``OUT`` only when the whole trace was read: a failed replay leaves no complete-
+    A trace of any content - binary, wrong format, truncated, a BLF file cut after its writer
+    closed it - raises :class:`UsageError` (one line naming the file and the position); one its
+    writer never closed (a killed run: a BLF with its opening header, an ASC without its ``End
+    TriggerBlock``) is read up to its last complete container or line, with a warning.
+    ``json_lines`` is written to ``OUT.partial`` and renamed to ``OUT`` only when the whole
+    trace was read: a failed replay leaves no complete-
     looking log (the partial one stays as ``OUT.partial``, and an ``OUT`` of an earlier run is
     removed). An ``OUT`` that is not a regular file (``/dev/null``, a FIFO, ``/dev/stdout``) is
     written in place and never renamed over nor removed (:class:`taxel_net.outputs.OutputPath`).
@@ -157,8 +164,15 @@ def replay_trace(scene: Scene, trace_path, *, json_lines=None, truth: bool = Tru
     return records, assembler.counters()
 
 
-def _open_reader(p: Path):
-    """``can.LogReader`` of a complete trace, or :class:`UsageError` (one line naming it)."""
+def _open_reader(p: Path, *, notify: bool = True):
+    """``can.LogReader`` of a trace, or :class:`UsageError` (one line naming it).
+
+    A trace its writer never closed - a run killed (SIGKILL, a crash, a power cut): a BLF whose
+    header is still the one written at its opening, an ASC without its ``End TriggerBlock`` - is
+    read up to its last complete container (BLF) or line (ASC), which holds every cycle but the
+    one in flight (the centre hands the trace to the OS at each cycle's close); with ``notify``,
+    a warning line says so. A trace cut or altered after its writer closed it is refused
+    (:func:`_check_complete`)."""
     name = str(p)
     if not p.is_file():
         raise UsageError(f"trace {name!r} not found")
@@ -167,11 +181,25 @@ def _open_reader(p: Path):
     except Exception as exc:  # noqa: BLE001 - any content: one line naming the file
         raise UsageError(f"trace {name!r} cannot be read: {_one_line(exc)}") from None
     try:
-        _check_complete(p, reader)
+        unclosed = _check_complete(p, reader)
     except UsageError:
         _stop(reader)
         raise
-    return reader
+    if unclosed is None:
+        return reader
+    end, what = unclosed
+    size = p.stat().st_size
+    if notify:
+        why = ("never closed by its writer (the run was killed?)" if what == "container" else
+               "no 'End TriggerBlock': never closed by its writer (the run was killed?) or cut")
+        logger.warning("trace %r: %s: read up to its last complete %s (%d of its %d bytes)", name, why, what, end, size)
+    if end == size:
+        return reader
+    _stop(reader)
+    try:
+        return _READERS[p.suffix.lower()](_prefix_file(p, end, text=what == "line"))
+    except Exception as exc:  # noqa: BLE001 - any content: one line naming the file
+        raise UsageError(f"trace {name!r} cannot be read: {_one_line(exc)}") from None
 
 
 def _patch_tpdo_tables(scene: Scene) -> tuple[list[dict[int, int]], list[dict[int, int]]]:
@@ -239,7 +267,7 @@ def check_trace(scene: Scene, trace_path) -> dict:
     foreign_nodes: dict[int, int] = {}
     foreign_cobs: dict[int, int] = {}
     tpdo = {BASE_TPDO1: 0, BASE_TPDO2: 0}
-    reader = _open_reader(p)
+    reader = _open_reader(p, notify=False)  # replay_trace says it, after this check
     try:
         for msg in reader:
             frames += 1
@@ -314,27 +342,109 @@ def _stop(reader) -> None:
             pass
 
 
-def _check_complete(path: Path, reader) -> None:
-    """Formats that say where they end: a BLF header carries the file size (written when the
-    writer closes the file), an ASC file that begins a trigger block (``Begin Triggerblock``,
-    as python-can and Vector tools write it) ends with ``End TriggerBlock`` (can-utils'
-    ``log2asc`` writes no trigger block: nothing to check)."""
+def _check_complete(path: Path, reader) -> tuple[int, str] | None:
+    """Formats that say where they end: a BLF header carries the file size (python-can's writer
+    writes it when it closes the file; at the opening it writes the header's own size), an ASC
+    file that begins a trigger block (``Begin Triggerblock``, as python-can and Vector tools write
+    it) ends with ``End TriggerBlock`` (can-utils' ``log2asc`` writes no trigger block: nothing to
+    check).
+
+    Returns None for a complete trace (or a format that cannot tell), ``(end, unit)`` for one
+    its writer never closed - ``end`` is the end of its last complete ``unit`` ("container" of
+    a BLF, "line" of an ASC) - and raises :class:`UsageError` for a BLF whose header's size is
+    neither the file's nor the one written at the opening (cut or altered after it was closed)."""
+    from can.io.blf import FILE_HEADER_STRUCT
+
     suffix = path.suffix.lower()
     size = path.stat().st_size
     if suffix == ".blf":
         declared = getattr(reader, "file_size", None)
-        if declared is not None and declared != size:
-            raise UsageError(f"trace {str(path)!r}: truncated or never closed by its writer "
-                             f"(BLF header: {declared} bytes, file: {size} bytes)")
-    elif suffix == ".asc":
+        if declared is None or declared == size:
+            return None
+        with open(path, "rb") as f:
+            header_length = FILE_HEADER_STRUCT.unpack(f.read(FILE_HEADER_STRUCT.size))[1]  # read by BLFReader
+        if declared == header_length < size:
+            return _blf_complete_end(path, header_length, size), "container"
+        raise UsageError(f"trace {str(path)!r}: truncated or altered after its writer closed it "
+                         f"(BLF header: {declared} bytes, file: {size} bytes)")
+    if suffix == ".asc":
         with open(path, "rb") as f:
             begins = b"begin triggerblock" in f.read(4096).lower()
             f.seek(max(0, size - 256))
             tail = f.read().split(b"\n")
         if not begins:
-            return
+            return None
         last = next((line.strip() for line in reversed(tail) if line.strip()), b"")
         if last != b"End TriggerBlock":
-            raise UsageError(f"trace {str(path)!r}: truncated (an ASC trace ends with 'End TriggerBlock'; "
-                             f"the last line is {last[:60].decode('latin-1')!r})")
+            return _last_line_end(path, size), "line"
+    return None
 
+
+def _blf_complete_end(path: Path, start: int, size: int) -> int:
+    """The end of a BLF's last complete object (its LOG_CONTAINERs, one a cycle from the centre),
+    walking the object headers from ``start`` as python-can's BLFReader reads them (size, then
+    ``size % 4`` padding bytes). At an object that does not begin with ``LOBJ`` the walk stops
+    and the file's size is returned: the reader then fails there, as on any corrupted trace."""
+    from can.io.blf import OBJ_HEADER_BASE_STRUCT
+
+    base = OBJ_HEADER_BASE_STRUCT.size
+    pos = start
+    with open(path, "rb") as f:
+        while pos + base <= size:
+            f.seek(pos)
+            signature, _, _, obj_size, _ = OBJ_HEADER_BASE_STRUCT.unpack(f.read(base))
+            if signature != b"LOBJ" or obj_size < base:
+                return size
+            end = pos + obj_size + obj_size % 4
+            if end > size:
+                break  # the container being written when the writer stopped
+            pos = end
+    return pos
+
+
+def _last_line_end(path: Path, size: int) -> int:
+    """The end of a text file's last complete line (after its last newline; 0 without one)."""
+    chunk = 4096
+    with open(path, "rb") as f:
+        pos = size
+        while pos > 0:
+            start = max(0, pos - chunk)
+            f.seek(start)
+            found = f.read(pos - start).rfind(b"\n")
+            if found >= 0:
+                return start + found + 1
+            pos = start
+    return 0
+
+
+class _Prefix(io.RawIOBase):
+    """The first ``limit`` bytes of a file, read-only (a trace read up to its last complete
+    container or line)."""
+
+    def __init__(self, path: Path, limit: int):
+        self._file = open(path, "rb")
+        self._left = limit
+
+    def readable(self) -> bool:
+        return True
+
+    def readinto(self, buffer) -> int:
+        n = min(len(buffer), self._left)
+        if n <= 0:
+            return 0
+        got = self._file.readinto(memoryview(buffer)[:n]) or 0
+        self._left -= got
+        return got
+
+    def close(self) -> None:
+        self._file.close()
+        super().close()
+
+
+def _prefix_file(path: Path, limit: int, *, text: bool):
+    """A file object of ``path``'s first ``limit`` bytes, as python-can's readers open theirs
+    (binary, or text in the locale's encoding)."""
+    raw = io.BufferedReader(_Prefix(path, limit))
+    if not text:
+        return raw
+    return io.TextIOWrapper(raw, encoding=locale.getpreferredencoding(False))

@@ -45,13 +45,14 @@ from canopen.sdo import SdoAbortedError
 
 from taxel_net.resources import gripper_eds_path
 
+from .. import od as odx
 from ..heartbeat import EMCY_HEARTBEAT
 from ..node import TaxelNode
 from ..nmt import NMT_STOP, STOPPED
 from ..rpdo import RpdoEngine
 from ..sdo import ABORT_VALUE_RANGE
 from . import cia402
-from .actuator import GripState, JawAxis, Limits, grip_state_statusword
+from .actuator import GripState, JawAxis, grip_state_statusword
 
 GRIPPER_EDS_PATH = gripper_eds_path()
 
@@ -349,6 +350,8 @@ class GripperDrive(TaxelNode):
                            SIMULATED_FAULT, POSITION_LIMIT)
 
     def __init__(self, node_id: int, link, od=None, eds_path=GRIPPER_EDS_PATH):
+        if od is None:  # checked against the shipped drive EDS, not the taxel node's
+            od = odx.load_od(node_id, eds_path, "gripper drive")
         super().__init__(node_id, link, od, eds_path)
         self.drive: DriveApplication = self.detector
         self.rpdo = RpdoEngine(self.nmt, self.objects, self.emcy.send, self.drive.rpdo_applied)
