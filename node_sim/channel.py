@@ -134,6 +134,12 @@ class Channel(can.Listener):
         self._sync_batches: dict[int, PatchSyncBatch] = {}
         self._sync_ids: frozenset[int] | None = None  # the SYNC COB-IDs the bus filters let through
 
+    @property
+    def last_counter(self) -> int | None:
+        """The counter byte of the last SYNC processed (None without one, or since a reset of
+        every node)."""
+        return self._last_counter
+
     def refresh_filters(self) -> None:
         """Let through what the nodes consume (:data:`CONSUMED_FILTERS` and their SYNC COB-IDs,
         0x080 while there is no node): python-can filters, in the kernel or the controller

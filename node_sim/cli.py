@@ -17,6 +17,14 @@ is the older spelling of ``--bus-kwargs``. Prints one "ready" line on stdout onc
 scene, an unknown interface, a bit rate out of range, a channel that cannot be opened or a
 missing EDS exit 2 with one line.
 
+``--truth-log FILE`` (a scene with ``[gripper]`` and ``[grasp]``, whose drive this process serves;
+else exit 2): the grasp world's ground truth, one JSON line per world step (``docs/grasp-world.md``),
+flushed per line. ``FILE`` is opened before the twins start and written in place: a regular file
+is truncated (not renamed, so it can be followed while node-sim runs), a FIFO, device or
+``/dev/stdout`` is written, never replaced nor removed (``taxel_net.outputs.OutputPath``); a
+directory exits 2. A write that fails (a reader that went away) is reported once on stderr and
+ends the log, not the twins.
+
 ``--serve`` shards a scene over several processes (or hosts): this one runs only the nodes of
 the listed scene channels (indices into ``bus.channels``, ``0-3`` or ``0,2,5``) and opens only
 their buses; ``-c`` still names one bus channel per scene channel. The readings are the
@@ -38,7 +46,7 @@ import threading
 import can
 
 from taxel_net.buscli import BITRATE_RANGE, DATA_BITRATE_MAX, ChannelsAction, channel_indices, parse_bitrate
-from taxel_net.errors import ParameterError, SceneError
+from taxel_net.errors import ParameterError, SceneError, UsageError
 
 from . import od as odx
 
@@ -80,6 +88,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--serve", type=parse_channel_indices, default=None, metavar="CHANNELS",
                    help="run only the nodes of these scene channels (indices into bus.channels: 0-3 or 0,2,5); "
                         "shards one scene over several node-sim processes (default: every channel)")
+    p.add_argument("--truth-log", default=None, metavar="FILE",
+                   help="write the grasp world's ground truth as JSON lines, one per world step (a scene with "
+                        "[gripper] and [grasp]; a regular file is written in place, flushed per line; a FIFO or "
+                        "device such as /dev/stdout is never replaced)")
     p.add_argument("--eds", default=str(odx.EDS_PATH), help=argparse.SUPPRESS)
     return p
 
@@ -175,6 +187,7 @@ def main(argv: list[str] | None = None) -> int:
     # down": the one-line error below already says why
     logging.getLogger("can.bus").setLevel(logging.ERROR)
     stop = threading.Event()
+    truth_log = None
 
     def on_signal(signum, frame):
         stop.set()
@@ -189,13 +202,20 @@ def main(argv: list[str] | None = None) -> int:
         interface, channels, bitrate, bus_kwargs = resolve_bus(args, scene)
         rig = Rig(scene, interface=interface, channel=channels, bitrate=bitrate, seed=args.seed,
                   eds_path=args.eds, bus_kwargs=bus_kwargs, serve_channels=args.serve)
+        if args.truth_log is not None:
+            truth_log = TruthLog.open(args.truth_log, scene, rig)
+            rig.add_truth_callback(truth_log.write)
         signal.signal(signal.SIGINT, on_signal)
         signal.signal(signal.SIGTERM, on_signal)
         rig.start()
-    except (ParameterError, SceneError) as exc:
+    except (ParameterError, SceneError, UsageError) as exc:
+        if truth_log is not None:
+            truth_log.close()
         print(f"node-sim: error: {exc}", file=sys.stderr)
         return 2
     except OSError as exc:  # e.g. an unreadable scene file
+        if truth_log is not None:
+            truth_log.close()
         print(f"node-sim: error: {exc}", file=sys.stderr)
         return 2
     try:
@@ -204,13 +224,67 @@ def main(argv: list[str] | None = None) -> int:
         hosts = f"{len(rig.nodes)} patch nodes ({taxels} taxels)" if scene.bus.patch_nodes else f"{taxels} nodes"
         if rig.gripper is not None:
             hosts += f" and gripper drive {rig.gripper.node_id}"
+            if rig.world is not None:
+                hosts += " with the grasp world"
         print(f"node-sim: ready: {hosts} of scene {scene.name!r} on {interface} "
               f"channel(s) {', '.join(served)}", flush=True)
         while not stop.wait(0.2):
             pass
     finally:
         rig.stop()
+        if truth_log is not None:
+            truth_log.close()
     return 0
+
+
+class TruthLog:
+    """``--truth-log FILE``: the world's records as JSON lines (module docstring)."""
+
+    def __init__(self, path, stream):
+        self.path = path
+        self.stream = stream
+        self._failed = False
+        self._lock = threading.Lock()
+
+    @classmethod
+    def open(cls, path: str, scene, rig) -> "TruthLog":
+        from taxel_net.outputs import OutputPath
+
+        from .world_runner import has_world
+
+        if not has_world(scene):
+            raise UsageError(f"--truth-log {path!r}: scene {scene.name!r} has no grasp world (it needs both a "
+                             "[gripper] and a [grasp] table)")
+        if not rig.runs_world:
+            raise UsageError(f"--truth-log {path!r}: this process does not serve the gripper drive's channel "
+                             f"{scene.gripper.channel} (--serve): the world runs beside the drive")
+        out = OutputPath(path, option="--truth-log")   # a directory: refused in one line
+        try:
+            stream = open(out.path, "w", encoding="utf-8")   # in place: a FIFO / device is never replaced
+        except OSError as exc:
+            raise UsageError(f"--truth-log {path!r}: cannot be opened for writing: {exc.strerror or exc}") from None
+        return cls(path, stream)
+
+    def write(self, record: dict) -> None:
+        import json
+
+        if self._failed:
+            return
+        with self._lock:
+            try:
+                self.stream.write(json.dumps(record, separators=(",", ":")) + "\n")
+                self.stream.flush()
+            except (OSError, ValueError) as exc:
+                self._failed = True
+                print(f"node-sim: --truth-log {self.path!r}: write failed ({exc}); no more truth lines",
+                      file=sys.stderr, flush=True)
+
+    def close(self) -> None:
+        with self._lock:
+            try:
+                self.stream.close()
+            except OSError:
+                pass
 
 
 if __name__ == "__main__":

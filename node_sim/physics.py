@@ -85,7 +85,7 @@ def taxel_arrays(scene: Scene) -> dict[str, np.ndarray]:
         return a
 
     arrays = {name: col(name) for name in ("x", "y", "zeta_mv", "noise_mv", "noise_sigma_mv",
-                                           "signal_mv", "slope", "intercept")}
+                                           "signal_mv", "slope", "intercept", "grip_factor")}
     if len(_ARRAYS_CACHE) >= _ARRAYS_CACHE_SIZE:
         _ARRAYS_CACHE.pop(next(iter(_ARRAYS_CACHE)))
     _ARRAYS_CACHE[id(scene)] = (scene, arrays)
@@ -235,6 +235,32 @@ def sample_readings_batch(scene: Scene, cycles, rng: np.random.Generator | None 
     eps *= a["noise_sigma_mv"]
     x += eps
     return _apply_faults(scene, c, x)
+
+
+def observe(scene: Scene, cycle: int, signal, held: dict | None = None) -> np.ndarray:
+    """Readings X_i = S_i + N_i + sigma_i * eps of one SYNC ``cycle`` from a signal ``S`` computed
+    elsewhere (the grasp world's, :mod:`node_sim.world.taxels`), with the canonical ``eps`` of the
+    cycle and the scene's faults: ``open_circuit`` reads NaN; ``stuck`` repeats the reading the
+    taxel had at the first cycle of the fault this function saw - kept in ``held`` (a dict the
+    caller keeps across cycles; without it, the reading of the cycle itself).
+
+    Unlike ``sample_readings`` the signal is not a function of the cycle alone, so a stuck taxel
+    cannot be recomputed for its ``from_cycle``: it is remembered."""
+    c = _check_cycle(cycle)
+    s = np.asarray(signal, dtype=float)
+    if s.shape != (scene.n,):
+        raise ParameterError("signal", s.shape, f"must hold {scene.n} values (scene order)")
+    a = taxel_arrays(scene)
+    x = s + a["noise_mv"] + a["noise_sigma_mv"] * canonical_eps(scene, c)
+    for f in scene.faults:
+        if f.fault == "silent" or not f.active(c):
+            continue
+        i = taxel_index(scene, f.node_id, f.channel)
+        if f.fault == "open_circuit":
+            x[i] = OPEN_CIRCUIT_MV
+        elif held is not None:
+            x[i] = held.setdefault((f.node_id, f.channel, f.from_cycle), float(x[i]))
+    return x
 
 
 def sample_readings(scene: Scene, cycle: int, rng: np.random.Generator | None = None) -> np.ndarray:

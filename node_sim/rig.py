@@ -50,6 +50,12 @@ channel's), configured with ``taxel_net.gripper.startup_values`` (the ``[gripper
 :attr:`Rig.gripper` is that host (None without one); the world acts on ``rig.gripper.drive``
 inside ``with rig.gripper.lock:``.
 
+Grasp world (issue 22): a scene with ``[gripper]`` and ``[grasp]`` whose drive's channel this rig
+serves (:attr:`Rig.runs_world`) runs :class:`node_sim.world_runner.WorldRunner` beside the drive
+(its own clock at the SYNC period); unless a ``reading_source`` is injected the taxels read the
+world (``docs/grasp-world.md``), not ``[object]``. :attr:`Rig.world_truth` is its latest step's
+record, ``on_truth`` / :meth:`Rig.add_truth_callback` get every step's.
+
 SYNC hot path: the frames of one SYNC leave as one burst after every node has sampled
 (``NodeLink.hold``/``release``; inhibit times start when the burst is sent), on a ``virtual``
 bus without python-can's per-receiver deep copy (:func:`node_sim.channel.virtual_burst_sender`).
@@ -80,6 +86,7 @@ from .gripper.host import GRIPPER_EDS_PATH, DriveHost
 from .node import TaxelNode
 from .od import COB_INVALID
 from .patch import PATCH_EDS_PATH, PatchNode, patch_startup_values
+from .world_runner import WorldRunner, has_world
 
 logger = logging.getLogger(__name__)
 
@@ -110,7 +117,7 @@ class Rig:
                  bitrate: int | None = None, reading_source: ReadingSource | None = None,
                  seed: int | None = None, eds_path=odx.EDS_PATH, bus_kwargs: Mapping | None = None,
                  patch_eds_path=PATCH_EDS_PATH, serve_channels: Sequence[int] | None = None,
-                 gripper_eds_path=GRIPPER_EDS_PATH):
+                 gripper_eds_path=GRIPPER_EDS_PATH, on_truth=None):
         if not isinstance(scene, Scene):
             raise ParameterError("scene", type(scene).__name__, "must be a taxel_net.scene.Scene")
         if scene.n == 0:
@@ -148,6 +155,13 @@ class Rig:
         # the gripper drive of [gripper] (issue 22): its own bus object on its scene channel
         self.gripper_eds_path = gripper_eds_path
         self.gripper: DriveHost | None = None
+        # the grasp world of [gripper] + [grasp] (node_sim.world_runner), where this rig serves the
+        # drive's channel: the taxels read it (an injected reading_source still wins)
+        self.world: WorldRunner | None = None
+        self._truth_callbacks = [on_truth] if callable(on_truth) else list(on_truth or ())
+        self.runs_world = has_world(self.scene) and self.scene.gripper.channel in self.served
+        if self.runs_world and reading_source is None:
+            self._reading_source = self._world_readings
         self._channels: list[Channel] = []             # the served channels, in index order
         self._channel_at: dict[int, Channel] = {}       # scene channel index -> its channel
         self._dropped: set[tuple[int, int]] = set()
@@ -246,6 +260,8 @@ class Rig:
 
     def stop(self) -> None:
         """Stop timers, notifiers and buses (idempotent)."""
+        if self.world is not None:
+            self.world.stop()
         if self.gripper is not None:
             self.gripper.stop()
             self.gripper = None
@@ -292,6 +308,32 @@ class Rig:
         self.gripper = DriveHost.for_scene(self.scene, self.interface, self.channel_names[g.channel], kwargs,
                                            self.gripper_eds_path)
         self.gripper.start()
+        if self.runs_world:
+            ch = self._channel_at[g.channel]
+            self.world = WorldRunner(self.scene, self.gripper.drive, self.gripper.lock,
+                                     sync_state=lambda: (ch.last_counter, ch.cycle),
+                                     on_truth=self._truth_callbacks).start()
+
+    def _world_readings(self, cycle: int) -> np.ndarray:
+        """The taxels' readings from the grasp world (before it runs: noise only)."""
+        world = self.world
+        if world is None:
+            from . import physics
+
+            return physics.observe(self.scene, cycle, np.zeros(self.scene.n))
+        return world.readings(cycle)
+
+    @property
+    def world_truth(self) -> dict | None:
+        """The grasp world's latest step (``Truth.as_dict()`` with ``sync_counter`` and ``cycle``,
+        ``docs/grasp-world.md``), None before its first step or without a world."""
+        return None if self.world is None else self.world.latest
+
+    def add_truth_callback(self, callback) -> None:
+        """Call ``callback(record)`` with every later world step's record (in the world's thread)."""
+        self._truth_callbacks.append(callback)
+        if self.world is not None and callback not in self.world.callbacks:
+            self.world.callbacks.append(callback)
 
     def _lss_device(self) -> tuple[tuple[int, int, int], frozenset[int]]:
         """What the EDS says of every device: 0x1018:1-3 (vendor-ID, product code, revision

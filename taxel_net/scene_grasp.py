@@ -38,7 +38,7 @@ _PHASE_KEYS = {
     "release": ("name", "duration_s"),
 }
 _GRASP_KEYS = ("mass_kg", "mu_s", "mu_k", "size_mm", "max_force_n", "pad_length_mm", "contact_mm",
-               "grip_at_mm", "force_lag_ms", "gravity_m_s2", "phase")
+               "grip_at_mm", "force_lag_ms", "gravity_m_s2", "pressure_ref_n", "phase")
 
 
 @dataclass(frozen=True)
@@ -82,6 +82,7 @@ class GraspSpec:
     grip_at_mm: float | None = None      # the contact's centre from the pad's lower edge (None: the middle)
     force_lag_ms: float = 20.0           # time constant of the jaws' normal force behind the drive's force
     gravity_m_s2: float = STANDARD_GRAVITY
+    pressure_ref_n: float = 10.0         # the taxels' view: a pressure cell reads its signal_mv at this per-jaw force
 
     @property
     def grip_at(self) -> float:
@@ -146,6 +147,7 @@ def check_grasp(spec: GraspSpec) -> GraspSpec:
             _fail("grip_at_mm", spec.grip_at_mm, f"must lie on the pad: 0..pad_length_mm ({spec.pad_length_mm:g})")
     _non_negative("force_lag_ms", spec.force_lag_ms)
     _positive("gravity_m_s2", spec.gravity_m_s2)
+    _positive("pressure_ref_n", spec.pressure_ref_n)
     phases = list(spec.phases)
     if not phases:
         _fail("phase", [], "a task needs at least the phases approach and close")

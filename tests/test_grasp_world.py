@@ -124,6 +124,13 @@ def test_first_root():
 
 # ------------------------------------------------------------------ the timeline
 
+def test_first_root_with_a_subnormal_quadratic_term():
+    # c2 = -5e-324 (hypothesis found it in test_against_scipy): 0.5 * c2 underflows to 0 and the
+    # second root q / (0.5 c2) divided by zero; the linear root 1 - t = 0 is the answer
+    assert first_root(1.0, -1.0, -5e-324, 10.0) == 1.0
+    assert first_root(1.0, 1.0, 5e-324, 10.0) is None
+
+
 def test_timeline_profiles_close_in_form():
     spec = task(phases=(PhaseSpec("approach", 1.0), PhaseSpec("close", 0.5),
                         PhaseSpec("lift", 1.0, height_mm=100.0, accel_m_s2=2.0, speed_m_s=0.2),

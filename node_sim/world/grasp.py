@@ -107,7 +107,8 @@ def first_root(c0: float, c1: float, c2: float, horizon: float) -> float | None:
             t = -2.0 * c1 / c2
             return t if t <= horizon else None
         return None
-    if c2 == 0.0:
+    if 0.5 * c2 == 0.0:
+        # linear (c2 == 0, or a subnormal c2 whose half underflows: its root is beyond any horizon)
         if c1 < 0:
             t = -c0 / c1
             return t if t <= horizon else None

@@ -22,6 +22,11 @@ Truth per step (names the centre's records reuse):
   object put down on the table and released is not dropped;
 * ``crushed`` - the normal force exceeded the object's ``max_force_n`` (latched; never without
   a ``max_force_n``);
+* ``tangential_n`` - the tangential load on each jaw's pad in the step's last instant, N, down
+  positive (what the pads' tangential cells feel, :mod:`.taxels`): sticking ``m (g + a) / 2`` (eq
+  26b's load ``W`` shared by the two jaws), slipping ``sgn(v) mu_k N`` (the slide's direction; from
+  rest that of ``g + a``), on the table ``sgn(w) mu_k N`` while the jaws press and the pads slide
+  over it (the gripper moving), else 0;
 
 and, for the curious: ``t_s`` (world clock since the world's creation), ``task_s`` (since the
 start, None before), ``mode`` (:class:`.grasp.Mode`), ``height_mm`` (the object above its resting
@@ -30,6 +35,7 @@ height), ``in_grip`` (between the jaws and not lost).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 from taxel_net.errors import ParameterError
@@ -58,6 +64,7 @@ class Truth:
     mode: str
     height_mm: float
     in_grip: bool
+    tangential_n: float = 0.0
 
     def as_dict(self) -> dict:
         return dict(self.__dict__)
@@ -125,6 +132,7 @@ class GraspWorld:
         n = 0.0 if jaws_open else float(normal_n)
         slipping = False
         need = 0.0
+        a_end, m_end = 0.0, spec.mass_kg
         t0 = self.task_s
         if t0 is None:
             pieces = []
@@ -137,6 +145,7 @@ class GraspWorld:
             if st.airborne or (st.mode is Mode.TABLE and (pc.a > 0 or pc.w0 > 0)):
                 need = max(need, m * (p.g + pc.a) / (2.0 * p.mu_s))
             fl = advance(st, pc.t1 - pc.t0, pc.a, n, m, p, jaws_open)
+            a_end, m_end = pc.a, m
             slipping = slipping or fl.slipped
             if st.airborne:
                 need = max(need, m * (p.g + pc.a) / (2.0 * p.mu_s))
@@ -153,7 +162,21 @@ class GraspWorld:
                      slid_mm=st.s * 1000.0,
                      dropped=self.dropped, crushed=self.crushed, mode=st.mode.value,
                      height_mm=max(0.0, st.y) * 1000.0 if not gone else 0.0,
-                     in_grip=self.object_between_jaws)
+                     in_grip=self.object_between_jaws, tangential_n=tangential_load(st, a_end, n, m_end, p))
 
 
-__all__ = ["GraspWorld", "Truth", "TRUTH_FIELDS", "IDLE", "DONE"]
+def tangential_load(st: State, a: float, n: float, m: float, p: Params) -> float:
+    """The tangential load per jaw's pad, N, down positive (module docstring, ``tangential_n``),
+    in the regime ``st`` with the gripper's acceleration ``a``, the per-jaw normal force ``n`` and
+    the mass ``m`` (with any added load) of that instant."""
+    if st.mode is Mode.STICK:
+        return m * (p.g + a) / 2.0                      # eq 26b's W = m (g + a), half on each jaw
+    if st.mode is Mode.SLIP:
+        d = math.copysign(1.0, st.v) if st.v != 0 else math.copysign(1.0, p.g + a)
+        return d * p.mu_k * n
+    if st.mode is Mode.TABLE and n > 0 and st.w != 0:
+        return math.copysign(p.mu_k * n, st.w)           # the pads slide over the resting object
+    return 0.0
+
+
+__all__ = ["GraspWorld", "Truth", "tangential_load", "TRUTH_FIELDS", "IDLE", "DONE"]

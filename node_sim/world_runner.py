@@ -1,0 +1,141 @@
+"""The grasp world in the twins: :class:`WorldRunner` (issue 22).
+
+Where a scene has both ``[gripper]`` and ``[grasp]`` and a rig serves the drive's channel, the
+rig (:mod:`node_sim.rig`) runs one :class:`~node_sim.world.GraspWorld` coupled to its drive
+(:class:`~node_sim.world.JawCoupling`) and its taxels read the world instead of the scene's
+``[object]`` script:
+
+* **Own clock**: a thread of its own steps the world once per scene SYNC period
+  (``bus.sync_period_ms``) on monotonic deadlines (``t0 + k * period``), not on the master's SYNCs:
+  gravity does not stop when the master does. A thread that falls behind (a loaded host) catches
+  up, one step per missed deadline, so world time keeps to the wall clock. Each step holds the
+  drive host's lock (the drive's receive thread waits meanwhile).
+* **The task** starts when the drive is first seen in OPERATION ENABLED (``JawCoupling``).
+* **Readings**: at each SYNC the taxel nodes sample ``X_i`` of the world's latest step
+  (:func:`node_sim.world.taxels.truth_readings`: the footprint, pressure and tangential cells, the
+  cycle's canonical noise and the scene's faults). Before the first step: no object between the
+  jaws (noise only).
+* **Truth out**: every step gives one record, :meth:`Truth.as_dict` plus ``sync_counter`` (the
+  counter byte of the last SYNC the drive's channel heard, None without one) and ``cycle`` (the
+  twins' cycle number of that SYNC, None before the first): :attr:`latest` and the ``on_truth``
+  callbacks (``node-sim --truth-log FILE`` writes them as JSON lines; a caller running the rig in
+  its own process passes ``Rig(on_truth=...)`` or reads ``Rig.world_truth``).
+
+Deterministic: the world's steps are a function of the scene and of the drive's state at each
+world step (its command sequence), tested with :meth:`step` called by hand; which world step a SYNC
+samples depends on the two clocks' phase.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from typing import Callable
+
+import numpy as np
+
+from taxel_net.errors import ParameterError
+
+from . import physics
+from .world import GraspWorld, JawCoupling
+from .world.taxels import truth_readings
+
+logger = logging.getLogger(__name__)
+
+TruthCallback = Callable[[dict], None]
+
+
+def has_world(scene) -> bool:
+    """The scene runs the grasp world in the twins: it has both ``[gripper]`` and ``[grasp]``."""
+    return getattr(scene, "grasp", None) is not None and getattr(scene, "gripper", None) is not None
+
+
+class WorldRunner:
+    """The world of ``scene`` coupled to ``drive`` (module docstring).
+
+    ``lock``: the drive host's lock; ``sync_state() -> (sync_counter, cycle)``: the last SYNC the
+    twins heard on the drive's channel; ``on_truth``: callbacks called with each step's record (in
+    the world's thread; an exception is logged, the world goes on)."""
+
+    def __init__(self, scene, drive, lock=None, sync_state: Callable[[], tuple] | None = None,
+                 on_truth: TruthCallback | list[TruthCallback] | None = None, clock=time.monotonic):
+        if not has_world(scene):
+            raise ParameterError("scene", getattr(scene, "name", scene),
+                                 "the grasp world needs both a [gripper] and a [grasp] table")
+        self.scene = scene
+        self.world = GraspWorld(scene.grasp, scene.bus.sync_period_ms / 1000.0)
+        self.coupling = JawCoupling(self.world, drive, lock)
+        self._sync_state = sync_state or (lambda: (None, None))
+        if on_truth is None:
+            self.callbacks: list[TruthCallback] = []
+        elif callable(on_truth):
+            self.callbacks = [on_truth]
+        else:
+            self.callbacks = list(on_truth)
+        self._clock = clock
+        self._truth = None                     # the latest Truth
+        self.latest: dict | None = None        # its record
+        self._held: dict = {}                  # stuck faults' readings (physics.observe)
+        self._read_lock = threading.Lock()
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+        self.error: BaseException | None = None
+        self.late_steps = 0                    # steps taken after their deadline had passed by a period
+
+    # ------------------------------------------------------------------ one step
+    def step(self) -> dict:
+        """One world step (the drive read, the world advanced); returns its record."""
+        truth = self.coupling.step()
+        counter, cycle = self._sync_state()
+        record = {"t_s": truth.t_s, "sync_counter": counter, "cycle": cycle}
+        record.update(truth.as_dict())
+        self._truth = truth
+        self.latest = record
+        for cb in list(self.callbacks):
+            try:
+                cb(record)
+            except Exception:  # noqa: BLE001 - a caller's callback must not stop the world
+                logger.exception("grasp world: a truth callback failed")
+        return record
+
+    def readings(self, cycle: int) -> np.ndarray:
+        """``X_i`` of SYNC ``cycle`` (scene order) from the latest world step (module docstring)."""
+        truth = self._truth
+        with self._read_lock:
+            if truth is None:
+                return physics.observe(self.scene, cycle, np.zeros(self.scene.n), self._held)
+            return truth_readings(self.scene, truth, cycle, self._held)
+
+    # ------------------------------------------------------------------ the clock
+    def start(self) -> "WorldRunner":
+        if self._thread is None:
+            self._stop.clear()
+            self._thread = threading.Thread(target=self._run, name="node-sim-world", daemon=True)
+            self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        if self._thread is not None:
+            self._stop.set()
+            self._thread.join(timeout=5)
+            self._thread = None
+
+    def _run(self) -> None:
+        period = self.world.step_s
+        clock = self._clock
+        deadline = clock() + period
+        try:
+            while not self._stop.wait(max(0.0, deadline - clock())):
+                now = clock()
+                while deadline <= now and not self._stop.is_set():
+                    if now - deadline >= period:
+                        self.late_steps += 1
+                    self.step()
+                    deadline += period
+        except Exception as exc:  # noqa: BLE001 - logged once, the twins go on without a world clock
+            self.error = exc
+            logger.exception("grasp world: stopped at world time %.3f s", self.world.t_s)
+
+
+__all__ = ["WorldRunner", "has_world", "TruthCallback"]
