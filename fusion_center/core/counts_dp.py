@@ -50,6 +50,16 @@ def _classify(values: np.ndarray, coeffs, p: float, q: float, low: float, high: 
 
 
 # ------------------------------------------------------------------ shared by both counts DPs
+def _empty_regions(n: int, p: float, q: float, low: float, high: float) -> tuple[bool, bool, bool]:
+    """Regions (U >= high, low <= U < high, U < low) that no value of U_G lies in, for sure: on
+    {0,1} U_G runs from 0 (all absent) to g(n) (all present, eq 15; 1 for n = 1), so U >= high
+    is empty where high is beyond g(n) by more than its rounding, U < low where low <= 0, the band
+    where high <= low (a zero-width band, as the report's single threshold). Their sums are 0
+    for certain: impossible events, not left to :mod:`.extended_dp`."""
+    g = 1.0 if n == 1 else (2.0**p + 2.0**q) + (n - 2) * 2.0 ** (p + q)
+    return high > g * (1.0 + 1e-12), not low < high, low <= 0.0
+
+
 def _branch_factors(pc: float) -> tuple[float, float, float]:
     """A taxel present with probability pc: (ln big, pc / big, (1 - pc) / big), big = max(pc,
     1 - pc) -- the likelier branch is not multiplied, its factor goes into an exact-sum log."""
@@ -155,7 +165,7 @@ def _rates_counts(pi: np.ndarray, p: float, q: float, low: float, high: float):
     sums = [float(weights[above].sum()), float(weights[~above & ~below].sum()), float(weights[below].sum())]
     # a sum of 0.0 may be an underflow (dp_scaling._scaled_logs): "below FLOOR", told from an
     # impossible event by extended_dp.counts_exact_logs (preferential_rates)
-    return _scaled_logs(sums, scale=(exponent, math.fsum(log_factors)))
+    return _scaled_logs(sums, _empty_regions(n, p, q, low, high), scale=(exponent, math.fsum(log_factors)))
 
 
 # ------------------------------------------------------------------ {0,1}, two counts
@@ -250,7 +260,7 @@ def _rates_two_counts(pi: np.ndarray, p: float, q: float, low: float, high: floa
     values = v1 + v2 * c_value
     above, below = _classify(values, lambda j: basis(int(v1[j]), int(v2[j])), p, q, low, high)
     sums = [float(weights[above].sum()), float(weights[~above & ~below].sum()), float(weights[below].sum())]
-    return _scaled_logs(sums, scale=(exponent, math.fsum(log_factors)))
+    return _scaled_logs(sums, _empty_regions(n, p, q, low, high), scale=(exponent, math.fsum(log_factors)))
 
 
 COUNTS_WORK_MAX = 400_000_000
