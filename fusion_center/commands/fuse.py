@@ -280,10 +280,16 @@ def _preferential_rates(args, record: dict, p, q, encoding, low: float, high: fl
     for key in ("p_detect", "p_false_alarm", "p_undecided_h1", "p_undecided_h0"):
         record["log_" + key] = getattr(rates, "log_" + key)
     record["rates_method"] = rates.method
-    below = [key for key in ("p_detect", "p_false_alarm", "p_undecided_h1", "p_undecided_h0") if key in rates.below_floor]
-    if below:  # their plain values underflow to 0 (not impossible): the log_ fields hold the exact
-        # logarithms (tilted DP), null only where none was computed (the {0,1} counts DP)
+    keys = ("p_detect", "p_false_alarm", "p_undecided_h1", "p_undecided_h0")
+    below = [key for key in keys if key in rates.below_floor]
+    if below:  # plain values below 1e-300 (subnormal or 0.0, not impossible): the log_ fields hold
+        # their exact logarithms, null only where none was computed (beyond the exact DP's budget)
         record["rates_below_1e-300"] = below
+    # a rate whose proven relative error bound exceeds 1e-13 (the tilted DP's, where the exact DP
+    # was beyond its budget): named with log10 of its bound, never silently inexact
+    loose = {key: bound for key, bound in (rates.error_bounds or {}).items() if key in keys and not bound <= -13.0}
+    if loose:
+        record["rates_error_bound_log10"] = loose
     if rates.ci95:
         record["rates_ci95"] = {k: list(v) for k, v in rates.ci95.items()}
 

@@ -8,8 +8,10 @@ over three integer counts (runs of one present taxel, longer runs, taxels inside
 ``_rates_counts`` runs the DP over the three counts (polynomial, a box of counts per state);
 where U_G needs two integer coordinates only (``_two_count_form``: a zero weight, p or q an
 integer, p + q an integer) ``_rates_two_counts`` runs it over those two. Both give the band
-rates (eq 20) per hypothesis, every rate >= FLOOR exact; the comparisons of U_G with the band
-edges are exact (``_classify``: mpmath within rounding). Used by :mod:`.preferential_rates`
+rates (eq 20) per hypothesis, every rate >= FLOOR exact; a rate below FLOOR (or a sum of 0.0,
+which may be an underflow) is named without a log and left to :mod:`.extended_dp`. The
+comparisons of U_G with the band edges are exact (``_classify``: mpmath within rounding).
+Used by :mod:`.preferential_rates`
 (:func:`.preferential_rates.exact_counts_max_taxels` says up to how many taxels each is exact
 for any probabilities).
 """
@@ -48,6 +50,16 @@ def _classify(values: np.ndarray, coeffs, p: float, q: float, low: float, high: 
 
 
 # ------------------------------------------------------------------ shared by both counts DPs
+def _empty_regions(n: int, p: float, q: float, low: float, high: float) -> tuple[bool, bool, bool]:
+    """Regions (U >= high, low <= U < high, U < low) that no value of U_G lies in, for sure: on
+    {0,1} U_G runs from 0 (all absent) to g(n) (all present, eq 15; 1 for n = 1), so U >= high
+    is empty where high is beyond g(n) by more than its rounding, U < low where low <= 0, the band
+    where high <= low (a zero-width band, as the report's single threshold). Their sums are 0
+    for certain: impossible events, not left to :mod:`.extended_dp`."""
+    g = 1.0 if n == 1 else (2.0**p + 2.0**q) + (n - 2) * 2.0 ** (p + q)
+    return high > g * (1.0 + 1e-12), not low < high, low <= 0.0
+
+
 def _branch_factors(pc: float) -> tuple[float, float, float]:
     """A taxel present with probability pc: (ln big, pc / big, (1 - pc) / big), big = max(pc,
     1 - pc) -- the likelier branch is not multiplied, its factor goes into an exact-sum log."""
@@ -56,11 +68,11 @@ def _branch_factors(pc: float) -> tuple[float, float, float]:
     return math.log(big), pc / big, qc / big
 
 
-def _rescale_trim(states, origin, exponent: int, log_factors, dropped: float):
+def _rescale_trim(states, origin, exponent: int, log_factors):
     """Every TRIM_EVERY taxels: the three states' boxes of counts (one shape) rescaled by a power
     of two (the largest cell of their sum back to ~2^SCALE_BITS, exact) and trimmed along each
     axis where the marginal of their sum carries less than 1e-325 of probability. Returns
-    (states, origin, exponent, dropped)."""
+    (states, origin, exponent)."""
     s0, s1, s2 = states
     total = s0 + s1 + s2
     k = math.frexp(float(total.max()))[1] - SCALE_BITS - 1
@@ -68,7 +80,6 @@ def _rescale_trim(states, origin, exponent: int, log_factors, dropped: float):
         for arr in (s0, s1, s2):
             arr *= math.ldexp(1.0, -k)
         total *= math.ldexp(1.0, -k)
-        dropped = math.ldexp(dropped, -k)
         exponent -= k
     # stored units of 1e-325 of probability
     tail = TRIM_TAIL * math.exp(exponent * math.log(2.0) - math.fsum(log_factors) - _LOG_SCALE)
@@ -80,10 +91,9 @@ def _rescale_trim(states, origin, exponent: int, log_factors, dropped: float):
         cuts.append((int(keep[0]), int(keep[-1]) + 1) if keep.size else (0, marg.size))
     if any(lo_ > 0 or hi_ < size for (lo_, hi_), size in zip(cuts, total.shape)):
         sl = tuple(slice(lo_, hi_) for lo_, hi_ in cuts)
-        dropped += float(total.sum() - total[sl].sum())
         s0, s1, s2 = s0[sl].copy(), s1[sl].copy(), s2[sl].copy()
         origin = [o + lo_ for o, (lo_, _) in zip(origin, cuts)]
-    return (s0, s1, s2), origin, exponent, dropped
+    return (s0, s1, s2), origin, exponent
 
 
 # ------------------------------------------------------------------ {0,1}, any weights: counts DP
@@ -113,7 +123,6 @@ def _rates_counts(pi: np.ndarray, p: float, q: float, low: float, high: float):
     origin = [0, 0, 0]
     exponent = SCALE_BITS
     log_factors = []
-    dropped = 0.0
     work = 0
     for i, pc in enumerate(pi.tolist()):
         log_big, fp, fq = _branch_factors(pc)
@@ -139,8 +148,7 @@ def _rates_counts(pi: np.ndarray, p: float, q: float, low: float, high: float):
         if work + 3 * s2.size * (n - 1 - i) > COUNTS_WORK_MAX:  # the box only grows or is trimmed
             return None
         if i % TRIM_EVERY == TRIM_EVERY - 1 or i == n - 1:
-            (s0, s1, s2), origin, exponent, dropped = _rescale_trim((s0, s1, s2), origin, exponent, log_factors,
-                                                                    dropped)
+            (s0, s1, s2), origin, exponent = _rescale_trim((s0, s1, s2), origin, exponent, log_factors)
     # the last taxel ends its run: state 1 -> a + 1
     na, nb, nd = s0.shape
     law = np.zeros((na + 1, nb, nd))
@@ -155,9 +163,9 @@ def _rates_counts(pi: np.ndarray, p: float, q: float, low: float, high: float):
     values = (av + bv * (2.0**p + 2.0**q)) + dv * 2.0 ** (p + q)
     above, below = _classify(values, lambda j: (int(av[j]), int(bv[j]), int(bv[j]), int(dv[j])), p, q, low, high)
     sums = [float(weights[above].sum()), float(weights[~above & ~below].sum()), float(weights[below].sum())]
-    # impossible regions: no count triple of any decision vector lands there -- decided on the
-    # untrimmed reach only where nothing was dropped; otherwise "below FLOOR" is the safe answer
-    return _scaled_logs(sums, dropped, scale=(exponent, math.fsum(log_factors)))
+    # a sum of 0.0 may be an underflow (dp_scaling._scaled_logs): "below FLOOR", told from an
+    # impossible event by extended_dp.counts_exact_logs (preferential_rates)
+    return _scaled_logs(sums, _empty_regions(n, p, q, low, high), scale=(exponent, math.fsum(log_factors)))
 
 
 # ------------------------------------------------------------------ {0,1}, two counts
@@ -212,7 +220,6 @@ def _rates_two_counts(pi: np.ndarray, p: float, q: float, low: float, high: floa
     origin = [0, 0]
     exponent = SCALE_BITS
     log_factors = []
-    dropped = 0.0
     work = 0
     for i, pc in enumerate(pi.tolist()):
         log_big, fp, fq = _branch_factors(pc)
@@ -239,8 +246,7 @@ def _rates_two_counts(pi: np.ndarray, p: float, q: float, low: float, high: floa
         if work + 3 * grown > TWO_COUNTS_WORK_MAX:
             return None
         if i % TRIM_EVERY == TRIM_EVERY - 1 or i == n - 1:
-            (s0, s1, s2), origin, exponent, dropped = _rescale_trim((s0, s1, s2), origin, exponent, log_factors,
-                                                                    dropped)
+            (s0, s1, s2), origin, exponent = _rescale_trim((s0, s1, s2), origin, exponent, log_factors)
     # the last taxel ends its run: state 1 -> a + 1
     m1, m2 = s0.shape
     law = np.zeros((m1 + step_a[0], m2 + step_a[1]))
@@ -254,7 +260,7 @@ def _rates_two_counts(pi: np.ndarray, p: float, q: float, low: float, high: floa
     values = v1 + v2 * c_value
     above, below = _classify(values, lambda j: basis(int(v1[j]), int(v2[j])), p, q, low, high)
     sums = [float(weights[above].sum()), float(weights[~above & ~below].sum()), float(weights[below].sum())]
-    return _scaled_logs(sums, dropped, scale=(exponent, math.fsum(log_factors)))
+    return _scaled_logs(sums, _empty_regions(n, p, q, low, high), scale=(exponent, math.fsum(log_factors)))
 
 
 COUNTS_WORK_MAX = 400_000_000

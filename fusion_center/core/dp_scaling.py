@@ -19,7 +19,8 @@ _EPS = 2.220446049250313e-16
 SCALE_BITS = 900
 _LOG_SCALE = SCALE_BITS * math.log(2.0)
 FLOOR = 1e-300
-"""Rates below FLOOR are not reported (``below_floor``); rates at or above it are exact."""
+"""The fast DPs' rates at or above FLOOR are exact; a rate below it is named in ``below_floor``
+(its plain value may underflow) and its log comes from the tilted DP or :mod:`.extended_dp`."""
 _LOG_FLOOR = math.log(FLOOR)
 # a tail side is trimmed at 1e-325 of probability (scaled), far below FLOOR: the mass so
 # dropped over the whole run is < n W 1e-325 (W the window) -- below 1e-300 * 1e-13 for any
@@ -38,15 +39,18 @@ def _log_probability(stored: float, scale=(SCALE_BITS, 0.0)) -> float:
     return math.log(mantissa) + (exp2 - scale[0]) * math.log(2.0) + scale[1]
 
 
-def _scaled_logs(sums, dropped: float, empty=(False, False, False), scale=(SCALE_BITS, 0.0)):
+def _scaled_logs(sums, empty=(False, False, False), scale=(SCALE_BITS, 0.0)):
     """Per region, from stored sums (``_log_probability``): (ln P or None, below FLOOR).
-    Exact at or above FLOOR; an empty region, or 0 with nothing trimmed, is an impossible event
-    (None, False); else (None, True): 0 <= P < FLOOR."""
+    Exact at or above FLOOR; a region ``empty`` (no value of U_G lies in it) is an impossible
+    event (None, False); else (None, True): 0 <= P < FLOOR. A sum of 0.0 is not taken for an
+    impossible event: besides the trimming, a scaled cell more than 2^(SCALE_BITS + 1074)
+    below the largest underflows to 0 uncounted (14 taxels at pf = 1e-45 all present, 1e-630,
+    did); :mod:`.extended_dp` tells the two apart."""
     out = []
     for s, none in zip(sums, empty):
         log = _log_probability(s, scale)
         if log >= _LOG_FLOOR:
             out.append((log, False))
         else:
-            out.append((None, not none and (s > 0.0 or dropped > 0.0)))
+            out.append((None, not none))
     return out

@@ -2,18 +2,24 @@
 decided), P(H0 decided), P(undecided) under H1 and H0 for independent taxels with any per-taxel
 Pd_i / Pf_i, and U_G's law.
 
-Which DP (:mod:`.chain_dp`, :mod:`.tilted_dp`, :mod:`.counts_dp`):
+Which DP (:mod:`.chain_dp`, :mod:`.tilted_dp`, :mod:`.counts_dp`, :mod:`.extended_dp`):
 
 * U_G on a lattice (``_lattice``: {-1,+1} with p, q > 0 -- "chain"; one zero weight --
-  "lattice"; integer p, q on either tuple -- "integer"): the lattice DP over the chain, every
-  rate >= FLOOR = 1e-300 exact (relative ~1e-13); the logs of the rates below FLOOR from the
-  tilted DP (exact, with a proven error bound; ``deep=False`` skips them);
+  "lattice"; integer p, q on either tuple -- "integer"): the lattice DP over the chain tilted
+  towards each region (:mod:`.tilted_dp`), every rate with a proven relative error bound,
+  accepted at or below 10^BOUND_OK = 1e-13, the rates below FLOOR = 1e-300 included;
 * {0,1} with a non-integer weight ("exact-counts"): U_G = a + b (2^p + 2^q) + d 2^(p+q) over
   three integer counts, a DP over them (polynomial; within budget up to SPARSE_MAX_TAXELS for
   any probabilities); where U_G needs two integer coordinates only (a zero weight, p or q an
   integer, p + q an integer) a DP over those two instead, up to TWO_COUNTS_MAX_TAXELS; every
-  rate >= FLOOR exact, the logs below not computed; a Monte Carlo estimate with 95 % Wilson
-  intervals beyond ("monte-carlo", said so).
+  rate >= FLOOR exact; a Monte Carlo estimate with 95 % Wilson intervals beyond
+  ("monte-carlo", said so);
+* what those leave uncertified (``deep``, the default) -- a rate below FLOOR without a log (the
+  tilt capped short of a region reachable only through decisions of tiny probability; a counts
+  sum below FLOOR, or 0.0 that may be an underflow), or a bound above 1e-13 -- is recomputed
+  by the extended-exponent DP of :mod:`.extended_dp` (no trimming, no underflow: its exact log,
+  or -inf exactly when the event has probability 0), within its budget EXACT_WORK_MAX; beyond
+  it the rate stays in ``below_floor`` with log None (or, for a bound, the tilted value).
 
 Each comparison of U_G with a band edge is exact (mpmath where rounding cannot decide); the
 three probabilities per hypothesis are sums of positive terms (the tilted DP's bulk region:
@@ -31,9 +37,10 @@ from taxel_net.errors import ParameterError
 
 from .chain_dp import _float_value, _label_base, _lattice, _lattice_law
 from .counts_dp import _rates_counts, _rates_two_counts, _two_count_form
-from .dp_scaling import _LOG_FLOOR, FLOOR, SCALE_BITS, _log_probability, _scaled_logs
+from .dp_scaling import _LOG_FLOOR, FLOOR, _log_probability
+from .extended_dp import counts_exact_logs, lattice_exact_logs
 from .rate_sampling import monte_carlo_band_rates, wilson
-from .tilted_dp import lattice_band_logs
+from .tilted_dp import BOUND_OK, lattice_band_logs
 
 SPARSE_MAX_TAXELS = 200
 """{0,1} with a non-integer weight: up to this many taxels the counts DP (counts_dp._rates_counts)
@@ -67,12 +74,15 @@ _NAMES = ("p_detect", "p_undecided_h1", "p_miss", "p_false_alarm", "p_undecided_
 class PreferentialRates:
     """System rates of the preferential band decision (eq 7, eq 20 band). Under H1: p_detect =
     P(H1 decided), p_undecided_h1, p_miss = P(H0 decided); under H0: p_false_alarm = P(H1
-    decided), p_undecided_h0, p_reject = P(H0 decided). log_*: natural logarithms; None for an
-    impossible event. ``below_floor`` names the rates below FLOOR = 1e-300: their plain value
-    underflows (exp of the log, 0.0 below ~1e-308) and their log is exact too in the lattice
-    cases (the tilted DP), None where it was not computed (``deep=False``; the counts DP of
-    {0,1} with a non-integer weight). ``error_bounds`` (lattice cases): log10 of each rate's
-    proven relative error bound (trimming; rounding adds ~1e-13). method: "chain", "lattice",
+    decided), p_undecided_h0, p_reject = P(H0 decided). log_*: natural logarithms, exact
+    whatever their size; None for an impossible event (probability 0: no decision vector
+    reaches the region, or only through a taxel of probability exactly 0 or 1) -- except for a
+    rate named in ``below_floor`` with log None, one below FLOOR whose log was not computed
+    (``deep=False``, or beyond extended_dp.EXACT_WORK_MAX). ``below_floor`` names the rates
+    below FLOOR = 1e-300 (their plain value underflows: exp of the log, 0.0 below ~5e-324,
+    subnormal below ~2.2e-308). ``error_bounds`` (lattice cases): log10 of each rate's
+    proven relative error bound (trimming; -inf where nothing was trimmed, e.g. the
+    extended-exponent DP; rounding adds ~1e-13). method: "chain", "lattice",
     "integer", "exact-counts" (exact) or "monte-carlo" (estimate, with ``ci95`` per rate and
     ``samples``)."""
 
@@ -189,8 +199,10 @@ def preferential_error_rates(pd, pf, p, q, encoding: str, low: float, high: floa
     independent taxels with P(present) = pd_i under H1 and pf_i under H0 (module doc).
 
     ``pd``, ``pf``: one value or n values in [0, 1]; ``n`` required when both are scalars.
-    ``deep``: compute the logs of the rates below FLOOR too (lattice cases: the tilted DP of
-    :mod:`.tilted_dp`, extra time only when such rates exist); False leaves them None.
+    ``deep``: compute the logs of the rates below FLOOR too (the tilted DP of :mod:`.tilted_dp`,
+    and :mod:`.extended_dp` for what the fast DPs leave uncertified; extra time only when such
+    rates exist); False leaves the logs below FLOOR None (those rates named in ``below_floor``;
+    so is an impossible event where a fast DP cannot tell it from an underflow).
     """
     from .encoding import check_encoding
     from .rules import check_weight
@@ -212,6 +224,9 @@ def preferential_error_rates(pd, pf, p, q, encoding: str, low: float, high: floa
         results = []
         for h, pi in enumerate((pd_arr, pf_arr)):
             regions = lattice_band_logs(pi, lat, low, high, deep=deep)
+            if deep:  # what the tilted DP leaves uncertified: exact in extended exponents
+                regions = _exact_where_needed(regions,
+                                              lambda need, pi=pi: lattice_exact_logs(pi, lat, low, high, need))
             results.append([(log, under) for log, under, _ in regions])
             bounds.update({_NAMES[3 * h + r]: b for r, (_, _, b) in enumerate(regions) if b is not None})
     else:  # {0,1} with a non-integer weight: the counts DP (polynomial), Monte Carlo beyond its budget
@@ -230,16 +245,53 @@ def preferential_error_rates(pd, pf, p, q, encoding: str, low: float, high: floa
             ci = {name: wilson(x * samples, samples) for name, x in zip(_NAMES, (*r1, *r0))}
             logs = [(math.log(x) if x > 0 else None) for x in (*r1, *r0)]
             return PreferentialRates(*logs, method="monte-carlo", samples=samples, ci95=ci)
+        if deep:  # the rates below FLOOR (or 0.0, perhaps underflowed): exact in extended exponents
+            results = [[(log, under) for log, under, _ in _exact_where_needed(
+                [(log, under, None) for log, under in res],
+                lambda need, pi=pi: counts_exact_logs(pi, p, q, low, high, need))]
+                for res, pi in zip(results, (pd_arr, pf_arr))]
     flat = [*results[0], *results[1]]
     below = tuple(name for name, (_, low_) in zip(_NAMES, flat) if low_)
     return PreferentialRates(*[log for log, _ in flat], method=method, below_floor=below,
                              error_bounds=bounds if lat is not None else None)
 
 
+def _exact_where_needed(regions, exact):
+    """``regions`` (per region: ln P or None, below FLOOR, log10 error bound or None) with every
+    rate a fast DP left uncertified -- below FLOOR without a log (not reached, or 0.0 that may
+    be an underflow), or with an error bound above 10^BOUND_OK -- replaced by its exact log from
+    ``exact(needed regions)`` (:mod:`.extended_dp`: -inf only for probability 0, an impossible
+    event; error bound -inf, nothing trimmed). Left as they are where ``exact`` returns None
+    (beyond its budget)."""
+    need = tuple(r for r, (log, under, bound) in enumerate(regions)
+                 if (log is None and under) or (bound is not None and not bound <= BOUND_OK))  # NaN too
+    if not need:
+        return regions
+    got = exact(need)
+    if got is None:
+        return regions
+    out = list(regions)
+    for r in need:
+        log = got[r]
+        out[r] = (None, False, None) if log == -math.inf else (log, log < _LOG_FLOOR, -math.inf)
+    return out
+
+
 def _rates_single(pi: float, encoding: str, low: float, high: float):
-    """One taxel: U_G = u_1 in {-1, 1} or {0, 1} (eq 7 with u_0 = u_2 = 0)."""
-    sums = [0.0, 0.0, 0.0]
-    for value, w in ((1.0, pi), (-1.0 if encoding == "pm1" else 0.0, 1.0 - pi)):
-        sums[0 if value >= high else (2 if value < low else 1)] += w * 2.0**SCALE_BITS
-    return _scaled_logs(sums, 0.0)
+    """One taxel: U_G = u_1 in {-1, 1} or {0, 1} (eq 7 with u_0 = u_2 = 0): per region (ln P or
+    None for an impossible event, below FLOOR), exact whatever the size."""
+    logs: list = [[], [], []]
+    for value, log in ((1.0, math.log(pi) if pi > 0.0 else None),
+                       (-1.0 if encoding == "pm1" else 0.0, math.log1p(-pi) if pi < 1.0 else None)):
+        if log is not None:
+            logs[0 if value >= high else (2 if value < low else 1)].append(log)
+    out = []
+    for parts in logs:
+        if not parts:
+            out.append((None, False))
+        else:
+            top = max(parts)
+            log = top + math.log(math.fsum(math.exp(x - top) for x in parts))
+            out.append((log, log < _LOG_FLOOR))
+    return out
 
