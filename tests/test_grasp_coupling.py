@@ -29,9 +29,11 @@ def spec(**over):
 
 
 class FakeDrive:
-    def __init__(self):
+    """The world's interface of a drive (node_sim.world.coupling.DriveLike), set by hand."""
+
+    def __init__(self, width_mm: float = 80.0):
         self.grip_force_n = 0.0
-        self.width_mm = 80.0
+        self.width_mm = width_mm
         self.cia402_state = "SWITCH ON DISABLED"
         self.calls = []
 

@@ -28,21 +28,12 @@ ROOT = Path(__file__).resolve().parent.parent
 SCENE = load_scene("scenes/grasp_scripted.toml")
 WAIT_S = 10.0
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from test_grasp_coupling import FakeDrive as _FakeDrive  # noqa: E402
 
-class FakeDrive:
-    """The world's interface of a drive, set by hand."""
 
-    def __init__(self):
-        self.grip_force_n = 0.0
-        self.width_mm = 60.0
-        self.cia402_state = "SWITCH ON DISABLED"
-        self.calls = []
-
-    def jaw_blocked_at(self, width_mm):
-        self.calls.append(("jaw_blocked_at", width_mm))
-
-    def part_lost(self):
-        self.calls.append(("part_lost",))
+def FakeDrive():  # noqa: N802 - the world's interface of a drive, jaws at 60 mm
+    return _FakeDrive(width_mm=60.0)
 
 
 def script(drive: FakeDrive, k: int) -> None:
