@@ -5,7 +5,7 @@ filters what its twins consume (:data:`CONSUMED_FILTERS`: python-can filters, re
 the nodes' SYNC COB-ID changes) and dispatches them under the channel lock: NMT module
 control, SDO requests, SYNC (cycle numbering from the SYNC counter, CiA 301 length error and
 synchronous window, then every node samples its readings - patch nodes as one batch,
-:class:`node_sim.patch_batch.PatchSyncBatch` - and the frames of that SYNC leave as one burst),
+:class:`node_sim.patch.batch.PatchSyncBatch` - and the frames of that SYNC leave as one burst),
 heartbeats of other participants, LSS requests. The :class:`~node_sim.rig.Rig` owns the channels
 and what they share (readings, silence faults, LSS devices).
 
@@ -32,7 +32,7 @@ from . import lss as lssx
 from . import od as odx
 from .link import NodeLink, Scheduler
 from .node import TaxelNode
-from .patch_batch import PatchSyncBatch
+from .patch.batch import PatchSyncBatch
 
 if TYPE_CHECKING:
     from .rig import Rig
@@ -99,7 +99,7 @@ CONSUMED_FILTERS = [
 class Channel(can.Listener):
     """One CANopen network: a bus object, its notifier, the nodes, one lock, one timer thread."""
 
-    # patch nodes consuming the same SYNC are sampled as one (node_sim.patch_batch.PatchSyncBatch);
+    # patch nodes consuming the same SYNC are sampled as one (node_sim.patch.batch.PatchSyncBatch);
     # False: node by node through each SyncConsumer (the same frames, more CPU)
     batch_patch_sync = True
 
