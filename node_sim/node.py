@@ -37,7 +37,7 @@ from __future__ import annotations
 from canopen.sdo import SdoAbortedError
 
 from . import od as odx
-from .detector import Detector
+from .taxel.detector import Detector
 from .emcy import EmcyProducer
 from .heartbeat import HeartbeatConsumer, HeartbeatProducer
 from .link import NodeLink, Scheduler
