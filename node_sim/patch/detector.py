@@ -66,7 +66,7 @@ def detect(x: np.ndarray, zeta, noise, full_scale, stuck_after, stuck_min: int, 
     ``zeta``, ``noise`` (per taxel; None: every N_i is 0, Y_i = X_i exactly), ``full_scale``
     (a float or one value per taxel) and ``stuck_after`` (a number or one value per taxel)
     broadcast against ``x``: one node (:meth:`PatchDetector.sample`) or the concatenated taxels
-    of a channel's patch nodes (:class:`node_sim.patch_batch.PatchSyncBatch`). The common case
+    of a channel's patch nodes (:class:`node_sim.patch.batch.PatchSyncBatch`). The common case
     - no repeated sample, every reading in range - costs about ten numpy calls; then ``same``,
     ``open_circuit`` and ``faulted`` are shared read-only arrays (never written in place).
     Floating-point warnings (a reading beyond REAL32, inf - inf) are silenced only when a
@@ -158,7 +158,7 @@ class PatchDetector:
     def sample(self, readings, counter: int | None = None) -> None:
         """X of one SYNC for every taxel (``readings``: n values, mV): faults, decisions
         (eqs 1-4, :func:`detect`), process image. A channel's patch nodes sampling the same SYNC
-        are done together instead (:class:`node_sim.patch_batch.PatchSyncBatch`: the same
+        are done together instead (:class:`node_sim.patch.batch.PatchSyncBatch`: the same
         :func:`detect`)."""
         zeta, noise, full_scale, stuck_after = self.config()
         x = np.asarray(readings, dtype=np.float64)

@@ -11,6 +11,6 @@ and the gripper drive (:mod:`node_sim.gripper`) reuse; what is the taxel node's 
   (:func:`~node_sim.taxel.startup.taxel_startup_values`) and its serial number 0x1018:4
   (:func:`~node_sim.taxel.startup.identity_serial`).
 
-The submodules are imported on use (``node_sim.detector`` and ``node_sim.rig.identity_serial``
-still name them).
+Their old paths still import: ``node_sim.detector`` (re-exports the detector) and
+``node_sim.rig.identity_serial``.
 """
