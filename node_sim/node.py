@@ -16,7 +16,7 @@ per CANopen service, each owning that service's state (the layout follows canope
 * :class:`node_sim.sdo.SdoServer` - canopen's SDO server behind the CiA 301 checks; every
   object's write rules are registered by the service that owns the object;
 * :class:`node_sim.sync.SyncConsumer` - 0x1005 and what a SYNC triggers;
-* :class:`node_sim.detector.Detector` - the application: X_i sampled per SYNC, sensor-fault
+* :class:`node_sim.taxel.detector.Detector` - the application: X_i sampled per SYNC, sensor-fault
   checks, the local decision of the chapter (eqs 1-4), OD update;
 * :class:`node_sim.pdo.TpdoEngine` - TPDO1/TPDO2, synchronous and event-driven;
 * :class:`node_sim.emcy.EmcyProducer` - EMCY, 0x1001 and 0x1003.
@@ -37,7 +37,7 @@ from __future__ import annotations
 from canopen.sdo import SdoAbortedError
 
 from . import od as odx
-from .detector import Detector
+from .taxel.detector import Detector
 from .emcy import EmcyProducer
 from .heartbeat import HeartbeatConsumer, HeartbeatProducer
 from .link import NodeLink, Scheduler

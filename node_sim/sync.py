@@ -10,7 +10,7 @@
   any state in which SDO is served.)
 * What a SYNC triggers, in any NMT state but INITIALISING and never while the node is
   silent (a dead node): the application samples X_i of that cycle, checks it for sensor
-  faults and decides u_i (eqs 1-4, :mod:`node_sim.detector`); then, in OPERATIONAL only,
+  faults and decides u_i (eqs 1-4, :mod:`node_sim.taxel.detector`); then, in OPERATIONAL only,
   the TPDO engine (:mod:`node_sim.pdo`) runs the synchronous TPDOs (and the change check of
   the event-driven ones) with the SYNC's counter byte.
 * The cycle number and counter of the last SYNC consumed.

@@ -18,7 +18,7 @@ thread per bus (each frame carries its own time stamp and cycle tag).
 ``Network`` use), all served by one thread. python-can's ``virtual`` buses have no file
 descriptor: :class:`VirtualNotifiers` serves them with one thread too, woken by their receive
 queues (each bus's queue swapped for one that signals a shared event when a frame is put in
-it; python-can's ``VirtualBus.send`` and :func:`node_sim.channel.virtual_burst_sender` put
+it; python-can's ``VirtualBus.send`` and :func:`node_sim.rig.channel.virtual_burst_sender` put
 frames there). With a ``can.Notifier`` per bus, the demo of scenes/skin4096.toml ran sixteen
 receive threads (eight buses for the centre, eight for the twins) in one process and fell
 behind its 10 ms SYNC for good (p50 29 ms, 7,001 of ~8,800 PDOs late in 100 cycles). Other

@@ -32,7 +32,7 @@ SERVICES = {
     "pdo": "TpdoEngine",
     "sync": "SyncConsumer",
     "emcy": "EmcyProducer",
-    "detector": "Detector",
+    "taxel.detector": "Detector",   # the taxel node's application, in its device kind's package (issue 22)
     "od": "NodeObjects",
 }
 

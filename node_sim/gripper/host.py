@@ -1,6 +1,6 @@
 """A gripper drive on its own python-can bus object: :class:`DriveHost`.
 
-What :class:`node_sim.channel.Channel` is for the taxel nodes of a rig channel, for one
+What :class:`node_sim.rig.channel.Channel` is for the taxel nodes of a rig channel, for one
 :class:`node_sim.gripper.drive.GripperDrive`: one bus object, one lock, one timer thread
 (:class:`node_sim.link.Scheduler`: heartbeat, SDO server timeout), a receive thread (python-can's
 ``Notifier``) that hands each frame to the drive with the lock held - NMT module control (to the

@@ -1,0 +1,140 @@
+"""The TPDO engine of a patch node (:class:`PatchTpdoEngine`): :class:`node_sim.pdo.TpdoEngine`
+over 85 TPDO pairs and, on CAN FD, 64 mapping entries / 512 bits per PDO.
+
+It compiles each mapping once (on a change) into a function of byte ranges of the process image
+(:mod:`.image`; consecutive entries of one array become one slice), so a SYNC costs one ``join``
+of a few slices per TPDO (the tag and the packed decisions: one concatenation); on CAN FD the data
+are padded with 0 to the next valid FD length. TPDOs all sent on every SYNC (transmission type 1)
+leave in one call to the link.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from canopen.sdo import SdoAbortedError
+
+from taxel_net import patches as P
+
+from ..pdo import TpdoEngine, _TpdoConfig
+from ..sdo import ABORT_NOT_MAPPABLE
+from .objects import CLASSIC_MAPPED, FD_MAPPED, FD_TPDOS, IMAGE_ARRAYS, N_TPDOS, TPDO_COMM, TPDO_MAP
+
+if TYPE_CHECKING:
+    from .node import PatchNode
+
+
+class PatchTpdoEngine(TpdoEngine):
+    """TPDOs of a patch node: mappings compiled to slices of the process image."""
+
+    def __init__(self, node: "PatchNode", *, fd: bool):
+        super().__init__(node, node.nmt, node.objects, node.link, comm=TPDO_COMM, mapping=TPDO_MAP,
+                         max_mapped=tuple(FD_MAPPED if fd and k < FD_TPDOS else CLASSIC_MAPPED
+                                          for k in range(N_TPDOS)),
+                         max_bits=8 * (P.FD_DATA_MAX if fd else P.CLASSIC_DATA_MAX), fd=fd)
+        self._image = node.image
+        self._every_sync = self._tagged_decisions = None   # what _activate finds
+        self._every_sync_runtimes: tuple = ()
+
+    def _activate(self):
+        active = super()._activate()
+        # every active TPDO synchronous, sent on every SYNC (transmission type 1, no SYNC start
+        # value): on_sync sends them without the general per-TPDO bookkeeping, which leaves
+        # them started with their SYNC count at 0 after every SYNC - as here
+        every_sync = bool(active) and all(cfg.transmission_type == 1 and not cfg.sync_start for _, cfg, _ in active)
+        self._every_sync = tuple((cfg.can_id, cfg.plan, rt) for _, cfg, rt in active) if every_sync else None
+        self._every_sync_runtimes = tuple(rt for _, _, rt in active)
+        # and each the cycle tag and a range of packed decisions (classic): (can_id, start, stop)
+        self._tagged_decisions = (tuple((cfg.can_id, *cfg.plan.tagged_decisions) for _, cfg, _ in active)
+                                  if every_sync and not self.fd
+                                  and all(hasattr(cfg.plan, "tagged_decisions") for _, cfg, _ in active)
+                                  else None)
+        if every_sync:
+            for rt in self._every_sync_runtimes:
+                rt.started = True
+                rt.sync_count = 0
+        return active
+
+    def on_sync(self, counter: int | None) -> None:
+        """A SYNC in OPERATIONAL for a live node: :meth:`TpdoEngine.on_sync`, or when every
+        active TPDO is sent on every SYNC, their frames in one :meth:`NodeLink.send_all`
+        (the same frames and run-time state)."""
+        if self._active is None:
+            self._activate()
+        every_sync = self._every_sync
+        if every_sync is None:
+            super().on_sync(counter)
+            return
+        tagged = self._tagged_decisions
+        if tagged is not None:
+            image = self._image
+            tag, decisions = image.tag_byte, image.decisions
+            frames = [(can_id, tag + decisions[first:stop]) for can_id, first, stop in tagged]
+            for (_, payload), rt in zip(frames, self._every_sync_runtimes):
+                rt.last_sent = payload
+        else:
+            frames = []
+            fd = self.fd
+            for can_id, payload_of, rt in every_sync:
+                payload = payload_of()
+                rt.last_sent = payload
+                frames.append((can_id, payload, True) if fd else (can_id, payload))
+        self._link.send_all(frames, self._every_sync_runtimes)
+        self.frames_sent += len(frames)
+
+    def _compile(self, cfg: _TpdoConfig):
+        """The payload of ``cfg`` as a function of no argument: byte ranges of the image
+        (consecutive entries of one array: one range) and other objects (read from the OD at
+        transmission), joined, then the FD padding; the cycle tag and one range of packed
+        decisions (the rig's patch TPDOs) is one concatenation."""
+        runs: list[list] = []
+        image = self._image
+        length = 0
+        for index, subindex, bits in cfg.mapping:
+            size = bits // 8
+            length += size
+            if index in IMAGE_ARRAYS:
+                width = image.entry_bytes(index)
+                start = (subindex - 1) * width
+                if runs and runs[-1][0] == index and runs[-1][2] == start:
+                    runs[-1][2] = start + width
+                else:
+                    runs.append([index, start, start + width])
+            elif index == P.PATCH_CYCLE_TAG:
+                runs.append([index, 0, 1])
+            else:
+                runs.append([index, subindex, None])
+        padding = bytes(P.fd_length(length) - length) if self.fd and length <= P.FD_DATA_MAX else b""
+        kinds = [r[0] for r in runs]
+        if not padding and kinds == [P.PATCH_CYCLE_TAG, P.PATCH_DECISIONS]:
+            first, stop = runs[1][1], runs[1][2]
+
+            def tagged_decisions() -> bytes:
+                return image.tag_byte + image.decisions[first:stop]
+
+            tagged_decisions.tagged_decisions = (first, stop)   # what on_sync sends without the call
+            return tagged_decisions
+        if not padding and kinds == [P.PATCH_DECISIONS]:
+            first, stop = runs[0][1], runs[0][2]
+            return lambda: image.decisions[first:stop]
+        runs = tuple(tuple(r) for r in runs)
+        data = image.data
+        local = self._objects.local
+
+        def payload() -> bytes:
+            parts = [data(i)[a:b] if b is not None else local.get_data(i, a) for i, a, b in runs]
+            if padding:
+                parts.append(padding)
+            return b"".join(parts)
+
+        return payload
+
+    def _payload(self, cfg: _TpdoConfig) -> bytes:
+        return cfg.plan()
+
+    def _check_mappable(self, entry: int) -> int:
+        index, subindex = entry >> 16, (entry >> 8) & 0xFF
+        if index in IMAGE_ARRAYS and not 1 <= subindex <= self._image.entries(index):
+            raise SdoAbortedError(ABORT_NOT_MAPPABLE)               # no such taxel on this node
+        return super()._check_mappable(entry)
+
