@@ -60,7 +60,8 @@ class FifoReader:
             self.data = f.read()
 
     def result(self) -> bytes:
-        self.thread.join(60)
+        """What was read, once the writer (a finished command) is gone."""
+        self.thread.join(5)
         if self.thread.is_alive():  # the writer never opened it: unblock the reader
             os.close(os.open(self.path, os.O_WRONLY | os.O_NONBLOCK))
             self.thread.join(5)
