@@ -60,3 +60,15 @@ def test_all_writes_the_drive_beside_the_taxels_and_stdout(tmp_path, capsys):
     assert capsys.readouterr().out == drive_dcf_text(scene, gripper_eds_path().read_text(), drive_file_name(scene))
     # a scene without [gripper]: node 32 is no node of it
     assert main(["dcf", "--scene", "gripper18", "--node", "32", "-o", "-"]) == 2
+
+
+def test_eds_given_for_the_drive_is_the_one_its_dcf_is_made_from(tmp_path, capsys):
+    """``--eds`` with ``--node`` naming the drive: the DCF is made from that file (it was checked
+    as a taxel EDS and then dropped for the shipped drive EDS)."""
+    scene = load_scene("grasp_drive")
+    mine = tmp_path / "my_drive.eds"
+    mine.write_text(gripper_eds_path().read_text().replace("ProductName=", "ProductName=my ", 1))
+    out = tmp_path / "drive.dcf"
+    assert main(["dcf", "--scene", "grasp_drive", "--node", "32", "--eds", str(mine), "-o", str(out)]) == 0
+    assert "ProductName=my " in out.read_text()
+    check_drive_dcf(out, scene)

@@ -285,18 +285,21 @@ def run(args) -> int:
     import sys
 
     from taxel_net.errors import UsageError
-    from taxel_net.resources import eds_path, patch_eds_path
+    from taxel_net.resources import eds_path, gripper_eds_path, patch_eds_path
     from taxel_net.scene import load_scene
 
     scene = load_scene(args.scene)
     drive = not args.all and is_drive(scene, args.node)
-    source = Path(args.eds) if args.eds else patch_eds_path() if scene.bus.patch_nodes else eds_path()
+    # the EDS the DCF is made from: --eds (the drive's when --node names the drive: it was read
+    # as a taxel EDS and then dropped), else the shipped one of the node's kind
+    source = (Path(args.eds) if args.eds else gripper_eds_path() if drive
+              else patch_eds_path() if scene.bus.patch_nodes else eds_path())
     if args.eds:  # a user's EDS: one line for any content canopen or configparser would stumble on
         from taxel_net.eds_file import import_eds
 
         import_eds(source, 1)  # EdsError (a ParameterError: exit 2) naming the file
     try:
-        eds_text = _drive_eds_text() if drive else source.read_text(encoding="utf-8")
+        eds_text = source.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
         raise UsageError(f"EDS file {str(source)!r} cannot be read: {exc}") from None
     out = Path(args.output)
