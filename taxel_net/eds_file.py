@@ -24,7 +24,7 @@ import re
 import struct
 from pathlib import Path
 
-from .errors import EdsError
+from .errors import EdsError, one_line
 
 ACCESS_TYPES = ("ro", "wo", "rw", "rwr", "rww", "const")  # CiA 306 4.6.3.2 AccessType
 _OBJECT_SECTION = re.compile(r"([0-9A-Fa-f]{4})(?:[Ss]ub([0-9A-Fa-f]+))?")
@@ -37,10 +37,6 @@ def _type_name(data_type: int | None) -> str:
 
     names = {v: k for k, v in vars(datatypes).items() if k.isupper() and isinstance(v, int)}
     return names.get(data_type, f"0x{data_type:04X}" if isinstance(data_type, int) else "none")
-
-
-def _one_line(exc: BaseException) -> str:
-    return " ".join(f"{type(exc).__name__}: {exc}".split())
 
 
 class _Capture(logging.Handler):
@@ -95,7 +91,7 @@ def _syntax_problem(text: str) -> str | None:
     except configparser.DuplicateOptionError as exc:
         return f"line {exc.lineno}: key {exc.option} appears twice in [{exc.section}]"
     except configparser.Error as exc:
-        return _one_line(exc)
+        return one_line(exc)
     return None
 
 
@@ -243,7 +239,7 @@ def _explain(text: str, exc: BaseException) -> str:
     problem = _value_problem(_parser(text))
     if problem is not None:
         return problem
-    return f"cannot be read: {_one_line(exc)}"
+    return f"cannot be read: {one_line(exc)}"
 
 
 def import_eds(path, node_id: int | None = None):

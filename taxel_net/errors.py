@@ -45,3 +45,9 @@ class EdsError(ParameterError):
 
 class UsageError(Exception):
     """A bad input at the command or service level (unknown interface, unreadable file...): exit 2."""
+
+
+def one_line(exc: BaseException) -> str:
+    """An exception as one line, ``Type: message`` with its whitespace collapsed (for the one-line
+    errors of bad files and traces)."""
+    return " ".join(f"{type(exc).__name__}: {exc}".split())

@@ -22,7 +22,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args) -> int:
-
     from taxel_net.errors import UsageError
     from taxel_net.outputs import discard_stale
     from taxel_net.scene import load_scene

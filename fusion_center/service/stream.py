@@ -363,8 +363,8 @@ class EventStream:
     def flush_trace(self, to_disk: bool = False) -> None:
         """Write the queued trace messages, in stream order (any thread, outside the stream lock);
         ``to_disk`` (at every cycle close): also hand everything the writer holds to the OS
-        (:func:`~.trace_writers.flush_to_os`: a file's buffer, BLF's container, SQLite's
-        transaction), so a SIGKILL loses at most the cycle in flight, in every format."""
+        (:func:`~.trace_writers.flush_to_os`: a file's buffer, BLF's container), so a SIGKILL
+        loses at most the cycle in flight, in every format the centre writes."""
         with self._trace_lock:
             with self.lock:
                 batch = self._trace_queue

@@ -16,7 +16,7 @@ import can
 from can.io.logger import MESSAGE_WRITERS as _WRITERS  # what python-can writes, by extension
 from can.io.player import MESSAGE_READERS as _READERS  # ... and reads back
 
-from taxel_net.errors import UsageError
+from taxel_net.errors import UsageError, one_line
 from taxel_net.outputs import OutputPath
 from taxel_net.scene import Scene
 from .cycles import ClosedCycle, CycleAssembler
@@ -150,7 +150,7 @@ def replay_trace(scene: Scene, trace_path, *, json_lines=None, truth: bool = Tru
         except UsageError:
             raise
         except Exception as exc:  # noqa: BLE001 - truncated, corrupted: any reader error
-            raise UsageError(f"trace {name!r}: unreadable after frame {frames}: {_one_line(exc)}"
+            raise UsageError(f"trace {name!r}: unreadable after frame {frames}: {one_line(exc)}"
                              + (f" (the {len(records)} records so far are in {str(partial)!r})"
                                 if partial is not None else "")) from None
     finally:
@@ -179,7 +179,7 @@ def _open_reader(p: Path, *, notify: bool = True):
     try:
         reader = can.LogReader(str(p))
     except Exception as exc:  # noqa: BLE001 - any content: one line naming the file
-        raise UsageError(f"trace {name!r} cannot be read: {_one_line(exc)}") from None
+        raise UsageError(f"trace {name!r} cannot be read: {one_line(exc)}") from None
     try:
         unclosed = _check_complete(p, reader)
     except UsageError:
@@ -199,7 +199,7 @@ def _open_reader(p: Path, *, notify: bool = True):
     try:
         return _READERS[p.suffix.lower()](_prefix_file(p, end, text=what == "line"))
     except Exception as exc:  # noqa: BLE001 - any content: one line naming the file
-        raise UsageError(f"trace {name!r} cannot be read: {_one_line(exc)}") from None
+        raise UsageError(f"trace {name!r} cannot be read: {one_line(exc)}") from None
 
 
 def _patch_tpdo_tables(scene: Scene) -> tuple[list[dict[int, int]], list[dict[int, int]]]:
@@ -297,7 +297,7 @@ def check_trace(scene: Scene, trace_path) -> dict:
             elif base in tpdo:
                 tpdo[base] += 1
     except Exception as exc:  # noqa: BLE001 - truncated, corrupted: any reader error
-        raise UsageError(f"trace {name!r}: unreadable after frame {frames}: {_one_line(exc)}") from None
+        raise UsageError(f"trace {name!r}: unreadable after frame {frames}: {one_line(exc)}") from None
     finally:
         _stop(reader)
     force = "; --force replays it anyway"
@@ -327,10 +327,6 @@ def check_trace(scene: Scene, trace_path) -> dict:
                          f"{force}")
     return {"frames": frames, "channels": n_channels, "foreign": foreign,
             "tpdo1": tpdo[BASE_TPDO1], "tpdo2": tpdo[BASE_TPDO2]}
-
-
-def _one_line(exc: BaseException) -> str:
-    return " ".join(f"{type(exc).__name__}: {exc}".split())
 
 
 def _stop(reader) -> None:
