@@ -357,3 +357,18 @@ def test_fuse_names_a_rate_whose_bound_stays_loose(capsys, monkeypatch):
     rec = fuse_json(capsys, *COUNT_CASE)
     assert list(rec["rates_error_bound_log10"]) == ["p_false_alarm"]
     assert rec["rates_error_bound_log10"]["p_false_alarm"] > -13
+
+
+@pytest.mark.parametrize("encoding, p, q", [("pm1", 1.0, 0.5), ("pm1", 0.3169778809467432, 1.4445044222254704),
+                                            ("01", 0.7362069775690239, 1.1216956018196342)])
+@pytest.mark.parametrize("edge", [1e17, 1e100, 1e300, 1.7e308])
+def test_band_edges_far_beyond_reach(encoding, p, q, edge):
+    """Band edges far beyond any U_G (+-1e17 .. +-1.7e308): the exact threshold search walked
+    from a float estimate off by ~edge * 1e-16 units, one unit a step (1e100: ~1e84 steps, a
+    hang); now clamped to x's reach. Every vector is then on one side: the rates are 0 or 1,
+    against the reference."""
+    rng = np.random.default_rng(int(math.log10(edge)))
+    pd, pf = rng.uniform(0.05, 0.95, 7), rng.uniform(0.05, 0.95, 7)
+    for low, high in ((-edge, edge), (edge, edge), (-edge, -edge), (-edge, 0.5)):
+        ours = preferential_error_rates(pd, pf, p, q, encoding, low, high)
+        assert_matches(ours, reference(pd, pf, p, q, encoding, low, high))

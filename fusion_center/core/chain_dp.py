@@ -334,18 +334,35 @@ def _at_least(coeffs, edge: float, p: float, q: float) -> bool:
         return _exact_value(coeffs, p, q) >= mpmath.mpf(edge)
 
 
-def _first_at_least(lat: _Lattice, base, edge: float, p: float, q: float) -> int:
-    """Smallest integer x with unit * x + base >= edge (exact)."""
+def _first_at_least(lat: _Lattice, base, edge: float, p: float, q: float,
+                    x_range: tuple[int, int] | None = None) -> int:
+    """Smallest integer x with unit * x + base >= edge (exact); with ``x_range`` = (xa, xb), x's
+    reach over the decision vectors (:func:`_x_range`), the answer clamped to [xa - 1, xb + 1]
+    (every reachable x compares with the edge as with the true threshold).
+
+    The float estimate is exact to a few units only while the edge is small: for an edge of
+    1e100 it is off by ~1e84 units, which the exact steps below would walk one by one. An
+    estimate beyond x's reach by more than its own error is clamped without walking."""
     unit_value = _float_value(lat.unit, p, q)[0]
     base_value = _float_value(base, p, q)[0]
     if math.isinf(edge):
         return -(2**62) if edge < 0 else 2**62
-    x = math.ceil((edge - base_value) / unit_value)
+    estimate = (edge - base_value) / unit_value
+    if x_range is not None:
+        xa, xb = x_range
+        slack = 2.0 + abs(estimate) * 1e-9  # far above the float error of the estimate
+        if estimate - slack > xb + 1:
+            return xb + 1
+        if estimate + slack < xa - 1:
+            return xa - 1
+    x = math.ceil(estimate)
     coeffs = lambda k: tuple(u * k + b for u, b in zip(lat.unit, base))
     while _at_least(coeffs(x - 1), edge, p, q):
         x -= 1
     while not _at_least(coeffs(x), edge, p, q):
         x += 1
+    if x_range is not None:
+        x = min(max(x, x_range[0] - 1), x_range[1] + 1)
     return x
 
 

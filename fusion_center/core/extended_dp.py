@@ -191,9 +191,8 @@ def lattice_exact_logs(pi: np.ndarray, lat: _Lattice, low: float, high: float, r
     # integer thresholds on the final x per label pair, clamped to just beyond x's reach (an
     # edge of 1e300 is a Python int beyond int64; the comparisons are the same)
     xa, xb = _x_range(lat, n)
-    clamp = lambda t: min(max(t, xa - 1), xb + 1)  # noqa: E731
-    edges = {key: (clamp(_first_at_least(lat, _label_base(lat, *key), low, p, q)),
-                   clamp(_first_at_least(lat, _label_base(lat, *key), high, p, q))) for key in pairs}
+    edges = {key: (_first_at_least(lat, _label_base(lat, *key), low, p, q, (xa, xb)),
+                   _first_at_least(lat, _label_base(lat, *key), high, p, q, (xa, xb))) for key in pairs}
     tables = _future_tables(lat, n, edges)
     shift = lat.shift
     smin, smax = int(shift.min()), int(shift.max())

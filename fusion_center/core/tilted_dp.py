@@ -509,9 +509,9 @@ def lattice_band_logs(pi: np.ndarray, lat: _Lattice, low: float, high: float, de
         pi = pi[::-1]
     n = pi.size
     pairs = [(ls, le) for ls in range(len(lat.start_labels)) for le in range(len(lat.end_labels))]
-    edges = {key: (_first_at_least(lat, _label_base(lat, *key), low, p, q),
-                   _first_at_least(lat, _label_base(lat, *key), high, p, q)) for key in pairs}
     xa, xb = _x_range(lat, n)
+    edges = {key: (_first_at_least(lat, _label_base(lat, *key), low, p, q, (xa, xb)),
+                   _first_at_least(lat, _label_base(lat, *key), high, p, q, (xa, xb))) for key in pairs}
     # per region and label pair the reachable integer interval [s, e) of the final x
     intervals = [[(max(t_high, xa), xb + 1) for t_low, t_high in edges.values()],
                  [(max(t_low, xa), min(t_high, xb + 1)) for t_low, t_high in edges.values()],
