@@ -231,3 +231,30 @@ def test_sigkill_leaves_every_recorded_cycle_in_the_trace(tmp_path, suffix):
     assert json.loads(replayed[-1])["cycle"] == len(replayed) - 1
     warned = [line for line in done.stderr.splitlines() if "never closed by its writer" in line]
     assert len(warned) == (1 if suffix in (".blf", ".asc") else 0), done.stderr
+
+
+def test_log_cut_mid_line_replays_to_its_last_complete_line_with_a_warning(matrix, frames, tmp_path, caplog):
+    """A candump .log has no end marker: a run killed while a line was half written leaves a last
+    line without its newline. Before, replay refused the trace ('not enough values to unpack') or,
+    cut inside the data, read a different frame (``639#230`` of ``639#2300...``: a bad DLC); now it
+    reads every complete line, says so in one warning, and never a frame of the torn line."""
+    closed, killed, bounds = unclosed_copy(matrix, frames, tmp_path, ".log")
+    data = killed.read_bytes()
+    assert data.endswith(b"\n")  # handed to the OS at each cycle's close: whole lines
+    full, _ = replay_trace(matrix, closed)
+    for (end, fed), (next_end, next_fed) in list(zip(bounds, bounds[1:]))[::5]:
+        for cut in (end + 1, (end + next_end) // 2, next_end - 1):
+            torn = tmp_path / "torn.log"
+            torn.write_bytes(data[:cut])
+            if data[cut - 1:cut] == b"\n":
+                continue
+            got = replay_reads(torn)
+            assert [m.arbitration_id for m in got] == [m.arbitration_id for m, _ in frames[:len(got)]]
+            assert [bytes(m.data) for m in got] == [bytes(m.data) for m, _ in frames[:len(got)]]
+            assert fed <= len(got) < next_fed, (cut, end, next_end, len(got), fed)
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="fusion_center.service"):
+        records, _ = replay_trace(matrix, torn)
+    assert records == full[:len(records)]
+    notes = [r.getMessage() for r in caplog.records if "no newline at its end" in r.getMessage()]
+    assert len(notes) == 1 and str(torn) in notes[0]

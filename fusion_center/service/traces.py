@@ -106,7 +106,8 @@ def replay_trace(scene: Scene, trace_path, *, json_lines=None, truth: bool = Tru
     A trace of any content - binary, wrong format, truncated, a BLF file cut after its writer
     closed it - raises :class:`UsageError` (one line naming the file and the position); one its
     writer never closed (a killed run: a BLF with its opening header, an ASC without its ``End
-    TriggerBlock``) is read up to its last complete container or line, with a warning.
+    TriggerBlock``, a candump ``.log`` whose last line has no newline) is read up to its last
+    complete container or line, with a warning.
     ``json_lines`` is written to ``OUT.partial`` and renamed to ``OUT`` only when the whole
     trace was read: a failed replay leaves no complete-
     looking log (the partial one stays as ``OUT.partial``, and an ``OUT`` of an earlier run is
@@ -191,7 +192,8 @@ def _open_reader(p: Path, *, notify: bool = True):
     size = p.stat().st_size
     if notify:
         why = ("never closed by its writer (the run was killed?)" if what == "container" else
-               "no 'End TriggerBlock': never closed by its writer (the run was killed?) or cut")
+               "no newline at its end: its writer was killed mid-line (or it was cut)" if p.suffix.lower() == ".log"
+               else "no 'End TriggerBlock': never closed by its writer (the run was killed?) or cut")
         logger.warning("trace %r: %s: read up to its last complete %s (%d of its %d bytes)", name, why, what, end, size)
     if end == size:
         return reader
@@ -347,7 +349,8 @@ def _check_complete(path: Path, reader) -> tuple[int, str] | None:
 
     Returns None for a complete trace (or a format that cannot tell), ``(end, unit)`` for one
     its writer never closed - ``end`` is the end of its last complete ``unit`` ("container" of
-    a BLF, "line" of an ASC) - and raises :class:`UsageError` for a BLF whose header's size is
+    a BLF, "line" of an ASC or of a candump ``.log`` whose last line has no newline: a frame cut
+    short would be read as another frame, ``639#230`` of ``639#2300...``) - and raises :class:`UsageError` for a BLF whose header's size is
     neither the file's nor the one written at the opening (cut or altered after it was closed)."""
     from can.io.blf import FILE_HEADER_STRUCT
 
@@ -373,6 +376,11 @@ def _check_complete(path: Path, reader) -> tuple[int, str] | None:
         last = next((line.strip() for line in reversed(tail) if line.strip()), b"")
         if last != b"End TriggerBlock":
             return _last_line_end(path, size), "line"
+    if suffix == ".log" and size:
+        with open(path, "rb") as f:  # every line of a candump log ends with a newline
+            f.seek(size - 1)
+            if f.read(1) != b"\n":
+                return _last_line_end(path, size), "line"
     return None
 
 
