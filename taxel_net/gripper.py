@@ -19,10 +19,10 @@ Shared by the twins and the centre (neither imports the other): no CAN library h
 
 from __future__ import annotations
 
-import zlib
 from dataclasses import dataclass
 from types import SimpleNamespace
 
+from taxel_net.identity import identity_serial as _identity_serial
 from taxel_net.scene_fields import Where, integer, number, string, table
 
 # the drive's objects the start-up values write (CiA 301 / CiA 402 / vendor area, eds/gripper_drive.eds)
@@ -191,10 +191,8 @@ def master_consumer_entry(scene) -> int:
 
 
 def identity_serial(scene) -> int:
-    """0x1018:4 of the drive: as the taxels' (``node_sim.rig.identity_serial``): ``crc32(scene
-    name) & 0xFFFF`` in bits 16-31, the channel in bits 8-15, the node-ID in bits 0-7."""
-    g = scene.gripper
-    return (zlib.crc32(scene.name.encode("utf-8")) & 0xFFFF) << 16 | (g.channel & 0xFF) << 8 | g.node_id
+    """0x1018:4 of the drive: the scene's rule for every device (:mod:`taxel_net.identity`)."""
+    return _identity_serial(scene, scene.gripper)
 
 
 def startup_values(scene) -> dict[tuple[int, int], int]:

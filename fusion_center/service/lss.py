@@ -35,11 +35,11 @@ import logging
 import queue
 import struct
 import time
-import zlib
 from dataclasses import dataclass, field
 
 import can
 
+from taxel_net.identity import identity_serial
 from taxel_net.scene import Scene
 
 logger = logging.getLogger("fusion_center.lss")
@@ -60,10 +60,7 @@ STORE_NOT_SUPPORTED = 1
 _U32 = struct.Struct("<I")
 
 
-def expected_serial(scene: Scene, t) -> int:
-    """0x1018:4 the scene gives taxel ``t``: ``crc32(scene name) & 0xFFFF`` in bits 16-31, its
-    channel in 8-15, its node-ID in 0-7 (the twins' ``node_sim.rig.identity_serial``)."""
-    return (zlib.crc32(scene.name.encode("utf-8")) & 0xFFFF) << 16 | (t.channel & 0xFF) << 8 | t.node_id
+expected_serial = identity_serial  # 0x1018:4 the scene gives taxel ``t`` (the twins' own rule)
 
 
 @dataclass

@@ -12,19 +12,11 @@ legitimately identical). These values are what NMT reset-node / reset-communicat
 
 from __future__ import annotations
 
-import zlib
-
+from taxel_net.identity import identity_serial  # noqa: F401 - 0x1018:4, importable from here as before
 from taxel_net.scene import TAXEL_KINDS, Scene
 
 from .. import od as odx
 from ..od import COB_INVALID
-
-
-def identity_serial(scene: Scene, t) -> int:
-    """0x1018:4 of taxel ``t``: ``crc32(scene name) & 0xFFFF`` in bits 16-31, its channel in
-    bits 8-15, its node-ID in bits 0-7 — distinct for every node of a scene (node-IDs are
-    unique per channel) and the same in every run and process of that scene."""
-    return (zlib.crc32(scene.name.encode("utf-8")) & 0xFFFF) << 16 | (t.channel & 0xFF) << 8 | t.node_id
 
 
 def taxel_startup_values(scene: Scene, t, node_id: int | None = None) -> dict[tuple[int, int], object]:
