@@ -18,6 +18,7 @@ from taxel_net.gripper import GripperSpec, load_gripper
 from taxel_net.patches import COB_ID_FIRST, COB_ID_LAST, PATCH_TAXELS_MAX, RAW_FORMATS
 from taxel_net.patches import devices as patch_devices
 from taxel_net.scene_grasp import GraspSpec, load_grasp
+from taxel_net.scene_grip import GripParams, load_grip
 from taxel_net.scene_fields import Where as _Where
 from taxel_net.scene_fields import array as _list
 from taxel_net.scene_fields import boolean as _bool
@@ -186,6 +187,7 @@ class Scene:
     master: MasterSpec = field(default_factory=MasterSpec)
     grasp: GraspSpec | None = None         # [grasp]: the grasp world's object and task (scene_grasp.py)
     gripper: GripperSpec | None = None     # [gripper]: a CiA 402 gripper drive on the bus (taxel_net.gripper)
+    grip: GripParams | None = None         # [grip]: the centre's grip-force law (taxel_net.scene_grip)
 
     @property
     def n(self) -> int:
@@ -223,7 +225,7 @@ _INT_TAXEL_FIELDS = ("node_id", "channel")
 _STR_TAXEL_FIELDS = ("kind", "jaw", "axis")
 
 _TOP_KEYS = ("scene", "bus", "kinds", "taxels", "taxels_file", "per_taxel", "object", "fusion",
-             "forces", "outputs", "faults", "master", "grasp", "gripper")
+             "forces", "outputs", "faults", "master", "grasp", "gripper", "grip")
 _SCENE_KEYS = ("name", "description", "seed", "cycles")
 _BUS_KEYS = ("bitrate", "sync_period_ms", "sync_counter", "heartbeat_producer_ms",
              "heartbeat_consumer_ms", "mode", "transmission_type", "inhibit_time_100us",
@@ -366,9 +368,10 @@ def load_scene(path) -> Scene:
         except ValueError as exc:
             _Where(sp, "bus").fail("tpdo_cob_id_base", f"0x{bus.tpdo_cob_id_base:03X}", str(exc))
     gripper = load_gripper(sp, doc["gripper"], bus, taxels, master) if "gripper" in doc else None
+    grip = load_grip(sp, doc["grip"], gripper, forces.mu) if "grip" in doc else None
     return Scene(path=sp, name=name, description=description, seed=seed, cycles=cycles, bus=bus,
                  taxels=taxels, object=obj, fusion=fusion, forces=forces, stages=tuple(stages),
-                 faults=faults, master=master, gripper=gripper,
+                 faults=faults, master=master, gripper=gripper, grip=grip,
                  grasp=load_grasp(sp, doc["grasp"]) if "grasp" in doc else None)
 
 

@@ -45,51 +45,10 @@ import math
 from dataclasses import dataclass, replace
 
 from taxel_net.errors import ParameterError
+from taxel_net.grip_params import GripParams, check_params  # noqa: F401  (the scene's [grip] table)
 
 LAW_PHASES = ("open", "grasp", "hold", "release")
 TASKS = ("open", "close", "release")  # what the task asks of the gripper this cycle
-
-
-@dataclass(frozen=True)
-class GripParams:
-    """The law's gains and limits (the scene's ``[grip]`` table; per-jaw forces in N)."""
-
-    grasp_n: float = 5.0            # the first squeeze once the object is present
-    min_n: float = 0.5              # the least command while holding
-    max_n: float = 100.0            # the most (the drive's range; a fragile object's limit)
-    raise_fraction: float = 0.25    # a slipping cycle raises by max(raise_fraction * command, raise_n)
-    raise_n: float = 0.5
-    relax_n_s: float = 2.0          # above the target the command falls at most this fast, N/s
-    safety_factor: float = 1.2      # raw mode: the target is safety_factor * T / mu (eq 26a)
-    mu: float = 0.5                 # the friction coefficient of eq 26a ([forces] mu)
-    open_n: float = 10.0            # release: opening force
-    presence_cycles: int = 2        # H1 this many cycles in a row before the squeeze
-
-    def __post_init__(self):
-        check_params(self)
-
-
-def check_params(p: GripParams) -> None:
-    """Raise :class:`ParameterError` naming the first bad field (the scene loader names the file)."""
-    for name in ("grasp_n", "min_n", "max_n", "raise_n", "relax_n_s", "open_n", "mu", "safety_factor",
-                 "raise_fraction"):
-        value = getattr(p, name)
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-            raise ParameterError(name, value, "must be a finite number")
-    for name in ("max_n", "mu", "open_n"):
-        if getattr(p, name) <= 0:
-            raise ParameterError(name, getattr(p, name), "must be > 0")
-    for name in ("min_n", "raise_n", "relax_n_s", "raise_fraction"):
-        if getattr(p, name) < 0:
-            raise ParameterError(name, getattr(p, name), "must be >= 0")
-    if p.raise_fraction == 0 and p.raise_n == 0:
-        raise ParameterError("raise_n", p.raise_n, "must be > 0 when raise_fraction is 0 (a slip must raise the force)")
-    if p.safety_factor < 1:
-        raise ParameterError("safety_factor", p.safety_factor, "must be >= 1 (eq 26a's bound is the least)")
-    if not p.min_n <= p.grasp_n <= p.max_n:
-        raise ParameterError("grasp_n", p.grasp_n, f"must lie in [min_n, max_n] = [{p.min_n}, {p.max_n}]")
-    if isinstance(p.presence_cycles, bool) or not isinstance(p.presence_cycles, int) or p.presence_cycles < 1:
-        raise ParameterError("presence_cycles", p.presence_cycles, "must be an integer >= 1")
 
 
 @dataclass(frozen=True)

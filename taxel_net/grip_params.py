@@ -1,0 +1,67 @@
+"""The grip-force law's parameters (issue 23): the scene's ``[grip]`` table in typed form.
+
+Shared by the scene loader (:mod:`taxel_net.scene_grip`, which the twins load too) and the law
+itself (:mod:`fusion_center.core.grip_law`, which re-exports :class:`GripParams`): the type lives
+in the shared layer as :class:`taxel_net.scene_grasp.GraspSpec` does, so that loading a scene never
+imports the centre. Pure: the standard library's ``math`` / ``dataclasses`` and
+:mod:`taxel_net.errors` only (the core may import it, ``tests/test_layout.py``).
+
+Forces are **per jaw** in N (the drive's convention, 0x2101). Meaning of each field and the law
+that uses them: ``docs/grip-control.md``; the table's format: ``docs/scene-format.md``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from taxel_net.errors import ParameterError
+
+
+@dataclass(frozen=True)
+class GripParams:
+    """The law's gains and limits (the scene's ``[grip]`` table; per-jaw forces in N)."""
+
+    grasp_n: float = 5.0            # the first squeeze once the object is present
+    min_n: float = 0.5              # the least command while holding
+    max_n: float = 100.0            # the most (the drive's range; a fragile object's limit)
+    raise_fraction: float = 0.25    # a slipping cycle raises by max(raise_fraction * command, raise_n)
+    raise_n: float = 0.5
+    relax_n_s: float = 2.0          # above the target the command falls at most this fast, N/s
+    safety_factor: float = 1.2      # raw mode: the target is safety_factor * T / mu (eq 26a)
+    mu: float = 0.5                 # the friction coefficient of eq 26a ([forces] mu)
+    open_n: float = 10.0            # release: opening force
+    presence_cycles: int = 2        # H1 this many cycles in a row before the squeeze
+
+    def __post_init__(self):
+        check_params(self)
+
+
+FLOAT_FIELDS = ("grasp_n", "min_n", "max_n", "raise_fraction", "raise_n", "relax_n_s", "safety_factor", "mu",
+                "open_n")
+INT_FIELDS = ("presence_cycles",)
+
+
+def check_params(p: GripParams) -> None:
+    """Raise :class:`ParameterError` naming the first bad field (the scene loader names the file)."""
+    for name in FLOAT_FIELDS:
+        value = getattr(p, name)
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise ParameterError(name, value, "must be a finite number")
+    for name in ("max_n", "mu", "open_n"):
+        if getattr(p, name) <= 0:
+            raise ParameterError(name, getattr(p, name), "must be > 0")
+    for name in ("min_n", "raise_n", "relax_n_s", "raise_fraction"):
+        if getattr(p, name) < 0:
+            raise ParameterError(name, getattr(p, name), "must be >= 0")
+    if p.raise_fraction == 0 and p.raise_n == 0:
+        raise ParameterError("raise_n", p.raise_n, "must be > 0 when raise_fraction is 0 (a slip must raise the force)")
+    if p.safety_factor < 1:
+        raise ParameterError("safety_factor", p.safety_factor, "must be >= 1 (eq 26a's bound is the least)")
+    if not p.min_n <= p.grasp_n <= p.max_n:
+        raise ParameterError("grasp_n", p.grasp_n, f"must lie in [min_n, max_n] = [{p.min_n:g}, {p.max_n:g}]")
+    if isinstance(p.presence_cycles, bool) or not isinstance(p.presence_cycles, int) or p.presence_cycles < 1:
+        raise ParameterError("presence_cycles", p.presence_cycles, "must be an integer >= 1")
+
+
+__all__ = ["GripParams", "check_params", "FLOAT_FIELDS", "INT_FIELDS"]

@@ -1,0 +1,158 @@
+"""The scene's ``[grip]`` table (taxel_net.scene_grip): the grip-force law's gains and limits as
+``Scene.grip`` (a :class:`fusion_center.core.grip_law.GripParams`); every field read, every bad
+value refused in one line naming the file and ``grip.<field>``; the cross-checks with the drive
+and ``[forces]``; the CLIs exit 2 with that line."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from fusion_center.core import grip_law
+from taxel_net.errors import SceneError
+from taxel_net.scene import load_scene
+
+ROOT = Path(__file__).resolve().parent.parent
+
+BASE = """
+[scene]
+name = "g"
+
+[[taxels]]
+node_id = 1
+kind = "R"
+
+[fusion]
+tuple = "pm1"
+
+[forces]
+mu = 0.35
+
+[gripper]
+node_id = 20
+rated_force_n = 140.0
+max_torque_permille = 800
+"""
+# the drive's largest force per jaw: 140 N x 800 / 1000 = 112 N
+
+
+def write(tmp_path, grip: str | None, base: str = BASE) -> Path:
+    path = tmp_path / "g.toml"
+    path.write_text(base + ("" if grip is None else "\n[grip]\n" + grip))
+    return path
+
+
+def test_no_table_no_law(tmp_path):
+    assert load_scene(write(tmp_path, None)).grip is None
+    assert load_scene("grasp_scripted").grip is None
+
+
+def test_empty_table_defaults(tmp_path):
+    """All fields optional: the law's defaults, max_n the drive's largest force per jaw, mu [forces]'."""
+    g = load_scene(write(tmp_path, "")).grip
+    assert isinstance(g, grip_law.GripParams)
+    assert g.max_n == pytest.approx(112.0) and g.mu == 0.35
+    d = grip_law.GripParams()
+    for name in ("grasp_n", "min_n", "raise_fraction", "raise_n", "relax_n_s", "safety_factor", "open_n",
+                 "presence_cycles"):
+        assert getattr(g, name) == getattr(d, name), name
+
+
+# every field, with a value that is not its default, read as given
+ALL = {"grasp_n": 7.5, "min_n": 1.25, "max_n": 60.0, "raise_fraction": 0.4, "raise_n": 0.75, "relax_n_s": 3.5,
+       "safety_factor": 1.5, "mu": 0.6, "open_n": 20.0, "presence_cycles": 3}
+
+
+def test_every_field_is_read(tmp_path):
+    g = load_scene(write(tmp_path, "".join(f"{k} = {v}\n" for k, v in ALL.items()))).grip
+    for k, v in ALL.items():
+        assert getattr(g, k) == v and type(getattr(g, k)) is type(v), k
+    assert set(ALL) == {f for f in grip_law.GripParams.__dataclass_fields__}, "a field this test does not cover"
+
+
+def test_integers_are_numbers(tmp_path):
+    g = load_scene(write(tmp_path, "grasp_n = 8\nmax_n = 112\n")).grip
+    assert g.grasp_n == 8.0 and type(g.grasp_n) is float and g.max_n == 112.0
+
+
+ERRORS = [  # (the [grip] body, field, value, words in the problem)
+    ("grasp_n = \"5\"\n", "grip.grasp_n", "5", "number"),
+    ("grasp_n = true\n", "grip.grasp_n", True, "number"),
+    ("grasp_n = nan\n", "grip.grasp_n", "nan", "finite"),
+    ("grasp_n = 0.2\nmin_n = 0.5\n", "grip.grasp_n", 0.2, "min_n"),
+    ("grasp_n = 70.0\nmax_n = 60.0\n", "grip.grasp_n", 70.0, "max_n"),
+    ("min_n = -1.0\n", "grip.min_n", -1.0, ">= 0"),
+    ("min_n = inf\n", "grip.min_n", "inf", "finite"),
+    ("max_n = 0.0\n", "grip.max_n", 0.0, "> 0"),
+    ("max_n = -3.0\n", "grip.max_n", -3.0, "> 0"),
+    ("max_n = 112.5\n", "grip.max_n", 112.5, "largest force per jaw, 112 N"),
+    ("max_n = [1.0]\n", "grip.max_n", [1.0], "number"),
+    ("raise_fraction = -0.1\n", "grip.raise_fraction", -0.1, ">= 0"),
+    ("raise_fraction = 0\nraise_n = 0\n", "grip.raise_n", 0.0, "slip must raise"),
+    ("raise_n = -0.5\n", "grip.raise_n", -0.5, ">= 0"),
+    ("relax_n_s = -2.0\n", "grip.relax_n_s", -2.0, ">= 0"),
+    ("safety_factor = 0.9\n", "grip.safety_factor", 0.9, ">= 1"),
+    ("safety_factor = \"high\"\n", "grip.safety_factor", "high", "number"),
+    ("mu = 0.0\n", "grip.mu", 0.0, "> 0"),
+    ("mu = -0.2\n", "grip.mu", -0.2, "> 0"),
+    ("open_n = 0.0\n", "grip.open_n", 0.0, "> 0"),
+    ("open_n = 200.0\n", "grip.open_n", 200.0, "largest force per jaw"),
+    ("presence_cycles = 0\n", "grip.presence_cycles", 0, ">= 1"),
+    ("presence_cycles = 2.5\n", "grip.presence_cycles", 2.5, "integer"),
+    ("presence_cycles = false\n", "grip.presence_cycles", False, "integer"),
+    ("gain = 3\n", "grip.gain", 3, "unknown key"),
+]
+
+
+@pytest.mark.parametrize("body, field, value, words", ERRORS, ids=[f"{e[1]}-{i}" for i, e in enumerate(ERRORS)])
+def test_each_bad_value_is_refused_naming_the_field(tmp_path, body, field, value, words):
+    path = write(tmp_path, body)
+    with pytest.raises(SceneError) as info:
+        load_scene(path)
+    err = info.value
+    assert err.path == str(path) and err.field == field, str(err)
+    if value in ("nan",):
+        assert err.value != err.value
+    elif value == "inf":
+        assert err.value == float("inf")
+    else:
+        assert err.value == value and type(err.value) is type(value)
+    assert words in err.problem, err.problem
+    assert "\n" not in str(err)
+
+
+def test_grip_without_gripper_is_refused(tmp_path):
+    base = BASE[:BASE.index("[gripper]")]
+    with pytest.raises(SceneError) as info:
+        load_scene(write(tmp_path, "grasp_n = 5.0\n", base))
+    assert info.value.field == "grip" and "[gripper]" in info.value.problem
+
+
+def test_table_itself_must_be_a_table(tmp_path):
+    path = tmp_path / "g.toml"
+    path.write_text("grip = 3\n" + BASE)
+    with pytest.raises(SceneError) as info:
+        load_scene(path)
+    assert info.value.field == "grip" and "table" in info.value.problem
+
+
+def test_defaults_that_do_not_fit_the_drive_name_their_origin(tmp_path):
+    """A weak drive (max 4 N per jaw) under the default grasp_n (5 N): grasp_n is named; a [forces]
+    mu cannot be bad (its own loader refuses it), so only max_n's origin is ever the drive."""
+    weak = BASE.replace("rated_force_n = 140.0", "rated_force_n = 5.0")
+    with pytest.raises(SceneError) as info:
+        load_scene(write(tmp_path, "", weak))
+    assert info.value.field == "grip.grasp_n" and "max_n" in info.value.problem and "4" in info.value.problem
+
+
+@pytest.mark.parametrize("cli", ["node_sim.cli", "fusion_center.cli"])
+def test_clis_exit_2_with_the_one_line(tmp_path, cli):
+    path = write(tmp_path, "max_n = 500.0\n")
+    args = ["--scene", str(path), "-i", "virtual"] if cli == "node_sim.cli" else ["demo", "--scene", str(path)]
+    done = subprocess.run([sys.executable, "-m", cli, *args], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2, done.stderr
+    lines = [line for line in done.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and "grip.max_n" in lines[0] and str(path) in lines[0], lines
