@@ -208,12 +208,7 @@ def main(argv: list[str] | None = None) -> int:
         signal.signal(signal.SIGINT, on_signal)
         signal.signal(signal.SIGTERM, on_signal)
         rig.start()
-    except (ParameterError, SceneError, UsageError) as exc:
-        if truth_log is not None:
-            truth_log.close()
-        print(f"node-sim: error: {exc}", file=sys.stderr)
-        return 2
-    except OSError as exc:  # e.g. an unreadable scene file
+    except (ParameterError, SceneError, UsageError, OSError) as exc:  # OSError: e.g. an unreadable scene file
         if truth_log is not None:
             truth_log.close()
         print(f"node-sim: error: {exc}", file=sys.stderr)

@@ -120,6 +120,9 @@ class Channel(can.Listener):
         self.lss: dict[int, lssx.LssSlave] = {}  # taxel index -> its LSS slave (configured or not)
         self.sync_count = 0                     # SYNCs seen (cycle of the next one if no loss)
         self.cycle: int | None = None           # cycle number of the last SYNC fully processed
+        # (counter byte, cycle) of that SYNC as one tuple, published at once (a reader in another
+        # thread - the grasp world's truth - never pairs one SYNC's counter with another's cycle)
+        self.sync_state: tuple[int | None, int | None] = (None, None)
         self.lost_syncs = 0
         self._last_counter: int | None = None
         self._overflow = 0                      # the nodes' 0x1019 (read with the SYNC map)
@@ -231,6 +234,7 @@ class Channel(can.Listener):
                 self.sync_count += 1
                 self._last_counter = data[0] if data else None
                 self.cycle = self.sync_count - 1
+                self.sync_state = (self._last_counter, self.cycle)
                 return
             self._on_sync(data, sync_nodes, self._sync_batches.get(can_id))
         elif 0x701 <= can_id <= 0x77F and len(data) == 1:
@@ -281,6 +285,7 @@ class Channel(can.Listener):
         # published last: once a waiter sees this cycle, every node has sampled it and sent its
         # TPDOs (and the read-ahead of the next readings is scheduled)
         self.cycle = cycle
+        self.sync_state = (counter, cycle)
 
     def send_many(self, frames: list[tuple]) -> None:
         """A SYNC burst, in order (:func:`virtual_burst_sender`, or udp_multicast's)."""

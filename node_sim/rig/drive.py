@@ -43,6 +43,7 @@ class DriveAndWorld:
     def _stop_drive(self) -> None:
         if self.world is not None:
             self.world.stop()
+            self.world = None  # a rig started again runs a new world (with its new drive)
         if self.gripper is not None:
             self.gripper.stop()
             self.gripper = None
@@ -61,7 +62,7 @@ class DriveAndWorld:
         if self.runs_world:
             ch = self._channel_at[g.channel]
             self.world = WorldRunner(self.scene, self.gripper.drive, self.gripper.lock,
-                                     sync_state=lambda: (ch.last_counter, ch.cycle),
+                                     sync_state=lambda: ch.sync_state,
                                      on_truth=self._truth_callbacks).start()
 
     def _world_readings(self, cycle: int) -> np.ndarray:
