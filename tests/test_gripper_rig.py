@@ -16,6 +16,7 @@ import time
 import uuid
 from pathlib import Path
 
+import can
 import canopen
 import numpy as np
 import pytest
@@ -157,3 +158,46 @@ def test_node_sim_says_the_drive_is_ready():
     line = lines[0] if lines else ""
     assert line.startswith("node-sim: ready: 6 nodes and gripper drive 32 of scene 'grasp_drive'"), line
     assert rc == 0, proc.stderr.read()
+
+
+def test_drive_host_filters_take_only_what_the_drive_consumes():
+    """The drive's bus object lets through NMT, its SDO requests, heartbeats, its SYNC and its
+    RPDOs only: the taxels' TPDOs on the same channel never reach its receive thread (before,
+    every frame of the channel went through it and took the drive's lock). An RPDO moved by an
+    SDO download (0x1400:1) is let through at its new COB-ID and the old one no longer."""
+    from node_sim.gripper.host import DriveHost
+
+    channel = f"drive-filters-{uuid.uuid4().hex[:8]}"
+    host = DriveHost(DRIVE, "virtual", channel)
+    seen: list[int] = []
+    dispatch = host._dispatch
+    host._dispatch = lambda can_id, data: (seen.append(can_id), dispatch(can_id, data))[1]
+    with host, can_bus(channel) as master:
+        taxel_frames = [0x181, 0x182, 0x281, 0x0A1, 0x080 + 5, 0x5A0, 0x601, 0x7E5]
+        for can_id in taxel_frames:
+            master.send(can.Message(arbitration_id=can_id, data=b"\x01", is_extended_id=False))
+        rpdo1 = 0x200 + DRIVE
+        master.send(can.Message(arbitration_id=0x77F, data=b"\x05", is_extended_id=False))  # a heartbeat
+        master.send(can.Message(arbitration_id=0x080, data=b"", is_extended_id=False))        # SYNC
+        master.send(can.Message(arbitration_id=rpdo1, data=bytes(8), is_extended_id=False))
+        # SDO download 0x1400:1 = 0x80000000 | old (RPDO1 invalid), then a new valid COB-ID 0x300 + id
+        for value in (0x8000_0000 | rpdo1, 0x8000_0000 | (0x300 + DRIVE), 0x300 + DRIVE):
+            master.send(can.Message(arbitration_id=0x600 + DRIVE, is_extended_id=False,
+                                    data=bytes([0x23, 0x00, 0x14, 0x01]) + value.to_bytes(4, "little")))
+            answer = master.recv(WAIT_S)
+            while answer is not None and answer.arbitration_id != 0x580 + DRIVE:
+                answer = master.recv(WAIT_S)
+            assert answer is not None and answer.data[0] == 0x60, answer
+        for can_id in (rpdo1, 0x300 + DRIVE):
+            master.send(can.Message(arbitration_id=can_id, data=bytes(8), is_extended_id=False))
+        master.send(can.Message(arbitration_id=0x000, data=bytes([0x01, DRIVE]), is_extended_id=False))
+        deadline = time.monotonic() + WAIT_S
+        while time.monotonic() < deadline and (not seen or seen[-1] != 0x000):
+            time.sleep(0.01)
+    assert not set(taxel_frames) & set(seen), seen
+    assert seen == [0x77F, 0x080, rpdo1, 0x600 + DRIVE, 0x600 + DRIVE, 0x600 + DRIVE, 0x300 + DRIVE, 0x000], \
+        [hex(i) for i in seen]
+
+
+def can_bus(channel: str):
+    return can.Bus(interface="virtual", channel=channel)

@@ -7,7 +7,9 @@ What :class:`node_sim.rig.channel.Channel` is for the taxel nodes of a rig chann
 drive or broadcast), SDO requests (0x600 + node-ID), SYNC (the drive's 0x1005; a SYNC whose length
 does not match 0x1019 is a length error: EMCY 0x8240 once, ignored), heartbeats of the other
 participants (the drive's heartbeat consumer), the drive's RPDOs. The frames one SYNC triggers
-(TPDOs, EMCYs) leave as one burst.
+(TPDOs, EMCYs) leave as one burst. Its bus filters let through only those (:meth:`DriveHost.refresh_filters`:
+refreshed when an SDO download or a reset moves the SYNC or an RPDO COB-ID): the taxels' TPDOs on
+the same channel never wake its receive thread nor take its lock.
 
 Several hosts (or a host and a rig) share a CAN network by opening the same channel: on
 ``virtual`` and ``udp_multicast`` every bus object sees the others' frames.
@@ -25,6 +27,7 @@ import can
 
 from taxel_net.canmsg import TxMessage, tune_udp_multicast
 from taxel_net.errors import ParameterError
+from taxel_net.udp_filter import set_filters
 
 from ..link import NodeLink, Scheduler
 from .drive import GRIPPER_EDS_PATH, GripperDrive
@@ -73,6 +76,7 @@ class DriveHost:
         self.drive: GripperDrive | None = None
         self.cycle = -1                     # SYNCs processed - 1
         self._sync_length_error = False
+        self._filtered: tuple[int, ...] | None = None  # the COB-IDs the bus filters let through
 
     @classmethod
     def for_scene(cls, scene, interface: str, channel: str, bus_kwargs: Mapping | None = None,
@@ -105,6 +109,8 @@ class DriveHost:
             with self.lock:
                 self.drive = GripperDrive(self.node_id, link, eds_path=self.eds_path)
                 self.drive.configure(self.startup)
+            with self.lock:
+                self.refresh_filters()
             self.notifier = can.Notifier(self.bus, [_Receiver(self)], timeout=0.05)
             with self.lock:
                 self.drive.power_on()
@@ -127,6 +133,21 @@ class DriveHost:
             except Exception:  # noqa: BLE001
                 logger.exception("gripper drive: bus shutdown failed")
         self.bus = self.scheduler = self.notifier = None
+        self._filtered = None
+
+    def refresh_filters(self) -> None:
+        """Let through what the drive consumes (lock held): NMT, its SDO requests, heartbeats
+        (0x700-0x77F: its heartbeat consumer), its SYNC COB-ID and its valid RPDOs' COB-IDs -
+        python-can filters (udp_multicast: :func:`taxel_net.udp_filter.set_filters`)."""
+        drive, bus = self.drive, self.bus
+        if drive is None or bus is None:
+            return
+        ids = tuple(sorted({0x000, 0x600 + drive.node_id, drive.sync.cob_id, *drive.rpdo.cob_ids}))
+        if ids == self._filtered:
+            return
+        self._filtered = ids
+        set_filters(bus, [{"can_id": 0x700, "can_mask": 0x780, "extended": False}]
+                    + [{"can_id": i, "can_mask": 0x7FF, "extended": False} for i in ids])
 
     # -- frames in
     def on_message_received(self, msg: can.Message) -> None:
@@ -147,11 +168,14 @@ class DriveHost:
             if len(data) == 2 and data[1] in (0, drive.node_id):
                 with link.burst():
                     drive.on_nmt(data[0])
+                    if data[0] in (0x81, 0x82):  # resets restore 0x1005 and the RPDOs' COB-IDs
+                        self.refresh_filters()
             return
         if can_id == 0x600 + drive.node_id:
             if len(data) == 8:
-                with link.burst():
+                with link.burst():  # the answer leaves once the filters take what the download moved
                     drive.on_sdo_request(data)
+                    self.refresh_filters()
             return
         if can_id == drive.sync.cob_id:
             if len(data) != (1 if drive.sync.overflow else 0):
