@@ -67,7 +67,6 @@ class HeartbeatProducer:
 
 ABORT_PARAMETER_INCOMPATIBLE = 0x06040043
 EMCY_HEARTBEAT = 0x8130        # CiA 301: life guard error or heartbeat error
-ERR_REG_COMMUNICATION = 0x10   # 0x1001 bit 4
 
 
 class HeartbeatConsumer:

@@ -44,14 +44,11 @@ import time
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-import canopen
-from canopen.sdo import SdoAbortedError
 
 from .link import NodeLink
 from .nmt import OPERATIONAL, NmtSlave
-from .od import COB_29BIT, COB_INVALID, TPDO_COMM, TPDO_MAP, NodeObjects
-from .sdo import (ABORT_NOT_MAPPABLE, ABORT_PDO_LENGTH_EXCEEDED, ABORT_UNSUPPORTED_ACCESS, ABORT_VALUE_RANGE,
-                  ABORT_VALUE_TOO_HIGH)
+from .od import COB_INVALID, TPDO_COMM, TPDO_MAP, NodeObjects
+from .pdo_rules import TPDO_LOCKED_WHILE_VALID, check_comm_write, check_map_write, mappable_bits
 
 if TYPE_CHECKING:
     from .node import TaxelNode
@@ -306,53 +303,11 @@ class TpdoEngine:
             self._check_map_write(self.mapping.index(index), subindex, value, startup)
 
     def _check_comm_write(self, pdo: int, subindex: int, value: int, startup: bool) -> None:
-        read = self._objects.read
-        comm = self.comm[pdo]
-        valid_now = not (read(comm, 1) & COB_INVALID)
-        if subindex == 1:
-            if value & COB_29BIT:
-                raise SdoAbortedError(ABORT_VALUE_RANGE)
-            if not startup and valid_now and not (value & COB_INVALID) \
-                    and (value & 0x7FF) != (read(comm, 1) & 0x7FF):
-                raise SdoAbortedError(ABORT_VALUE_RANGE)  # CAN-ID changes only while not valid
-        elif subindex == 2:
-            if not (value <= 240 or value in (254, 255)):
-                raise SdoAbortedError(ABORT_VALUE_RANGE)  # 241-251 reserved, 252/253 RTR-only unsupported
-        elif subindex in (3, 6):
-            if not startup and valid_now:
-                raise SdoAbortedError(ABORT_VALUE_RANGE)  # CiA 301: not while the PDO is valid
+        check_comm_write(self._objects.read, self.comm[pdo], subindex, value, startup, TPDO_LOCKED_WHILE_VALID)
 
     def _check_map_write(self, pdo: int, subindex: int, value: int, startup: bool) -> None:
-        read = self._objects.read
-        comm, mapping = self.comm[pdo], self.mapping[pdo]
-        if not startup and not (read(comm, 1) & COB_INVALID):
-            raise SdoAbortedError(ABORT_UNSUPPORTED_ACCESS)  # mapping only while the PDO is not valid
-        if subindex == 0:
-            if value > self.max_mapped[pdo]:
-                raise SdoAbortedError(ABORT_VALUE_TOO_HIGH)
-            bits = 0
-            for sub in range(1, value + 1):
-                entry = read(mapping, sub)
-                bits += self._check_mappable(entry)
-            if bits > self.max_bits:
-                raise SdoAbortedError(ABORT_PDO_LENGTH_EXCEEDED)
-        else:
-            if not startup and read(mapping, 0) != 0:
-                raise SdoAbortedError(ABORT_UNSUPPORTED_ACCESS)  # CiA 301: set sub 0 to 0 first
-            if value != 0:
-                self._check_mappable(value)
+        check_map_write(self._objects, self.comm[pdo], self.mapping[pdo], subindex, value, startup,
+                        self.max_mapped[pdo], self.max_bits, self._check_mappable)
 
     def _check_mappable(self, entry: int) -> int:
-        index, subindex, bits = entry >> 16, (entry >> 8) & 0xFF, entry & 0xFF
-        od = self._objects.od
-        try:
-            var = self._objects.variable(index, subindex)
-            if isinstance(od[index], (canopen.objectdictionary.ODRecord,
-                                      canopen.objectdictionary.ODArray)) \
-                    and subindex not in od[index]:
-                raise KeyError(subindex)
-        except KeyError:
-            raise SdoAbortedError(ABORT_NOT_MAPPABLE) from None
-        if not var.pdo_mappable or not var.readable or bits != len(var):
-            raise SdoAbortedError(ABORT_NOT_MAPPABLE)
-        return bits
+        return mappable_bits(self._objects, entry, receive=False)

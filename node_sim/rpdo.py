@@ -14,25 +14,20 @@ type) and 0x1600.. (mapping), read from the OD when it changes, never per frame:
 * event-driven (254/255): written to the OD at once;
 * after writing, ``applied(indexes)`` tells the application which objects a PDO wrote.
 
-SDO rules (checked for downloads and start-up values): COB-ID 29-bit refused and its CAN-ID
-changed only while the RPDO is not valid; transmission types 241-253 refused; mapping only while
-not valid, entries only while sub 0 is 0, each entry an existing, writable, PDO-mappable object of
-exactly its size, at most ``max_mapped`` entries and 64 bits.
+SDO rules (checked for downloads and start-up values): :mod:`.pdo_rules`, the TPDOs' rules with
+writable entries.
 """
 
 from __future__ import annotations
 
 from typing import Callable, Iterable
 
-from canopen.objectdictionary import ODVariable
-from canopen.sdo import SdoAbortedError
-
 from .nmt import OPERATIONAL, NmtSlave
-from .od import COB_29BIT, COB_INVALID, ERROR_REGISTER, NodeObjects
-from .sdo import ABORT_NOT_MAPPABLE, ABORT_PDO_LENGTH_EXCEEDED, ABORT_UNSUPPORTED_ACCESS, ABORT_VALUE_RANGE
+from .emcy import ERR_REG_COMMUNICATION
+from .od import COB_INVALID, ERROR_REGISTER, NodeObjects
+from .pdo_rules import check_comm_write, check_map_write, mappable_bits
 
 EMCY_PDO_LENGTH = 0x8210      # PDO not processed due to length error
-ERR_REG_COMMUNICATION = 0x10
 
 
 class RpdoEngine:
@@ -128,43 +123,9 @@ class RpdoEngine:
         self.invalidate()
 
     def check_write(self, index: int, subindex: int, value, startup: bool) -> None:
-        read = self._objects.read
         if index in self.comm:
-            comm = index
-            valid_now = not read(comm, 1) & COB_INVALID
-            if subindex == 1:
-                if value & COB_29BIT:
-                    raise SdoAbortedError(ABORT_VALUE_RANGE)
-                if not startup and valid_now and not value & COB_INVALID and (value & 0x7FF) != (read(comm, 1) & 0x7FF):
-                    raise SdoAbortedError(ABORT_VALUE_RANGE)
-            elif subindex == 2 and 240 < value < 254:
-                raise SdoAbortedError(ABORT_VALUE_RANGE)
-            return
-        k = self.mapping.index(index)
-        if not startup and not read(self.comm[k], 1) & COB_INVALID:
-            raise SdoAbortedError(ABORT_UNSUPPORTED_ACCESS)      # CiA 301: map only while not valid
-        if subindex == 0:
-            if value > self.max_mapped:
-                raise SdoAbortedError(ABORT_VALUE_RANGE)
-            entries = [read(index, s) for s in range(1, value + 1)]
-            if sum(e & 0xFF for e in entries) > 64:
-                raise SdoAbortedError(ABORT_PDO_LENGTH_EXCEEDED)
-            for e in entries:
-                self._check_entry(e)
-            return
-        if not startup and read(index, 0) != 0:
-            raise SdoAbortedError(ABORT_UNSUPPORTED_ACCESS)      # entries only while sub 0 is 0
-        if value:
-            self._check_entry(value)
-
-    def _check_entry(self, entry: int) -> None:
-        index, sub, bits = entry >> 16, (entry >> 8) & 0xFF, entry & 0xFF
-        obj = self._objects.od.get(index)
-        if obj is None:
-            raise SdoAbortedError(ABORT_NOT_MAPPABLE)
-        if isinstance(obj, ODVariable):
-            var = obj if sub == 0 else None
-        else:
-            var = obj[sub] if sub in obj else None
-        if var is None or not var.pdo_mappable or not var.writable or len(var) != bits:
-            raise SdoAbortedError(ABORT_NOT_MAPPABLE)
+            check_comm_write(self._objects.read, index, subindex, value, startup)
+        elif index in self.mapping:
+            k = self.mapping.index(index)
+            check_map_write(self._objects, self.comm[k], index, subindex, value, startup, self.max_mapped, 64,
+                            lambda entry: mappable_bits(self._objects, entry, receive=True))
