@@ -146,13 +146,19 @@ def test_udp_multicast_drops_only_true_echoes():
             sender.stdin.flush()
             sender.wait(30)
             time.sleep(0.5)
+            # one more SYNC of ours ends the open cycle's window: what it held is counted
+            service.stream.transmit(0, 0x080, b"")
+            time.sleep(0.2)
             counters = service.stream.counters()
             echoes = service.own_echoes
+            tx_errors = service.stream.tx_errors
     finally:
         if sender.poll() is None:
             sender.kill()
-    # another process's SYNCs and SDO requests are counted (UDP on loopback may lose a few)
-    assert counters["sync"] >= 50 + 0.95 * 300, counters
+    # another process's SYNCs and SDO requests are counted (UDP on loopback may lose a few): its
+    # well-formed SYNCs as a second SYNC producer's (foreign_sync, no cycle: tests/test_foreign_sync.py)
+    # (our last SYNC may still be held behind the open cycle's window: counted once released)
+    assert 50 <= counters["sync"] + tx_errors <= 51, (counters, tx_errors)
+    assert 0.95 * 300 <= counters["foreign_sync"] <= 300, counters
     assert counters["sdo"] >= 0.95 * 300, counters
-    assert counters["sync"] <= 50 + 300
-    assert 0.9 * 50 <= echoes <= 50
+    assert 0.9 * 51 <= echoes <= 51

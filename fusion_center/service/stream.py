@@ -39,6 +39,7 @@ from taxel_net.canmsg import TxMessage
 from taxel_net.udp_wire import udp_multicast_burst_sender
 from .common_frames import CommonFrames
 from .trace_writers import flush_to_os
+from .decoder import COB_SYNC
 from .cycles import (
     FLAG_ERROR,
     FLAG_EXTENDED,
@@ -222,6 +223,10 @@ class EventStream:
         self._trace_queue: list[can.Message] = []
         self._trace_lock = threading.Lock()  # taken before ``lock``, never while holding it
         self.echoes: EchoFilter | None = None  # set by the service on udp_multicast
+        # SYNCs received (not sent by this centre) once it has sent a frame: another SYNC
+        # producer on the bus; counted ``foreign_sync``, traced, never a cycle (see _feed_locked)
+        self.foreign_syncs = 0
+        self._sent_any = False
         self._senders: dict[int, Callable[[list[tuple]], None] | None] = {}  # channel -> _direct_sender
         # the common frames of a receive turn fed in one loop (None: each by _feed_locked)
         self.common: CommonFrames | None = CommonFrames.for_assembler(assembler)
@@ -248,6 +253,21 @@ class EventStream:
             flags = 0
             if msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id or msg.is_fd:
                 flags = message_flags(msg)
+            if not msg.is_rx:
+                self._sent_any = True
+            elif (msg.arbitration_id == COB_SYNC and self._sent_any and not flags
+                  and self.assembler._opens_cycle(bytes(msg.data))):
+                # The centre is the SYNC producer (CiA 301: one per network). A well-formed SYNC
+                # it did not send - another master, a tool - would open a cycle of its own (65
+                # records for 60 SYNCs were seen). Received after the centre's first frame (a
+                # trace the centre wrote has its NMT/SDO/heartbeat "Tx" frames first; a bus
+                # monitor's trace has none, and its SYNCs stay SYNCs), it is counted and traced.
+                # A malformed one is counted as malformed (bad_dlc / bad_value) by the assembler.
+                self.foreign_syncs += 1
+                self.rate_log.warning("foreign_sync", "channel %d: a SYNC this centre did not send (another SYNC "
+                                      "producer on the bus?): no cycle, counted foreign_sync (total %d)",
+                                      channel, self.foreign_syncs)
+                return False
             closed = self.assembler.feed_all(us, channel, msg.arbitration_id, msg.data, flags)
             if closed and self.on_closed is not None:
                 for cycle in closed:  # oldest first (a released hold can close two)
@@ -405,7 +425,10 @@ class EventStream:
 
     def counters(self) -> dict[str, int]:
         with self.lock:
-            return self.assembler.counters()
+            counters = self.assembler.counters()
+            if self.foreign_syncs:
+                counters["foreign_sync"] = self.foreign_syncs
+            return counters
 
 
 class _StreamListener(can.Listener):

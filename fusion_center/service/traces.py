@@ -162,7 +162,7 @@ def replay_trace(scene: Scene, trace_path, *, json_lines=None, truth: bool = Tru
             else:
                 out.discard_stale()  # a log of an earlier replay must not pass for this one's
         _stop(reader)
-    return records, assembler.counters()
+    return records, stream.counters()
 
 
 def _open_reader(p: Path, *, notify: bool = True):
