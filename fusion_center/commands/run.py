@@ -48,11 +48,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="scene file or bundled scene name (docs/scene-format.md)")
     add_bus_arguments(parser)
     add_common_outputs(parser)
-    parser.add_argument("--assemblers", metavar="HOST:PORT", default=None,
-                        help="listen there for `fusion-center assemble` processes (other processes or hosts) and "
-                             "fuse their cycles instead of assembling them here (beyond loopback: the same "
+    parser.add_argument("--assemblers", metavar="ENDPOINT", default=None,
+                        help="listen on this Zenoh endpoint (HOST:PORT for tcp, or PROTO/HOST:PORT such as "
+                             "tls/0.0.0.0:7447) for `fusion-center assemble` processes (other processes or hosts) "
+                             "and fuse their cycles instead of assembling them here (beyond loopback: the same "
                              "FUSION_CENTER_AUTHKEY on every host; on loopback without it a key of this run's, "
                              "in a file only this user can read; docs/service.md)")
+    from ..service.zenoh_config import add_arguments as add_zenoh_arguments
+
+    add_zenoh_arguments(parser, publication=False)
 
 
 def setup_logging() -> None:
@@ -280,9 +284,11 @@ def run(args) -> int:
     options = dict(interface=bus.interface, channels=bus.channels, bitrate=bus.bitrate, bus_kwargs=bus.kwargs,
                    json_lines=args.json_lines, trace=args.log, keep_records=False)
     if getattr(args, "assemblers", None):  # the cycles come from `fusion-center assemble` processes
-        from ..service.assemblers import AssembledFusionService, parse_address
+        from ..service.assemblers import AssembledFusionService
+        from ..service.zenoh_config import endpoint
 
-        service = AssembledFusionService(scene, listen=parse_address(args.assemblers, "--assemblers"), **options)
+        service = AssembledFusionService(scene, listen=endpoint(args.assemblers, "--assemblers"),
+                                         zenoh_config=getattr(args, "zenoh_config", None), **options)
     else:
         service = FusionService(scene, **options)
     with service:
