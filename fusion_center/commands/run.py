@@ -24,6 +24,27 @@ def add_common_outputs(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--boot-timeout", type=float, default=3.0, metavar="S",
                         help="seconds to wait for the nodes' boot-ups; later ones are missing (default 3)")
     add_mode_argument(parser)
+    from ..service.zenoh_config import add_arguments as add_zenoh_arguments
+
+    add_zenoh_arguments(parser, publication=True)
+
+
+def zenoh_publisher(args, scene):
+    """The ``--zenoh`` publisher of a run, opened (None without ``--zenoh``); the session flags
+    without ``--zenoh`` are a :class:`UsageError`."""
+    from taxel_net.errors import UsageError
+
+    if not getattr(args, "zenoh", False):
+        for flag in ("zenoh_listen", "zenoh_connect", "zenoh_mode"):
+            if getattr(args, flag, None):
+                raise UsageError(f"--{flag.replace('_', '-')}: only with --zenoh (the publication's session)")
+        return None
+    from ..service.zenoh_publisher import ZenohPublisher
+
+    return ZenohPublisher(scene.name, config_file=args.zenoh_config, listen=args.zenoh_listen,
+                          connect=args.zenoh_connect, mode=args.zenoh_mode).open()
+
+
 
 
 def add_mode_argument(parser: argparse.ArgumentParser) -> None:
@@ -54,9 +75,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "and fuse their cycles instead of assembling them here (beyond loopback: the same "
                              "FUSION_CENTER_AUTHKEY on every host; on loopback without it a key of this run's, "
                              "in a file only this user can read; docs/service.md)")
-    from ..service.zenoh_config import add_arguments as add_zenoh_arguments
-
-    add_zenoh_arguments(parser, publication=False)
 
 
 def setup_logging() -> None:
@@ -211,6 +229,10 @@ def format_summary(summary: dict) -> list[str]:
                                     f"{_fmt_ms(a['to_send_ms']['p50'])}, p99 {_fmt_ms(a['to_send_ms']['p99'])}; "
                                     f"part transport p50 {_fmt_ms(a['transport_ms']['p50'])}, "
                                     f"p99 {_fmt_ms(a['transport_ms']['p99'])}"))
+    if "zenoh" in summary:
+        z = summary["zenoh"]
+        lines.append(("zenoh", f"{z['records']} records on {z['keys']['record']}, {z['grip']} on .../grip, "
+                               f"{z['contact']} contact events on .../contact, {z['failed']} failed ({z['session']})"))
     if "slow_down" in summary:
         lines.append(("slow_down", summary["slow_down"]))
     if "warning" in summary:
@@ -291,11 +313,20 @@ def run(args) -> int:
                                          zenoh_config=getattr(args, "zenoh_config", None), **options)
     else:
         service = FusionService(scene, **options)
-    with service:
-        summary = execute(service, cycles, live=not args.no_live, boot_timeout=args.boot_timeout,
-                          bus=bus.describe(service.channel_names))
+    publisher = zenoh_publisher(args, scene)
+    try:
+        if publisher is not None:
+            service.on_record.append(publisher)
+        with service:
+            summary = execute(service, cycles, live=not args.no_live, boot_timeout=args.boot_timeout,
+                              bus=bus.describe(service.channel_names))
+    finally:
+        if publisher is not None:
+            publisher.close()
     merger = getattr(service, "merger", None)
     if merger is not None:
         summary["assemblers"] = merger.stats.as_dict()
+    if publisher is not None:
+        summary["zenoh"] = publisher.summary()
     print_summary(summary)
     return 130 if "interrupted" in summary else 0
