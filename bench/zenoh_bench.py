@@ -12,7 +12,8 @@ CPU of ``--zenoh`` per cycle, side by side in one run.
   cycles with both parts (complete), degraded (a part missing), late parts, unmatched parts;
   SYNC -> part sent p50 / p99 (the assembler's side), part transport p50 / p99 (sent ->
   received by the fuser) and SYNC -> record p50 / p99. Then medians over the runs and their
-  ratios (this tree / other). Goal: the figures within 10 %.
+  ratios (this tree / other), and the CPU per cycle of the fuser's process and of the two
+  assembler processes. Goal: the figures within 10 %.
 * **publication** - the centre alone in this process (the twins in one node-sim process,
   udp_multicast), matrix57 and skin4096, ``--cycles`` SYNCs, with and without ``--zenoh``
   (``ZenohPublisher``, a subscriber in another process - docs/examples/zenoh_subscriber.py -
@@ -58,7 +59,7 @@ def assembler_run(cycles: int) -> dict:
     import numpy as np
 
     from fusion_center.service.assemblers import AssembledFusionService
-    from skin_scale import check_records, start_shards
+    from skin_scale import CpuMeter, check_records, start_shards
     from taxel_net.scene import load_scene
 
     scene = load_scene(ROOT / "scenes" / "skin4096.toml")
@@ -85,7 +86,8 @@ def assembler_run(cycles: int) -> dict:
             if "ready" not in line:
                 raise SystemExit(f"assemble did not start: {line} {proc.stderr.read() if proc.poll() is not None else ''}")
         service.boot(30.0)
-        service.run(cycles, timeout_s=cycles * 0.1 + 120)
+        with CpuMeter([proc.pid for proc in assemblers]) as cpu:
+            service.run(cycles, timeout_s=cycles * 0.1 + 120)
     finally:
         if service is not None:
             service.close()
@@ -107,6 +109,7 @@ def assembler_run(cycles: int) -> dict:
             "to_send_p50": stats["to_send_ms"]["p50"], "to_send_p99": stats["to_send_ms"]["p99"],
             "transport_p50": stats["transport_ms"]["p50"], "transport_p99": stats["transport_ms"]["p99"],
             "record_p50": hist.percentile(50), "record_p99": hist.percentile(99),
+            "fuser_cpu_ms": cpu.centre_s / max(cycles, 1) * 1e3, "assemblers_cpu_ms": cpu.twins_s / max(cycles, 1) * 1e3,
             "load": os.getloadavg()[0], "numpy": np.__version__}
 
 
@@ -214,10 +217,12 @@ def main(argv=None) -> int:
                       f"late parts {r['late_parts']}, unmatched {r['unmatched']}, misattributed {r['misattributed']}; "
                       f"SYNC -> part sent p50 {r['to_send_p50']:.2f} / p99 {r['to_send_p99']:.2f} ms, transport p50 "
                       f"{r['transport_p50']:.2f} / p99 {r['transport_p99']:.2f} ms, SYNC -> record p50 "
-                      f"{r['record_p50']:.2f} / p99 {r['record_p99']:.2f} ms (load {r['load']:.1f})", flush=True)
+                      f"{r['record_p50']:.2f} / p99 {r['record_p99']:.2f} ms; CPU a cycle: fuser "
+                      f"{r['fuser_cpu_ms']:.2f} ms, assemblers {r['assemblers_cpu_ms']:.2f} ms (load {r['load']:.1f})",
+                      flush=True)
         print("  medians (zenoh / other = ratio):")
         for key in ("complete", "degraded", "to_send_p50", "to_send_p99", "transport_p50", "transport_p99",
-                    "record_p50", "record_p99"):
+                    "record_p50", "record_p99", "fuser_cpu_ms", "assemblers_cpu_ms"):
             z, o = _median(runs["zenoh"], key), _median(runs["other"], key)
             ratio = f"{z / o:.2f}" if z is not None and o else "-"
             print(f"    {key:14s} {z:10.2f} / {o:10.2f} = {ratio}")

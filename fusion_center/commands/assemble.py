@@ -38,7 +38,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--connect-timeout", type=float, default=30.0, metavar="S",
                         help="seconds to keep trying to reach the fuser (default 30)")
     parser.add_argument("--reconnect-timeout", type=float, default=60.0, metavar="S",
-                        help="when the connection to the fuser breaks without its goodbye: seconds to keep "
+                        help="when the link to the fuser breaks without its goodbye: seconds to keep "
                              "trying to connect again before exiting 1 (default 60)")
     add_mode_argument(parser)
     from ..service.zenoh_config import add_arguments as add_zenoh_arguments

@@ -297,7 +297,7 @@ class PartCodec:
     def decode(self, data: bytes) -> CyclePart:
         m = _unpack(data, {"part": PART_KEYS})
         if m["channels"] != self.channels:
-            raise BadMessage(f"part: channels {_shown(m['channels'])}: this connection's group is {self.channels}")
+            raise BadMessage(f"part: channels {_shown(m['channels'])}: this link's group is {self.channels}")
         counter = m["sync_counter"]
         if counter is not None:
             counter = _int(m, "sync_counter", 0, 255)

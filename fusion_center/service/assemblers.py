@@ -53,11 +53,12 @@ evaluates them with the usual pipeline, writing the same records as
   accepted the same way (its cycles are mapped by the SYNC counter; in a scene without one
   only an assembler that heard the master's reset, i.e. the same process, can come back).
 
-By job: :mod:`.assembler_parts` (what both sides share: addresses and keys, channel groups,
+By job: :mod:`.assembler_parts` (what both sides share: keys, channel groups,
 :class:`CyclePart`), :mod:`.assembler_process` (the assembler: ``GroupAssembler``,
 ``AssemblerProcess``), :mod:`.cycle_merger` (the merge) and this module, the fuser
-(:class:`AssembledFusionService`), with :mod:`.assembler_wire` (the messages on the
-connection); their public names are importable from here.
+(:class:`AssembledFusionService`), with :mod:`.assembler_wire` (the messages) and
+:mod:`.assembler_link` (their keys on Zenoh, their signatures, the sessions); their public
+names are importable from here.
 """
 
 from __future__ import annotations
