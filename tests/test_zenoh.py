@@ -245,3 +245,24 @@ def test_the_subscriber_example_receives_a_short_demo(tmp_path):
             sub.communicate()
     assert sub.returncode == 0, err
     assert out.splitlines() == jsonl.read_text().splitlines()
+
+
+def test_with_no_subscriber_nothing_is_serialised_or_put():
+    """Zenoh's matching status per key: no subscriber, no work (counted as unmatched); one that
+    subscribes later gets the records from then on."""
+    from fusion_center.service.zenoh_publisher import ZenohPublisher
+
+    port, = _ports(1)
+    with ZenohPublisher("lonely", listen=[f"tcp/127.0.0.1:{port}"]) as pub:
+        for k in range(5):
+            pub({"cycle": k, "t": k * 0.01, "decision": "H0", "grip": GRIP})
+        assert (pub.records, pub.grips, pub.contacts, pub.unmatched, pub.failed) == (0, 0, 0, 5, 0)
+        peer = zenoh_peer(connect=port)
+        try:
+            sub, got, wait = _subscribe(peer, "taxel/lonely/record")
+            _connected(pub, peer, "taxel/lonely/record")
+            pub({"cycle": 5, "t": 0.05, "decision": "H1", "grip": GRIP})
+            assert [json.loads(p)["cycle"] for _, p, _ in wait(1)] == [5]
+        finally:
+            peer.close()
+    assert (pub.records, pub.grips, pub.unmatched) == (1, 0, 5)  # .../grip and .../contact: nobody

@@ -232,7 +232,8 @@ def format_summary(summary: dict) -> list[str]:
     if "zenoh" in summary:
         z = summary["zenoh"]
         lines.append(("zenoh", f"{z['records']} records on {z['keys']['record']}, {z['grip']} on .../grip, "
-                               f"{z['contact']} contact events on .../contact, {z['failed']} failed ({z['session']})"))
+                               f"{z['contact']} contact events on .../contact, {z['failed']} failed, "
+                               f"{z['unmatched']} with no subscriber ({z['session']})"))
     if "slow_down" in summary:
         lines.append(("slow_down", summary["slow_down"]))
     if "warning" in summary:
