@@ -159,20 +159,17 @@ def test_a_part_round_trips_and_merges_as_the_part_itself(tmp_path):
         np.testing.assert_array_equal(getattr(a, f), getattr(b, f), err_msg=f)
 
 
-def test_the_largest_part_fits_its_frame_limit():
-    """skin4096 in one group (4,096 taxels, 512 patch nodes): every field at its largest."""
-    from fusion_center.service.assembler_parts import CyclePart, group_layout
-    from fusion_center.service.assembler_wire import PartCodec, encode_part
+def _largest_part(scene, lay):
+    """A part of group ``lay`` with every field at its largest."""
+    from fusion_center.service.assembler_parts import CyclePart
     from fusion_center.service.cycle_records import EMCY_PER_CYCLE, EmcyEvent
     from taxel_net.patches import devices, node_label
 
-    scene = load_scene("skin4096")
-    lay = group_layout(scene, range(len(scene.bus.channels)))
     n, d = len(lay.taxels), len(lay.devices)
     full = devices(scene)
     longest = max(lay.devices, key=lambda i: len(str(node_label(full[i].channel, full[i].node_id))))
     big = 2 ** 53
-    part = CyclePart(
+    return CyclePart(
         channels=lay.channels, number=2 ** 62, sync_counter=255, closed_by="x" * 32, closed_after_us=-big,
         decisions=np.full(n, -1, np.int8), readings=np.full(n, -1e300), received=np.ones(n, bool),
         expected=np.ones(n, bool), missing=np.ones(n, bool), states=np.full(n, 127, np.int16),
@@ -181,10 +178,53 @@ def test_the_largest_part_fits_its_frame_limit():
                         "f" * 10, -big),) * EMCY_PER_CYCLE,
         emcy_dropped=big, duplicates=tuple(int(i) for i in lay.devices),
         devices=(np.ones(d, bool), np.ones(d, bool), np.full(d, 127, np.int16), np.ones(d, bool)), sent_at=-1e300)
+
+
+def test_the_largest_part_fits_its_frame_limit():
+    """skin4096 in one group (4,096 taxels, 512 patch nodes): every field at its largest."""
+    from fusion_center.service.assembler_parts import group_layout
+    from fusion_center.service.assembler_wire import PartCodec, encode_part
+
+    scene = load_scene("skin4096")
+    lay = group_layout(scene, range(len(scene.bus.channels)))
+    part = _largest_part(scene, lay)
     codec = PartCodec(scene, lay)
     data = encode_part(part)
     assert len(data) <= codec.max_bytes, (len(data), codec.max_bytes)
     _same_part(part, codec.decode(data))
+
+
+def test_the_largest_part_crosses_the_link(monkeypatch):
+    """... and goes from an assembler to the fuser over Zenoh (over 64 kB: Zenoh fragments it),
+    signed and checked, into the merge."""
+    from fusion_center.service.assembler_parts import group_layout
+    from fusion_center.service.assembler_process import AssemblerProcess
+    from fusion_center.service.assemblers import AssembledFusionService
+    from fusion_center.service.assembler_wire import encode_part
+
+    monkeypatch.setenv("FUSION_CENTER_AUTHKEY", "wire-test-key")
+    scene = load_scene("skin4096")
+    chans = range(len(scene.bus.channels))
+    lay = group_layout(scene, chans)
+    part = _largest_part(scene, lay)
+    assert len(encode_part(part)) > 65536
+    port = random.randint(40000, 60000)
+    service = AssembledFusionService(scene, listen=("127.0.0.1", port), interface="virtual",
+                                     channels=[f"big-{port}-{k}" for k in chans])
+    service.open()
+    process = AssemblerProcess(scene, list(chans), fuser=("127.0.0.1", port), interface="virtual",
+                               channel_names=[f"big-{port}-{k}" for k in chans])
+    try:
+        process.open()
+        process.connect(30)
+        service.merger.opened(255, 0, time.monotonic())
+        process._outbox.append(part)
+        process._send()
+        _wait(lambda: service.merger.stats.parts == 1 or service.merger.stats.refused, "the part merged")
+        assert service.merger.stats.parts == 1 and service.merger.stats.refused == {}
+    finally:
+        process.close()
+        service.close()
 
 
 def _mutations(scene):
