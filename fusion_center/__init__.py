@@ -38,7 +38,7 @@ __version__ = "0.1.0"
 
 # the rest is imported on first use (PEP 562): ``import fusion_center.core.rules`` loads no CAN
 _getattr, _dir, _lazy = lazy_loader.attach(__name__, submodules=["core"], submod_attrs={
-    "service": ["FusionService", "RunSummary", "replay_trace", "read_records"],
+    "service": ["FusionService", "RunSummary", "ZenohPublisher", "replay_trace", "read_records"],
     "stages": ["plan_stages", "StagePlan"],
     "evaluation": ["simulate"],
 })

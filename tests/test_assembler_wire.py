@@ -1,11 +1,13 @@
 """The assembler link's messages (issue 21, item 3: "Any local user can run code in the fusion
-centre"): nothing that arrives from a socket is unpickled, on either side. A part, a hello and
-the answers travel as the msgpack maps of ``fusion_center.service.assembler_wire`` (protocol 2,
-docs/service.md), checked against the scene's group layout; a peer that sends anything else -
-a pickle (the issue's os.system payload among them), random bytes, an oversize frame, a map of
-wrong types or another version, nothing at all - is refused: counted, logged at most once a
-kind, closed; the run goes on. Without FUSION_CENTER_AUTHKEY a loopback fuser's key is its own
-(a 0600 file of its user's), not a constant of the source."""
+centre"; issue 24: the link on Zenoh): nothing that arrives is unpickled, on either side. A
+part, a hello and the answers travel as the msgpack maps of
+``fusion_center.service.assembler_wire`` (protocol 2, docs/service.md), checked against the
+scene's group layout, each signed with the run's key (``assembler_link``); a Zenoh peer on the
+assemblers' keys (loopback, scouting off) that sends anything else - a pickle (the issue's
+os.system payload among them), random bytes, an oversize message, a map of wrong types or
+another version, a hello of another scene, a message not signed with the run's key - is
+refused: counted, logged at most once a kind; the run goes on. Without FUSION_CENTER_AUTHKEY a
+loopback fuser's key is its own (a 0600 file of its user's), not a constant of the source."""
 
 from __future__ import annotations
 
@@ -14,12 +16,10 @@ import logging
 import os
 import pickle
 import random
-import socket
 import stat
 import sys
 import threading
 import time
-from multiprocessing.connection import AuthenticationError, Client, Listener
 from pathlib import Path
 
 import msgpack
@@ -31,7 +31,7 @@ from taxel_net.scene import load_scene
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "tests"))
-from test_assemblers import _assemble, _finish, _parts, _udp_rig  # noqa: E402
+from test_assemblers import StandInFuser, _assemble, _finish, _parts, _udp_rig, zenoh_peer  # noqa: E402
 from test_node_shards import _scene_file  # noqa: E402 - the two-channel patch scene (2 x 40 taxels)
 
 OLD_LOOPBACK_KEY = b"taxel-can loopback"  # the constant of the source before issue 21
@@ -55,25 +55,27 @@ def _wait(condition, what: str, limit_s: float = 30.0) -> None:
         time.sleep(0.01)
 
 
-def _closed_by_peer(conn, limit_s: float = 30.0) -> bool:
-    """True once the other side closed ``conn`` (whatever it sent before is read and dropped)."""
-    end = time.monotonic() + limit_s
-    while time.monotonic() < end:
-        try:
-            if conn.poll(0.05):
-                conn.recv_bytes()
-        except (EOFError, OSError):
-            return True
-    return False
+def _hello(peer, scene, key: bytes, payload: bytes, *, sign: bool = True, link_id: str | None = None):
+    """A hello as an assembler sends it (a query on the hello key, signed with ``key`` unless
+    not ``sign``): (link id, the decoded answer or None when none came within 5 s)."""
+    from fusion_center.service import assembler_link as link
+    from fusion_center.service.assembler_wire import decode_answer
+
+    link_id = link_id or link.new_id()
+    k = link.hello_key(link.prefix(scene.name))
+    tag = link.mac(link.mac_key(key), k, payload, link_id.encode()) if sign else bytes(32)
+    for reply in peer.get(k, payload=payload, attachment=link_id.encode() + tag, timeout=5):
+        if reply.ok is not None:
+            return link_id, decode_answer(reply.ok.payload.to_bytes())
+    return link_id, None
 
 
-def _drain(raw: socket.socket) -> None:
-    """Reads until the other side closed (a reset included: it closed with our bytes unread)."""
-    try:
-        while raw.recv(4096):
-            pass
-    except ConnectionResetError:
-        pass
+def _put_part(peer, scene, key: bytes | None, link_id: str, payload: bytes) -> None:
+    """A part on the part key of ``link_id`` (signed with ``key``; None: not signed)."""
+    from fusion_center.service import assembler_link as link
+
+    k = link.part_key(link.prefix(scene.name), link_id)
+    peer.put(k, payload, attachment=link.mac(link.mac_key(key), k, payload) if key is not None else bytes(32))
 
 
 def _rich_parts(scene):
@@ -157,20 +159,17 @@ def test_a_part_round_trips_and_merges_as_the_part_itself(tmp_path):
         np.testing.assert_array_equal(getattr(a, f), getattr(b, f), err_msg=f)
 
 
-def test_the_largest_part_fits_its_frame_limit():
-    """skin4096 in one group (4,096 taxels, 512 patch nodes): every field at its largest."""
-    from fusion_center.service.assembler_parts import CyclePart, group_layout
-    from fusion_center.service.assembler_wire import PartCodec, encode_part
+def _largest_part(scene, lay):
+    """A part of group ``lay`` with every field at its largest."""
+    from fusion_center.service.assembler_parts import CyclePart
     from fusion_center.service.cycle_records import EMCY_PER_CYCLE, EmcyEvent
     from taxel_net.patches import devices, node_label
 
-    scene = load_scene("skin4096")
-    lay = group_layout(scene, range(len(scene.bus.channels)))
     n, d = len(lay.taxels), len(lay.devices)
     full = devices(scene)
     longest = max(lay.devices, key=lambda i: len(str(node_label(full[i].channel, full[i].node_id))))
     big = 2 ** 53
-    part = CyclePart(
+    return CyclePart(
         channels=lay.channels, number=2 ** 62, sync_counter=255, closed_by="x" * 32, closed_after_us=-big,
         decisions=np.full(n, -1, np.int8), readings=np.full(n, -1e300), received=np.ones(n, bool),
         expected=np.ones(n, bool), missing=np.ones(n, bool), states=np.full(n, 127, np.int16),
@@ -179,10 +178,53 @@ def test_the_largest_part_fits_its_frame_limit():
                         "f" * 10, -big),) * EMCY_PER_CYCLE,
         emcy_dropped=big, duplicates=tuple(int(i) for i in lay.devices),
         devices=(np.ones(d, bool), np.ones(d, bool), np.full(d, 127, np.int16), np.ones(d, bool)), sent_at=-1e300)
+
+
+def test_the_largest_part_fits_its_frame_limit():
+    """skin4096 in one group (4,096 taxels, 512 patch nodes): every field at its largest."""
+    from fusion_center.service.assembler_parts import group_layout
+    from fusion_center.service.assembler_wire import PartCodec, encode_part
+
+    scene = load_scene("skin4096")
+    lay = group_layout(scene, range(len(scene.bus.channels)))
+    part = _largest_part(scene, lay)
     codec = PartCodec(scene, lay)
     data = encode_part(part)
     assert len(data) <= codec.max_bytes, (len(data), codec.max_bytes)
     _same_part(part, codec.decode(data))
+
+
+def test_the_largest_part_crosses_the_link(monkeypatch):
+    """... and goes from an assembler to the fuser over Zenoh (over 64 kB: Zenoh fragments it),
+    signed and checked, into the merge."""
+    from fusion_center.service.assembler_parts import group_layout
+    from fusion_center.service.assembler_process import AssemblerProcess
+    from fusion_center.service.assemblers import AssembledFusionService
+    from fusion_center.service.assembler_wire import encode_part
+
+    monkeypatch.setenv("FUSION_CENTER_AUTHKEY", "wire-test-key")
+    scene = load_scene("skin4096")
+    chans = range(len(scene.bus.channels))
+    lay = group_layout(scene, chans)
+    part = _largest_part(scene, lay)
+    assert len(encode_part(part)) > 65536
+    port = random.randint(40000, 60000)
+    service = AssembledFusionService(scene, listen=("127.0.0.1", port), interface="virtual",
+                                     channels=[f"big-{port}-{k}" for k in chans])
+    service.open()
+    process = AssemblerProcess(scene, list(chans), fuser=("127.0.0.1", port), interface="virtual",
+                               channel_names=[f"big-{port}-{k}" for k in chans])
+    try:
+        process.open()
+        process.connect(30)
+        service.merger.opened(255, 0, time.monotonic())
+        process._outbox.append(part)
+        process._send()
+        _wait(lambda: service.merger.stats.parts == 1 or service.merger.stats.refused, "the part merged")
+        assert service.merger.stats.parts == 1 and service.merger.stats.refused == {}
+    finally:
+        process.close()
+        service.close()
 
 
 def _mutations(scene):
@@ -281,37 +323,38 @@ def test_hello_and_answers_are_checked(tmp_path):
 def _service(scene, port, **kwargs):
     from fusion_center.service.assemblers import AssembledFusionService
 
-    service = AssembledFusionService(scene, listen=("127.0.0.1", port), interface="virtual",
-                                     channels=[f"wire-{port}-a", f"wire-{port}-b"], **kwargs)
-    service.handshake_timeout_s = 1.0
-    return service
+    return AssembledFusionService(scene, listen=("127.0.0.1", port), interface="virtual",
+                                  channels=[f"wire-{port}-a", f"wire-{port}-b"], **kwargs)
 
 
 def test_a_pickle_from_a_peer_with_the_key_runs_nothing_in_the_fuser(tmp_path, monkeypatch):
-    """The issue's reproduction, with the key known to the peer (the worst case): the fuser
-    closes the connection without unpickling; no file appears."""
+    """The issue's reproduction, with the key known to the peer (the worst case): a pickle as
+    the hello, signed; the fuser never unpickles it, does not answer, counts it; no file appears."""
     monkeypatch.setenv("FUSION_CENTER_AUTHKEY", "wire-test-key")
     scene = load_scene(_scene_file(tmp_path))
     port = random.randint(40000, 60000)
     service = _service(scene, port)
     marker = tmp_path / "pwned"
     service.open()
+    peer = zenoh_peer(connect=port)
     try:
-        conn = Client(("127.0.0.1", port), authkey=b"wire-test-key")
-        conn.send(Payload(marker))
-        assert _closed_by_peer(conn)  # the fuser is done with it: anything it ran has run
-        conn.close()
-        assert not marker.exists()
+        _wait(lambda: _hello(peer, scene, b"x", b"probe", sign=False)[1] is None
+              and service.merger.stats.refused.get("key"), "the peer connected")  # an unsigned probe: key
+        _, answer = _hello(peer, scene, b"wire-test-key", pickle.dumps(Payload(marker)))
+        assert answer is None
         _wait(lambda: service.merger.stats.refused.get("message"), "the refusal counted")
-        assert service.merger.stats.refused == {"message": 1} and service.merger.stats.parts == 0
+        assert not marker.exists()
+        assert service.merger.stats.refused == {"message": 1, "key": 1} and service.merger.stats.parts == 0
     finally:
+        peer.close()
         service.close()
 
 
 def test_junk_peers_are_refused_counted_logged_once_and_the_link_goes_on(tmp_path, monkeypatch, caplog):
+    from fusion_center.service import assembler_link as link
     from fusion_center.service.assembler_parts import scene_fingerprint
     from fusion_center.service.assembler_process import AssemblerProcess
-    from fusion_center.service.assembler_wire import HELLO_MAX, decode_answer, encode_hello, encode_part
+    from fusion_center.service.assembler_wire import HELLO_MAX, encode_hello, encode_part
 
     monkeypatch.setenv("FUSION_CENTER_AUTHKEY", "wire-test-key")
     key = b"wire-test-key"
@@ -320,66 +363,56 @@ def test_junk_peers_are_refused_counted_logged_once_and_the_link_goes_on(tmp_pat
     service = _service(scene, port)
     service._log.interval_s = 3600.0  # one line a kind for the whole test, however slow the host
     marker = tmp_path / "pwned"
-    address = ("127.0.0.1", port)
     good = msgpack.unpackb(encode_hello(scene_fingerprint(scene), [1], "h", 1, False))
     caplog.set_level(logging.WARNING, logger="fusion_center.service.assemblers")
     service.open()
+    peer = zenoh_peer(connect=port)
+    p = link.prefix(scene.name)
     try:
-        def peer(send, authkey=key):
-            conn = Client(address, authkey=authkey)
-            send(conn)
-            return conn
-
-        closed = []
-        for send in (lambda c: c.send({"kind": "hello", "protocol": 1, "scene": scene_fingerprint(scene),
-                                       "channels": [1]}),  # version 1's hello: a benign pickle
-                     lambda c: c.send_bytes(bytes(random.Random(1).randrange(256) for _ in range(300))),
-                     lambda c: c.send_bytes(b"\x00" * (HELLO_MAX + 1)),  # oversize: refused unread
-                     lambda c: c.send_bytes(msgpack.packb({**good, "channels": "1"})),
-                     lambda c: c.send_bytes(msgpack.packb({**good, "pid": 1.5}))):
-            conn = peer(send)
-            closed.append(_closed_by_peer(conn))
-            conn.close()
-        # another version: told why, then closed
-        conn = peer(lambda c: c.send_bytes(msgpack.packb({**good, "v": 3})))
-        answer = decode_answer(conn.recv_bytes(4096))
+        _wait(lambda: _hello(peer, scene, key, b"\x00")[1] is None and service.merger.stats.refused,
+              "the peer connected")  # not msgpack: message
+        unanswered = []
+        for payload, signed_with in (
+                (pickle.dumps({"kind": "hello", "protocol": 1, "scene": scene_fingerprint(scene), "channels": [1]}),
+                 None),  # version 1's hello, a benign pickle, not signed: key
+                (pickle.dumps(Payload(marker)), OLD_LOOPBACK_KEY),  # signed with the old constant: key
+                (bytes(random.Random(1).randrange(256) for _ in range(300)), key),
+                (b"\x00" * (HELLO_MAX + 1), key),  # oversize: refused unread
+                (msgpack.packb({**good, "channels": "1"}), key),
+                (msgpack.packb({**good, "pid": 1.5}), key)):
+            unanswered.append(_hello(peer, scene, signed_with or b"", payload, sign=signed_with is not None)[1])
+        assert unanswered == [None] * 6
+        # another version: told why (signed), counted
+        _, answer = _hello(peer, scene, key, msgpack.packb({**good, "v": 3}))
         assert answer["kind"] == "refused" and "protocol version 3" in answer["why"], answer
-        conn.close()
-        # a well-formed hello, then a pickled part: its group is dropped, the pickle never loaded
-        conn = peer(lambda c: c.send_bytes(msgpack.packb(good)))
-        assert decode_answer(conn.recv_bytes(4096))["kind"] == "welcome"
+        # a hello of another scene: refused with the reason
+        _, answer = _hello(peer, scene, key, msgpack.packb({**good, "scene": {**good["scene"], "n": 81}}))
+        assert answer["kind"] == "refused" and "scene differs" in answer["why"], answer
+        # a well-formed hello; then parts: not signed, a signed pickle (its link dropped and told, the
+        # pickle never loaded), a part of a link that is not there, an oversize one
+        told = []
+        link_id = link.new_id()
+        told_q = peer.declare_queryable(link.to_link_key(p, link_id),
+                                        lambda q: (told.append(q.payload.to_bytes()), q.reply(q.key_expr, b"")))
+        _, answer = _hello(peer, scene, key, msgpack.packb(good), link_id=link_id)
+        assert answer == {"kind": "welcome", "group": "1"}
         _wait(lambda: service.merger.covered() == {1}, "group 1 welcomed")
-        conn.send(Payload(marker))
-        closed.append(_closed_by_peer(conn))
-        conn.close()
+        _put_part(peer, scene, None, link_id, pickle.dumps(Payload(marker)))
+        _wait(lambda: service.merger.stats.refused.get("key") == 3, "the unsigned part refused")
+        assert service.merger.covered() == {1}  # an unsigned message changes nothing
+        _put_part(peer, scene, key, link_id, pickle.dumps(Payload(marker)))
         _wait(lambda: service.merger.covered() == set(), "group 1 dropped")
-        # no key: the key of the source before issue 21, a wrong one, no challenge answer at all
-        for authkey in (OLD_LOOPBACK_KEY, b"wrong"):
-            with pytest.raises(AuthenticationError):
-                Client(address, authkey=authkey)
-        with socket.create_connection(address, timeout=30) as raw:
-            raw.sendall(b"GET / HTTP/1.0\r\n\r\n")
-            _drain(raw)
-        # a silent peer is closed after handshake_timeout_s (its slot back)
-        with socket.create_connection(address, timeout=30) as raw:
-            _drain(raw)
-        # every handshake slot taken: the next connection is closed at once
-        from fusion_center.service.assemblers import MAX_HANDSHAKES
+        _wait(lambda: told, "the dropped link told")
+        from fusion_center.service.assembler_wire import decode_answer
 
-        for _ in range(MAX_HANDSHAKES):
-            service._handshakes.acquire()
+        assert decode_answer(told[0])["kind"] == "refused"
+        _put_part(peer, scene, key, link.new_id(), encode_part(_parts(scene, 7, 8)["1"]))  # no such link
+        _put_part(peer, scene, key, link.new_id(), b"\x00" * (HELLO_MAX + 1))
+        told_q.undeclare()
+        # ... and an assembler is welcomed: the link goes on, its parts merge
+        process = AssemblerProcess(scene, [0], fuser=("127.0.0.1", port), interface="virtual", reconnect_timeout_s=5)
         try:
-            with socket.create_connection(address, timeout=30) as raw:
-                assert raw.recv(4096) == b""
-        finally:
-            for _ in range(MAX_HANDSHAKES):
-                service._handshakes.release()
-        # ... and while a silent peer holds its connection, an assembler is welcomed: the link goes
-        # on, its parts merge
-        service.handshake_timeout_s = 60.0
-        quiet = socket.create_connection(address, timeout=30)
-        process = AssemblerProcess(scene, [0], fuser=address, interface="virtual", reconnect_timeout_s=5)
-        try:
+            process.open()
             process.connect(30)
             _wait(lambda: service.merger.covered() == {0}, "group 0 welcomed")
             assert service.merger.stats.parts == 0 and service.records == []
@@ -391,17 +424,17 @@ def test_junk_peers_are_refused_counted_logged_once_and_the_link_goes_on(tmp_pat
             assert service.merger.stats.unmatched_parts == 0
         finally:
             process.close()
-            quiet.close()  # gone in the key handshake: counted as a key refusal
-        want = {"message": 7, "key": 4, "timeout": 1, "busy": 1}
+        want = {"message": 8, "key": 3, "hello": 1, "link": 1}
         _wait(lambda: service.merger.stats.refused == want, f"{want} (got {service.merger.stats.refused})")
-        assert closed == [True] * 6 and not marker.exists()
+        assert not marker.exists()
         stats = service.merger.stats
-        assert stats.reconnects == {} and list(service.refused) == []  # no hello was refused for its content
+        assert stats.reconnects == {} and len(service.refused) == 1  # the other scene's hello
         # logged at most once a kind (in the test's hour)
-        lines = [r.getMessage() for r in caplog.records if "assembler connection refused" in r.getMessage()]
+        lines = [r.getMessage() for r in caplog.records if "assembler message refused" in r.getMessage()]
         assert sorted(line.split("(")[1].split(")")[0] for line in lines) == sorted(want), lines
         assert len(encode_part(_parts(scene, 7, 8)["0"])) < 2000
     finally:
+        peer.close()
         service.close()
 
 
@@ -409,57 +442,58 @@ def test_junk_peers_are_refused_counted_logged_once_and_the_link_goes_on(tmp_pat
 
 def test_an_assembler_runs_nothing_its_fuser_sends(tmp_path, monkeypatch):
     """A stand-in fuser (it has the key) answers the hello with the payload; then, welcomed, sends
-    it instead of its bye: the assembler refuses both, reconnects, and ends on the real bye."""
+    it (unsigned, signed) before its bye: the assembler refuses both, counts them, ends on the
+    bye; a welcome not signed with the key is no answer."""
     from fusion_center.service.assembler_process import AssemblerProcess
+    from fusion_center.service.assembler_wire import encode_bye, encode_welcome
 
     monkeypatch.setenv("FUSION_CENTER_AUTHKEY", "wire-test-key")
     scene = load_scene(_scene_file(tmp_path))
     marker = tmp_path / "pwned"
-    listener = Listener(("127.0.0.1", 0), authkey=b"wire-test-key")  # multiprocessing's own handshake
-    address = listener.address
-    script = []
-
-    def fuser():
-        try:
-            for answer in script:
-                conn = listener.accept()
-                conn.recv_bytes(65536)  # the hello
-                for message in answer:
-                    if isinstance(message, bytes):
-                        conn.send_bytes(message)
-                    else:
-                        conn.send(message)
-                _closed_by_peer(conn, 10)
-                conn.close()
-        except OSError:
-            pass
-
+    port = random.randint(40000, 60000)
+    fuser = StandInFuser(scene, b"wire-test-key", port)
     try:
-        script[:] = [[Payload(marker)]]
-        thread = threading.Thread(target=fuser, daemon=True)
-        thread.start()
-        process = AssemblerProcess(scene, [1], fuser=address, interface="virtual", reconnect_timeout_s=10)
-        with pytest.raises(UsageError) as info:
-            process.connect(10)
-        thread.join(30)
-        assert not marker.exists()
-        assert "not a fuser of protocol 2" in str(info.value)
-        from fusion_center.service.assembler_wire import encode_bye, encode_welcome
-
-        script[:] = [[encode_welcome("1"), Payload(marker)], [encode_welcome("1"), encode_bye()]]
-        thread = threading.Thread(target=fuser, daemon=True)
-        thread.start()
-        process = AssemblerProcess(scene, [1], fuser=address, interface="virtual", reconnect_timeout_s=10)
+        fuser.answers.put(pickle.dumps(Payload(marker)))
+        process = AssemblerProcess(scene, [1], fuser=("127.0.0.1", port), interface="virtual", reconnect_timeout_s=10)
         try:
-            process.connect(10)
-            assert process.closed.wait(30)
-            assert process.bye and process.bad_messages == 1 and process.reconnects == 1
+            process.open()
+            with pytest.raises(UsageError) as info:
+                process.connect(10)
         finally:
             process.close()
-        thread.join(30)
+        assert not marker.exists()
+        assert "not a fuser of protocol 2" in str(info.value)
+        fuser.answers.put(encode_welcome("1"))
+        process = AssemblerProcess(scene, [1], fuser=("127.0.0.1", port), interface="virtual", reconnect_timeout_s=10)
+        try:
+            process.open()
+            process.connect(10)
+            link_id = fuser.hellos[-1][0]
+            assert fuser.tell(link_id, pickle.dumps(Payload(marker)), signed=False) == 0
+            assert fuser.tell(link_id, pickle.dumps(Payload(marker))) == 0
+            assert fuser.tell(link_id, encode_welcome("1")) == 0  # signed, of the protocol, not a bye
+            assert process.bad_messages == 3 and not process.closed.is_set()
+            assert fuser.tell(link_id, encode_bye()) == 1
+            assert process.closed.wait(30)
+            assert process.bye and process.bad_messages == 3 and process.reconnects == 0
+        finally:
+            process.close()
         assert not marker.exists()
     finally:
-        listener.close()
+        fuser.close()
+    unsigned = StandInFuser(scene, b"wire-test-key", port + 1, sign=False)
+    try:
+        unsigned.answers.put(encode_welcome("1"))
+        process = AssemblerProcess(scene, [1], fuser=("127.0.0.1", port + 1), interface="virtual")
+        process.handshake_timeout_s = 0.5
+        try:
+            process.open()
+            with pytest.raises(UsageError, match=r"answers not signed with it: [1-9]"):
+                process.connect(1.0)
+        finally:
+            process.close()
+    finally:
+        unsigned.close()
 
 
 # ---------------------------------------------------------------------------- the loopback key
@@ -483,16 +517,24 @@ def test_without_the_variable_a_loopback_fuser_has_a_key_of_its_own(tmp_path, mo
         assert stat.S_IMODE(os.stat(key_file(ports[0])).st_mode) == 0o600
         assert stat.S_IMODE(os.stat(key_dir()).st_mode) == 0o700
         address = ("127.0.0.1", ports[0])
-        for authkey in (OLD_LOOPBACK_KEY, keys[1]):  # the old constant, another run's key
-            with pytest.raises(AuthenticationError):
-                Client(address, authkey=authkey)
+        for authkey in (OLD_LOOPBACK_KEY, keys[1]):  # the old constant, another run's key: no answer
+            process = AssemblerProcess(scene, [0, 1], fuser=address, interface="virtual", authkey=authkey)
+            process.handshake_timeout_s = 0.5
+            try:
+                process.open()
+                with pytest.raises(UsageError, match="no answer to the hello"):
+                    process.connect(0.2)
+            finally:
+                process.close()
+        refused = dict(services[0].merger.stats.refused)
+        assert set(refused) == {"key"} and refused["key"] >= 2, refused
         process = AssemblerProcess(scene, [0, 1], fuser=address, interface="virtual")
         try:
+            process.open()
             process.connect(30)  # finds this user's fuser's key by itself
             _wait(lambda: services[0].merger.covered() == {0, 1}, "the assembler welcomed")
         finally:
             process.close()
-        _wait(lambda: services[0].merger.stats.refused == {"key": 2}, "the two keys refused")
     finally:
         for service in services:
             service.close()
@@ -508,18 +550,18 @@ def test_without_the_variable_a_loopback_fuser_has_a_key_of_its_own(tmp_path, mo
     service = _service(scene, ports[1])
     with pytest.raises(UsageError, match="fuser key directory"):
         service.open()
-    with socket.socket() as probe:  # and the listener is closed again (as Listener binds: SO_REUSEADDR)
-        probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        probe.bind(("127.0.0.1", ports[1]))
-        probe.listen()
+    peer = zenoh_peer(listen=ports[1])  # and nothing is left listening on its port
+    peer.close()
 
 
 # ---------------------------------------------------------------------------- a run
 
 def test_junk_peers_during_a_run_change_no_record(tmp_path):
     """Two `fusion-center assemble` processes feed a run on udp_multicast (the key: this run's
-    file); meanwhile peers send the payload with that key, the old constant key, junk: nothing
-    runs, each is refused and counted, and the run's records are those of a run without them."""
+    file); meanwhile a Zenoh peer on the assemblers' keys sends the payload signed with that key,
+    junk, a hello signed with the old constant key, an unsigned part: nothing runs, each is
+    refused and counted, and the run's records are those of a run without them."""
+    from fusion_center.service import assembler_link as link
     from fusion_center.service.assembler_parts import read_key_file
     from test_assemblers import _fuser
 
@@ -527,28 +569,23 @@ def test_junk_peers_during_a_run_change_no_record(tmp_path):
     from skin_scale import check_records  # bench/ (importable after _udp_rig)
     service = _fuser(scene, bus, fuser_port)
     marker = tmp_path / "pwned"
-    address = ("127.0.0.1", fuser_port)
     done = threading.Event()
     errors = []
 
     def attack():
+        peer = None
         try:
             key = read_key_file(fuser_port)
-            conn = Client(address, authkey=key)
-            conn.send(Payload(marker))
-            _closed_by_peer(conn)
-            conn.close()
-            try:
-                Client(address, authkey=OLD_LOOPBACK_KEY).send(Payload(marker))
-            except AuthenticationError:
-                pass
-            conn = Client(address, authkey=key)
-            conn.send_bytes(os.urandom(64))
-            _closed_by_peer(conn)
-            conn.close()
+            peer = zenoh_peer(connect=fuser_port)
+            assert _hello(peer, scene, key, pickle.dumps(Payload(marker)))[1] is None
+            assert _hello(peer, scene, key, os.urandom(64))[1] is None
+            assert _hello(peer, scene, OLD_LOOPBACK_KEY, pickle.dumps(Payload(marker)))[1] is None
+            _put_part(peer, scene, None, link.new_id(), pickle.dumps(Payload(marker)))
         except Exception as exc:  # noqa: BLE001 - reported by the test
             errors.append(exc)
         finally:
+            if peer is not None:
+                peer.close()
             done.set()
 
     def hook(k):
@@ -575,7 +612,7 @@ def test_junk_peers_during_a_run_change_no_record(tmp_path):
     figures = check_records(scene, records)
     print(figures, stats.as_dict())
     assert not marker.exists()
-    assert stats.refused == {"message": 2, "key": 1}
+    assert stats.refused == {"message": 2, "key": 2}
     assert [rc for rc, _, _ in outs] == [0, 0], outs
     assert all("40 cycles sent" in out and "0 reconnects" in out for _, out, _ in outs), outs
     assert [r["cycle"] for r in records] == list(range(40)) and figures["misattributed"] == 0
@@ -586,7 +623,7 @@ def test_junk_peers_during_a_run_change_no_record(tmp_path):
 
     summary_line = [line for line in format_summary({**_summary_stub(), "assemblers": stats.as_dict()})
                     if line.startswith("assemblers:")][0]
-    assert "refused 3 (message 2, key 1)" in summary_line, summary_line
+    assert "refused 4 (message 2, key 2)" in summary_line, summary_line
 
 
 def _summary_stub() -> dict:

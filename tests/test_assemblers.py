@@ -1,7 +1,8 @@
 """Cycle assemblers in other processes, one fuser (issue 14, "Beyond one host"): two
-``fusion-center assemble`` processes (one per scene channel) feed the fuser over
-multiprocessing.connection (the messages of assembler_wire; tests/test_assembler_wire.py) while the fuser is the CANopen master on udp_multicast; the merge
-itself (parts out of order, a missing part) as a unit."""
+``fusion-center assemble`` processes (one per scene channel) feed the fuser over Zenoh on a
+loopback endpoint, multicast scouting off (the messages of assembler_wire, the link of
+assembler_link; tests/test_assembler_wire.py) while the fuser is the CANopen master on
+udp_multicast; the merge itself (parts out of order, a missing part) as a unit."""
 
 from __future__ import annotations
 
@@ -18,8 +19,8 @@ from fusion_center.service.assemblers import (
     CycleMerger,
     GroupAssembler,
     group_layout,
-    parse_address,
 )
+from fusion_center.service.zenoh_config import endpoint
 from fusion_center.cli import main as cli_main
 from taxel_net.errors import UsageError
 from taxel_net.scene import load_scene
@@ -134,8 +135,10 @@ def test_counter_maps_a_part_to_its_sync_and_numbers_jump_over_lost_syncs(tmp_pa
 
 def test_bad_values_exit_2_naming_the_flag(tmp_path, capsys):
     path = _scene_file(tmp_path)
-    with pytest.raises(UsageError, match="--fuser 'nohost'"):
-        parse_address("nohost", "--fuser")
+    with pytest.raises(UsageError, match="--fuser 'tcp/nohost'"):
+        endpoint("nohost", "--fuser")
+    assert endpoint("127.0.0.1:7447", "--fuser") == "tcp/127.0.0.1:7447"
+    assert endpoint("tls/[::1]:7447", "--fuser") == "tls/[::1]:7447"
     cases = [
         (["assemble", "--scene", str(path), "-i", "virtual", "--serve", "0", "--fuser", "127.0.0.1:0"], "--fuser"),
         (["assemble", "--scene", str(path), "-i", "virtual", "--serve", "2", "--fuser", "127.0.0.1:47000"],
@@ -144,7 +147,12 @@ def test_bad_values_exit_2_naming_the_flag(tmp_path, capsys):
          "--serve 'x'"),
         (["assemble", "--scene", str(path), "-i", "virtual", "--serve", "0", "--fuser", "10.1.2.3:47000"],
          "FUSION_CENTER_AUTHKEY"),
+        (["assemble", "--scene", str(path), "-i", "virtual", "--serve", "0", "--fuser", "tls/10.1.2.3:47000"],
+         "FUSION_CENTER_AUTHKEY"),
+        (["assemble", "--scene", str(path), "-i", "virtual", "--serve", "0", "--fuser", "127.0.0.1:47000",
+          "--zenoh-config", str(tmp_path / "nosuch.json5")], "nosuch.json5"),
         (["run", "--scene", str(path), "-i", "virtual", "--assemblers", "127.0.0.1:99999"], "--assemblers"),
+        (["run", "--scene", str(path), "-i", "virtual", "--assemblers", "udp/127.0.0.1:x"], "--assemblers"),
         (["assemble", "--scene", str(path), "-i", "virtual", "--serve", "0", "--fuser", "127.0.0.1:47000",
           "--reconnect-timeout", "0"], "--reconnect-timeout 0.0"),
     ]
@@ -311,53 +319,122 @@ def test_merger_takes_a_group_back_and_refuses_a_second_claim(tmp_path):
     assert why is not None and "--serve 0" in why
 
 
-def test_assembler_reconnects_retries_a_refusal_and_gives_up_after_reconnect_timeout(tmp_path):
-    """A stand-in fuser (a Listener of this process): it breaks the connection without bye, refuses
-    the first try to come back, takes the second; then it is gone for good: exit 1, one line."""
-    from multiprocessing.connection import Listener
+def zenoh_peer(*, connect: int | None = None, listen: int | None = None):
+    """A Zenoh peer session on loopback, multicast scouting off: connected to the port
+    ``connect`` or listening on ``listen`` (nowhere else)."""
+    import json
 
+    import zenoh
+
+    config = zenoh.Config()
+    config.insert_json5("mode", '"peer"')
+    config.insert_json5("scouting/multicast/enabled", "false")
+    config.insert_json5("listen/endpoints", json.dumps([f"tcp/127.0.0.1:{listen}"] if listen else []))
+    config.insert_json5("connect/endpoints", json.dumps([f"tcp/127.0.0.1:{connect}"] if connect else []))
+    return zenoh.open(config)
+
+
+class StandInFuser:
+    """A stand-in fuser on loopback ``port`` (a Zenoh session of this process): its hello
+    queryable answers each hello with the next of :attr:`answers` (signed with ``key``; none
+    queued: no answer); ``("new run", message)`` declares a new liveliness token first."""
+
+    def __init__(self, scene, key: bytes, port: int, *, sign: bool = True):
+        import queue
+
+        from fusion_center.service import assembler_link as link
+
+        self.link = link
+        self.session = zenoh_peer(listen=port)
+        self.prefix = link.prefix(scene.name)
+        self.mac_key = link.mac_key(key)
+        self.sign = sign
+        self.answers = queue.Queue()
+        self.hellos = []  # (link id, hello payload)
+        self.run = link.new_id()
+        self.token = self.session.liveliness().declare_token(link.fuser_key(self.prefix, self.run))
+        self.queryable = self.session.declare_queryable(link.hello_key(self.prefix), self._on_hello)
+
+    def _on_hello(self, query):
+        import queue
+
+        link = self.link
+        ident = link.split_id(query.attachment.to_bytes())
+        self.hellos.append((ident[0], query.payload.to_bytes()))
+        try:
+            answer = self.answers.get_nowait()
+        except queue.Empty:
+            return
+        if isinstance(answer, tuple):
+            self.run = link.new_id()
+            self.token = self.session.liveliness().declare_token(link.fuser_key(self.prefix, self.run))
+            answer = answer[1]
+        key = link.hello_key(self.prefix)
+        tag = link.mac(self.mac_key, key, answer, ident[1] + self.run.encode()) if self.sign else bytes(32)
+        query.reply(key, answer, attachment=self.run.encode() + tag)
+
+    def tell(self, link_id: str, message: bytes, *, signed: bool = True) -> int:
+        """A message to the assembler of ``link_id`` as the fuser sends it (a query): the
+        number of answers (1 once it took it)."""
+        key = self.link.to_link_key(self.prefix, link_id)
+        tag = self.link.mac(self.mac_key, key, message) if signed else bytes(32)
+        return sum(reply.ok is not None for reply in self.session.get(key, payload=message, attachment=tag,
+                                                                       timeout=10))
+
+    def crash(self) -> None:
+        """Gone without a bye, as the assemblers see it (its liveliness token gone)."""
+        self.token.undeclare()
+
+    def close(self) -> None:
+        self.session.close()
+
+
+def _wait_for_line(stream, needle: str, limit: int = 200) -> list[str]:
+    """Lines of ``stream`` up to one holding ``needle`` (or its end)."""
+    lines = []
+    for _ in range(limit):
+        line = stream.readline()
+        lines.append(line)
+        if not line or needle in line:
+            break
+    return lines
+
+
+def test_assembler_reconnects_retries_a_refusal_and_gives_up_after_reconnect_timeout(tmp_path):
+    """A stand-in fuser: it goes away without bye, refuses the first try to come back, takes the
+    second; then it is gone for good: exit 1, one line."""
     from fusion_center.service.assembler_parts import remove_key_file, write_key_file
-    from fusion_center.service.assembler_wire import (HELLO_MAX, decode_hello, encode_refused, encode_welcome,
-                                                      handshake)
+    from fusion_center.service.assembler_wire import decode_hello, encode_refused, encode_welcome
 
     path = _scene_file(tmp_path)
-    listener = Listener(("127.0.0.1", 0))
-    port = listener.address[1]
+    scene = load_scene(path)
+    port = random.randint(40000, 60000)
     key, key_path = write_key_file(port)  # as `run --assemblers` on loopback: this run's key
-
-    def accept():
-        conn = listener.accept()
-        handshake(conn, key, server=True)
-        return conn
-
+    fuser = StandInFuser(scene, key, port)
+    fuser.answers.put(encode_welcome("1"))
     proc = _assemble(path, "1", port, None, "--reconnect-timeout", "1", interface="virtual",
                      channels=["rc-a", "rc-b"])
     try:
-        hellos = []
-        conn = accept()
-        hellos.append(decode_hello(conn.recv_bytes(HELLO_MAX)))
-        conn.send_bytes(encode_welcome("1"))
         line = proc.stdout.readline()
         assert "ready" in line, (line, proc.stderr.read() if proc.poll() is not None else "")
-        conn.close()  # no bye: a broken connection
-        conn = accept()
-        hellos.append(decode_hello(conn.recv_bytes(HELLO_MAX)))
-        conn.send_bytes(encode_refused("scene channel(s) [1] are already served by another assembler"))
-        conn.close()
-        conn = accept()
-        hellos.append(decode_hello(conn.recv_bytes(HELLO_MAX)))
-        conn.send_bytes(encode_welcome("1"))
+        fuser.answers.put(encode_refused("scene channel(s) [1] are already served by another assembler"))
+        fuser.answers.put(("new run", encode_welcome("1")))
+        fuser.crash()  # no bye: the link broke
+        lines = _wait_for_line(proc.stderr, "reconnected to the fuser")
+        assert "reconnected to the fuser" in lines[-1], lines
+        hellos = [decode_hello(payload) for _, payload in fuser.hellos]
         assert [h["channels"] for h in hellos] == [[1], [1], [1]]
         assert len({h["pid"] for h in hellos}) == 1  # the same process came back
-        conn.close()
+        assert len({link_id for link_id, _ in fuser.hellos}) == 3  # a new link each time
     finally:
-        listener.close()  # nobody listens any more
+        fuser.close()  # nobody there any more
         remove_key_file(key_path, key)
     rc, out, err = _finish(proc, timeout=120)
+    err = "".join(lines) + err
     assert rc == 1, (rc, out, err)
     assert "1 reconnects" in out, out
     last = err.strip().splitlines()[-1]
-    assert last.startswith(f"fusion-center assemble: the fuser 127.0.0.1:{port} went away and was not back "
+    assert last.startswith(f"fusion-center assemble: the fuser tcp/127.0.0.1:{port} went away and was not back "
                            "within 1 s (last try: "), err
     assert "reconnected to the fuser" in err and "broke: reconnecting" in err, err
 
@@ -520,35 +597,30 @@ def test_without_a_sync_counter_only_an_assembler_that_heard_the_reset_comes_bac
     assert ga.heard_reset
 
 
-def test_both_ends_notice_a_peer_gone_without_closing():
-    """Keepalive and a user timeout on the assembler <-> fuser connection (Linux options): a host
-    powered off is noticed in ~10 s, not after TCP's minutes - the fuser would otherwise keep the
-    group connected and refuse the group's restarted assembler."""
-    import os
-    import socket
-    import threading
-    from multiprocessing.connection import Client, Listener
+def test_the_link_sessions_are_loopback_unless_configured(tmp_path, monkeypatch):
+    """The fuser's link session listens on --assemblers only, an assembler's nowhere (it connects
+    to --fuser), multicast scouting off in both; a user's Zenoh file may open them up (its own
+    scouting setting is kept), and a file Zenoh cannot read is one line naming it."""
+    import json
 
-    from fusion_center.service.assembler_parts import KEEPALIVE, tune_connection
+    from fusion_center.service.assembler_link import assembler_config, fuser_config
 
-    listener = Listener(("127.0.0.1", 0), authkey=b"k")
-    accepted = []
-    thread = threading.Thread(target=lambda: accepted.append(listener.accept()))
-    thread.start()
-    client = Client(listener.address, authkey=b"k")
-    thread.join()
-    try:
-        for conn in (client, accepted[0]):
-            tune_connection(conn)
-            sock = socket.socket(fileno=os.dup(conn.fileno()))
-            try:
-                assert sock.getsockopt(socket.SOL_SOCKET, socket.SO_KEEPALIVE) == 1
-                for name, value in KEEPALIVE:
-                    if hasattr(socket, name):
-                        assert sock.getsockopt(socket.IPPROTO_TCP, getattr(socket, name)) == value, name
-            finally:
-                sock.close()
-    finally:
-        client.close()
-        accepted[0].close()
-        listener.close()
+    monkeypatch.delenv("FUSION_CENTER_ZENOH_CONFIG", raising=False)
+    monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path / "nothing-here"))
+    config, _ = fuser_config("tcp/127.0.0.1:47400", None)
+    assert json.loads(config.get_json("listen/endpoints")) == ["tcp/127.0.0.1:47400"]
+    assert json.loads(config.get_json("connect/endpoints")) == []
+    assert json.loads(config.get_json("scouting/multicast/enabled")) is False
+    config, _ = assembler_config("tcp/127.0.0.1:47400", None)
+    assert json.loads(config.get_json("listen/endpoints")) == []
+    assert json.loads(config.get_json("connect/endpoints")) == ["tcp/127.0.0.1:47400"]
+    assert json.loads(config.get_json("scouting/multicast/enabled")) is False
+    user = tmp_path / "zenoh.json5"
+    user.write_text('{ scouting: { multicast: { enabled: true } }, connect: { endpoints: ["tcp/127.0.0.1:7999"] } }')
+    config, _ = assembler_config("tcp/127.0.0.1:47400", str(user))
+    assert json.loads(config.get_json("scouting/multicast/enabled")) is True
+    assert json.loads(config.get_json("connect/endpoints")) == ["tcp/127.0.0.1:47400", "tcp/127.0.0.1:7999"]
+    user.write_text("{ listen: { endpoints: 5 } }")
+    with pytest.raises(UsageError) as info:
+        fuser_config("tcp/127.0.0.1:47400", str(user))
+    assert str(user) in str(info.value) and "\n" not in str(info.value)

@@ -30,16 +30,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_bus_arguments(parser)
     parser.add_argument("--serve", required=True, metavar="CHANNELS",
                         help="scene channel indices this assembler serves: 0-3, 0,2,5 or a mix")
-    parser.add_argument("--fuser", required=True, metavar="HOST:PORT",
-                        help="where `fusion-center run --assemblers HOST:PORT` listens (on loopback the key "
-                             "of this user's fuser is found by itself; beyond loopback, or a fuser of another "
-                             "user: the same FUSION_CENTER_AUTHKEY on both sides)")
+    parser.add_argument("--fuser", required=True, metavar="ENDPOINT",
+                        help="the Zenoh endpoint `fusion-center run --assemblers ENDPOINT` listens on: HOST:PORT "
+                             "(tcp) or PROTO/HOST:PORT such as tls/robot:7447 (on loopback the key of this user's "
+                             "fuser is found by itself; beyond loopback, or a fuser of another user: the same "
+                             "FUSION_CENTER_AUTHKEY on both sides)")
     parser.add_argument("--connect-timeout", type=float, default=30.0, metavar="S",
                         help="seconds to keep trying to reach the fuser (default 30)")
     parser.add_argument("--reconnect-timeout", type=float, default=60.0, metavar="S",
-                        help="when the connection to the fuser breaks without its goodbye: seconds to keep "
+                        help="when the link to the fuser breaks without its goodbye: seconds to keep "
                              "trying to connect again before exiting 1 (default 60)")
     add_mode_argument(parser)
+    from ..service.zenoh_config import add_arguments as add_zenoh_arguments
+
+    add_zenoh_arguments(parser, publication=False)
 
 
 def parse_serve(text: str) -> list[int]:
@@ -57,13 +61,14 @@ def run(args) -> int:
 
     from taxel_net.errors import UsageError
     from taxel_net.scene import load_scene
-    from ..service.assembler_parts import check_serve, parse_address
+    from ..service.assembler_parts import check_serve
     from ..service.assembler_process import AssemblerProcess
+    from ..service.zenoh_config import endpoint
     from . import check_bitrate_flags, resolve_bus
     from .run import apply_mode, setup_logging
 
     setup_logging()
-    fuser = parse_address(args.fuser, "--fuser")
+    fuser = endpoint(args.fuser, "--fuser")
     if not (math.isfinite(args.connect_timeout) and 0 < args.connect_timeout <= 3600):
         raise UsageError(f"--connect-timeout {args.connect_timeout}: must be a number of seconds in (0, 3600]")
     if not (math.isfinite(args.reconnect_timeout) and 0 < args.reconnect_timeout <= 86400):
@@ -74,7 +79,8 @@ def run(args) -> int:
     serve = check_serve(serve, scene, args.serve)
     bus = resolve_bus(args, scene)
     process = AssemblerProcess(scene, serve, fuser=fuser, interface=bus.interface, channel_names=bus.channels,
-                               bitrate=bus.bitrate, bus_kwargs=bus.kwargs, reconnect_timeout_s=args.reconnect_timeout)
+                               bitrate=bus.bitrate, bus_kwargs=bus.kwargs, reconnect_timeout_s=args.reconnect_timeout,
+                               zenoh_config=args.zenoh_config)
     stop = threading.Event()
 
     def on_signal(signum, frame):
@@ -88,7 +94,7 @@ def run(args) -> int:
         lay = process.layout
         print(f"fusion-center assemble: ready: channel(s) {', '.join(process.channel_names)} "
               f"(scene channels {lay.name}, {len(lay.taxels)} taxels) of scene {scene.name!r} on {bus.interface}, "
-              f"fuser {args.fuser}", flush=True)
+              f"fuser {process.fuser}", flush=True)
         while not stop.is_set() and not process.closed.wait(0.2):
             pass
     counters = process.group.assembler.counters()

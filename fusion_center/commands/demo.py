@@ -102,7 +102,7 @@ def fell_behind(summary: dict, period_ms: float) -> str | None:
 
 def run_demo(scene, cycles: int, *, drops: dict[int, list[int]] | None = None, json_lines=None, trace=None,
              live: bool = False, boot_timeout: float = 3.0, channel_tag: str | None = None,
-             keep_records: bool | int = True):
+             keep_records: bool | int = True, on_record=()):
     """Start the node twins (``node_sim.rig.Rig``) and the fusion centre on a private virtual
     channel, run ``cycles`` SYNC cycles, return (service, summary dict)."""
     from node_sim.rig import Rig
@@ -114,6 +114,7 @@ def run_demo(scene, cycles: int, *, drops: dict[int, list[int]] | None = None, j
     drops = drops or {}
     service = FusionService(scene, interface="virtual", channels=channels, json_lines=json_lines, trace=trace,
                             keep_records=keep_records)
+    service.on_record.extend(on_record)
     rig = Rig(scene, interface="virtual", channel=channels)
 
     def before_sync(cycle: int) -> None:
@@ -138,8 +139,18 @@ def run(args) -> int:
     scene = slowed_down(scene, args.slow_down)
     drops = parse_drops(args.drop_node, scene)
     check_trace_target(args.log)
-    _, summary = run_demo(scene, cycles, drops=drops, json_lines=args.json_lines, trace=args.log,
-                          live=not args.no_live, boot_timeout=args.boot_timeout, keep_records=False)
+    from .run import zenoh_publisher
+
+    publisher = zenoh_publisher(args, scene)
+    try:
+        _, summary = run_demo(scene, cycles, drops=drops, json_lines=args.json_lines, trace=args.log,
+                              live=not args.no_live, boot_timeout=args.boot_timeout, keep_records=False,
+                              on_record=[publisher] if publisher is not None else [])
+    finally:
+        if publisher is not None:
+            publisher.close()
+    if publisher is not None:
+        summary["zenoh"] = publisher.summary()
     if args.slow_down != 1.0:
         summary["slow_down"] = (f"{args.slow_down:g}x: SYNC every {scene.bus.sync_period_ms:g} ms instead of "
                                 f"{nominal_ms:g} ms, every bus time likewise (per-cycle results unchanged)")

@@ -24,6 +24,27 @@ def add_common_outputs(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--boot-timeout", type=float, default=3.0, metavar="S",
                         help="seconds to wait for the nodes' boot-ups; later ones are missing (default 3)")
     add_mode_argument(parser)
+    from ..service.zenoh_config import add_arguments as add_zenoh_arguments
+
+    add_zenoh_arguments(parser, publication=True)
+
+
+def zenoh_publisher(args, scene):
+    """The ``--zenoh`` publisher of a run, opened (None without ``--zenoh``); the session flags
+    without ``--zenoh`` are a :class:`UsageError`."""
+    from taxel_net.errors import UsageError
+
+    if not getattr(args, "zenoh", False):
+        for flag in ("zenoh_listen", "zenoh_connect", "zenoh_mode"):
+            if getattr(args, flag, None):
+                raise UsageError(f"--{flag.replace('_', '-')}: only with --zenoh (the publication's session)")
+        return None
+    from ..service.zenoh_publisher import ZenohPublisher
+
+    return ZenohPublisher(scene.name, config_file=args.zenoh_config, listen=args.zenoh_listen,
+                          connect=args.zenoh_connect, mode=args.zenoh_mode).open()
+
+
 
 
 def add_mode_argument(parser: argparse.ArgumentParser) -> None:
@@ -48,9 +69,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="scene file or bundled scene name (docs/scene-format.md)")
     add_bus_arguments(parser)
     add_common_outputs(parser)
-    parser.add_argument("--assemblers", metavar="HOST:PORT", default=None,
-                        help="listen there for `fusion-center assemble` processes (other processes or hosts) and "
-                             "fuse their cycles instead of assembling them here (beyond loopback: the same "
+    parser.add_argument("--assemblers", metavar="ENDPOINT", default=None,
+                        help="listen on this Zenoh endpoint (HOST:PORT for tcp, or PROTO/HOST:PORT such as "
+                             "tls/0.0.0.0:7447) for `fusion-center assemble` processes (other processes or hosts) "
+                             "and fuse their cycles instead of assembling them here (beyond loopback: the same "
                              "FUSION_CENTER_AUTHKEY on every host; on loopback without it a key of this run's, "
                              "in a file only this user can read; docs/service.md)")
 
@@ -207,6 +229,11 @@ def format_summary(summary: dict) -> list[str]:
                                     f"{_fmt_ms(a['to_send_ms']['p50'])}, p99 {_fmt_ms(a['to_send_ms']['p99'])}; "
                                     f"part transport p50 {_fmt_ms(a['transport_ms']['p50'])}, "
                                     f"p99 {_fmt_ms(a['transport_ms']['p99'])}"))
+    if "zenoh" in summary:
+        z = summary["zenoh"]
+        lines.append(("zenoh", f"{z['records']} records on {z['keys']['record']}, {z['grip']} on .../grip, "
+                               f"{z['contact']} contact events on .../contact, {z['failed']} failed, "
+                               f"{z['unmatched']} with no subscriber ({z['session']})"))
     if "slow_down" in summary:
         lines.append(("slow_down", summary["slow_down"]))
     if "warning" in summary:
@@ -280,16 +307,27 @@ def run(args) -> int:
     options = dict(interface=bus.interface, channels=bus.channels, bitrate=bus.bitrate, bus_kwargs=bus.kwargs,
                    json_lines=args.json_lines, trace=args.log, keep_records=False)
     if getattr(args, "assemblers", None):  # the cycles come from `fusion-center assemble` processes
-        from ..service.assemblers import AssembledFusionService, parse_address
+        from ..service.assemblers import AssembledFusionService
+        from ..service.zenoh_config import endpoint
 
-        service = AssembledFusionService(scene, listen=parse_address(args.assemblers, "--assemblers"), **options)
+        service = AssembledFusionService(scene, listen=endpoint(args.assemblers, "--assemblers"),
+                                         zenoh_config=getattr(args, "zenoh_config", None), **options)
     else:
         service = FusionService(scene, **options)
-    with service:
-        summary = execute(service, cycles, live=not args.no_live, boot_timeout=args.boot_timeout,
-                          bus=bus.describe(service.channel_names))
+    publisher = zenoh_publisher(args, scene)
+    try:
+        if publisher is not None:
+            service.on_record.append(publisher)
+        with service:
+            summary = execute(service, cycles, live=not args.no_live, boot_timeout=args.boot_timeout,
+                              bus=bus.describe(service.channel_names))
+    finally:
+        if publisher is not None:
+            publisher.close()
     merger = getattr(service, "merger", None)
     if merger is not None:
         summary["assemblers"] = merger.stats.as_dict()
+    if publisher is not None:
+        summary["zenoh"] = publisher.summary()
     print_summary(summary)
     return 130 if "interrupted" in summary else 0

@@ -20,7 +20,10 @@ One module per job:
 * :mod:`.traces` - trace writer, channel of a traced frame, offline replay;
 * :mod:`.trace_writers` - the trace's flush at each cycle's close, for every format (BLF's
   container, the SQLite writer);
-* :mod:`.live` - the rich live view.
+* :mod:`.live` - the rich live view;
+* :mod:`.zenoh_publisher` - every record on Zenoh (``--zenoh``), :mod:`.zenoh_config` its
+  session's settings; :mod:`.assemblers` and its modules - assemblers in other processes or
+  hosts, linked to the fuser over Zenoh (:mod:`.assembler_link`).
 """
 
 from .fusion_service import FusionService, RunSummary
@@ -29,6 +32,7 @@ from .pipeline import CyclePipeline
 from .records import RecordWriter, read_records
 from .stream import EventStream
 from .traces import open_trace_writer, replay_trace
+from .zenoh_publisher import ZenohPublisher
 
 __all__ = [
     "COUNTER_NAMES",
@@ -39,6 +43,7 @@ __all__ = [
     "FusionService",
     "RecordWriter",
     "RunSummary",
+    "ZenohPublisher",
     "open_trace_writer",
     "quantise_timestamp",
     "read_records",

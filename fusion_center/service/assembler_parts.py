@@ -1,5 +1,5 @@
-"""What assemblers and fuser share (issue 14, "Beyond one host"; :mod:`.assemblers`): addresses
-and keys of the ``multiprocessing.connection`` transport, channel groups and their sub-scenes,
+"""What assemblers and fuser share (issue 14, "Beyond one host"; :mod:`.assemblers`): the
+link's keys (its transport is Zenoh: :mod:`.assembler_link`), channel groups and their sub-scenes,
 the scene fingerprint both sides compare, and :class:`CyclePart`, the one message an assembler
 sends per closed cycle (on the wire: :mod:`.assembler_wire`).
 
@@ -18,7 +18,6 @@ import ipaddress
 import logging
 import os
 import secrets
-import socket
 import stat
 import tempfile
 import threading
@@ -40,20 +39,7 @@ COB_SYNC = 0x080
 NMT_RESETS = (0x81, 0x82)
 
 
-# ---------------------------------------------------------------------------- addresses and keys
-
-def parse_address(text: str, flag: str) -> tuple[str, int]:
-    """``HOST:PORT`` (``[v6]:PORT`` for IPv6) -> (host, port); else :class:`UsageError`."""
-    host, sep, port = str(text).rpartition(":")
-    host = host[1:-1] if host.startswith("[") and host.endswith("]") else host
-    try:
-        number = int(port)
-    except ValueError:
-        number = -1
-    if not sep or not host or not 1 <= number <= 65535:
-        raise UsageError(f"{flag} {text!r}: expected HOST:PORT with a port in 1..65535 (e.g. 127.0.0.1:47000)")
-    return host, number
-
+# ---------------------------------------------------------------------------- keys
 
 def is_loopback(host: str) -> bool:
     if host == "localhost":
@@ -260,48 +246,7 @@ class CyclePart:
 
 
 
-# ---------------------------------------------------------------------------- the connection
-
-def shutdown_connection(conn) -> None:
-    """Break a ``multiprocessing.connection`` connection as a network fault would: both ends see
-    it closed, and a thread blocked in its ``recv`` wakes (a plain ``close`` from another thread
-    does not wake it). Never raises."""
-    try:
-        sock = socket.socket(fileno=os.dup(conn.fileno()))
-    except (OSError, ValueError):
-        return
-    try:
-        sock.shutdown(socket.SHUT_RDWR)
-    except OSError:
-        pass
-    finally:
-        sock.close()
-
-
-# a peer that is gone without closing (its host powered off, a cable pulled) is noticed in about
-# 10 s: the side that only receives (the fuser) by keepalive probes, the side that sends (the
-# assembler) by unacknowledged data (TCP_USER_TIMEOUT); a shorter blip is bridged by TCP itself
-KEEPALIVE = (("TCP_KEEPIDLE", 5), ("TCP_KEEPINTVL", 1), ("TCP_KEEPCNT", 5), ("TCP_USER_TIMEOUT", 10_000))
-
-
-def tune_connection(conn) -> None:
-    """Keepalive and a user timeout on a TCP connection (where the platform has them; never raises)."""
-    try:
-        sock = socket.socket(fileno=os.dup(conn.fileno()))
-    except (OSError, ValueError):
-        return
-    try:
-        if sock.family in (socket.AF_INET, socket.AF_INET6):
-            sock.setsockopt(socket.SOL_SOCKET, socket.SO_KEEPALIVE, 1)
-            for name, value in KEEPALIVE:
-                option = getattr(socket, name, None)
-                if option is not None:
-                    sock.setsockopt(socket.IPPROTO_TCP, option, value)
-    except OSError:
-        pass
-    finally:
-        sock.close()
-
+# ---------------------------------------------------------------------------- logs
 
 class RateLimitedLog:
     """Warnings of one kind at most every ``interval_s`` (a flapping link never floods the log);

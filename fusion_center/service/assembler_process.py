@@ -19,11 +19,12 @@ from taxel_net import gcfreeze
 from taxel_net.errors import UsageError
 from taxel_net.patches import devices as scene_devices, node_label
 from taxel_net.scene import Scene
+from . import assembler_link as link_keys
 from .assembler_parts import (AUTHKEY_ENV, LOG_INTERVAL_S, NMT_RESETS, CyclePart, RateLimitedLog, authkey_for,
-                              group_layout, key_file, read_key_file, scene_fingerprint, shutdown_connection,
-                              tune_connection)
-from .assembler_wire import (ANSWER_MAX, HANDSHAKE_TIMEOUT_S, PROTOCOL, BadMessage, Deadline, decode_answer,
-                             encode_hello, encode_part, handshake, recv_frame)
+                              group_layout, key_file, read_key_file, scene_fingerprint)
+from .assembler_wire import (ANSWER_MAX, HANDSHAKE_TIMEOUT_S, PROTOCOL, BadMessage, decode_answer, encode_hello,
+                             encode_part)
+from .zenoh_config import endpoint, endpoint_host
 from .common_frames import CommonFrames
 from .cycle_records import ClosedCycle, EmcyEvent, quantise_timestamp
 
@@ -42,7 +43,8 @@ class NoKey(Exception):
 
 
 class Unanswered(Exception):
-    """The fuser did not finish the key handshake and answer the hello in time."""
+    """No answer to the hello signed with this key in time (no fuser there yet, or one of
+    another key)."""
 
 
 class GroupAssembler:
@@ -112,18 +114,23 @@ class GroupAssembler:
 
 class AssemblerProcess:
     """``fusion-center assemble``: a :class:`GroupAssembler` on its channels' buses, each
-    closed cycle sent to the fuser as a :class:`CyclePart`.
+    closed cycle sent to the fuser as a :class:`CyclePart` over Zenoh (:mod:`.assembler_link`).
 
-    When the connection breaks without the fuser's ``bye`` it keeps assembling (the parts
-    closed meanwhile count as not sent) and connects again, waiting 0.1 s doubling to 2 s
-    between tries, for up to ``reconnect_timeout_s``; then :attr:`closed` is set with
-    :attr:`gave_up` saying why."""
+    When the link breaks without the fuser's ``bye`` (the fuser's liveliness token gone, or
+    the fuser dropped the link) it keeps assembling (the parts closed meanwhile count as not
+    sent) and says hello again, waiting 0.1 s doubling to 2 s between tries, for up to
+    ``reconnect_timeout_s``; then :attr:`closed` is set with :attr:`gave_up` saying why.
 
-    handshake_timeout_s = HANDSHAKE_TIMEOUT_S  # connect -> the fuser's answer to the hello, else closed
+    ``fuser``: the Zenoh endpoint of the fuser's link session (``tcp/127.0.0.1:47400``; a
+    (host, port) pair or ``HOST:PORT`` mean tcp); ``zenoh_config``: a Zenoh configuration file
+    (:mod:`.zenoh_config`: TLS, authentication)."""
 
-    def __init__(self, scene: Scene, channels: Sequence[int], *, fuser: tuple[str, int], interface: str,
+    handshake_timeout_s = HANDSHAKE_TIMEOUT_S  # hello -> the fuser's answer, else the try failed
+
+    def __init__(self, scene: Scene, channels: Sequence[int], *, fuser, interface: str,
                  channel_names: Sequence[str] | None = None, bitrate: int | None = None,
-                 bus_kwargs: dict | None = None, authkey: bytes | None = None, reconnect_timeout_s: float = 60.0):
+                 bus_kwargs: dict | None = None, authkey: bytes | None = None, reconnect_timeout_s: float = 60.0,
+                 zenoh_config: str | None = None):
         self.scene = scene
         self.group = GroupAssembler(scene, channels)
         self.layout = self.group.layout
@@ -138,12 +145,19 @@ class AssemblerProcess:
         self.interface = interface
         self.bitrate = bitrate
         self.bus_kwargs = dict(bus_kwargs or {})
-        self.fuser = fuser
+        if isinstance(fuser, tuple):
+            host, port = fuser
+            fuser = f"tcp/[{host}]:{port}" if ":" in host else f"tcp/{host}:{port}"
+        self.fuser = endpoint(fuser, "--fuser")
+        self.zenoh_config = zenoh_config
+        self.port = int(self.fuser.split("?")[0].rpartition(":")[2])
         # None: the key of this user's fuser on that loopback port, read at every try (assembler_parts)
-        self.authkey = authkey if authkey is not None else authkey_for(fuser[0], "--fuser")
+        self.authkey = authkey if authkey is not None else authkey_for(endpoint_host(self.fuser), "--fuser")
+        self.prefix = link_keys.prefix(scene.name)
         self.buses = []
         self.notifiers = []
-        self.conn = None
+        self.session = None
+        self.link: _Link | None = None     # the welcomed link (None: not connected)
         self.lock = threading.Lock()       # the event stream: one order over the group's channels
         self._send_lock = threading.Lock()
         self._outbox: deque[CyclePart] = deque()
@@ -154,18 +168,23 @@ class AssemblerProcess:
         self.bye = False
         self.reconnect_timeout_s = float(reconnect_timeout_s)
         self.reconnects = 0
-        self.bad_messages = 0              # frames from the fuser that were no message of the protocol
+        self.bad_messages = 0              # messages to this assembler that were no signed message of the protocol
+        self.unsigned_answers = 0          # answers to a hello not signed with this key (a fuser of another key)
         self.gave_up: str | None = None    # why the fuser is given up (closed without bye)
         self._stop = threading.Event()     # close(): no more reconnecting
+        self._broken = threading.Event()   # the link broke: the watcher says hello again
+        self._dead: list[_Link] = []       # broken links, undeclared by the watcher
         self._log = RateLimitedLog(logger)
 
     def open(self) -> "AssemblerProcess":
         import can
 
         from taxel_net.canmsg import tune_udp_multicast
+        from .zenoh_config import open_session
 
         if self.interface not in can.interfaces.VALID_INTERFACES:
             raise UsageError(f"--interface {self.interface!r}: not a python-can interface")
+        config, what = link_keys.assembler_config(self.fuser, self.zenoh_config)
         try:
             for name in self.channel_names:
                 kwargs = dict(self.bus_kwargs)
@@ -178,6 +197,7 @@ class AssemblerProcess:
                                      f"{type(exc).__name__}: {exc}") from None
                 tune_udp_multicast(bus)
                 self.buses.append(bus)
+            self.session = open_session(config, f"--fuser {self.fuser}")
             for index, bus in enumerate(self.buses):
                 self.notifiers.append(can.Notifier(bus, [_PartListener(self, index)], timeout=0.05))
         except BaseException:
@@ -188,124 +208,165 @@ class AssemblerProcess:
     def _key(self) -> bytes:
         if self.authkey is not None:
             return self.authkey
-        key = read_key_file(self.fuser[1])
+        key = read_key_file(self.port)
         if key is None:
-            raise NoKey(f"no key file {key_file(self.fuser[1])!r} of a fuser of this user (`fusion-center run "
+            raise NoKey(f"no key file {key_file(self.port)!r} of a fuser of this user (`fusion-center run "
                         f"--assemblers` writes it; another user's fuser: set {AUTHKEY_ENV} on both sides)")
         return key
 
-    def _dial(self):
-        """One try: connect, key handshake, hello, welcome -> the connection. Raises :class:`Refused`,
-        :class:`NoKey`, :class:`Unanswered` (the fuser took longer than HANDSHAKE_TIMEOUT_S),
-        :class:`~.assembler_wire.BadMessage`, OSError, EOFError (closed during the hello) or
-        multiprocessing's AuthenticationError. Nothing received is unpickled (:mod:`.assembler_wire`)."""
-        from multiprocessing.connection import Client
+    def _dial(self) -> "_Link":
+        """One try: a new link id, its subscriber and liveliness token, the hello as a query,
+        the fuser's signed answer -> the welcomed :class:`_Link`. Raises :class:`Refused`,
+        :class:`NoKey`, :class:`Unanswered` (no signed answer within HANDSHAKE_TIMEOUT_S: no
+        fuser there yet, or one of another key) or :class:`~.assembler_wire.BadMessage` (a
+        signed answer that is no message of protocol 2). Nothing received is unpickled."""
+        import zenoh
 
-        key = self._key()
-        conn = Client(self.fuser)  # no authkey: the handshake below, under a deadline
-        deadline = Deadline(conn, self.handshake_timeout_s)
+        mac_key = link_keys.mac_key(self._key())
+        link = _Link(self, link_keys.new_id(), mac_key)
         try:
-            tune_connection(conn)
-            handshake(conn, key, server=False)
-            conn.send_bytes(encode_hello(scene_fingerprint(self.scene), self.layout.channels, socket.gethostname(),
-                                         os.getpid(), self.group.heard_reset))
-            answer = decode_answer(recv_frame(conn, ANSWER_MAX), ("welcome", "refused"))
-        except BaseException as exc:
-            deadline.cancel()
-            conn.close()
-            if deadline.expired and isinstance(exc, (EOFError, OSError)):
-                raise Unanswered(f"no answer to the hello within {self.handshake_timeout_s:g} s") from None
+            link.declare()
+            hello = encode_hello(scene_fingerprint(self.scene), self.layout.channels, socket.gethostname(),
+                                 os.getpid(), self.group.heard_reset)
+            key = link_keys.hello_key(self.prefix)
+            hello_mac = link_keys.mac(mac_key, key, hello, link.id.encode())
+            answer, unsigned = None, 0
+            replies = self.session.get(key, payload=hello, attachment=link.id.encode() + hello_mac,
+                                       timeout=self.handshake_timeout_s, congestion_control=zenoh.CongestionControl.BLOCK)
+            for reply in replies:
+                sample = reply.ok
+                if sample is None:
+                    continue
+                payload = sample.payload.to_bytes()
+                ident = link_keys.split_id(link_keys.as_bytes(sample.attachment))
+                if len(payload) > ANSWER_MAX or ident is None or not link_keys.verify(
+                        mac_key, key, payload, ident[1], hello_mac + ident[0].encode()):
+                    unsigned += 1
+                    continue
+                answer = decode_answer(payload, ("welcome", "refused"))
+                link.run = ident[0]
+                break
+            self.unsigned_answers += unsigned
+            if answer is None:
+                raise Unanswered(f"no answer to the hello signed with this key (answers not signed with it: "
+                                 f"{self.unsigned_answers})")
+            if answer["kind"] != "welcome":
+                raise Refused(answer["why"])
+            link.welcomed()
+        except BaseException:
+            link.undeclare()
             raise
-        deadline.cancel()
-        if answer["kind"] != "welcome":
-            conn.close()
-            raise Refused(answer["why"])
-        return conn
+        return link
 
     def connect(self, timeout_s: float = 30.0) -> None:
-        """Connect to the fuser (retrying while it is not listening yet, and while its key file
-        is missing or stale), say hello."""
-        from multiprocessing.connection import AuthenticationError
-
-        host, port = self.fuser
+        """Say hello to the fuser (retrying while it is not there yet, and while its key file
+        is missing or stale)."""
+        where = self.fuser
         deadline = time.monotonic() + timeout_s
+        last = None
         while True:
             try:
-                conn = self._dial()
+                link = self._dial()
                 break
             except Refused as exc:
-                raise UsageError(f"--fuser {host}:{port}: refused: {exc}") from None
-            except EOFError:
-                raise UsageError(f"--fuser {host}:{port}: the connection closed during the hello") from None
-            except UsageError:
-                raise
+                raise UsageError(f"--fuser {where}: refused: {exc}") from None
             except BadMessage as exc:
-                raise UsageError(f"--fuser {host}:{port}: not a fuser of protocol {PROTOCOL}: {exc}") from None
-            except (NoKey, AuthenticationError) as exc:
-                # a key file not written yet, or one of the fuser before (replaced as the new one starts)
-                if (isinstance(exc, NoKey) or self.authkey is None) and time.monotonic() < deadline:
-                    time.sleep(0.1)
+                raise UsageError(f"--fuser {where}: not a fuser of protocol {PROTOCOL}: {exc}") from None
+            except (NoKey, Unanswered) as exc:
+                # no fuser yet, a key file not written yet, or one of the fuser before (replaced as it starts)
+                last = exc
+                if time.monotonic() < deadline:
+                    self._stop.wait(0.1)
                     continue
                 if isinstance(exc, NoKey):
-                    raise UsageError(f"--fuser {host}:{port}: {exc}") from None
+                    raise UsageError(f"--fuser {where}: {exc}") from None
                 hint = (f"the same {AUTHKEY_ENV} on both sides?" if self.authkey is not None else
-                        f"the key in {key_file(port)!r} is not this fuser's: a fuser of another user? Then set "
-                        f"{AUTHKEY_ENV} on both sides")
-                raise UsageError(f"--fuser {host}:{port}: {type(exc).__name__}: {exc} ({hint})") from None
-            except Unanswered as exc:
-                raise UsageError(f"--fuser {host}:{port}: {exc} (is it a fuser?)") from None
-            except (ConnectionRefusedError, socket.timeout, OSError) as exc:
-                if isinstance(exc, ConnectionRefusedError) or getattr(exc, "errno", None) in (111, 113, 110):
-                    if time.monotonic() < deadline:
-                        time.sleep(0.1)
-                        continue
-                raise UsageError(f"--fuser {host}:{port}: cannot connect ({exc.strerror or exc}) within "
-                                 f"{timeout_s:g} s: is `fusion-center run --assemblers {host}:{port}` running?") from None
+                        f"the key in {key_file(self.port)!r} is not this fuser's: a fuser of another user? "
+                        f"Then set {AUTHKEY_ENV} on both sides")
+                raise UsageError(f"--fuser {where}: {last} within {timeout_s:g} s: is `fusion-center run "
+                                 f"--assemblers {where}` running ({hint})?") from None
+            except UsageError:
+                raise
             except Exception as exc:  # noqa: BLE001 - anything else: one line
-                raise UsageError(f"--fuser {host}:{port}: {type(exc).__name__}: {exc}") from None
-        self.conn = conn
+                raise UsageError(f"--fuser {where}: {type(exc).__name__}: {exc}") from None
+        with self._send_lock:
+            self.link = link
         threading.Thread(target=self._watch, name="fuser-watch", daemon=True).start()
         if not self._gc_held:  # the set-up is not traversed by the cyclic collector (as the centre's run)
             self._gc_held = True
             gcfreeze.hold()
 
+    def _on_message(self, link: "_Link", query) -> None:
+        """A message on this link's key from the fuser (a query, answered once taken): its bye
+        ends the process, a refused (it dropped the link) a new hello; anything not signed and
+        of the protocol is counted and ignored."""
+        try:
+            payload = link_keys.as_bytes(query.payload) or b""
+            if len(payload) > ANSWER_MAX or not link_keys.verify(link.mac_key, link.to_key, payload,
+                                                                 link_keys.as_bytes(query.attachment)):
+                raise BadMessage("not signed with this run's key")
+            answer = decode_answer(payload, ("bye", "refused"))
+        except BadMessage as exc:
+            self.bad_messages += 1
+            self._log.warning("bad message", f"a message to this assembler on {link.to_key} is no signed bye or "
+                                             f"refused of protocol {PROTOCOL} ({exc}): ignored")
+            return
+        except Exception:  # noqa: BLE001 - never raise into Zenoh
+            logger.exception("fuser message failed")
+            return
+        if self.link is link:
+            if answer["kind"] == "bye":
+                self.bye = True
+                self.closed.set()
+            else:
+                self._log.warning("dropped", f"the fuser dropped the link ({answer['why']})")
+                self._break(link)
+        try:
+            query.reply(link.to_key, b"")
+        except Exception:  # noqa: BLE001 - the fuser gone meanwhile
+            pass
+
+    def _on_fuser_alive(self, link: "_Link", sample) -> None:
+        try:
+            import zenoh
+
+            if sample.kind == zenoh.SampleKind.DELETE and self.link is link:
+                self._break(link)
+        except Exception:  # noqa: BLE001
+            logger.exception("fuser liveliness failed")
+
+    def _break(self, link: "_Link") -> None:
+        with self._send_lock:
+            if self.link is link:
+                self.link = None
+                self._dead.append(link)
+                self._broken.set()
+
     def _watch(self) -> None:
-        """Hears the fuser: its bye ends the process; a break without bye, a reconnect."""
+        """Says hello again whenever the link breaks without the fuser's bye."""
         while True:
-            conn = self.conn
-            try:
-                while conn is not None:  # the fuser sends nothing but its bye after the welcome
-                    decode_answer(recv_frame(conn, ANSWER_MAX), ("bye",))
-                    self.bye = True
-                    self.closed.set()
+            while not self._broken.wait(0.2):
+                if self._stop.is_set() or self.closed.is_set():
                     return
-            except BadMessage as exc:
-                self.bad_messages += 1
-                host, port = self.fuser
-                self._log.warning("bad message", f"the fuser {host}:{port} sent what is not a bye of protocol "
-                                                 f"{PROTOCOL} ({exc}): connection closed, reconnecting")
-            except (EOFError, OSError):
-                pass
+            self._broken.clear()
             with self._send_lock:
-                if self.conn is conn:
-                    self.conn = None
-            if conn is not None:
-                try:
-                    conn.close()
-                except OSError:
-                    pass
-            if self._stop.is_set() or not self._reconnect():
+                dead, self._dead = self._dead, []
+            for link in dead:  # (not from a Zenoh callback: one may be running it)
+                link.undeclare()
+            if self._stop.is_set() or self.closed.is_set():
+                return
+            if not self._reconnect():
                 self.closed.set()
                 return
 
     def _reconnect(self) -> bool:
         """Try again and again (bounded back-off) until the fuser takes this group back (True),
         :meth:`close` or ``reconnect_timeout_s`` (False, :attr:`gave_up` set)."""
-        host, port = self.fuser
+        where = self.fuser
         since = time.monotonic()
         deadline = since + self.reconnect_timeout_s
         unsent = self.parts_unsent
-        self._log.warning("lost", f"the connection to the fuser {host}:{port} broke: reconnecting for up to "
+        self._log.warning("lost", f"the link to the fuser {where} broke: reconnecting for up to "
                                   f"{self.reconnect_timeout_s:g} s (cycles closed meanwhile are not sent)")
         delay, last = RECONNECT_FIRST_S, None
         while True:
@@ -316,28 +377,26 @@ class AssemblerProcess:
                 return False
             delay = min(2 * delay, RECONNECT_MAX_S)
             try:
-                conn = self._dial()
+                link = self._dial()
             except Refused as exc:  # e.g. the fuser has not seen the break yet: try again
                 last = f"refused: {exc}"
-            except EOFError:
-                last = "the connection closed during the hello"
-            except Exception as exc:  # noqa: BLE001 - refused, unreachable, a wrong key: all retried
-                last = f"{type(exc).__name__}: {getattr(exc, 'strerror', None) or exc}"
+            except Exception as exc:  # noqa: BLE001 - unanswered, a wrong key: all retried
+                last = f"{type(exc).__name__}: {exc}"
             else:
                 with self._send_lock:
                     if self._stop.is_set():  # closed meanwhile
-                        conn.close()
+                        link.undeclare()
                         return False
-                    self.conn = conn
+                    self.link = link
                 self.reconnects += 1
-                self._log.warning("back", f"reconnected to the fuser {host}:{port} after "
+                self._log.warning("back", f"reconnected to the fuser {where} after "
                                           f"{time.monotonic() - since:.1f} s ({self.parts_unsent - unsent} "
                                           "cycle(s) not sent meanwhile)")
                 return True
             if time.monotonic() - since >= LOG_INTERVAL_S:
-                self._log.warning("retry", f"the fuser {host}:{port} is not back after "
+                self._log.warning("retry", f"the fuser {where} is not back after "
                                            f"{time.monotonic() - since:.0f} s ({last})")
-        self.gave_up = (f"the fuser {host}:{port} went away and was not back within {self.reconnect_timeout_s:g} s"
+        self.gave_up = (f"the fuser {where} went away and was not back within {self.reconnect_timeout_s:g} s"
                         + (f" (last try: {last})" if last else ""))
         return False
 
@@ -359,13 +418,17 @@ class AssemblerProcess:
                 pass
         self.buses = []
         with self._send_lock:
-            conn, self.conn = self.conn, None
-        if conn is not None:
-            shutdown_connection(conn)  # wakes the watcher
+            link, self.link = self.link, None
+            dead, self._dead = self._dead, []
+        self._broken.set()  # wakes the watcher (it sees _stop)
+        for old in dead + ([link] if link is not None else []):
+            old.undeclare()
+        if self.session is not None:
             try:
-                conn.close()
-            except OSError:
+                self.session.close()
+            except Exception:  # noqa: BLE001
                 pass
+            self.session = None
 
     def __enter__(self):
         return self.open()
@@ -419,8 +482,8 @@ class AssemblerProcess:
         with self._send_lock:  # parts leave in the order they closed
             while self._outbox:
                 part = self._outbox.popleft()
-                conn = self.conn
-                if conn is None or self.closed.is_set():  # disconnected: not sent, never queued
+                link = self.link
+                if link is None or self.closed.is_set():  # disconnected: not sent, never queued
                     self.parts_unsent += 1
                     continue
                 part.sent_at = time.time()
@@ -431,12 +494,59 @@ class AssemblerProcess:
                     self._log.warning("encode", f"a part not sent: {type(exc).__name__}: {exc}")
                     continue
                 try:
-                    conn.send_bytes(data)
+                    link.publisher.put(data, attachment=link_keys.mac(link.mac_key, link.part_key, data))
                     self.parts_sent += 1
-                except (OSError, ValueError):
+                except Exception as exc:  # noqa: BLE001 - a closed session: the watcher says hello again
                     self.parts_unsent += 1
-                    self.conn = None
-                    shutdown_connection(conn)  # the watcher wakes and reconnects
+                    self._log.warning("send", f"a part not sent: {type(exc).__name__}: {exc}")
+                    self.link = None
+                    self._dead.append(link)
+                    self._broken.set()
+
+
+class _Link:
+    """One hello's link to the fuser: its id, keys, and the Zenoh entities declared for it."""
+
+    def __init__(self, process: AssemblerProcess, link_id: str, mac_key: bytes):
+        self.process = process
+        self.id = link_id
+        self.mac_key = mac_key
+        p = process.prefix
+        self.part_key = link_keys.part_key(p, link_id)
+        self.to_key = link_keys.to_link_key(p, link_id)
+        self.run: str | None = None  # the fuser's run id (from its answer)
+        self.publisher = None
+        self._entities: list = []
+
+    def declare(self) -> None:
+        session = self.process.session
+        self._entities.append(session.declare_queryable(
+            self.to_key, lambda query: self.process._on_message(self, query)))
+        self._entities.append(session.liveliness().declare_token(link_keys.alive_key(self.process.prefix, self.id)))
+
+    def welcomed(self) -> None:
+        import zenoh
+
+        session = self.process.session
+        self.publisher = session.declare_publisher(
+            self.part_key, congestion_control=zenoh.CongestionControl.BLOCK, express=True,
+            priority=zenoh.Priority.REAL_TIME, reliability=zenoh.Reliability.RELIABLE)
+        self._entities.append(self.publisher)
+        key = link_keys.fuser_key(self.process.prefix, self.run)
+        self._entities.append(session.liveliness().declare_subscriber(
+            key, lambda sample: self.process._on_fuser_alive(self, sample), history=True))
+        # gone between its answer and the subscriber (no DELETE would come): this try failed
+        if not any(reply.ok is not None for reply in session.liveliness().get(
+                key, timeout=self.process.handshake_timeout_s)):
+            raise Unanswered("the fuser's liveliness token went away after its welcome")
+
+    def undeclare(self) -> None:
+        for entity in reversed(self._entities):
+            try:
+                entity.undeclare()
+            except Exception:  # noqa: BLE001 - a closed session
+                pass
+        self._entities = []
 
 
 class _PartListener(can.Listener):

@@ -4,13 +4,14 @@ unpickled or executed: every message is one msgpack map, checked against this sp
 (docs/service.md, *The assembler link, protocol 2*, is the same text for a peer in another
 language). Version 1 was a pickle of Python objects and is gone.
 
-**Frames.** One message is one frame of ``multiprocessing.connection`` over TCP: a 4-byte
-big-endian signed length, then that many bytes (``Connection.send_bytes`` / ``recv_bytes``).
-The connection starts with its HMAC challenge in both directions on the shared key (the
-fuser challenges first; ``deliver_challenge`` / ``answer_challenge`` of CPython's
-``Lib/multiprocessing/connection.py``). A receiver reads a frame only up to its size limit
+**Transport.** One message is the payload of one Zenoh sample (:mod:`.assembler_link`: the
+keys, the sessions, and the HMAC-SHA256 in each sample's attachment on the run's key that a
+receiver checks before it decodes anything). The assembler's ``hello`` is the payload of a
+query on the fuser's hello key, answered by one reply (``welcome`` or ``refused``); its parts
+are reliable puts, in order; the fuser's ``bye`` / ``refused`` after the welcome are puts to
+that assembler's key. A receiver decodes a message only up to its size limit
 (:data:`HELLO_MAX`, :data:`ANSWER_MAX`, :meth:`PartCodec.max_bytes`); a longer one is refused
-unread.
+undecoded.
 
 **Payload.** A msgpack map with string keys, exactly the keys listed for its ``kind`` (none
 missing, none more), every map carrying ``"v": 2`` (an int) and ``"kind"``. msgpack types:
@@ -24,7 +25,8 @@ only.
   fingerprint both sides must share; str <= 1000 chars), ``channels`` an array of 1..256 distinct ints (the scene
   channels served), ``host`` str (<= 255 chars), ``pid`` int >= 0, ``numbered_from_reset`` bool.
 * ``welcome`` (fuser -> assembler): ``group`` str (the group's name, ``0-3`` / ``0,2,5``).
-* ``refused`` (fuser -> assembler, then the fuser closes): ``why`` str (<= 1000 chars). This
+* ``refused`` (fuser -> assembler: the answer to a hello it refuses, or - after a welcome -
+  the link is dropped and the assembler says hello again): ``why`` str (<= 1000 chars). This
   one message keeps its layout in every version: a peer of another version (``"v"`` not 2)
   is answered with it.
 * ``bye`` (fuser -> assembler, the run ended): no other key.
@@ -61,29 +63,29 @@ only.
   ``sent_at``         float, finite: seconds since 1970 when sent (latency figures)
   ==================  ==============================================================
 
-A message that breaks any of this ends the connection (:class:`BadMessage`); the fuser counts
-it and logs it (rate-limited) and the run goes on (:mod:`.assemblers`).
+A message that breaks any of this is refused (:class:`BadMessage`): the fuser counts it and
+logs it (rate-limited), drops the link of a part that breaks it (as a disconnected group), and
+the run goes on (:mod:`.assemblers`).
 """
 
 from __future__ import annotations
 
 import math
 import re
-import threading
 from typing import Sequence
 
 import msgpack
 import numpy as np
 
 from taxel_net.patches import devices as scene_devices, node_label
-from .assembler_parts import CyclePart, GroupLayout, shutdown_connection
+from .assembler_parts import CyclePart, GroupLayout
 from .cycle_records import EMCY_PER_CYCLE, STATE_RESETTING, EmcyEvent
 from .decoder import STATE_NAMES
 
 PROTOCOL = 2
 HELLO_MAX = 16 * 1024    # bytes: the largest hello a fuser reads
 ANSWER_MAX = 16 * 1024   # bytes: the largest welcome / refused / bye an assembler reads
-HANDSHAKE_TIMEOUT_S = 5.0  # connect -> key handshake and hello / answer done, else closed
+HANDSHAKE_TIMEOUT_S = 5.0  # hello -> the fuser's answer, else the try failed
 WHY_MAX = 1000
 HOST_MAX = 255
 CHANNELS_MAX = 256
@@ -116,62 +118,6 @@ class OtherVersion(BadMessage):
     def __init__(self, version):
         super().__init__(f"protocol version {version!r}: this side speaks {PROTOCOL}")
         self.version = version
-
-
-# ---------------------------------------------------------------------------- frames
-
-def recv_frame(conn, maxlength: int) -> bytes:
-    """One frame of at most ``maxlength`` bytes; a longer one is :class:`BadMessage` (left
-    unread: the connection is no more usable). EOFError / OSError as the connection's."""
-    try:
-        return conn.recv_bytes(maxlength)
-    except OSError as exc:
-        if exc.args == ("bad message length",):  # multiprocessing: the frame's length > maxlength
-            raise BadMessage(f"a frame longer than {maxlength} bytes") from None
-        raise
-
-
-def handshake(conn, key: bytes, *, server: bool) -> None:
-    """multiprocessing.connection's HMAC challenge both ways, as its ``Listener`` (server) /
-    ``Client`` do; AuthenticationError when the key differs or the peer speaks no challenge."""
-    from multiprocessing.connection import AuthenticationError, answer_challenge, deliver_challenge
-
-    try:
-        if server:
-            deliver_challenge(conn, key)
-            answer_challenge(conn, key)
-        else:
-            answer_challenge(conn, key)
-            deliver_challenge(conn, key)
-    except AssertionError:  # answer_challenge: the peer's first frame is no challenge
-        raise AuthenticationError("the peer sent no challenge") from None
-
-
-class Deadline:
-    """Breaks a connection (:func:`.assembler_parts.shutdown_connection`) unless cancelled
-    within ``seconds``: a peer that connects and goes quiet never holds a thread for longer.
-    :meth:`cancel` before closing the connection (the fd is never touched after it)."""
-
-    def __init__(self, conn, seconds: float):
-        self._conn = conn
-        self._lock = threading.Lock()
-        self._done = False
-        self.expired = False
-        self._timer = threading.Timer(seconds, self._fire)
-        self._timer.daemon = True
-        self._timer.start()
-
-    def _fire(self) -> None:
-        with self._lock:
-            if self._done:
-                return
-            self._done = self.expired = True
-            shutdown_connection(self._conn)
-
-    def cancel(self) -> None:
-        with self._lock:
-            self._done = True
-        self._timer.cancel()
 
 
 # ---------------------------------------------------------------------------- maps
@@ -351,7 +297,7 @@ class PartCodec:
     def decode(self, data: bytes) -> CyclePart:
         m = _unpack(data, {"part": PART_KEYS})
         if m["channels"] != self.channels:
-            raise BadMessage(f"part: channels {_shown(m['channels'])}: this connection's group is {self.channels}")
+            raise BadMessage(f"part: channels {_shown(m['channels'])}: this link's group is {self.channels}")
         counter = m["sync_counter"]
         if counter is not None:
             counter = _int(m, "sync_counter", 0, 255)

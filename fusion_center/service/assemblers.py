@@ -20,18 +20,21 @@ evaluates them with the usual pipeline, writing the same records as
   read as lost SYNCs). The fuser maps a part to the SYNC it sent by the part's SYNC counter
   (the latest SYNC it sent with that counter: unambiguous while a part arrives within
   ``sync_counter`` periods of its SYNC), without a counter by the assembler's number.
-* **Assembler -> fuser**: :mod:`multiprocessing.connection` frames over TCP (``Listener`` /
-  ``Client``, its HMAC challenge on a shared key, ``send_bytes`` / ``recv_bytes`` with a size
-  limit) carrying the messages of :mod:`.assembler_wire` (protocol 2: msgpack maps, arrays as
-  raw little-endian bytes, every field checked against the scene's group layout on decode;
-  nothing received is unpickled, on either side). (CANopen on an "uplink" bus was the
-  alternative: a 4,096-taxel part is ~29 kB per cycle, i.e. segmented transfers and a second
-  master role for no gain.) The key is ``FUSION_CENTER_AUTHKEY``; without it only loopback
-  addresses, with a per-run key the fuser writes to a file only its user can read
-  (:func:`.assembler_parts.key_file`). A peer that does not pass the key handshake, sends
-  anything but a message of the protocol, a frame over its size limit, or no hello within
-  5 s is refused: counted (``refused`` in the summary, by kind), logged (rate-limited), its
-  connection closed; the run goes on.
+* **Assembler -> fuser: Zenoh** (:mod:`.assembler_link`: keys, sessions, authentication)
+  carrying the messages of :mod:`.assembler_wire` (protocol 2: msgpack maps, arrays as raw
+  little-endian bytes, every field checked against the scene's group layout on decode;
+  nothing received is unpickled, on either side). The fuser's session listens on
+  ``--assemblers`` (``HOST:PORT`` = ``tcp/HOST:PORT``, or any Zenoh endpoint such as
+  ``tls/...``), an assembler's connects to it; multicast scouting is off and nothing else
+  listens unless the user's Zenoh configuration says so. The hello is a query the fuser
+  answers (welcome / refused), the parts are reliable puts in order, liveliness tokens tell
+  each side the other is gone. Every message is authenticated with the run's key
+  (``FUSION_CENTER_AUTHKEY``; without it only loopback endpoints, with a per-run key the fuser
+  writes to a file only its user can read, :func:`.assembler_parts.key_file`): a message that
+  fails it, is no message of the protocol or is over its size limit is refused - counted
+  (``refused`` in the summary, by kind), logged (rate-limited), never decoded or merged; the
+  run goes on. (CANopen on an "uplink" bus was the alternative: a 4,096-taxel part is ~29 kB
+  per cycle, i.e. segmented transfers and a second master role for no gain.)
 * **Merge** (:class:`CycleMerger`): per SYNC the fuser sent, one part per channel group. The
   cycle is ``complete``-able when every group's part arrived; a group whose part has not
   arrived when a later part of that group arrived (parts come in order), when the group
@@ -39,20 +42,23 @@ evaluates them with the usual pipeline, writing the same records as
   silent (received nothing), the record is degraded and names the group in
   ``parts_missing`` (``closed_by: "part_missing"``). Cycles are evaluated in SYNC order;
   a part for a cycle already evaluated is counted (``late_parts``), never mixed in.
-* **Reconnects**: an assembler whose connection breaks without the fuser's ``bye`` keeps
+* **Reconnects**: an assembler whose link breaks without the fuser's ``bye`` (the fuser's
+  liveliness token gone, or the fuser dropped the link) keeps
   assembling its buses (the parts closed meanwhile are counted as not sent, never queued) and
   connects again (0.1 s doubling to 2 s between tries, for ``--reconnect-timeout`` s; then it
   exits 1). The fuser accepts a group of its run again with the same hello checks (a group that
   is still connected is refused), counts it (``reconnects``) and merges its parts from then on;
-  the cycles in between are degraded naming the group. A restarted assembler process is
+  the cycles in between are degraded naming the group (its assembler's liveliness token gone:
+  disconnected). A restarted assembler process is
   accepted the same way (its cycles are mapped by the SYNC counter; in a scene without one
   only an assembler that heard the master's reset, i.e. the same process, can come back).
 
-By job: :mod:`.assembler_parts` (what both sides share: addresses and keys, channel groups,
+By job: :mod:`.assembler_parts` (what both sides share: keys, channel groups,
 :class:`CyclePart`), :mod:`.assembler_process` (the assembler: ``GroupAssembler``,
 ``AssemblerProcess``), :mod:`.cycle_merger` (the merge) and this module, the fuser
-(:class:`AssembledFusionService`), with :mod:`.assembler_wire` (the messages on the
-connection); their public names are importable from here.
+(:class:`AssembledFusionService`), with :mod:`.assembler_wire` (the messages) and
+:mod:`.assembler_link` (their keys on Zenoh, their signatures, the sessions); their public
+names are importable from here.
 """
 
 from __future__ import annotations
@@ -60,26 +66,26 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections import deque
+from collections import OrderedDict, deque
 
 from taxel_net.errors import UsageError
 from taxel_net.scene import Scene
+from . import assembler_link as link_keys
 from .assembler_parts import (AUTHKEY_ENV, COB_SYNC, NMT_RESETS, CyclePart,  # noqa: F401
                               GroupLayout, RateLimitedLog, authkey_for, check_serve, group_layout, group_name,
-                              is_loopback, parse_address, remove_key_file, scene_fingerprint, shutdown_connection,
-                              tune_connection, write_key_file)
-from .assembler_wire import (HANDSHAKE_TIMEOUT_S, HELLO_MAX, PROTOCOL, BadMessage, Deadline,  # noqa: F401
-                             OtherVersion, PartCodec, decode_hello, encode_bye, encode_refused, encode_welcome,
-                             handshake, recv_frame)
+                              is_loopback, remove_key_file, scene_fingerprint, write_key_file)
+from .assembler_wire import (HELLO_MAX, PROTOCOL, BadMessage, OtherVersion, PartCodec,  # noqa: F401
+                             decode_hello, encode_bye, encode_refused, encode_welcome)
 from .assembler_process import AssemblerProcess, GroupAssembler  # noqa: F401 - public names of this module
 from .cycle_merger import CycleMerger, MergeStats  # noqa: F401
 from .cycle_records import ClosedCycle, quantise_timestamp
 from .fusion_service import FusionService
 from .stream import EventStream
+from .zenoh_config import endpoint, endpoint_host
 
 logger = logging.getLogger("fusion_center.service.assemblers")
 
-MAX_HANDSHAKES = 16  # connections in their key handshake / hello at once; more are closed at once
+LINKS_REMEMBERED = 256  # links the fuser dropped or saw gone (their late messages are answered once)
 
 # what the master needs to hear (accept filters, 11-bit): NMT, SYNC + EMCY, TIME, SDO both ways,
 # heartbeats / boot-ups, LSS - every COB-ID but the PDOs (0x181..0x57F), which the assemblers take
@@ -110,16 +116,34 @@ class _FuserStream(EventStream):
         super().transmit_all(frames, remote)
 
 
+
+class _Link:
+    """One welcomed assembler: its group, codec and keys."""
+
+    __slots__ = ("id", "name", "codec", "part_key", "to_key", "host", "pid")
+
+    def __init__(self, link_id, name, codec, prefix, host, pid):
+        self.id = link_id
+        self.name = name
+        self.codec = codec
+        self.part_key = link_keys.part_key(prefix, link_id)
+        self.to_key = link_keys.to_link_key(prefix, link_id)
+        self.host = host
+        self.pid = pid
+
+
 class AssembledFusionService(FusionService):
     """The fuser: the CANopen master of :class:`FusionService` on every channel, its cycles
     assembled by ``fusion-center assemble`` processes (module docstring).
 
-    ``listen``: (host, port) of the ``multiprocessing.connection`` listener the assemblers
-    connect to (``authkey``: the shared key; None: ``$FUSION_CENTER_AUTHKEY``, else on loopback
-    a per-run key written to :func:`.assembler_parts.key_file` at :meth:`open`); :meth:`boot`
-    waits up to ``assembler_wait_s`` for assemblers covering every scene channel. The service's
-    own ``CycleAssembler`` still runs (boot-ups, SDO answers, NMT states for the master), its
-    closed cycles are not evaluated.
+    ``listen``: the Zenoh endpoint the link's session listens on (``tcp/127.0.0.1:47400``,
+    ``tls/...``; ``HOST:PORT`` or a (host, port) pair mean tcp); ``zenoh_config``: a Zenoh
+    configuration file for that session (:mod:`.zenoh_config`; TLS, authentication);
+    ``authkey``: the shared key (None: ``$FUSION_CENTER_AUTHKEY``, else on a loopback endpoint
+    a per-run key written to :func:`.assembler_parts.key_file` at :meth:`open`). :meth:`boot`
+    waits up to ``assembler_wait_s`` for assemblers covering every scene channel. The
+    service's own ``CycleAssembler`` still runs (boot-ups, SDO answers, NMT states for the
+    master), its closed cycles are not evaluated.
 
     ``pdo_filter`` (off by default): the fuser's buses accept only the master's traffic
     (:data:`MASTER_FILTERS`; kernel filters on SocketCAN). Only for scenes without a synchronous
@@ -128,16 +152,20 @@ class AssembledFusionService(FusionService):
     would then arrive unsolicited (not handed to the SDO client). Measured on udp_multicast it
     saved nothing (python-can filters after parsing every datagram)."""
 
-    handshake_timeout_s = HANDSHAKE_TIMEOUT_S  # connect -> a hello, else the connection is closed
-
-    def __init__(self, scene: Scene, *, listen: tuple[str, int], authkey: bytes | None = None,
+    def __init__(self, scene: Scene, *, listen, authkey: bytes | None = None, zenoh_config: str | None = None,
                  part_deadline_s: float | None = None, assembler_wait_s: float = 30.0,
                  pdo_filter: bool = False, **kwargs):
         super().__init__(scene, **kwargs)
         self.pdo_filter = bool(pdo_filter)
-        self.listen_address = listen
-        self.authkey = authkey if authkey is not None else authkey_for(listen[0], "--assemblers")
+        if isinstance(listen, tuple):
+            host, port = listen
+            listen = f"tcp/[{host}]:{port}" if ":" in host else f"tcp/{host}:{port}"
+        self.listen_address = endpoint(listen, "--assemblers")
+        self.zenoh_config = zenoh_config
+        self.authkey = authkey if authkey is not None else authkey_for(endpoint_host(self.listen_address),
+                                                                       "--assemblers")
         self._key_file: str | None = None  # the per-run key's file (loopback without the variable)
+        self._mac_key: bytes | None = None
         period = scene.bus.sync_period_ms / 1000.0
         # an assembler without a window closes a cycle with a silent node at the next SYNC
         self.part_deadline_s = part_deadline_s if part_deadline_s is not None else 2.5 * period + 0.1
@@ -148,62 +176,75 @@ class AssembledFusionService(FusionService):
         self.stream = _FuserStream(self.assembler, on_closed=self._own_cycle, after_closed=self._process_pending)
         self.stream.echoes = echoes
         self.stream.on_sync = self._on_sync
-        self._listener = None
-        self._conns: dict = {}  # group name -> its connection
-        self._conn_lock = threading.Lock()  # a group's connection and its place in the merger change together
+        self.prefix = link_keys.prefix(scene.name)
+        self.run_id = link_keys.new_id()
+        self._session = None
+        self._declared: list = []
+        self._links: dict[str, _Link] = {}        # link id -> welcomed link
+        self._gone: OrderedDict[str, bool] = OrderedDict()  # link ids dropped / gone (told once)
+        self._conn_lock = threading.Lock()  # a group's link and its place in the merger change together
+        self._part_lock = threading.Lock()  # one part decoded and merged at a time
         self._log = RateLimitedLog(logger)
         self._threads: list[threading.Thread] = []
         self._stop_merge = threading.Event()
         self._merge_lock = threading.Lock()  # emission order into _pending
         self.refused: deque[str] = deque(maxlen=8)  # the latest reasons hellos were refused
-        self._handshakes = threading.BoundedSemaphore(MAX_HANDSHAKES)
 
     # -- life cycle
     def open(self) -> "AssembledFusionService":
-        from multiprocessing.connection import Listener
+        import zenoh
 
+        from .zenoh_config import open_session
+
+        config, what = link_keys.fuser_config(self.listen_address, self.zenoh_config)
         super().open()
-        if self.pdo_filter:  # the PDOs are the assemblers' (kernel filters on SocketCAN, else python-can's)
-            for bus in self.buses:
-                bus.set_filters(MASTER_FILTERS)
-        try:  # no authkey: the handshake is each connection's own thread's (_serve), under a deadline
-            self._listener = Listener(self.listen_address, backlog=MAX_HANDSHAKES)
-        except OSError as exc:
+        try:
+            if self.pdo_filter:  # the PDOs are the assemblers' (kernel filters on SocketCAN, else python-can's)
+                for bus in self.buses:
+                    bus.set_filters(MASTER_FILTERS)
+            if self.authkey is None:  # loopback without FUSION_CENTER_AUTHKEY: this run's own key
+                port = int(self.listen_address.split("?")[0].rpartition(":")[2])
+                self.authkey, self._key_file = write_key_file(port)
+            self._mac_key = link_keys.mac_key(self.authkey)
+            self._session = open_session(config, f"--assemblers {self.listen_address}")
+            p = self.prefix
+            s = self._session
+            self._declared = [
+                s.liveliness().declare_token(link_keys.fuser_key(p, self.run_id)),
+                s.declare_queryable(link_keys.hello_key(p), self._on_hello),
+                s.declare_subscriber(f"{p}/*/part", self._on_part),
+                s.liveliness().declare_subscriber(f"{p}/*/alive", self._on_alive),
+            ]
+            self._reply_options = {}
+            self._tell_options = dict(congestion_control=zenoh.CongestionControl.BLOCK, express=True,
+                                      priority=zenoh.Priority.REAL_TIME)
+        except BaseException:
             self.close()
-            host, port = self.listen_address
-            raise UsageError(f"--assemblers {host}:{port}: cannot listen there ({exc.strerror or exc})") from None
-        if self.authkey is None:  # loopback without FUSION_CENTER_AUTHKEY: this run's own key
-            try:
-                self.authkey, self._key_file = write_key_file(self._listener.address[1])
-            except BaseException:
-                self.close()
-                raise
-        for target, name in ((self._accept_loop, "assembler-accept"), (self._tick_loop, "merge-deadline")):
-            thread = threading.Thread(target=target, name=name, daemon=True)
-            thread.start()
-            self._threads.append(thread)
+            raise
+        thread = threading.Thread(target=self._tick_loop, name="merge-deadline", daemon=True)
+        thread.start()
+        self._threads.append(thread)
         return self
 
     def close(self) -> None:
         self._stop_merge.set()
-        listener, self._listener = self._listener, None
-        if listener is not None:
-            _wake(listener)  # a close alone leaves the accept blocked - and the port listening
-            try:
-                listener.close()
-            except OSError:
-                pass
         with self._conn_lock:
-            conns = list(self._conns.values())
-        for conn in conns:
+            links = list(self._links.values())
+            self._links.clear()
+        if self._session is not None:
+            for link in links:  # (each assembler answers at once: 1 s for one that does not)
+                self._tell(link.id, encode_bye(), wait_s=1.0)
+            for entity in reversed(self._declared):
+                try:
+                    entity.undeclare()
+                except Exception:  # noqa: BLE001 - closing anyway
+                    pass
+            self._declared = []
             try:
-                conn.send_bytes(encode_bye())
-            except (OSError, ValueError, EOFError):
+                self._session.close()
+            except Exception:  # noqa: BLE001
                 pass
-            try:
-                conn.close()
-            except OSError:
-                pass
+            self._session = None
         if self._key_file is not None:
             remove_key_file(self._key_file, self.authkey)
             self._key_file = None
@@ -219,11 +260,11 @@ class AssembledFusionService(FusionService):
         while self.merger.covered() != want:
             if time.monotonic() >= deadline:
                 lacking = sorted(want - self.merger.covered())
-                host, port = self.listen_address
+                where = self.listen_address
                 why = f" (refused: {'; '.join(self.refused)})" if self.refused else ""
-                raise UsageError(f"--assemblers {host}:{port}: no assembler for scene channel(s) {lacking} after "
+                raise UsageError(f"--assemblers {where}: no assembler for scene channel(s) {lacking} after "
                                  f"{timeout_s:g} s: start `fusion-center assemble --scene ... --serve "
-                                 f"{group_name(lacking)} --fuser {host}:{port}`{why}")
+                                 f"{group_name(lacking)} --fuser {where}`{why}")
             time.sleep(0.02)
 
     def run(self, cycles: int, *, before_sync=None, timeout_s: float | None = None):
@@ -270,135 +311,184 @@ class AssembledFusionService(FusionService):
         record["parts_missing"] = info["parts_missing"] if info else []
         return record
 
-    # -- connections
-    def _accept_loop(self) -> None:
-        while not self._stop_merge.is_set():
-            listener = self._listener
-            if listener is None:
-                return
-            try:
-                conn = listener.accept()  # no handshake here (open): a silent peer holds nothing
-            except Exception as exc:  # noqa: BLE001 - closed listener, out of file descriptors
-                if self._stop_merge.is_set():
-                    return
-                self._log.warning("accept", f"assembler connection not accepted: {type(exc).__name__}: {exc}")
-                self._stop_merge.wait(0.05)
-                continue
-            if self._stop_merge.is_set():  # close() woke it
-                conn.close()
-                return
-            if not self._handshakes.acquire(blocking=False):
-                self._refuse_peer(conn, "busy", f"more than {MAX_HANDSHAKES} connections in their handshake at once")
-                continue
-            thread = threading.Thread(target=self._serve, args=(conn,), name="assembler-conn", daemon=True)
-            thread.start()
-
-    def _refuse_peer(self, conn, kind: str, why: str, answer: bool = False) -> None:
-        """A peer refused (``kind``: busy, key, timeout, message, hello): counted in the summary,
-        logged (at most one line of a kind every 10 s), its connection closed; ``answer``: told
-        why first (a ``refused`` message)."""
+    # -- the link (Zenoh callbacks: they never raise)
+    def _refuse(self, kind: str, why: str) -> None:
+        """A message refused (``kind``: key, message, hello, link): counted in the summary,
+        logged (at most one line of a kind every 10 s)."""
         self.merger.count_refused(kind)
-        self._log.warning(f"refused {kind}", f"assembler connection refused ({kind}): {why}")
-        if answer:
-            try:
-                conn.send_bytes(encode_refused(why))
-            except (OSError, ValueError):
-                pass
+        self._log.warning(f"refused {kind}", f"assembler message refused ({kind}): {why}")
+
+    def _tell(self, link_id: str, message: bytes, wait_s: float = 0.0) -> None:
+        """A signed message to one assembler (``bye``, ``refused``): a query on its key, which
+        it answers once it has the message; ``wait_s`` > 0: wait that long at most for the
+        answer (the bye at the end: a session closed right after a put may not send it). Never
+        raises."""
+        key = link_keys.to_link_key(self.prefix, link_id)
         try:
-            conn.close()
-        except OSError:
-            pass
+            replies = self._session.get(key, payload=message, attachment=link_keys.mac(self._mac_key, key, message),
+                                        timeout=max(wait_s, 1.0), **self._tell_options)
+            if wait_s > 0:
+                for _ in replies:
+                    break
+        except Exception as exc:  # noqa: BLE001 - a closed session
+            logger.debug("message to link %s not sent: %s", link_id, exc)
+
+    def _forget(self, link_id: str) -> None:
+        self._gone[link_id] = False
+        while len(self._gone) > LINKS_REMEMBERED:
+            self._gone.popitem(last=False)
 
     def drop_assembler(self, name: str) -> bool:
-        """Break the connection of group ``name`` as a network fault would (its assembler
-        reconnects); False when that group is not connected."""
+        """Drop the link of group ``name`` as a network fault would (its assembler is told, and
+        says hello again); False when that group is not connected."""
         with self._conn_lock:
-            conn = self._conns.get(name)
-        if conn is None:
-            return False
-        shutdown_connection(conn)
+            link = next((lk for lk in self._links.values() if lk.name == name), None)
+            if link is None:
+                return False
+            del self._links[link.id]
+            self._forget(link.id)
+            self.merger.remove_group(name)
+        self._tell(link.id, encode_refused("the fuser dropped this link: say hello again"))
+        self._log.warning(f"gone {name}", f"assembler of channel(s) {name} dropped: its parts are missing until "
+                                          "it is back")
+        self._emit()
         return True
 
-    def _serve(self, conn) -> None:
-        """One connection: the key handshake and the hello within HANDSHAKE_TIMEOUT_S, then its
-        group's parts until it closes. Whatever a peer sends, nothing is unpickled
-        (:mod:`.assembler_wire`); a peer that breaks the protocol is refused (:meth:`_refuse_peer`)."""
-        from multiprocessing.connection import AuthenticationError
+    def _on_hello(self, query) -> None:
+        try:
+            self._hello(query)
+        except Exception:  # noqa: BLE001 - one bad peer never stops the fuser
+            logger.exception("assembler hello failed")
 
-        name = None
-        back = False
-        stage = "key"  # -> "hello" -> "parts" (welcomed or refused: the handshake slot given back)
-        peer = conn_peer(conn)
-        deadline = Deadline(conn, self.handshake_timeout_s)
+    def _hello(self, query) -> None:
+        """A hello (the query's payload): authenticated, decoded, checked, answered."""
+        payload = link_keys.as_bytes(query.payload)
+        key = link_keys.hello_key(self.prefix)
+        if payload is None or len(payload) > HELLO_MAX:
+            self._refuse("message", f"hello: {'no payload' if payload is None else f'{len(payload)} bytes'} "
+                                    f"(at most {HELLO_MAX})")
+            return
+        ident = link_keys.split_id(link_keys.as_bytes(query.attachment))
+        if ident is None or not link_keys.verify(self._mac_key, key, payload, ident[1], ident[0].encode()):
+            self._refuse("key", "hello: not signed with this run's key (another run's assembler, or a stray peer)")
+            return
+        link_id, hello_mac = ident
 
-        def handshake_done():
-            nonlocal stage
-            if stage != "parts":
-                stage = "parts"
-                deadline.cancel()
-                self._handshakes.release()
+        def answer(message: bytes) -> None:
+            bound = hello_mac + self.run_id.encode()
+            query.reply(key, message, attachment=self.run_id.encode() + link_keys.mac(self._mac_key, key, message,
+                                                                                        bound),
+                        **self._reply_options)
 
         try:
-            tune_connection(conn)  # a peer gone without closing is noticed (assembler_parts.KEEPALIVE)
-            handshake(conn, self.authkey, server=True)
-            stage = "hello"
-            hello = decode_hello(recv_frame(conn, HELLO_MAX))
-            why = self._check_hello(hello)
-            if why is None:
-                layout = group_layout(self.scene, hello["channels"])
-                codec = PartCodec(self.scene, layout)
-                with self._conn_lock:
+            hello = decode_hello(payload)
+        except OtherVersion as exc:  # a peer of another version is told why
+            self._refuse("message", f"link {link_id[:8]}: {exc}")
+            answer(encode_refused(str(exc)))
+            return
+        except BadMessage as exc:
+            self._refuse("message", f"link {link_id[:8]}, hello: {exc}")
+            return
+        why = self._check_hello(hello)
+        name = None
+        back = False
+        if why is None:
+            layout = group_layout(self.scene, hello["channels"])
+            codec = PartCodec(self.scene, layout)
+            with self._conn_lock:
+                if link_id in self._gone or link_id in self._links:
+                    why = "this link was used before: say hello with a new one"
+                else:
                     before = self.merger.stats.reconnects.get(layout.name, 0)
                     why = self.merger.add_group(layout)
                     if why is None:
                         name = layout.name
-                        self._conns[name] = conn
+                        self._links[link_id] = _Link(link_id, name, codec, self.prefix, hello["host"], hello["pid"])
                         back = self.merger.stats.reconnects.get(name, 0) > before
-            handshake_done()
-            if why is not None:
-                self.refused.append(why)
-                self._refuse_peer(conn, "hello", why, answer=True)
-                return
-            if back:
-                self._log.warning(f"back {name}", f"assembler of channel(s) {name} is back (host "
-                                  f"{hello['host']}, pid {hello['pid']}; reconnect "
-                                  f"{self.merger.stats.reconnects[name]}): its parts merge again")
-            conn.send_bytes(encode_welcome(name))
-            while not self._stop_merge.is_set():
-                part = codec.decode(recv_frame(conn, codec.max_bytes))
-                self.merger.add_part(name, part, time.time())
-                self._emit()
-        except OtherVersion as exc:  # a peer of another version is told why
-            self._refuse_peer(conn, "message", f"peer {peer}: {exc}", answer=stage == "hello")
-        except BadMessage as exc:
-            self._refuse_peer(conn, "message", f"peer {peer}, {stage}: {exc}")
-        except AuthenticationError as exc:
-            self._refuse_peer(conn, "key", f"peer {peer}: {exc}")
-        except (EOFError, OSError) as exc:
-            if deadline.expired and stage != "parts":
-                self._refuse_peer(conn, "timeout", f"peer {peer}: no hello within {self.handshake_timeout_s:g} s "
-                                                   f"of connecting ({stage} stage)")
-            elif stage == "key":  # a port scan, a client of no key
-                self._refuse_peer(conn, "key", f"peer {peer}: closed in the key handshake ({type(exc).__name__})")
-            elif stage == "hello":
-                self._refuse_peer(conn, "message", f"peer {peer}: closed without a hello ({type(exc).__name__})")
+        if why is not None:
+            self.refused.append(why)
+            self._refuse("hello", why)
+            answer(encode_refused(why))
+            return
+        if back:
+            self._log.warning(f"back {name}", f"assembler of channel(s) {name} is back (host {hello['host']}, pid "
+                                              f"{hello['pid']}; reconnect {self.merger.stats.reconnects[name]}): its "
+                                              "parts merge again")
+        answer(encode_welcome(name))
+
+    def _on_part(self, sample) -> None:
+        try:
+            self._part(sample)
         except Exception:  # noqa: BLE001 - one bad assembler never stops the fuser
-            logger.exception("assembler connection failed")
-        finally:
-            handshake_done()
-            if name is not None:
-                with self._conn_lock:
-                    if self._conns.get(name) is conn:
-                        self.merger.remove_group(name)
-                        del self._conns[name]
-                if not self._stop_merge.is_set():
-                    self._log.warning(f"gone {name}", f"assembler of channel(s) {name} disconnected: its parts "
-                                      "are missing until it is back")
-                    self._emit()
+            logger.exception("assembler part failed")
+
+    def _part(self, sample) -> None:
+        received_at = time.time()
+        key = str(sample.key_expr)
+        link_id = link_keys.link_of(key)
+        payload = sample.payload.to_bytes()
+        link = self._links.get(link_id) if link_id is not None else None
+        limit = link.codec.max_bytes if link is not None else HELLO_MAX
+        if len(payload) > limit:
+            self._refuse("message", f"part on {key}: {len(payload)} bytes, over its limit of {limit}")
+            if link is not None:
+                self._drop_link(link, f"a part over its size limit ({len(payload)} bytes)")
+            return
+        if not link_keys.verify(self._mac_key, key, payload, link_keys.as_bytes(sample.attachment)):
+            self._refuse("key", f"part on {key}: not signed with this run's key")
+            return
+        if link is None:
+            if link_id is not None and not self._gone.get(link_id):
+                self._refuse("link", f"part of link {link_id[:8]}, which is not welcomed here (dropped, or an "
+                                     "earlier fuser's): told to say hello again")
+                self._gone[link_id] = True
+                self._tell(link_id, encode_refused("no such link at this fuser: say hello again"))
+            return
+        with self._part_lock:
             try:
-                conn.close()
-            except OSError:
-                pass
+                part = link.codec.decode(payload)
+            except BadMessage as exc:
+                self._refuse("message", f"link {link.id[:8]} (channels {link.name}), part: {exc}")
+                self._drop_link(link, str(exc))
+                return
+            if self._links.get(link.id) is not link:  # dropped meanwhile
+                return
+            self.merger.add_part(link.name, part, received_at)
+        self._emit()
+
+    def _drop_link(self, link: _Link, why: str) -> None:
+        """A link whose part broke the protocol: dropped as a disconnected group, told."""
+        with self._conn_lock:
+            if self._links.pop(link.id, None) is None:
+                return
+            self._forget(link.id)
+            self.merger.remove_group(link.name)
+        self._tell(link.id, encode_refused(f"the fuser dropped this link: {why}"[:900]))
+        self._emit()
+
+    def _on_alive(self, sample) -> None:
+        """An assembler's liveliness token: gone = that group disconnected."""
+        try:
+            import zenoh
+
+            if sample.kind != zenoh.SampleKind.DELETE:
+                return
+            link_id = link_keys.link_of(str(sample.key_expr))
+            with self._conn_lock:
+                if link_id is None:
+                    return
+                link = self._links.pop(link_id, None)
+                self._forget(link_id)
+                if link is None:
+                    return
+                self.merger.remove_group(link.name)
+            if not self._stop_merge.is_set():
+                self._log.warning(f"gone {link.name}", f"assembler of channel(s) {link.name} disconnected (host "
+                                                       f"{link.host}, pid {link.pid}): its parts are missing "
+                                                       "until it is back")
+                self._emit()
+        except Exception:  # noqa: BLE001
+            logger.exception("assembler liveliness failed")
 
     def _check_hello(self, hello: dict) -> str | None:
         """Why a hello (:func:`.assembler_wire.decode_hello`, types checked) is refused; None: welcome."""
@@ -414,34 +504,3 @@ class AssembledFusionService(FusionService):
             return ("the scene has no SYNC counter and this run's SYNCs have begun: an assembler started now "
                     "cannot number its cycles (only one that heard the master's reset can come back)")
         return None
-
-
-def _wake(listener) -> None:
-    """Wakes a thread blocked in ``listener.accept()`` (a connection to it). Never raises."""
-    import socket
-
-    host, port = listener.address[:2]
-    if host in ("0.0.0.0", "::", ""):
-        host = "::1" if ":" in host else "127.0.0.1"
-    try:
-        socket.create_connection((host, port), timeout=1.0).close()
-    except OSError:
-        pass
-
-
-def conn_peer(conn) -> str:
-    """``HOST:PORT`` of a connection's peer (``?`` when it is gone). Never raises."""
-    import os
-    import socket
-
-    try:
-        sock = socket.socket(fileno=os.dup(conn.fileno()))
-    except (OSError, ValueError):
-        return "?"
-    try:
-        host, port = sock.getpeername()[:2]
-        return f"{host}:{port}"
-    except OSError:
-        return "?"
-    finally:
-        sock.close()

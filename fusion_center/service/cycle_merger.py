@@ -32,8 +32,8 @@ class MergeStats:
     duplicate_parts: int = 0
     by_group: dict = field(default_factory=dict)  # group -> parts received
     reconnects: dict = field(default_factory=dict)  # group -> times it came back during the run
-    # connections refused by kind (assemblers._refuse_peer): key (no key handshake), timeout (no
-    # hello in time), message (not a message of the protocol), hello (a hello refused), busy
+    # messages refused by kind (assemblers._refuse): key (not signed with the run's key), message (no
+    # message of the protocol, or over its size), hello (a hello refused), link (a part of a link not welcomed)
     refused: dict = field(default_factory=dict)
     # where a part's time goes (same-host clocks; across hosts only as good as their sync):
     to_send: LatencyHistogram = field(default_factory=LatencyHistogram)    # SYNC sent -> part sent

@@ -1,0 +1,249 @@
+"""Zenoh's cost (issue 24): the assembler link at skin scale against another tree's, and the
+CPU of ``--zenoh`` per cycle, side by side in one run.
+
+    .venv/bin/python bench/zenoh_bench.py [--other /work/main] [--cycles 300] [--repeat 3]
+                                          [--part assemblers,publication]
+
+* **assemblers** - skin4096 (8 channels, 100 Hz) as two node-sim shards (channels 0-3, 4-7),
+  two ``fusion-center assemble`` processes (the same groups) and the fuser in this process,
+  udp_multicast on the loopback, ``--cycles`` SYNCs; the same set-up run on the tree
+  ``--other`` (its own interpreter, ``OTHER/.venv/bin/python``, the link it has - on main the
+  TCP link of ``multiprocessing.connection``), alternating, ``--repeat`` times each. Per run:
+  cycles with both parts (complete), degraded (a part missing), late parts, unmatched parts;
+  SYNC -> part sent p50 / p99 (the assembler's side), part transport p50 / p99 (sent ->
+  received by the fuser) and SYNC -> record p50 / p99. Then medians over the runs and their
+  ratios (this tree / other), and the CPU per cycle of the fuser's process and of the two
+  assembler processes. Goal: the figures within 10 %.
+* **publication** - the centre alone in this process (the twins in one node-sim process,
+  udp_multicast), matrix57 and skin4096, ``--cycles`` SYNCs, with and without ``--zenoh``
+  (``ZenohPublisher``, a subscriber in another process - docs/examples/zenoh_subscriber.py -
+  so that every sample goes out), alternating, ``--repeat`` times each: the process's CPU per
+  cycle (median of the runs), and the publisher's own CPU per cycle (thread time inside its
+  calls); the ratio on / off and the publisher's share. Goal: at most +5 %.
+
+The host's load is printed with each run: on a shared 2-core machine the spread between runs
+is the figure to compare the ratios with.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import random
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent.parent
+
+
+def _root(argv) -> Path:
+    for k, a in enumerate(argv):
+        if a == "--root" and k + 1 < len(argv):
+            return Path(argv[k + 1]).resolve()
+    return HERE
+
+
+ROOT = _root(sys.argv)
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "bench"))
+
+
+# ---------------------------------------------------------------------------- one assembler run (a child)
+
+def assembler_run(cycles: int) -> dict:
+    """skin4096: two shards, two assemblers, the fuser here (this interpreter's tree)."""
+    import numpy as np
+
+    from fusion_center.service.assemblers import AssembledFusionService
+    from skin_scale import CpuMeter, check_records, start_shards
+    from taxel_net.scene import load_scene
+
+    scene = load_scene(ROOT / "scenes" / "skin4096.toml")
+    port = random.randint(40000, 60000)
+    fuser_port = random.randint(40000, 60000)
+    groups = [f"239.74.165.{10 + k}" for k in range(len(scene.bus.channels))]
+    procs = []
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    service = None
+    try:
+        start_shards(scene, 2, groups, port, procs)
+        service = AssembledFusionService(scene, listen=("127.0.0.1", fuser_port), interface="udp_multicast",
+                                         channels=groups, bus_kwargs={"port": port, "hop_limit": 0},
+                                         keep_records=True)
+        service.open()
+        assemblers = [subprocess.Popen(
+            [sys.executable, "-c", "import sys; from fusion_center.cli import main; sys.exit(main())", "assemble",
+             "--scene", str(scene.path), "-i", "udp_multicast", "-c", ",".join(groups), "--bus-kwargs",
+             f"port={port}", "hop_limit=0", "--serve", serve, "--fuser", f"127.0.0.1:{fuser_port}"],
+            cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env) for serve in ("0-3", "4-7")]
+        procs.extend(assemblers)
+        for proc in assemblers:
+            line = proc.stdout.readline()
+            if "ready" not in line:
+                raise SystemExit(f"assemble did not start: {line} {proc.stderr.read() if proc.poll() is not None else ''}")
+        service.boot(30.0)
+        with CpuMeter([proc.pid for proc in assemblers]) as cpu:
+            service.run(cycles, timeout_s=cycles * 0.1 + 120)
+    finally:
+        if service is not None:
+            service.close()
+        for proc in procs:
+            if proc.poll() is None:
+                try:
+                    proc.wait(10 if proc in procs[2:] else 0.01)
+                except subprocess.TimeoutExpired:
+                    pass
+            if proc.poll() is None:
+                proc.terminate()
+                proc.wait(10)
+    stats = service.merger.stats.as_dict()
+    figures = check_records(scene, service.records)
+    hist = service.latency
+    return {"cycles": len(service.records), "complete": stats["complete"], "degraded": stats["degraded"],
+            "late_parts": stats["late_parts"], "unmatched": stats["unmatched_parts"],
+            "misattributed": figures["misattributed"],
+            "to_send_p50": stats["to_send_ms"]["p50"], "to_send_p99": stats["to_send_ms"]["p99"],
+            "transport_p50": stats["transport_ms"]["p50"], "transport_p99": stats["transport_ms"]["p99"],
+            "record_p50": hist.percentile(50), "record_p99": hist.percentile(99),
+            "fuser_cpu_ms": cpu.centre_s / max(cycles, 1) * 1e3, "assemblers_cpu_ms": cpu.twins_s / max(cycles, 1) * 1e3,
+            "load": os.getloadavg()[0], "numpy": np.__version__}
+
+
+# ---------------------------------------------------------------------------- one publication run
+
+def publication_run(scene_name: str, cycles: int, zenoh_on: bool) -> dict:
+    import time as _time
+
+    from fusion_center.service import FusionService
+    from skin_scale import CpuMeter, start_shards
+    from taxel_net.scene import load_scene
+
+    scene = load_scene(ROOT / "scenes" / f"{scene_name}.toml")
+    port = random.randint(40000, 60000)
+    groups = [f"239.74.166.{10 + k}" for k in range(len(scene.bus.channels))]
+    procs = []
+    publisher = None
+    spent = [0.0]
+    try:
+        start_shards(scene, 1, groups, port, procs)
+        service = FusionService(scene, interface="udp_multicast", channels=groups,
+                                bus_kwargs={"port": port, "hop_limit": 0}, keep_records=False)
+        if zenoh_on:
+            from fusion_center.service.zenoh_publisher import ZenohPublisher
+
+            zport = random.randint(40000, 60000)
+            publisher = ZenohPublisher(scene.name, listen=[f"tcp/127.0.0.1:{zport}"]).open()
+            sub = subprocess.Popen([sys.executable, str(ROOT / "docs" / "examples" / "zenoh_subscriber.py"),
+                                    "--connect", f"tcp/127.0.0.1:{zport}", "--scene", scene.name, "--raw",
+                                    "--timeout", "600"], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+            procs.append(sub)
+            sub.stderr.readline()
+            end = _time.monotonic() + 30
+            while not publisher._publishers["record"].matching_status.matching and _time.monotonic() < end:
+                _time.sleep(0.01)
+
+            def timed(record, _pub=publisher):
+                t0 = _time.thread_time()
+                _pub(record)
+                spent[0] += _time.thread_time() - t0
+            service.on_record.append(timed)
+        with service:
+            service.boot(30.0)
+            with CpuMeter() as cpu:
+                summary = service.run(cycles)
+    finally:
+        if publisher is not None:
+            publisher.close()
+        for proc in procs:
+            proc.terminate()
+            proc.wait(10)
+    n = max(summary.cycles, 1)
+    return {"cpu_ms": cpu.centre_s / n * 1e3, "publisher_ms": spent[0] / n * 1e3,
+            "records": publisher.records if publisher else 0, "failed": publisher.failed if publisher else 0,
+            "p99": summary.latency_percentile(99), "load": os.getloadavg()[0]}
+
+
+# ---------------------------------------------------------------------------- the driver
+
+def _child(python: str, root: Path, *args) -> dict:
+    env = {**os.environ, "PYTHONPATH": str(root)}
+    done = subprocess.run([python, str(Path(__file__).resolve()), "--root", str(root), *args], cwd=root,
+                          capture_output=True, text=True, env=env, timeout=3600)
+    for line in reversed(done.stdout.splitlines()):
+        if line.startswith("{"):
+            return json.loads(line)
+    raise SystemExit(f"child {python} {args} failed ({done.returncode}): {done.stderr[-2000:]}")
+
+
+def _median(runs, key):
+    values = [r[key] for r in runs if r.get(key) is not None]
+    return statistics.median(values) if values else None
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--other", type=Path, default=Path("/work/main"), help="the tree to compare the link with")
+    ap.add_argument("--cycles", type=int, default=300)
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--part", default="assemblers,publication")
+    ap.add_argument("--root", type=Path, default=HERE, help=argparse.SUPPRESS)
+    ap.add_argument("--child", default=None, help=argparse.SUPPRESS)
+    args = ap.parse_args(argv)
+    if args.child == "assemblers":
+        print(json.dumps(assembler_run(args.cycles)))
+        return 0
+    if args.child and args.child.startswith("publication:"):
+        _, scene, on = args.child.split(":")
+        print(json.dumps(publication_run(scene, args.cycles, on == "1")))
+        return 0
+    parts = set(args.part.split(","))
+    me = (sys.executable, HERE)
+    other = (str(args.other / ".venv" / "bin" / "python"), args.other.resolve())
+    commit = lambda root: subprocess.run(["git", "-C", str(root), "log", "-1", "--format=%h"], capture_output=True,  # noqa: E731
+                                         text=True).stdout.strip()
+    if "assemblers" in parts:
+        print(f"assemblers, skin4096, {args.cycles} cycles, 2 shards + 2 assemblers + fuser; this tree "
+              f"{commit(HERE)} (Zenoh link) against {args.other} {commit(args.other)}", flush=True)
+        runs = {"zenoh": [], "other": []}
+        for k in range(args.repeat):
+            for name, (python, root) in (("other", other), ("zenoh", me)):
+                r = _child(python, root, "--child", "assemblers", "--cycles", str(args.cycles))
+                runs[name].append(r)
+                print(f"  {name:5s} run {k + 1}: complete {r['complete']}/{r['cycles']}, degraded {r['degraded']}, "
+                      f"late parts {r['late_parts']}, unmatched {r['unmatched']}, misattributed {r['misattributed']}; "
+                      f"SYNC -> part sent p50 {r['to_send_p50']:.2f} / p99 {r['to_send_p99']:.2f} ms, transport p50 "
+                      f"{r['transport_p50']:.2f} / p99 {r['transport_p99']:.2f} ms, SYNC -> record p50 "
+                      f"{r['record_p50']:.2f} / p99 {r['record_p99']:.2f} ms; CPU a cycle: fuser "
+                      f"{r['fuser_cpu_ms']:.2f} ms, assemblers {r['assemblers_cpu_ms']:.2f} ms (load {r['load']:.1f})",
+                      flush=True)
+        print("  medians (zenoh / other = ratio):")
+        for key in ("complete", "degraded", "to_send_p50", "to_send_p99", "transport_p50", "transport_p99",
+                    "record_p50", "record_p99", "fuser_cpu_ms", "assemblers_cpu_ms"):
+            z, o = _median(runs["zenoh"], key), _median(runs["other"], key)
+            ratio = f"{z / o:.2f}" if z is not None and o else "-"
+            print(f"    {key:14s} {z:10.2f} / {o:10.2f} = {ratio}")
+    if "publication" in parts:
+        print(f"--zenoh publication, the centre alone (twins in a node-sim process), {args.cycles} cycles, "
+              f"a subscriber in another process", flush=True)
+        for scene in ("matrix57", "skin4096"):
+            runs = {"off": [], "on": []}
+            for k in range(args.repeat):
+                for on in (False, True):
+                    r = _child(me[0], me[1], "--child", f"publication:{scene}:{int(on)}", "--cycles", str(args.cycles))
+                    runs["on" if on else "off"].append(r)
+                    print(f"  {scene} {'on ' if on else 'off'} run {k + 1}: CPU {r['cpu_ms']:.3f} ms a cycle, "
+                          f"publisher {r['publisher_ms']:.4f} ms, records {r['records']}, failed {r['failed']}, "
+                          f"SYNC -> record p99 {r['p99']:.2f} ms (load {r['load']:.1f})", flush=True)
+            off, on = _median(runs["off"], "cpu_ms"), _median(runs["on"], "cpu_ms")
+            pub = _median(runs["on"], "publisher_ms")
+            print(f"  {scene}: CPU per cycle median on {on:.3f} / off {off:.3f} ms = {on / off:.3f}; "
+                  f"the publisher's own {pub:.4f} ms a cycle = {100 * pub / off:.2f} % of the centre's", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
