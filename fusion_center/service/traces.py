@@ -252,8 +252,11 @@ def check_trace(scene: Scene, trace_path) -> dict:
     nodes = [set() for _ in range(n_channels)]
     for t in scene.taxels:
         nodes[t.channel].add(t.node_id)
+    drive_cobs: set = set()  # the gripper drive's own COB-IDs (its RPDO1 too: the centre commands it)
     if scene.gripper is not None:  # the gripper drive is a node of the scene too
-        nodes[scene.gripper.channel].add(scene.gripper.node_id)
+        from taxel_net.gripper import drive_cob_ids
+
+        drive_cobs = {(scene.gripper.channel, cob) for cob in drive_cob_ids(scene.gripper.node_id)}
     bases = (BASE_EMCY, BASE_TPDO1, BASE_TPDO2, BASE_SDO_RESPONSE, BASE_SDO_REQUEST, BASE_HEARTBEAT)
     # the master's own heartbeat (CiA 302), when the scene's master produces one
     master_heartbeat = BASE_HEARTBEAT + scene.master.node_id if scene.master_heartbeat_ms > 0 else COB_NMT
@@ -278,7 +281,7 @@ def check_trace(scene: Scene, trace_path) -> dict:
             if msg.is_error_frame or msg.is_extended_id:
                 continue  # counted as malformed by the replay itself, as live
             cob = msg.arbitration_id
-            if cob in (COB_NMT, COB_SYNC, COB_TIME, master_heartbeat):
+            if cob in (COB_NMT, COB_SYNC, COB_TIME, master_heartbeat) or (channel, cob) in drive_cobs:
                 continue
             if patch_tables is not None:
                 this_mode, other_mode = patch_tables[0][channel].get(cob), patch_tables[1][channel].get(cob)
