@@ -77,6 +77,9 @@ class DriveLink:
         self.found: dict | None = None             # what the boot found: statusword, torque, takeover
         self.sdo_failures = 0
         self._log = RateLimitedLog(logger, 2.0)
+        from .grasp_outcome import GraspOutcome
+
+        self.outcome = GraspOutcome()              # the summary's verdict, record by record
 
     # ------------------------------------------------------------------ boot
     def heard(self) -> bool:
@@ -136,6 +139,7 @@ class DriveLink:
                 ms = (time.perf_counter() - sync_sent) * 1e3
                 self.latency.add(ms)
                 self.latency_ms.append(ms)
+        self.outcome.add(record)
         flags = record.get("grip_flags") or ()
         if flags:
             detail = record.get("grip_detail") or {}
@@ -160,6 +164,7 @@ class DriveLink:
             out["found_holding"] = True
         if self.sdo_failures:
             out["sdo_failures"] = self.sdo_failures
+        out["grasp"] = self.outcome.as_dict()
         return out
 
 

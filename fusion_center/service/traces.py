@@ -97,7 +97,8 @@ def trace_channel(msg: can.Message, suffix: str = "") -> int:
 
 
 def replay_trace(scene: Scene, trace_path, *, json_lines=None, truth: bool = True,
-                 on_record: Callable[[dict], None] | None = None) -> tuple[list[dict], dict[str, int]]:
+                 on_record: Callable[[dict], None] | None = None,
+                 grasp_truth=None) -> tuple[list[dict], dict[str, int]]:
     """Re-fuse a recorded trace offline: the same stream -> the same records as live.
 
     Returns (records, counters). The open cycle at the end of the trace is not reported
@@ -112,6 +113,8 @@ def replay_trace(scene: Scene, trace_path, *, json_lines=None, truth: bool = Tru
     looking log (the partial one stays as ``OUT.partial``, and an ``OUT`` of an earlier run is
     removed). An ``OUT`` that is not a regular file (``/dev/null``, a FIFO, ``/dev/stdout``) is
     written in place and never renamed over nor removed (:class:`taxel_net.outputs.OutputPath`).
+    ``grasp_truth``: the grasp world's truth (a :class:`~.grasp_truth.TruthTable`, ``--truth-log``)
+    for the records' ``grasp_truth`` on a scene with a gripper.
     """
     p = Path(trace_path)
     name = str(trace_path)
@@ -125,6 +128,7 @@ def replay_trace(scene: Scene, trace_path, *, json_lines=None, truth: bool = Tru
         raise
     assembler = CycleAssembler(scene)
     pipeline = CyclePipeline(scene, truth=truth)
+    pipeline.grasp_truth = grasp_truth
     closed_cycles: list[ClosedCycle] = []
     stream = EventStream(assembler, on_closed=closed_cycles.append)
     records: list[dict] = []
