@@ -200,3 +200,27 @@ def test_a_new_centre_takes_a_held_part_over_without_opening_the_jaws():
         assert torque_now == records[-1]["grip_detail"]["target_permille"] and torque_before > 0
     finally:
         rig.stop()
+
+
+def test_the_live_view_shows_the_grasp_in_80_columns(grasp):
+    from types import SimpleNamespace
+
+    from rich.console import Console
+
+    from fusion_center.service.live import LiveView
+
+    scene, service, *_ = grasp
+    fake = SimpleNamespace(scene=scene, bitrate=None, labels=service.labels,
+                           stream=SimpleNamespace(counters=lambda: {"sync": 500, "drive": 1500}))
+    view = LiveView(fake, cycles=500)
+    slips = [r for r in service.records if r["grip"]["slip"]]
+    for r in service.records[: slips[0]["cycle"] + 1]:
+        view.update(r)
+    console = Console(width=80, record=True, color_system=None, force_terminal=False)
+    console.print(view)
+    lines = console.export_text().splitlines()
+    assert all(len(line) <= 80 for line in lines), [line for line in lines if len(line) > 80]
+    text = "\n".join(lines)
+    r = slips[0]
+    assert f"command {r['grip']['command_n']:.2f} N" in text and "OPERATION ENABLED" in text
+    assert "slip_raise" in text and "centre " in text and "!" in text.split("centre ")[-1].splitlines()[0]
