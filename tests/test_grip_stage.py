@@ -224,3 +224,16 @@ def test_the_live_view_shows_the_grasp_in_80_columns(grasp):
     r = slips[0]
     assert f"command {r['grip']['command_n']:.2f} N" in text and "OPERATION ENABLED" in text
     assert "slip_raise" in text and "centre " in text and "!" in text.split("centre ")[-1].splitlines()[0]
+
+
+def test_plot_of_a_grasp_run(grasp, tmp_path):
+    from fusion_center.commands.plot import read_log
+    from fusion_center.cli import main
+
+    *_, live = grasp
+    series = read_log(live)
+    g = series["grasp"]
+    assert len(g["t"]) == 500 and any(g["slip"]) and any(s for s in g["true_slip"] if s)
+    out = tmp_path / "grasp.png"
+    assert main(["plot", str(live), "-o", str(out)]) == 0
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and out.stat().st_size > 20_000
