@@ -78,3 +78,59 @@ def test_run_against_node_sim_in_another_process_and_replay_with_its_truth_log(t
     with_truth = [r for r in replayed if "grasp_truth" in r]
     assert len(with_truth) >= CYCLES - 10
     assert {r["grasp_truth"]["phase"] for r in with_truth} >= {"approach", "close", "lift"}
+
+
+def test_a_killed_centre_leaves_the_part_held_and_a_new_one_takes_it_over(tmp_path):
+    import signal
+    import time
+
+    group = f"239.74.{random.randint(164, 250)}.{random.randint(1, 250)}"
+    port = 47000 + (os.getpid() % 1000) + random.randint(0, 999)
+    truth, second = tmp_path / "truth.jsonl", tmp_path / "second.jsonl"
+    sim = _start_node_sim(group, port, truth)
+    bus = ["-i", "udp_multicast", "-c", group, "--bus-option", f"port={port}", "--bus-option", "hop_limit=0"]
+
+    def steps():
+        return [json.loads(line) for line in truth.read_text().splitlines() if line.endswith("}")]
+
+    try:
+        first = subprocess.Popen([sys.executable, "-m", "fusion_center.cli", "run", "--scene", "grasp_scripted", *bus,
+                                  "--cycles", "3000", "--no-live", "--boot-timeout", "5"],
+                                 cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        try:
+            deadline = time.monotonic() + 120
+            while time.monotonic() < deadline:  # the hold phase, some way into it
+                held = [s for s in steps() if s["phase"] == "hold" and s["in_grip"]]
+                if len(held) > 50:
+                    break
+                assert first.poll() is None, first.stderr.read()
+                time.sleep(0.1)
+            else:
+                raise AssertionError(f"the world never reached a hold: {steps()[-1:]}")
+            first.send_signal(signal.SIGKILL)  # no NMT, no last frame: the process is gone
+            first.wait(10)
+        finally:
+            if first.poll() is None:
+                first.kill()
+        killed_at = len(steps())
+        time.sleep(1.0)  # the drive notices (0x1016: 150 ms), 0x6007 = 0 keeps the torque
+        centre = subprocess.run([sys.executable, "-m", "fusion_center.cli", "run", "--scene", "grasp_scripted", *bus,
+                                 "--cycles", "100", "--no-live", "--boot-timeout", "5", "--json-lines", str(second)],
+                                cwd=ROOT, capture_output=True, text=True, timeout=300)
+        after = steps()[killed_at:]
+    finally:
+        sim.terminate()
+        try:
+            sim.wait(10)
+        except subprocess.TimeoutExpired:
+            sim.kill()
+    assert centre.returncode == 0, centre.stderr
+    story = [(s["cycle"], s["phase"], round(s["normal_n"], 2), s["in_grip"], s["dropped"]) for s in after[::20]]
+    # from the kill through the second centre's run: held all along, never opened, never dropped
+    assert after and all(s["in_grip"] and s["normal_n"] > 0 and not s["dropped"] for s in after), story
+    records = [json.loads(line) for line in second.read_text().splitlines()]
+    seen = [r for r in records if r["grip"]["drive_state"] is not None]
+    assert seen and "takeover" in seen[0]["grip_flags"], seen[:1]
+    assert seen[0]["grip"]["command_n"] > 0 and abs(seen[0]["grip"]["command_n"] - seen[0]["grip"]["actual_n"]) <= 0.2
+    assert all(r["grip_detail"]["target_permille"] > 0 for r in seen)  # it commands the hold, never opens
+    assert "takeovers 1" in centre.stdout
