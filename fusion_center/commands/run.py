@@ -182,7 +182,7 @@ def format_summary(summary: dict) -> list[str]:
     ]
     for skipped in (summary["stages_skipped"], summary["rules_skipped"]):
         lines += [(f"skipped {name}", why.removeprefix(f"{name}: ")) for name, why in skipped.items()
-                  if not why.startswith("not requested")]
+                  if not why.startswith("not requested") and not (name == "grip" and "grip" not in summary)]
     lines += [
         ("counters", ", ".join(f"{k} {v}" for k, v in summary["counters"].items())),
         ("sdo", f"{summary['sdo']['writes']} writes, {summary['sdo']['aborts']} aborts, "
