@@ -240,6 +240,7 @@ class GripStage:
         """Keep the drive in its state, or take one step toward OPERATION ENABLED while a walk is
         allowed (module docstring: at the first sight, then at most every RECOVER_EVERY_S)."""
         if state == OE:
+            self.walk_until = -1  # a walk ends where it was going: a new disable waits for the next attempt
             return _HOLD_CW[OE]
         if cycle > self.walk_until and (self.last_attempt is None or cycle - self.last_attempt >= self.recover_cycles):
             if state in _STEP_CW or state == "FAULT":
