@@ -35,13 +35,6 @@ def run(args) -> int:
 
     setup_logging()
     scene = apply_mode(load_scene(args.scene), args.mode)  # the mode of the recorded run
-    if not args.force:
-        try:
-            check_trace(scene, args.trace)  # before anything is written
-        except UsageError:
-            if args.json_lines:
-                discard_stale(args.json_lines)  # a log of an earlier replay must not pass for this one's
-            raise
     grasp_truth = None
     if args.truth_log is not None:
         from ..service.grasp_truth import TruthTable
@@ -49,6 +42,13 @@ def run(args) -> int:
         if scene.gripper is None or getattr(scene, "grasp", None) is None:
             raise UsageError(f"--truth-log: scene {scene.name!r} has no grasp world ([gripper] and [grasp])")
         grasp_truth = TruthTable.from_file(args.truth_log)
+    if not args.force:
+        try:
+            check_trace(scene, args.trace)  # before anything is written
+        except UsageError:
+            if args.json_lines:
+                discard_stale(args.json_lines)  # a log of an earlier replay must not pass for this one's
+            raise
     on_record = None if args.json_lines else (lambda r: print(dumps(r)))
     records, counters = replay_trace(scene, args.trace, json_lines=args.json_lines, on_record=on_record,
                                      grasp_truth=grasp_truth)

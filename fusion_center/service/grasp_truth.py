@@ -26,12 +26,14 @@ from taxel_net.errors import UsageError
 
 FIELDS = ("phase", "normal_n", "min_hold_n", "slipping", "slid_mm", "dropped", "crushed")
 LOOK_BACK = 3
+KEEP = 4096  # cycles of truth kept while running (memory does not grow with the run)
 
 
 class TruthTable:
     """cycle -> the grasp truth of that cycle's record (module docstring); thread-safe ``add``."""
 
-    def __init__(self):
+    def __init__(self, bounded: bool = True):
+        self.bounded = bounded  # keep only the last KEEP cycles (live); a file read keeps all
         self._by_cycle: dict[int, dict] = {}
         self._lock = threading.Lock()
         self.steps = 0
@@ -48,6 +50,9 @@ class TruthTable:
             if before is not None and before["slipping"]:
                 entry["slipping"] = True
             self._by_cycle[cycle] = entry
+            if self.bounded and len(self._by_cycle) > 2 * KEEP:  # live: the records ask for recent cycles only
+                for old in [k for k in self._by_cycle if k < cycle - KEEP]:
+                    del self._by_cycle[old]
 
     def for_cycle(self, cycle: int) -> dict | None:
         with self._lock:
@@ -60,7 +65,7 @@ class TruthTable:
     @classmethod
     def from_file(cls, path) -> "TruthTable":
         """Read node-sim's ``--truth-log`` (JSON lines); a bad line is one UsageError naming it."""
-        table = cls()
+        table = cls(bounded=False)
         name = str(path)
         try:
             handle = Path(path).open("r", encoding="utf-8")
