@@ -271,3 +271,21 @@ def test_quick_stop_and_disable_are_flagged_and_re_enabled_at_most_once_a_second
     assert cw == 0x00 and "drive_not_enabled" in flags        # inside the second since the last walk: wait
     assert stage.counts["quick_stops"] == 1 and stage.counts["drive_disabled"] == 1
     assert stage.counts["enable_walks"] == 3
+
+
+def test_raw_mode_grips_with_eq_26a_and_replays(tmp_path):
+    from fusion_center.commands.run import apply_mode
+
+    scene = apply_mode(load_scene("grasp_scripted"), "raw")
+    trace, live = tmp_path / "raw.log", tmp_path / "raw.jsonl"
+    service, summary, table, steps, _, _ = run_grasp(scene, 400, trace=trace, json_lines=live)
+    records = list(service.records)
+    assert not any(s["dropped"] for s in steps) and steps[-1]["in_grip"] and steps[-1]["normal_n"] > 0
+    # the law's raw-mode input: eq 26a per jaw from the forces stage, T / mu (the scene's [forces] mu)
+    lifted = [r for r in records if r.get("forces", {}).get("total_tangential") and r["grip_detail"]["law"] == "hold"]
+    assert lifted
+    for r in lifted:
+        least = r["forces"]["total_tangential"] / scene.forces.mu
+        assert r["grip"]["command_n"] >= min(1.2 * least, service.pipeline.grip.params.max_n) - 1e-6  # safety factor
+    records_again, _ = replay_trace(scene, trace, grasp_truth=table)
+    assert json.dumps(records_again) == json.dumps([json.loads(line) for line in live.read_text().splitlines()])
