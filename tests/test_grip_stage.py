@@ -115,10 +115,14 @@ def _drive(state_sw, torque=0, force=0, grip=0, lost=False):
 
 
 def test_a_degraded_cycle_never_lowers_the_command():
+    from fusion_center.core.grip_law import GripState
+
     stage = GripStage(load_scene("grasp_scripted"))
     record = {"cycle": 0, "decision": "H1", "degraded": False, "slip": {"contact": True, "displacement": 0.0}}
-    stage.evaluate(dict(record, degraded=True), _drive(0x8027 | 0x0400, torque=100, force=140, grip=4))
+    stage.evaluate(dict(record), _drive(0x8027 | 0x0400, torque=100, force=140, grip=4))
     assert stage.takeover and stage.law.phase == "hold" and stage.law.command_n == 14.0  # took over at 14 N
+    assert stage.law.learned_n == 14.0  # and does not relax below what held the part
+    stage.law = GripState(phase="hold", command_n=14.0)  # a hold of this centre's own: it may relax
     for k in range(1, 50):  # degraded cycles: the law may not relax
         r = dict(record, cycle=k, degraded=True)
         stage.evaluate(r, _drive(0x8027 | 0x0400, torque=100, force=140, grip=4))

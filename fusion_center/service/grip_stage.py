@@ -34,8 +34,9 @@ Per cycle (``docs/service.md``, "The grip stage"; the law: ``docs/grip-control.m
   next SYNC, so one step per cycle is what it can take.
 * **takeover**: a drive first seen in OPERATION ENABLED with a positive torque (a centre started
   again while it holds a part) is not walked nor opened: the law starts in ``hold`` with the
-  drive's present force (0x2101), the task is ``close`` (the task clock is unknown) - the part
-  stays held and this centre commands it.
+  drive's present force (0x2101), also as its learned force (this centre does not know what the
+  part needs, so it does not relax below what held it; a slip still raises it), the task is
+  ``close`` (the task clock is unknown) - the part stays held and this centre commands it.
 * **safety**: the law never lowers the command on a degraded cycle; while the drive is not
   OPERATION ENABLED the law is not stepped (its command kept). A drive fault, a quick stop, a
   disable and a lost drive heartbeat are flagged (``grip_flags``) and counted (:attr:`counts`).
@@ -192,7 +193,7 @@ class GripStage:
                 self.takeover = True
                 self.enabled_at = cycle
                 force = actual if actual is not None else drive.torque_permille * self.rated_n / 1000.0
-                self.law = GripState(phase="hold", command_n=force)
+                self.law = GripState(phase="hold", command_n=force, learned_n=force)
                 self.counts["takeovers"] += 1
                 flags.append("takeover")
         if state == OE and self.enabled_at is None:
