@@ -1,4 +1,4 @@
-"""The grip stage across processes (issue 23): ``node-sim --scene grasp_scripted --truth-log F`` (the
+"""The grip stage across processes (issue 23): ``node-sim --scene grasp_light --truth-log F`` (the
 twins, the drive and the grasp world) in one process on udp_multicast, ``fusion-center run`` in
 another (loopback only: hop limit 0, a test-specific group and port; every wait bounded); then
 ``fusion-center replay`` of the run's trace with ``--truth-log`` gives the run's records plus the
@@ -22,10 +22,13 @@ pytestmark = pytest.mark.multiprocess
 
 ROOT = Path(__file__).resolve().parent.parent
 CYCLES = 350  # 3.5 s: approach 1 s, close 0.8 s, lift 1 s, then the hold
+# grasp_scripted with a 0.2 kg object and an 8 s hold: the law's default hold lifts it without a slip
+# whatever the host's timing (the slip in the lift is tested in one process: tests/test_grip_stage.py)
+SCENE = str(ROOT / "tests" / "data" / "grasp_light.toml")
 
 
 def _start_node_sim(group: str, port: int, truth: Path) -> subprocess.Popen:
-    proc = subprocess.Popen([sys.executable, "-m", "node_sim.cli", "--scene", "grasp_scripted",
+    proc = subprocess.Popen([sys.executable, "-m", "node_sim.cli", "--scene", SCENE,
                              "--interface", "udp_multicast", "--channel", group, "--bus-option", f"port={port}",
                              "--bus-option", "hop_limit=0", "--truth-log", str(truth)],
                             cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -46,7 +49,7 @@ def test_run_against_node_sim_in_another_process_and_replay_with_its_truth_log(t
     sim = _start_node_sim(group, port, truth)
     try:
         centre = subprocess.run(
-            [sys.executable, "-m", "fusion_center.cli", "run", "--scene", "grasp_scripted", "-i", "udp_multicast",
+            [sys.executable, "-m", "fusion_center.cli", "run", "--scene", SCENE, "-i", "udp_multicast",
              "-c", group, "--bus-option", f"port={port}", "--bus-option", "hop_limit=0", "--cycles", str(CYCLES),
              "--json-lines", str(live), "--log", str(trace), "--no-live", "--boot-timeout", "5"],
             cwd=ROOT, capture_output=True, text=True, timeout=300)
@@ -66,12 +69,12 @@ def test_run_against_node_sim_in_another_process_and_replay_with_its_truth_log(t
     # the world's own log: the centre's drive gripped the object and lifted it; it was not dropped
     gripped = [s for s in steps if s["in_grip"] and s["normal_n"] > 0]
     story = [(s["cycle"], s["phase"], round(s["height_mm"], 1), round(s["normal_n"], 2), round(s["slid_mm"], 1),
-              s["mode"], s["dropped"]) for s in steps[::20]]
+              s["mode"], s["dropped"]) for s in steps[::20] if s["cycle"] is not None]
     assert gripped and max(s["height_mm"] for s in gripped) > 50, story
     assert not any(s["dropped"] for s in steps), story
     assert any(r["grip"]["drive_state"] == "OPERATION ENABLED" for r in records)
     # replay of the trace with the truth log: the run's records, and the world's truth beside them
-    assert main(["replay", "--scene", "grasp_scripted", str(trace), "--json-lines", str(again),
+    assert main(["replay", "--scene", SCENE, str(trace), "--json-lines", str(again),
                  "--truth-log", str(truth)]) == 0
     replayed = [json.loads(line) for line in again.read_text().splitlines()]
     assert [{k: v for k, v in r.items() if k != "grasp_truth"} for r in replayed] == records
@@ -94,7 +97,7 @@ def test_a_killed_centre_leaves_the_part_held_and_a_new_one_takes_it_over(tmp_pa
         return [json.loads(line) for line in truth.read_text().splitlines() if line.endswith("}")]
 
     try:
-        first = subprocess.Popen([sys.executable, "-m", "fusion_center.cli", "run", "--scene", "grasp_scripted", *bus,
+        first = subprocess.Popen([sys.executable, "-m", "fusion_center.cli", "run", "--scene", SCENE, *bus,
                                   "--cycles", "3000", "--no-live", "--boot-timeout", "5"],
                                  cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
         try:
@@ -114,7 +117,7 @@ def test_a_killed_centre_leaves_the_part_held_and_a_new_one_takes_it_over(tmp_pa
                 first.kill()
         killed_at = len(steps())
         time.sleep(1.0)  # the drive notices (0x1016: 150 ms), 0x6007 = 0 keeps the torque
-        centre = subprocess.run([sys.executable, "-m", "fusion_center.cli", "run", "--scene", "grasp_scripted", *bus,
+        centre = subprocess.run([sys.executable, "-m", "fusion_center.cli", "run", "--scene", SCENE, *bus,
                                  "--cycles", "100", "--no-live", "--boot-timeout", "5", "--json-lines", str(second)],
                                 cwd=ROOT, capture_output=True, text=True, timeout=300)
         after = steps()[killed_at:]

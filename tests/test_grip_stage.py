@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import uuid
+from pathlib import Path
 
 import can
 import pytest
@@ -172,7 +173,8 @@ def test_a_lost_drive_heartbeat_is_flagged_once_counted_and_not_a_burst():
 
 
 def test_a_new_centre_takes_a_held_part_over_without_opening_the_jaws():
-    scene = load_scene("grasp_scripted")
+    # the 0.2 kg object of tests/data/grasp_light.toml: lifted without a slip whatever the host's timing
+    scene = load_scene(Path(__file__).parent / "data" / "grasp_light.toml")
     tag = uuid.uuid4().hex[:8]
     channels = [f"grip-{tag}-{name}" for name in scene.bus.channels]
     steps = []
@@ -290,6 +292,7 @@ def test_raw_mode_grips_with_eq_26a_and_replays(tmp_path):
     assert lifted
     for r in lifted:
         least = r["forces"]["total_tangential"] / scene.forces.mu
-        assert r["grip"]["command_n"] >= min(1.2 * least, service.pipeline.grip.params.max_n) - 1e-6  # safety factor
+        # safety factor 1.2; the record rounds command_n to 0.1 mN
+        assert r["grip"]["command_n"] >= min(1.2 * least, service.pipeline.grip.params.max_n) - 1e-4
     records_again, _ = replay_trace(scene, trace, grasp_truth=table)
     assert json.dumps(records_again) == json.dumps([json.loads(line) for line in live.read_text().splitlines()])
