@@ -119,16 +119,16 @@ def test_a_degraded_cycle_never_lowers_the_command():
     from fusion_center.core.grip_law import GripState
 
     stage = GripStage(load_scene("grasp_scripted"))
-    record = {"cycle": 0, "decision": "H1", "degraded": False, "slip": {"contact": True, "displacement": 0.0}}
+    record = {"cycle": 0, "t": 0.0, "decision": "H1", "degraded": False, "slip": {"contact": True, "displacement": 0.0}}
     stage.evaluate(dict(record), _drive(0x8027 | 0x0400, torque=100, force=140, grip=4))
     assert stage.takeover and stage.law.phase == "hold" and stage.law.command_n == 14.0  # took over at 14 N
     assert stage.law.learned_n == 14.0  # and does not relax below what held the part
     stage.law = GripState(phase="hold", command_n=14.0)  # a hold of this centre's own: it may relax
     for k in range(1, 50):  # degraded cycles: the law may not relax
-        r = dict(record, cycle=k, degraded=True)
+        r = dict(record, cycle=k, t=k * 0.01, degraded=True)
         stage.evaluate(r, _drive(0x8027 | 0x0400, torque=100, force=140, grip=4))
         assert r["grip"]["command_n"] == 14.0 and "held_degraded" in r["grip_flags"]
-    r = dict(record, cycle=50)
+    r = dict(record, cycle=50, t=0.5)
     stage.evaluate(r, _drive(0x8027 | 0x0400, torque=100, force=140, grip=4))
     assert r["grip"]["command_n"] < 14.0  # a good cycle relaxes toward the least safe force
 
@@ -255,7 +255,7 @@ def test_quick_stop_and_disable_are_flagged_and_re_enabled_at_most_once_a_second
     log = []
 
     def cycle(k, state):
-        r = {"cycle": k, "decision": "H0", "degraded": False}
+        r = {"cycle": k, "t": k * 0.01, "decision": "H0", "degraded": False}
         stage.evaluate(r, _drive(sw[state]))
         log.append((k, state, r["grip_detail"]["controlword"], r["grip_flags"]))
         return r["grip_detail"]["controlword"], r["grip_flags"]

@@ -19,8 +19,10 @@ Per cycle (``docs/service.md``, "The grip stage"; the law: ``docs/grip-control.m
   this cycle, eq 26a); ``degraded`` a cycle with a
   taxel missing, silent or late; ``least_hold_n`` in raw mode eq 26a per jaw, ``T / mu`` with T the
   forces stage's tangential load per jaw (sec 7.2: the mean over the jaws) and mu the law's.
-* **task** from the scene's ``[grasp]`` phases and the cycles since the drive was first seen
-  OPERATION ENABLED (the world starts its task clock there, docs/grasp-world.md): ``open`` in the
+* **task** from the scene's ``[grasp]`` phases and the SYNC time (the record's ``t``) since the
+  cycle the drive was first seen OPERATION ENABLED (the world starts its task clock there,
+  docs/grasp-world.md; time, not cycles x period: a SYNC producer that falls behind skips SYNCs,
+  the world's clock goes on): ``open`` in the
   approach, ``close`` from the close phase through the place phase, ``release`` from the release
   phase on. Without ``[grasp]``: ``close`` from the first OPERATION ENABLED on (grip what is
   present, never release by itself).
@@ -109,6 +111,7 @@ class GripStage:
         self.law = GripState()
         self.command: tuple[int, int] | None = None
         self.enabled_at: int | None = None   # cycle the drive was first seen OPERATION ENABLED
+        self.enabled_t = 0.0                 # its SYNC time (the record's t), s
         self.takeover = False
         self.seen = False                    # the drive's state known (a TPDO1 seen)
         self.last_attempt: int | None = None  # cycle of the last walk / fault reset start
@@ -155,14 +158,17 @@ class GripStage:
             return None
         return abs(total) / self.params.mu
 
-    def task(self, cycle: int) -> str:
+    def task(self, t_s: float) -> str:
+        """The task at SYNC time ``t_s`` (the record's ``t``, the stream's clock): the time since the
+        SYNC of the cycle the drive was first seen OPERATION ENABLED, not cycles x period - a SYNC
+        producer that falls behind skips SYNCs, the world's clock does not."""
         if self.takeover:
             return "close"
         if self.enabled_at is None:
             return "open"
         if self.schedule is None:
             return "close"
-        elapsed = (cycle - self.enabled_at) * self.period_s
+        elapsed = t_s - self.enabled_t
         task = "open"
         for start, name in self.schedule:
             if elapsed + 1e-9 >= start:
@@ -191,17 +197,17 @@ class GripStage:
             if state == OE and (drive.torque_permille or 0) > 0:
                 # a centre started again while the drive holds: take the grasp over as it is
                 self.takeover = True
-                self.enabled_at = cycle
+                self.enabled_at, self.enabled_t = cycle, record["t"]
                 force = actual if actual is not None else drive.torque_permille * self.rated_n / 1000.0
                 self.law = GripState(phase="hold", command_n=force, learned_n=force)
                 self.counts["takeovers"] += 1
                 flags.append("takeover")
         if state == OE and self.enabled_at is None:
-            self.enabled_at = cycle
+            self.enabled_at, self.enabled_t = cycle, record["t"]
         self._count_transition(state, flags)
         if drive.mode is not None and drive.mode != PROFILE_TORQUE:
             flags.append("drive_mode")
-        task = self.task(cycle)
+        task = self.task(record["t"])
         if state == OE:
             present = {"H1": True, "H0": False}.get(record.get("decision"))
             degraded = bool(record.get("degraded") or record.get("late_frames") or record.get("missing_nodes"))
