@@ -296,3 +296,16 @@ def test_raw_mode_grips_with_eq_26a_and_replays(tmp_path):
         assert r["grip"]["command_n"] >= min(1.2 * least, service.pipeline.grip.params.max_n) - 1e-4
     records_again, _ = replay_trace(scene, trace, grasp_truth=table)
     assert json.dumps(records_again) == json.dumps([json.loads(line) for line in live.read_text().splitlines()])
+
+
+def test_the_task_follows_sync_time_not_the_cycle_count():
+    """A SYNC producer that falls behind skips SYNCs (Master._sync_loop re-phases); the world's task
+    clock does not stop: 1.2 s after the first OPERATION ENABLED the task is grasp_scripted's close
+    phase (approach 1.0 s) even if only 60 cycles of 10 ms were seen."""
+    stage = GripStage(load_scene("grasp_scripted"))
+    for k in range(61):
+        r = {"cycle": k, "t": 0.02 * k, "decision": "H0", "degraded": False}
+        stage.evaluate(r, _drive(0x0027))
+    assert r["grip_detail"]["task"] == "close"
+    assert stage.task(0.99) == "open" and stage.task(1.0) == "close" and stage.task(1.8 + 1.0 + 4.0) == "close"
+    assert stage.task(1.0 + 0.8 + 1.0 + 4.0 + 1.0) == "release"  # approach, close, lift, hold, place: release
