@@ -17,6 +17,11 @@ Support conditions (chapter sections in brackets):
   taxels; fp_c additionally needs ``area`` (noted when it is unavailable).
 * ``slip`` (sec. 4, eqs 24-26, 28-29): needs tangential-calibrated cells (slope present and
   non-zero); a scene with load cells only has no slip model.
+* ``grip`` (issue 23, :mod:`fusion_center.service.grip_stage`): not requested but implied by a
+  ``[gripper]`` table - the centre commands the drive every cycle; skipped on every scene without
+  one. Without ``[grasp]`` there is no task schedule (noted: the stage closes on presence from
+  the drive's first OPERATION ENABLED on and never releases by itself); without the slip stage the
+  law sees no slip (noted).
 
 Bus mode (``[bus] mode``, or the ``mode`` argument): in ``decision`` mode a node sends only
 u_i (TPDO1, one byte), so nothing that needs the readings X_i can run - ``forces`` is skipped
@@ -67,7 +72,7 @@ def _node_list(taxels) -> str:
 class StagePlan:
     """What the pipeline builds for a scene.
 
-    ``run``: stages built, in ``scene.STAGES`` order; ``skipped``: stage -> reason for every
+    ``run``: stages built, in ``scene.STAGES`` order (then ``grip``); ``skipped``: stage -> reason for every
     other stage (not requested, or requested but unsupported); ``rules_run`` /
     ``rules_skipped`` the same for fusion rules; ``central_run`` / ``central_skipped`` the
     same for the centralised raw-data tests (``CENTRAL_TESTS``); ``notes``: stage -> remark on
@@ -218,6 +223,16 @@ def plan_stages(scene: Scene, mode: str | None = None) -> StagePlan:
             skipped[stage] = f"{stage}: {supported[stage]}"
         else:
             run.append(stage)
+    if scene.gripper is None:
+        skipped["grip"] = "grip: the scene has no [gripper] (no drive to command)"
+    else:
+        run.append("grip")
+        if getattr(scene, "grasp", None) is None:
+            notes["grip"] = ("no [grasp] task: closes on presence from the drive's first OPERATION ENABLED on, "
+                             "never releases by itself")
+        if "slip" not in run:
+            notes["grip"] = (notes.get("grip", "") + "; " if "grip" in notes else "") + (
+                "the slip stage does not run: the law sees no slip")
     if "contact_type" in run and "area" not in run:
         notes["contact_type"] = "taxel count t_c only (eq 34a); fp_c (eq 34b) needs area"
 

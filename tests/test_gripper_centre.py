@@ -15,6 +15,7 @@ from fusion_center.service import CycleAssembler, replay_trace
 from fusion_center.service.assembler_parts import group_layout
 from fusion_center.service.cycle_records import MALFORMED
 from fusion_center.service.decoder import K_DRIVE, build_cob_tables
+from fusion_center.service.drive_frames import F_TPDO1, FRAME_CODES
 from fusion_center.service.traces import check_trace
 from taxel_net.gripper import drive_cob_ids
 from taxel_net.scene import load_scene
@@ -53,9 +54,10 @@ def test_the_drive_is_its_channels_in_a_group_and_nobodys_elsewhere():
                               gripper=dataclasses.replace(base.gripper, channel=1))
     tables = build_cob_tables(two)
     cob_ids = drive_cob_ids(two.gripper.node_id)
-    assert all(tables[1][c] == (K_DRIVE, -1) for c in cob_ids) and not any(c in tables[0] for c in cob_ids)
+    assert all(tables[1][c] == (K_DRIVE, FRAME_CODES[what]) for c, what in cob_ids.items())
+    assert not any(c in tables[0] for c in cob_ids)
     served = group_layout(two, [1]).sub  # the drive's channel alone: renumbered 0
-    assert served.gripper.channel == 0 and build_cob_tables(served)[0][0x180 + two.gripper.node_id] == (K_DRIVE, -1)
+    assert served.gripper.channel == 0 and build_cob_tables(served)[0][0x180 + two.gripper.node_id] == (K_DRIVE, F_TPDO1)
     assert group_layout(two, [0]).sub.gripper is None
     a = CycleAssembler(served)
     a.feed(0, 0, 0x700 + two.gripper.node_id, b"\x05")

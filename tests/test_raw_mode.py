@@ -110,7 +110,8 @@ def test_raw_demo_records_match_the_physics(matrix_raw, raw_demo):
         assert r["forces"]["grip_force_limit"] == pytest.approx(total / mu, rel=1e-12)
         assert r["forces"]["max_load"] == pytest.approx(2 * mu * total / mu, rel=1e-12)
         assert "forces" in r["stages_run"] and "fusion" in r["stages_run"]
-        assert r["stages_skipped"] == {"slip": "not requested in [outputs] stages"}
+        assert r["stages_skipped"] == {"slip": "not requested in [outputs] stages",
+                                       "grip": "grip: the scene has no [gripper] (no drive to command)"}
         assert r["rules_skipped"] == {"preferential": "not requested in [fusion] rules"}
         checked_present += len(ids) > 0
     assert checked_present >= 3  # contact from cycle 20: some checked cycles have forces
@@ -212,6 +213,7 @@ def test_every_record_says_what_did_not_run(name, mode, skipped, rules_skipped):
     raw = scene.bus.mode == "raw"
     record = pipeline.evaluate(closed_cycle(scene, cycle, readings=wire(x) if raw else None,
                                             decisions=None if raw else u))
+    skipped = {**skipped, "grip": "no [gripper]"}  # the grip stage runs only with a drive (issue 23)
     assert set(record["stages_skipped"]) == set(skipped)
     for stage, why in skipped.items():
         assert why in record["stages_skipped"][stage], (stage, record["stages_skipped"][stage])
@@ -222,7 +224,7 @@ def test_every_record_says_what_did_not_run(name, mode, skipped, rules_skipped):
         assert rule not in record["rules"]
     # every stage is either run or skipped with a reason
     assert set(record["stages_run"]) | set(record["stages_skipped"]) == {"fusion", "forces", "area",
-                                                                         "contact_type", "slip"}
+                                                                         "contact_type", "slip", "grip"}
     assert ("forces" in record) == ("forces" in record["stages_run"])
     assert record["present_count"] == int((u == 1).sum())
 

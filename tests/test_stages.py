@@ -19,7 +19,7 @@ def test_every_scene_loads_and_plans(path):
     scene = load_scene(path)
     plan = plan_stages(scene)
     assert "fusion" in plan.run
-    assert set(plan.run) | set(plan.skipped) == {"fusion", "forces", "area", "contact_type", "slip"}
+    assert set(plan.run) | set(plan.skipped) == {"fusion", "forces", "area", "contact_type", "slip", "grip"}
     assert set(plan.rules_run) | set(plan.rules_skipped) == {"additive", "multiplicative", "preferential",
                                                              "k-of-n", "llr", "np"}
 

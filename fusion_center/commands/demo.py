@@ -115,7 +115,13 @@ def run_demo(scene, cycles: int, *, drops: dict[int, list[int]] | None = None, j
     service = FusionService(scene, interface="virtual", channels=channels, json_lines=json_lines, trace=trace,
                             keep_records=keep_records)
     service.on_record.extend(on_record)
-    rig = Rig(scene, interface="virtual", channel=channels)
+    truth = None
+    if service.pipeline.grip is not None and getattr(scene, "grasp", None) is not None:
+        from ..service.grasp_truth import TruthTable
+
+        truth = service.pipeline.grasp_truth = TruthTable()  # the world's truth in the records (grasp_truth)
+    rig = Rig(scene, interface="virtual", channel=channels, on_truth=truth.add if truth is not None else None)
+    service.rig = rig
 
     def before_sync(cycle: int) -> None:
         for node_id in drops.get(cycle, ()):

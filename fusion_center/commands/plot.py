@@ -1,7 +1,8 @@
 """``fusion-center plot RUN.jsonl [-o OUT.png | --out DIR]``: one figure of a run's decision log.
 
 Four panels over the SYNC cycle, read from the per-cycle records (``--json-lines`` of ``run``,
-``demo`` or ``replay``; docs/service.md, *The decision log*):
+``demo`` or ``replay``; docs/service.md, *The decision log*) - a grasp run's log (records with
+``grip``) gets the figure of :mod:`.plot_grasp` instead (forces, slide, slip, drive states):
 
 1. the decision statistic U_G of the deciding rule (``decide_with``) against its threshold,
    each cycle's decision (H1, H0, undecided) and the cycles where the ground truth is H1;
@@ -79,6 +80,10 @@ def read_log(path: Path) -> dict:
                 meta["n_expected"] = record.get("n_expected", meta.get("n_expected"))
                 for key in keys:
                     series[key].append(record.get(key))
+                if "grip" in record:  # a grasp run (issue 23): its own figure (.plot_grasp)
+                    from .plot_grasp import collect
+
+                    collect(record, series)
                 by_state = record.get("nodes_by_state") or {}
                 for state in STATES:
                     nodes = by_state.get(state)
@@ -119,6 +124,10 @@ def _number(value) -> float:
 
 
 def draw(series: dict, title: str, out: Path) -> None:
+    if "grasp" in series:  # forces, slide, slip against time, drive states (.plot_grasp)
+        from .plot_grasp import draw as draw_grasp
+
+        return draw_grasp(series, title, out)
     import numpy as np
 
     from ..report.plots import _COLOURS, _save, plt  # the report's colours and figure writer

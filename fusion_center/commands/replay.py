@@ -16,6 +16,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json-lines", metavar="OUT", default=None,
                         help="write the records here (default: print them on stdout)")
     add_mode_argument(parser)
+    parser.add_argument("--truth-log", metavar="FILE", default=None,
+                        help="the grasp world's truth of the run (`node-sim --truth-log`): records of a scene "
+                             "with [gripper] and [grasp] then carry grasp_truth")
     parser.add_argument("--force", action="store_true",
                         help="replay even when the trace does not match the scene (a channel the scene does "
                              "not have, node-IDs of another scene, the other mode, a .csv of several channels)")
@@ -32,6 +35,13 @@ def run(args) -> int:
 
     setup_logging()
     scene = apply_mode(load_scene(args.scene), args.mode)  # the mode of the recorded run
+    grasp_truth = None
+    if args.truth_log is not None:
+        from ..service.grasp_truth import TruthTable
+
+        if scene.gripper is None or getattr(scene, "grasp", None) is None:
+            raise UsageError(f"--truth-log: scene {scene.name!r} has no grasp world ([gripper] and [grasp])")
+        grasp_truth = TruthTable.from_file(args.truth_log)
     if not args.force:
         try:
             check_trace(scene, args.trace)  # before anything is written
@@ -40,7 +50,8 @@ def run(args) -> int:
                 discard_stale(args.json_lines)  # a log of an earlier replay must not pass for this one's
             raise
     on_record = None if args.json_lines else (lambda r: print(dumps(r)))
-    records, counters = replay_trace(scene, args.trace, json_lines=args.json_lines, on_record=on_record)
+    records, counters = replay_trace(scene, args.trace, json_lines=args.json_lines, on_record=on_record,
+                                     grasp_truth=grasp_truth)
     out = sys.stderr if not args.json_lines else sys.stdout
     print(f"records: {len(records)}", file=out)
     print(f"counters: {({k: v for k, v in counters.items() if v})}", file=out)

@@ -177,6 +177,8 @@ def summarise(service, summary, *, bus: str | None = None) -> dict:
         out["nmt_restarts"] = master.restarts
     if bus is not None:
         out["bus"] = bus
+    if getattr(service, "drive", None) is not None:  # the grip stage (issue 23)
+        out["grip"] = service.drive.summary()
     if service.assembler.duplicates:
         out["duplicate_nodes"] = sorted((service.labels[i] for i in service.assembler.duplicates), key=str)
     return out
@@ -202,7 +204,7 @@ def format_summary(summary: dict) -> list[str]:
     ]
     for skipped in (summary["stages_skipped"], summary["rules_skipped"]):
         lines += [(f"skipped {name}", why.removeprefix(f"{name}: ")) for name, why in skipped.items()
-                  if not why.startswith("not requested")]
+                  if not why.startswith("not requested") and not (name == "grip" and "grip" not in summary)]
     lines += [
         ("counters", ", ".join(f"{k} {v}" for k, v in summary["counters"].items())),
         ("sdo", f"{summary['sdo']['writes']} writes, {summary['sdo']['aborts']} aborts, "
@@ -211,6 +213,8 @@ def format_summary(summary: dict) -> list[str]:
         ("latency_ms", f"SYNC -> record p50 {_fmt_ms(summary['latency_ms_p50'])}, "
                        f"p99 {_fmt_ms(summary['latency_ms_p99'])}"),
     ]
+    if "grip" in summary:
+        lines += grip_lines(summary["grip"])
     if "own_echoes_dropped" in summary:
         lines.append(("own_echoes_dropped", str(summary["own_echoes_dropped"])))
     if "nmt_restarts" in summary:
@@ -243,6 +247,34 @@ def format_summary(summary: dict) -> list[str]:
                                      "SYNC cycles: a partial summary; every record written is complete"))
     width = max(len(k) for k, _ in lines)
     return [f"{k + ':':<{width + 1}} {v}" for k, v in lines]
+
+
+def grip_lines(g: dict) -> list[tuple[str, str]]:
+    """The grip stage's lines of the summary: the grasp's verdict, the commands and their latency."""
+    grasp = g["grasp"]
+    events = ", ".join(f"{k} {g[k]}" for k in ("drive_faults", "quick_stops", "drive_disabled", "drive_lost",
+                                              "fault_resets", "enable_walks", "takeovers", "degraded_holds")
+                       if g.get(k))
+    final = grasp.get("final") or {}
+    lines = [
+        ("grasp", grasp["verdict"]),
+        ("grip", f"{g['commands_sent']} commands, most {_fmt_n(grasp['max_command_n'])}, at the end "
+                 f"{_fmt_n(final.get('command_n'))} commanded / {_fmt_n(final.get('actual_n'))} actual, drive "
+                 f"{final.get('drive_state') or '-'}, {final.get('grip_state') or '-'}; centre's slip cycles "
+                 f"{grasp['slip_cycles']}" + (f"; {events}" if events else "")),
+        ("latency_command_ms", f"SYNC -> command p50 {_fmt_ms(g['sync_to_command_ms_p50'])}, "
+                               f"p99 {_fmt_ms(g['sync_to_command_ms_p99'])}, max {_fmt_ms(g['sync_to_command_ms_max'])}"),
+    ]
+    if "truth" in grasp:
+        t = grasp["truth"]
+        lines.append(("grasp_truth", f"slip episodes {t['slip_episodes']} ({t['slip_cycles']} cycles), slid at most "
+                                     f"{t['slid_mm_max']:.2f} mm, dropped {t['dropped']}, crushed {t['crushed']}, "
+                                     f"most normal force {t['max_normal_n']:.2f} N"))
+    return lines
+
+
+def _fmt_n(x):
+    return "-" if x is None else f"{x:.2f} N"
 
 
 def _reconnects(a: dict) -> str:

@@ -123,3 +123,4 @@ class ClosedCycle:
     duplicates: tuple[int, ...] = ()  # node (device) indexes with duplicate node-ID evidence since the previous cycle
     emcy_dropped: int = 0      # EMCY frames since the previous cycle beyond EMCY_PER_CYCLE (counted only)
     devices: DeviceCycle | None = None  # patch scenes: the nodes' view (one-taxel scenes: node = taxel)
+    drive: object = None       # [gripper] scenes: the drive as known at the close (.drive_frames.DriveCycle)

@@ -81,6 +81,7 @@ import numpy as np
 
 from taxel_net.scene import Scene
 from .cycle_layout import CycleLayout
+from .drive_frames import DriveTracker
 from .packed_decisions import PackedDecisions
 from .decoder import (
     HEARTBEAT_STATES,
@@ -99,6 +100,7 @@ from .decoder import (
     K_TPDO1,
     K_TPDO2,
     NMT_COMMANDS,
+    NMT_NEW_STATE,
     NMT_PRE_OPERATIONAL,
     NMT_RESET_COMMUNICATION,
     NMT_RESET_NODE,
@@ -220,6 +222,7 @@ class CycleAssembler:
         self.duplicate_since: set[int] = set()          # evidence since the previous closed cycle
         self.duplicates: set[int] = set()               # every node-ID ever flagged (device indexes)
         self.solicited = [False] * len(scene.bus.channels)  # last SDO answer fed per channel was awaited
+        self.drive = DriveTracker.for_scene(scene)  # the gripper drive's frames ([gripper]), None without
 
     # ------------------------------------------------------------------ queries
     @property
@@ -500,8 +503,10 @@ class CycleAssembler:
                 return self._bad(C_BAD_VALUE)
             counts[C_MASTER_HEARTBEAT] += 1
             return None
-        if kind == K_DRIVE:  # the gripper drive's frames: the taxels' cycles do not use them
+        if kind == K_DRIVE:  # the gripper drive's frames: decoded for the grip stage (.drive_frames)
             counts[C_DRIVE] += 1
+            if self.drive.feed(idx, t, data):
+                self.solicited[channel] = True  # an awaited SDO answer of the drive: to canopen
             return None
         # K_TIME
         if size != 6:
@@ -640,20 +645,13 @@ class CycleAssembler:
         if command not in NMT_COMMANDS or node_id > 127:
             return self._bad(C_BAD_VALUE)
         self.counts[C_NMT] += 1
-        new_state = {
-            NMT_START: STATE_OPERATIONAL,
-            NMT_STOP: STATE_STOPPED,
-            NMT_PRE_OPERATIONAL: STATE_PRE_OPERATIONAL,
-            NMT_RESET_NODE: STATE_RESETTING,
-            NMT_RESET_COMMUNICATION: STATE_RESETTING,
-        }[command]
+        new_state = NMT_NEW_STATE[command]
         is_reset = command in (NMT_RESET_NODE, NMT_RESET_COMMUNICATION)
         if node_id == 0:
             members = self.layout.channel_members[channel] if 0 <= channel < len(self.layout.channel_members) else ()
             self.state[members] = new_state
             if is_reset:  # a boot-up fed after this point answers it (the master waits for that)
                 self.reset_seq[members] = sum(self.counts) - 1
-
             if command != NMT_START and self.is_open:
                 return self._close("nmt", t)
         else:
@@ -662,7 +660,6 @@ class CycleAssembler:
                 self.state[idx] = new_state
                 if is_reset:
                     self.reset_seq[idx] = sum(self.counts) - 1
-
         return None
 
     def _close(self, closed_by: str, t: int) -> ClosedCycle:
@@ -698,6 +695,7 @@ class CycleAssembler:
             duplicates=tuple(sorted(self.duplicate_since)),
             emcy_dropped=self.emcy_dropped,
             devices=device,
+            drive=None if self.drive is None else self.drive.snapshot(t),
         )
         self.is_open = False
         self.late_since = 0

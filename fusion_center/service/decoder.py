@@ -36,7 +36,7 @@ import numpy as np
 from taxel_net.patches import ENC_BITS, RAW_BYTES
 from taxel_net.scene import Scene
 
-from .cycle_records import C_BAD_DLC, C_BAD_VALUE
+from .cycle_records import C_BAD_DLC, C_BAD_VALUE, STATE_RESETTING
 
 # frame kinds (small ints: compared on the hot path)
 K_TPDO1 = 1
@@ -79,6 +79,9 @@ STATE_STOPPED = 0x04
 STATE_OPERATIONAL = 0x05
 STATE_PRE_OPERATIONAL = 0x7F
 HEARTBEAT_STATES = (STATE_BOOTUP, STATE_STOPPED, STATE_OPERATIONAL, STATE_PRE_OPERATIONAL)
+# the NMT state a node takes on an NMT command (the assembler's view; resets: "resetting" until its boot-up)
+NMT_NEW_STATE = {NMT_START: STATE_OPERATIONAL, NMT_STOP: STATE_STOPPED, NMT_PRE_OPERATIONAL: STATE_PRE_OPERATIONAL,
+                 NMT_RESET_NODE: STATE_RESETTING, NMT_RESET_COMMUNICATION: STATE_RESETTING}
 STATE_NAMES = {
     -1: "unknown",
     STATE_BOOTUP: "boot-up",
@@ -101,8 +104,8 @@ def build_cob_tables(scene: Scene, devices=None) -> list[dict[int, tuple[int, in
     chapter's one-taxel layout the device index is the taxel index.
 
     Channel-wide objects (NMT, SYNC, TIME, LSS, the master's heartbeat 0x700 + ``[master]
-    node_id`` while it is on) and the gripper drive's COB-IDs (``[gripper]``: ``K_DRIVE``) map
-    to taxel index -1. COB-IDs of node-IDs the scene does not name are absent: the assembler counts them as ``unknown_cob_id``. A taxel's own COB-IDs win over
+    node_id`` while it is on) map to taxel index -1; the gripper drive's COB-IDs (``[gripper]``) to
+    ``(K_DRIVE, frame code)`` (:mod:`.drive_frames`). COB-IDs of node-IDs the scene does not name are absent: the assembler counts them as ``unknown_cob_id``. A taxel's own COB-IDs win over
     the master's heartbeat (the scene loader refuses that collision; a scene built in code may
     still have it).
     """
@@ -117,8 +120,10 @@ def build_cob_tables(scene: Scene, devices=None) -> list[dict[int, tuple[int, in
     if scene.gripper is not None:  # the drive's own COB-IDs (CiA 301 pre-defined set) on its channel
         from taxel_net.gripper import drive_cob_ids
 
-        for cob_id in drive_cob_ids(scene.gripper.node_id):
-            tables[scene.gripper.channel][cob_id] = (K_DRIVE, -1)
+        from .drive_frames import FRAME_CODES
+
+        for cob_id, what in drive_cob_ids(scene.gripper.node_id).items():
+            tables[scene.gripper.channel][cob_id] = (K_DRIVE, FRAME_CODES[what])  # index: the frame's code
     if scene.bus.patch_nodes:
         if devices is None:
             from taxel_net.patches import devices as scene_devices

@@ -130,6 +130,7 @@ class FusionService:
         self.notifiers: list[can.Notifier] = []
         self.networks = []
         self.master = None
+        self.drive = None  # .drive_link.DriveLink on a [gripper] scene
         self._pending: deque[ClosedCycle] = deque()  # closed, not yet evaluated (stream order)
         self._eval_lock = threading.Lock()  # one evaluation at a time, in cycle order
         self.stream = EventStream(self.assembler, on_closed=self._pending.append,
@@ -197,6 +198,10 @@ class FusionService:
             from .master import Master
 
             self.master = Master(self, self.scene, self.networks, od)
+            if self.pipeline.grip is not None and self.scene.gripper.channel < len(self.networks):
+                from .drive_link import DriveLink
+
+                self.drive = DriveLink(self, self.networks)  # the gripper drive's end (issue 23)
         except BaseException:
             self.close()
             raise
@@ -271,6 +276,8 @@ class FusionService:
                 again = [i for i in present if self.assembler.bootup_seq[i] >= mark]
             if again:
                 self.master.configure(again)
+            if self.drive is not None:
+                self.drive.boot(timeout_s)
         self.master.start_nodes()
         return missing
 
@@ -351,6 +358,11 @@ class FusionService:
             logger.exception("cycle %d: evaluation failed", item.cycle)
             record = {"cycle": item.cycle, "t": round(item.sync_us * 1e-6, 6), "error": str(exc)}
         sent = self.master.sync_sent_at.pop(item.cycle, None) if self.master else None
+        if self.drive is not None:  # the grip command right after its record, from this thread
+            try:
+                self.drive.after_record(item.cycle, record, sent)
+            except Exception:  # noqa: BLE001 - never stop the records
+                logger.exception("cycle %d: sending the grip command failed", item.cycle)
         if sent is not None:
             ms = (time.perf_counter() - sent) * 1e3
             self.latency.add(ms)

@@ -25,11 +25,11 @@ from ..core.bus_timing import worst_case_frame_bits
 
 # data bytes per counted event (classic CAN 2.0A); bus load uses the worst-case frame length
 _DATA_BYTES = {"sync": 0, "tpdo1": 1, "tpdo2": 4, "late": 1, "heartbeat": 1, "bootup": 1, "master_heartbeat": 1, "emcy": 8,
-               "nmt": 2, "sdo": 8, "sdo_abort": 8, "time": 6}
+               "nmt": 2, "sdo": 8, "sdo_abort": 8, "time": 6, "drive": 8}
 _DECISION_STYLE = {"H1": "bold green", "H0": "cyan", "undecided": "yellow"}
-_HISTORY = 76  # decisions shown: one line at 80 columns with its indent
+_HISTORY = 70  # decisions shown: one line at 80 columns with its indent (the slip strips' too)
 _FRAMES = ("sync", "tpdo1", "tpdo2", "late", "heartbeat", "bootup", "master_heartbeat", "nmt", "emcy", "sdo",
-           "sdo_abort")
+           "sdo_abort", "drive")
 _MALFORMED = ("bad_dlc", "bad_value", "unknown_cob_id", "remote_frame", "error_frame", "extended_id", "fd_frame",
               "internal_error")
 # nodes that did not take part, by the record's nodes_by_state (docs/service.md, Supervision)
@@ -78,6 +78,7 @@ class LiveView:
         self._last: dict | None = None
         self._lock = threading.Lock()
         self._history: list[str] = []
+        self._slips: list[tuple] = []  # (centre's slip, the world's slipping or None) per cycle
         self._decided = 0
         self._agree = 0
         self._start = time.monotonic()
@@ -102,6 +103,11 @@ class LiveView:
             decision = record.get("decision", "?")
             self._history.append(decision)
             del self._history[:-_HISTORY]
+            grip = record.get("grip")
+            if grip is not None:  # the grip stage (issue 23): the centre's slip and the world's
+                truth = record.get("grasp_truth")
+                self._slips.append((grip.get("slip"), None if truth is None else truth.get("slipping")))
+                del self._slips[:-_HISTORY]
             truth = record.get("truth")
             if truth is not None and decision in ("H1", "H0"):
                 self._decided += 1
@@ -114,9 +120,46 @@ class LiveView:
             record = self._last
             history = list(self._history)
             decided, agree = self._decided, self._agree
+            slips = list(self._slips)
         counters = self.service.stream.counters()
-        yield Group(self._header(record, counters, width), self._cycle_table(record), self._rules_table(record),
-                    self._nodes(record, width), self._strip(history, decided, agree), self._counters(counters, width))
+        parts = [self._header(record, counters, width), self._cycle_table(record), self._rules_table(record)]
+        if record is not None and "grip" in record:
+            parts.append(self._grip(record, slips, width))
+        parts += [self._nodes(record, width), self._strip(history, decided, agree), self._counters(counters, width)]
+        yield Group(*parts)
+
+    def _grip(self, record, slips, width: int) -> Group:
+        """The grip stage: command and actual force, the drive's and the grip's state, the task,
+        flags; the centre's slip and the world's (when known) over the last cycles."""
+        grip, detail = record["grip"], record.get("grip_detail") or {}
+        truth = record.get("grasp_truth")
+        force = [f"command {_fmt(grip.get('command_n'), '.2f')} N", f"actual {_fmt(grip.get('actual_n'), '.2f')} N"]
+        if truth is not None:
+            force.append(f"least holding {_fmt(truth.get('min_hold_n'), '.2f')} N")
+        state = [Text(str(grip.get("drive_state") or "-"),
+                      style="green" if grip.get("drive_state") == "OPERATION ENABLED" else "bold red"),
+                 f"grip {grip.get('grip_state') or '-'}", f"task {detail.get('task') or '-'}",
+                 f"law {detail.get('law') or '-'}"]
+        lines = [_wrapped("grip:", force, width), _wrapped("drive:", state, width)]
+        flags = record.get("grip_flags") or []
+        if flags:
+            lines.append(_wrapped("flags:", [Text(f, style="yellow") for f in flags], width))
+        if truth is not None:
+            world = [f"phase {truth.get('phase')}", f"slid {_fmt(truth.get('slid_mm'), '.2f')} mm",
+                     Text("DROPPED", style="bold red") if truth.get("dropped") else "not dropped"]
+            if truth.get("crushed"):
+                world.append(Text("CRUSHED", style="bold red"))
+            lines.append(_wrapped("world:", world, width))
+        centre = Text("  centre ")
+        for slip, _ in slips:
+            centre.append("!" if slip else "·", style="bold yellow" if slip else "dim")
+        lines += [Text(f"slip, last {len(slips)} cycles (! slipping)", style="bold"), centre]
+        if any(t is not None for _, t in slips):
+            world_line = Text("  world  ")
+            for _, t in slips:
+                world_line.append("?" if t is None else "!" if t else "·", style="bold red" if t else "dim")
+            lines.append(world_line)
+        return Group(*lines)
 
     def _bus_load(self, counters: dict) -> float:
         bits = sum(worst_case_frame_bits(_DATA_BYTES.get(name, 8)) * counters.get(name, 0) for name in _DATA_BYTES)

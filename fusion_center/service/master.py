@@ -266,7 +266,9 @@ class Master:
         communication to all), wait for every scene node's boot-up; return the missing.
 
         The reset puts nodes left running by an earlier master (a previous ``run``) back into
-        their boot-up state, so every run starts from the same node state. Nodes not booted
+        their boot-up state, so every run starts from the same node state. On a scene with a
+        gripper drive the taxel nodes are reset one by one (NMT reset communication to each): the
+        drive is never reset, it may hold a part (:mod:`.drive_link`). Nodes not booted
         within ``listen_s`` get a second, per-node reset-communication; whoever has been heard
         neither by a boot-up nor otherwise since the reset at ``timeout_s`` is missing (and is
         configured and started later if it ever boots).
@@ -277,7 +279,11 @@ class Master:
         assembler = self.stream.assembler
         with self.stream.lock:
             assembler.last_heard[:] = -1  # heard since the reset only
-        self.nmt(NMT_RESET_COMMUNICATION, 0)  # the assembler notes its place in the stream
+        if self.scene.gripper is None:
+            self.nmt(NMT_RESET_COMMUNICATION, 0)  # the assembler notes its place in the stream
+        else:  # never the gripper drive: it may hold a part (a centre started again takes it over)
+            for t in self.devices:
+                self.stream.transmit(t.channel, COB_NMT, bytes((NMT_RESET_COMMUNICATION, t.node_id)))
         start = time.monotonic()
         deadline = start + timeout_s
         reset_sent = False

@@ -119,6 +119,14 @@ class CyclePipeline:
         self.want_contact = "contact_type" in self.plan.run
         self.want_slip = self.physical.slip is not None
         self.fusion = DecisionFusion(scene, tuple(r for r in fusion.rules if r in self.plan.rules_run))
+        self.grip = None  # the grip stage ([gripper] scenes, .grip_stage): a command for the drive per cycle
+        if "grip" in self.plan.run:
+            from .grip_stage import GripStage
+
+            slip = self.physical.slip
+            self.grip = GripStage(scene, noise_band=slip.noise_band if slip is not None else None,
+                                  slip_hold=slip.motion_consecutive if slip is not None else 3)
+        self.grasp_truth = None  # cycle -> the world's truth (a .grasp_truth.TruthTable), demo / replay --truth-log
         self._patterns: dict[bytes, _Pattern] = {}
         self._truth: list[str] = []
         if truth:
@@ -215,6 +223,13 @@ class CyclePipeline:
             if slip is not None:
                 record["slip"] = slip
                 stages_run.append("slip")
+        if self.grip is not None:
+            self.grip.evaluate(record, closed.drive)
+            stages_run.append("grip")
+            if self.grasp_truth is not None:
+                truth = self.grasp_truth.for_cycle(closed.cycle)
+                if truth is not None:
+                    record["grasp_truth"] = truth
         record["stages_run"] = stages_run
         record["stages_skipped"] = self.stages_skipped
         record["rules_skipped"] = self.rules_skipped

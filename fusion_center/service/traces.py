@@ -97,7 +97,8 @@ def trace_channel(msg: can.Message, suffix: str = "") -> int:
 
 
 def replay_trace(scene: Scene, trace_path, *, json_lines=None, truth: bool = True,
-                 on_record: Callable[[dict], None] | None = None) -> tuple[list[dict], dict[str, int]]:
+                 on_record: Callable[[dict], None] | None = None,
+                 grasp_truth=None) -> tuple[list[dict], dict[str, int]]:
     """Re-fuse a recorded trace offline: the same stream -> the same records as live.
 
     Returns (records, counters). The open cycle at the end of the trace is not reported
@@ -113,6 +114,8 @@ def replay_trace(scene: Scene, trace_path, *, json_lines=None, truth: bool = Tru
     looking log (the partial one stays as ``OUT.partial``, and an ``OUT`` of an earlier run is
     removed). An ``OUT`` that is not a regular file (``/dev/null``, a FIFO, ``/dev/stdout``) is
     written in place and never renamed over nor removed (:class:`taxel_net.outputs.OutputPath`).
+    ``grasp_truth``: the grasp world's truth (a :class:`~.grasp_truth.TruthTable`, ``--truth-log``)
+    for the records' ``grasp_truth`` on a scene with a gripper.
     """
     p = Path(trace_path)
     name = str(trace_path)
@@ -126,6 +129,7 @@ def replay_trace(scene: Scene, trace_path, *, json_lines=None, truth: bool = Tru
         raise
     assembler = CycleAssembler(scene)
     pipeline = CyclePipeline(scene, truth=truth)
+    pipeline.grasp_truth = grasp_truth
     closed_cycles: list[ClosedCycle] = []
     stream = EventStream(assembler, on_closed=closed_cycles.append)
     records: list[dict] = []
@@ -254,8 +258,11 @@ def check_trace(scene: Scene, trace_path) -> dict:
     nodes = [set() for _ in range(n_channels)]
     for t in scene.taxels:
         nodes[t.channel].add(t.node_id)
+    drive_cobs: set = set()  # the gripper drive's own COB-IDs (its RPDO1 too: the centre commands it)
     if scene.gripper is not None:  # the gripper drive is a node of the scene too
-        nodes[scene.gripper.channel].add(scene.gripper.node_id)
+        from taxel_net.gripper import drive_cob_ids
+
+        drive_cobs = {(scene.gripper.channel, cob) for cob in drive_cob_ids(scene.gripper.node_id)}
     bases = (BASE_EMCY, BASE_TPDO1, BASE_TPDO2, BASE_SDO_RESPONSE, BASE_SDO_REQUEST, BASE_HEARTBEAT)
     # the master's own heartbeat (CiA 302), when the scene's master produces one
     master_heartbeat = BASE_HEARTBEAT + scene.master.node_id if scene.master_heartbeat_ms > 0 else COB_NMT
@@ -280,7 +287,7 @@ def check_trace(scene: Scene, trace_path) -> dict:
             if msg.is_error_frame or msg.is_extended_id:
                 continue  # counted as malformed by the replay itself, as live
             cob = msg.arbitration_id
-            if cob in (COB_NMT, COB_SYNC, COB_TIME, master_heartbeat):
+            if cob in (COB_NMT, COB_SYNC, COB_TIME, master_heartbeat) or (channel, cob) in drive_cobs:
                 continue
             if patch_tables is not None:
                 this_mode, other_mode = patch_tables[0][channel].get(cob), patch_tables[1][channel].get(cob)

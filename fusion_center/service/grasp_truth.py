@@ -1,0 +1,101 @@
+"""The grasp world's ground truth matched to the centre's cycles (issue 23): ``grasp_truth`` in records.
+
+The world (``node_sim.world_runner``, docs/grasp-world.md) steps on its own clock and tags every
+step's record with ``cycle``, the twins' number of the last SYNC they had handled when the step
+was taken. The taxels answer SYNC ``k`` with the world's latest step at that SYNC, one tagged
+``k - 1``; so the record of the centre's cycle ``k`` gets the truth of the steps tagged ``k - 1``:
+the last such step's fields, ``slipping`` true when any of them slipped. A SYNC period without a
+step (the two clocks drift) takes the latest earlier one, at most :data:`LOOK_BACK` cycles back.
+Steps taken before the first SYNC (``cycle`` null) are not used.
+
+The same table serves the demo (filled live by ``Rig(on_truth=...)``, in the world's thread) and
+``replay --truth-log FILE`` (read from node-sim's JSON lines), so both give the same records as
+long as the twins' and the centre's cycle numbers agree: a node-sim that served an earlier master
+numbers its SYNCs on (a centre that takes a grasp over): the match is then off by the cycles it
+saw before - the truth there is for plots, not for checks.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import threading
+from pathlib import Path
+
+from taxel_net.errors import UsageError
+
+FIELDS = ("phase", "normal_n", "min_hold_n", "slipping", "slid_mm", "dropped", "crushed")
+LOOK_BACK = 3
+KEEP = 4096  # cycles of truth kept while running (memory does not grow with the run)
+
+
+class TruthTable:
+    """cycle -> the grasp truth of that cycle's record (module docstring); thread-safe ``add``."""
+
+    def __init__(self, bounded: bool = True):
+        self.bounded = bounded  # keep only the last KEEP cycles (live); a file read keeps all
+        self._by_cycle: dict[int, dict] = {}
+        self._lock = threading.Lock()
+        self.steps = 0
+
+    def add(self, step: dict) -> None:
+        """One world step's record (``Truth.as_dict()`` + ``sync_counter`` + ``cycle``)."""
+        cycle = step.get("cycle")
+        if cycle is None:
+            return
+        entry = {k: step.get(k) for k in FIELDS}
+        with self._lock:
+            self.steps += 1
+            before = self._by_cycle.get(cycle)
+            if before is not None and before["slipping"]:
+                entry["slipping"] = True
+            self._by_cycle[cycle] = entry
+            if self.bounded and len(self._by_cycle) > 2 * KEEP:  # live: the records ask for recent cycles only
+                for old in [k for k in self._by_cycle if k < cycle - KEEP]:
+                    del self._by_cycle[old]
+
+    def for_cycle(self, cycle: int) -> dict | None:
+        with self._lock:
+            for k in range(cycle - 1, cycle - 1 - LOOK_BACK, -1):
+                entry = self._by_cycle.get(k)
+                if entry is not None:
+                    return dict(entry)
+        return None
+
+    @classmethod
+    def from_file(cls, path) -> "TruthTable":
+        """Read node-sim's ``--truth-log`` (JSON lines); a bad line is one UsageError naming it."""
+        table = cls(bounded=False)
+        name = str(path)
+        try:
+            handle = Path(path).open("r", encoding="utf-8")
+        except OSError as exc:
+            raise UsageError(f"--truth-log {name!r}: cannot be read: {exc.strerror or exc}") from None
+        with handle:
+            for number, line in enumerate(handle, start=1):
+                if not line.strip():
+                    continue
+                try:
+                    step = json.loads(line, parse_constant=_no_constant)
+                except (ValueError, RecursionError) as exc:
+                    raise UsageError(f"--truth-log {name!r} line {number}: not a JSON object ({exc})") from None
+                if not isinstance(step, dict):
+                    raise UsageError(f"--truth-log {name!r} line {number}: not a JSON object")
+                cycle = step.get("cycle")
+                if cycle is not None and (isinstance(cycle, bool) or not isinstance(cycle, int) or cycle < 0):
+                    raise UsageError(f"--truth-log {name!r} line {number}: cycle {cycle!r} must be an integer "
+                                     ">= 0 or null")
+                missing = [k for k in FIELDS if k not in step]
+                if missing:
+                    raise UsageError(f"--truth-log {name!r} line {number}: missing {', '.join(missing)} "
+                                     "(not a node-sim truth log?)")
+                for k in ("normal_n", "min_hold_n", "slid_mm"):
+                    v = step[k]
+                    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                        raise UsageError(f"--truth-log {name!r} line {number}: {k} {v!r} must be a finite number")
+                table.add(step)
+        return table
+
+
+def _no_constant(name: str):
+    raise ValueError(f"{name} is not JSON")

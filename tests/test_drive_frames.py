@@ -1,0 +1,61 @@
+"""The gripper drive's frames decoded by the cycle assembler (issue 23, fusion_center.service.drive_frames):
+the latest TPDO1/TPDO2 values, the heartbeat, EMCY and liveness when a cycle closes - a function of
+the stream alone. Frames are packed here by hand from docs/gripper-drive.md's mapping table."""
+
+import dataclasses
+
+from fusion_center.service import CycleAssembler
+from fusion_center.service.drive_frames import state_name
+from taxel_net.scene import load_scene
+
+ID = 32
+
+
+def _scene():
+    scene = load_scene("grasp_scripted")
+    return dataclasses.replace(scene, bus=dataclasses.replace(scene.bus, heartbeat_consumer_ms=300, sync_window_us=0))
+
+
+def _tpdo1(sw, torque, pos_um):
+    return sw.to_bytes(2, "little") + torque.to_bytes(2, "little", signed=True) + pos_um.to_bytes(4, "little", signed=True)
+
+
+def _tpdo2(mode, grip, force, width, error):
+    return (bytes([mode & 0xFF, grip]) + force.to_bytes(2, "little", signed=True) + width.to_bytes(2, "little")
+            + error.to_bytes(2, "little"))
+
+
+def test_the_latest_drive_values_when_a_cycle_closes():
+    a = CycleAssembler(_scene())
+    a.feed(0, 0, 0x700 + ID, b"\x00")               # boot-up
+    a.feed(1000, 0, 0x080, b"")                      # SYNC 0
+    # OPERATION ENABLED (0x27 under mask 0x6F), HOLDING's bits 15 (grip state 4), torque 50 permille, 40 mm
+    a.feed(2000, 0, 0x180 + ID, _tpdo1(0x8027 | 0x0400, 50, 40000))
+    a.feed(2100, 0, 0x280 + ID, _tpdo2(4, 4, 70, 400, 0))
+    a.feed(2200, 0, 0x80 + ID, bytes([0x30, 0x81, 0x11, 0, 0, 0, 0, 0]))  # EMCY 0x8130
+    closed = a.feed(11000, 0, 0x080, b"")            # SYNC 1 closes cycle 0
+    d = closed.drive
+    assert d.heard and not d.lost and d.nmt_state == 5
+    assert d.state == "OPERATION ENABLED" and d.torque_permille == 50 and d.position_um == 40000
+    assert d.mode == 4 and d.grip_state_name == "HOLDING" and d.force_n == 7.0 and d.width_01mm == 400
+    assert d.emcy == ((0x8130, 0x11, 2200),) and d.bootups == 1
+    # nothing more from the drive for longer than the consumer time (300 ms): lost, values kept
+    closed = a.feed(300000, 0, 0x080, b"")            # closes at 300 ms: heard 297.8 ms ago
+    assert closed.drive.emcy == () and closed.drive.bootups == 0 and not closed.drive.lost
+    closed = a.feed(410000, 0, 0x080, b"")
+    assert closed.drive.lost and closed.drive.state == "OPERATION ENABLED"
+    assert a.counters()["drive"] == 4 and a.malformed() == 0
+
+
+def test_a_malformed_drive_frame_changes_nothing():
+    a = CycleAssembler(_scene())
+    a.feed(0, 0, 0x080, b"")
+    a.feed(100, 0, 0x180 + ID, _tpdo1(0x0040, 0, 60000))
+    a.feed(200, 0, 0x180 + ID, b"\x27\x00\x05")         # 3 bytes: refused
+    closed = a.feed(10000, 0, 0x080, b"")
+    assert closed.drive.state == "SWITCH ON DISABLED" and a.drive.bad == 1
+
+
+def test_state_names_are_canopens():
+    assert state_name(0x0250) == "SWITCH ON DISABLED" and state_name(0x0008) == "FAULT"
+    assert state_name(0x0007) == "QUICK STOP ACTIVE" and state_name(0x0021) == "READY TO SWITCH ON"

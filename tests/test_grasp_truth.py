@@ -1,0 +1,68 @@
+"""The world's truth matched to the centre's cycles (fusion_center.service.grasp_truth): record k gets
+the world steps the twins tagged k - 1 (the taxels answer SYNC k with those), slipping if any of
+them slipped; a bad truth log is one line naming the file and the line (exit 2)."""
+
+import json
+
+import pytest
+
+from fusion_center.service.grasp_truth import FIELDS, TruthTable
+from taxel_net.errors import UsageError
+
+
+def step(cycle, **kw):
+    base = {"t_s": 0.0, "sync_counter": None, "cycle": cycle, "task_s": None, "phase": "hold", "normal_n": 5.0,
+            "min_hold_n": 4.9, "slipping": False, "slid_mm": 0.0, "dropped": False, "crushed": False,
+            "mode": "stick", "height_mm": 0.0, "in_grip": True, "tangential_n": 2.45}
+    base.update(kw)
+    return base
+
+
+def test_record_k_gets_the_steps_tagged_k_minus_1():
+    t = TruthTable()
+    t.add(step(None, phase="idle"))                      # before the first SYNC: not used
+    t.add(step(0, slipping=True, slid_mm=0.1))
+    t.add(step(0, slipping=False, slid_mm=0.2))          # the last step's fields, slipping from any
+    t.add(step(1, normal_n=6.0))
+    t.add(step(5, phase="lift"))
+    assert t.for_cycle(0) is None
+    assert t.for_cycle(1) == {"phase": "hold", "normal_n": 5.0, "min_hold_n": 4.9, "slipping": True,
+                              "slid_mm": 0.2, "dropped": False, "crushed": False}
+    assert t.for_cycle(2)["normal_n"] == 6.0
+    assert t.for_cycle(4)["normal_n"] == 6.0             # no step tagged 3 or 2: the latest of the 3 before
+    assert t.for_cycle(5) is None                         # none in 2..4: not guessed further back
+    assert t.for_cycle(6)["phase"] == "lift" and set(t.for_cycle(6)) == set(FIELDS)
+
+
+@pytest.mark.parametrize("line, what", [
+    ("not json", "line 2: not a JSON object"),
+    ("[1, 2]", "line 2: not a JSON object"),
+    (json.dumps({"cycle": 3}), "line 2: missing phase"),
+    (json.dumps(step(-1)), "line 2: cycle -1"),
+    (json.dumps(step(4, normal_n="5")), "line 2: normal_n '5' must be a finite number"),
+    ('{"cycle": 1, "phase": "hold", "normal_n": NaN}', "line 2: not a JSON object"),
+])
+def test_a_bad_truth_log_is_one_line(tmp_path, line, what):
+    path = tmp_path / "truth.jsonl"
+    path.write_text(json.dumps(step(0)) + "\n" + line + "\n")
+    with pytest.raises(UsageError) as err:
+        TruthTable.from_file(path)
+    assert what in str(err.value) and str(path) in str(err.value) and "\n" not in str(err.value)
+
+
+def test_a_missing_truth_log(tmp_path):
+    with pytest.raises(UsageError, match="cannot be read"):
+        TruthTable.from_file(tmp_path / "nope.jsonl")
+
+
+def test_replay_truth_log_needs_a_grasp_world(tmp_path, capsys):
+    from fusion_center.cli import main
+
+    truth = tmp_path / "truth.jsonl"
+    truth.write_text(json.dumps(step(0)) + "\n")
+    assert main(["replay", "--scene", "matrix57", str(tmp_path / "run.log"), "--truth-log", str(truth)]) == 2
+    assert "--truth-log: scene 'matrix57' has no grasp world" in capsys.readouterr().err
+    bad = tmp_path / "bad.jsonl"
+    bad.write_text("{}\n")
+    assert main(["replay", "--scene", "grasp_scripted", str(tmp_path / "run.log"), "--truth-log", str(bad)]) == 2
+    assert "line 1: missing phase" in capsys.readouterr().err
