@@ -51,15 +51,16 @@ class _Listener:
     def __init__(self):
         self.lock = threading.Lock()
         self.clients: set[int] = set()
-        self.subscriptions = 0
+        self.active: set[tuple[int, int]] = set()  # (client, channel) subscribed now
 
     def on_subscribe(self, client, channel) -> None:
         with self.lock:
             self.clients.add(client.id)
-            self.subscriptions += 1
+            self.active.add((client.id, channel.id))
 
-    def on_unsubscribe(self, client, channel) -> None:
-        pass
+    def on_unsubscribe(self, client, channel) -> None:  # also when a client disconnects
+        with self.lock:
+            self.active.discard((client.id, channel.id))
 
 
 class LiveServer:
@@ -79,8 +80,14 @@ class LiveServer:
         self.host = host
         self.port = self.server.port
         self.sink = FoxgloveSink(self.context, known)
-        self.cycles = 0
-        self.dropped = 0
+        self.cycles = 0        # cycles handed to the SDK
+        self.dropped = 0       # cycles skipped in front of the server (publisher behind)
+        self.unwatched = 0     # cycles nobody was subscribed to (not encoded for the server)
+
+    @property
+    def watched(self) -> bool:
+        """Whether any client is subscribed to any channel now (nobody watching: nothing to encode)."""
+        return bool(self.listener.active)
 
     def log(self, t: int, messages) -> None:
         self.sink.log(t, messages)
@@ -90,7 +97,7 @@ class LiveServer:
         with self.listener.lock:
             clients = len(self.listener.clients)
         return {"address": f"{self.host}:{self.port}", "cycles": self.cycles, "messages": self.sink.messages,
-                "dropped_cycles": self.dropped, "clients": clients}
+                "dropped_cycles": self.dropped, "clients": clients, "unwatched_cycles": self.unwatched}
 
     def close(self) -> None:
         self.server.stop()

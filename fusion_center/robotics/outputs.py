@@ -74,6 +74,9 @@ class RoboticsOutputs:
             self._publish(record, readings, live=True)
 
     def _publish(self, record: dict, readings, *, live: bool) -> None:
+        if live and self.live is not None and not self.live.watched:
+            live = False  # no viewer subscribed: nothing to send (the SDK would drop it)
+            self.live.unwatched += 1
         try:
             if self.mcap is not None or (live and self.live is not None):
                 from .mcap_out import encode
@@ -156,9 +159,10 @@ def summary_lines(stats: dict) -> list[tuple[str, str]]:
         lines.append(("ros2_bag", f"{b['path']}: {b['cycles']} cycles, {b['messages']} messages"))
     if "foxglove" in stats:
         f = stats["foxglove"]
-        lines.append(("foxglove", f"ws://{f['address']}: {f['cycles']} cycles published, {f['dropped_cycles']} "
-                                  f"dropped before the server, {f['clients']} client(s) subscribed (a stalled "
-                                  "client's losses in the SDK's outbox are not counted by the SDK)"))
+        lines.append(("foxglove", f"ws://{f['address']}: {f['cycles']} cycles published to {f['clients']} "
+                                  f"client(s), {f['unwatched_cycles']} with none subscribed, {f['dropped_cycles']} "
+                                  "dropped before the server (a stalled client's losses in the SDK's outbox are "
+                                  "not counted by the SDK)"))
     if "errors" in stats:
         lines.append(("robotics_errors", f"{stats['errors']} cycles not published (see the log)"))
     return lines
