@@ -267,3 +267,24 @@ def test_mcap_to_a_fifo_is_a_readable_mcap(tmp_path, capsys):
     (tmp_path / "copy.mcap").write_bytes(got["data"])
     _, by_topic = read_mcap(tmp_path / "copy.mcap")
     assert len(by_topic["/fusion/decision"]) == 10
+
+
+def test_the_cached_json_is_the_plain_encoding_of_every_message(matrix57_run):
+    """json_messages (rules and flat messages cached by content) decodes to values() for every
+    record - a run's, hand-made grasp records, a record with EMCY and nodes by state, an
+    evaluation error's record - and twice over (the second time from the caches)."""
+    from fusion_center.robotics.topics import TopicMap
+
+    _, scene, records, _ = matrix57_run
+    odd = dict(records[60], emcy=[{"node": 5, "code": "0x8130", "register": "0x11", "manufacturer": "", "t": 1.0}],
+               nodes_by_state={"silent": [5], "missing": [9]}, degraded=True)
+    error = {"cycle": 7, "t": 0.5, "error": "boom"}
+    for scene_name, recs in (("matrix57", records + [odd, error]), ("grasp_drive", [_grasp_record(k) for k in range(3)])):
+        topics = TopicMap(load_scene(scene_name))
+        for _ in range(2):
+            for record in recs:
+                plain = topics.values(record)
+                fast = topics.json_messages(record)
+                assert [t for t, _ in fast] == [t for t, _ in plain]
+                for (_, text), (_, value) in zip(fast, plain):
+                    assert json.loads(text) == value

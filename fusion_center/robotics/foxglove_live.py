@@ -52,15 +52,19 @@ class _Listener:
         self.lock = threading.Lock()
         self.clients: set[int] = set()
         self.active: set[tuple[int, int]] = set()  # (client, channel) subscribed now
+        self.subscribed = threading.Event()         # set while any subscription is active
 
     def on_subscribe(self, client, channel) -> None:
         with self.lock:
             self.clients.add(client.id)
             self.active.add((client.id, channel.id))
+            self.subscribed.set()
 
     def on_unsubscribe(self, client, channel) -> None:  # also when a client disconnects
         with self.lock:
             self.active.discard((client.id, channel.id))
+            if not self.active:
+                self.subscribed.clear()
 
 
 class LiveServer:

@@ -16,7 +16,6 @@ written in place (:class:`taxel_net.outputs.OutputPath`).
 
 from __future__ import annotations
 
-import json
 import os
 from pathlib import Path
 
@@ -28,15 +27,12 @@ PROFILE = ""            # MCAP header profile: none of the registry's (the messa
 CHUNK_BYTES = 256 * 1024  # uncompressed chunk size: bounds the work of one chunk's compression
 
 IMAGE, JSON_MSG = 0, 1
-# one encoder for every message: C-accelerated, compact, no NaN (records have none), no cycle check
-_json = json.JSONEncoder(separators=(",", ":"), allow_nan=False, check_circular=False).encode
 
 
 def encode(topics: TopicMap, record: dict, readings=None) -> tuple[int, list[tuple[str, int, bytes]]]:
     """(log time ns, [(topic, kind, payload), ...]) of one record, in a fixed order: the taxel
     maps, the readings (raw mode, with ``readings``), then the JSON topics."""
-    from foxglove.messages import RawImage, Timestamp
-
+    RawImage, Timestamp = _messages()
     t = log_time_ns(record)
     stamp = Timestamp(sec=t // 1_000_000_000, nsec=t % 1_000_000_000)
     out: list[tuple[str, int, bytes]] = []
@@ -49,9 +45,22 @@ def encode(topics: TopicMap, record: dict, readings=None) -> tuple[int, list[tup
             out.append((pad.readings_topic, IMAGE, RawImage(timestamp=stamp, frame_id=pad.name, width=pad.width,
                                                             height=pad.height, encoding="32FC1",
                                                             step=4 * pad.width, data=data).encode()))
-    for topic, value in topics.values(record):
-        out.append((topic, JSON_MSG, _json(value).encode()))
+    for topic, payload in topics.json_messages(record):
+        out.append((topic, JSON_MSG, payload))
     return t, out
+
+
+_MESSAGE_TYPES: tuple | None = None
+
+
+def _messages() -> tuple:
+    """(RawImage, Timestamp) of the SDK, imported on first use."""
+    global _MESSAGE_TYPES  # noqa: PLW0603
+    if _MESSAGE_TYPES is None:
+        from foxglove.messages import RawImage, Timestamp
+
+        _MESSAGE_TYPES = (RawImage, Timestamp)
+    return _MESSAGE_TYPES
 
 
 class FoxgloveSink:

@@ -4,11 +4,14 @@
 :meth:`RoboticsOutputs.on_cycle` is the callback (``FusionService.on_cycle``,
 ``replay_trace(on_cycle=...)``): with ``threaded=True`` (``run``, ``demo``) it only appends the
 record (and its readings in raw mode) to a queue - no encoding, no I/O, no lock the cycle could
-wait on - and a publisher thread, woken every :data:`POLL_S`, encodes each cycle once and logs
-it to every output in cycle order; the MCAP file and the bag get every cycle, the live server
-skips the oldest when more than ``LIVE_BACKLOG`` cycles wait (counted). ``threaded=False``
-(``replay``, ``export``) does the same work in the caller. Either way the messages and their order
-are the same, so the MCAP of a replay is the live run's.
+wait on - and a publisher thread, woken every :data:`POLL_S` (20 times a second: a wake-up per
+cycle would cost more than the publishing on a loaded host), encodes each cycle once and logs it
+to every output in cycle order; the MCAP file and the bag get every cycle, the live server
+skips the oldest when more than ``LIVE_BACKLOG`` cycles wait (counted). With only the live server
+and no viewer subscribed, the callback queues nothing (the cycle is counted ``unwatched``) and
+the publisher waits for a subscription. ``threaded=False`` (``replay``, ``export``) does the same
+work in the caller. Either way the messages and their order are the same, so the MCAP of a
+replay is the live run's.
 """
 
 from __future__ import annotations
@@ -20,7 +23,7 @@ from collections import deque
 from .topics import TopicMap
 
 logger = logging.getLogger("fusion_center.robotics")
-POLL_S = 0.02
+POLL_S = 0.05
 
 
 class RoboticsOutputs:
@@ -54,6 +57,7 @@ class RoboticsOutputs:
         except BaseException:
             self.close(ok=False)
             raise
+        self._live_only = self.live is not None and self.mcap is None and self.bag is None
         if threaded:
             self._thread = threading.Thread(target=self._worker, name="robotics-publisher", daemon=True)
             self._thread.start()
@@ -67,6 +71,9 @@ class RoboticsOutputs:
         service.on_cycle.append(self.on_cycle)
 
     def on_cycle(self, record: dict, closed=None) -> None:
+        if self._live_only and not self.live.watched:
+            self.live.unwatched += 1  # nobody to send it to, nothing else to write
+            return
         readings = self.topics.readings_of(closed)
         if self.threaded:
             self._queue.append((record, readings))
@@ -109,7 +116,14 @@ class RoboticsOutputs:
                 self._publish(record, readings, live=live)
 
     def _worker(self) -> None:
-        while not self._stop.wait(POLL_S):
+        while True:
+            if self._live_only and not self.live.watched and not self._queue:
+                # nobody subscribed: wait for a subscription (or the end), not on a clock
+                self.live.listener.subscribed.wait()
+                if self._stop.is_set():
+                    break
+            if self._stop.wait(POLL_S):
+                break
             self._drain()
         self._drain()
 
@@ -118,6 +132,8 @@ class RoboticsOutputs:
         partial), return the summary figures."""
         if self._thread is not None:
             self._stop.set()
+            if self.live is not None:
+                self.live.listener.subscribed.set()  # a publisher waiting for a viewer: wake it
             self._thread.join()
             self._thread = None
         elif self._queue:

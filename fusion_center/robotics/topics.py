@@ -28,6 +28,7 @@ image (raw mode, ``32FC1``): X_i in mV, the mean of a site's readings, NaN where
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import dataclass
 
@@ -128,6 +129,8 @@ class TopicMap:
             self.node_taxels = {label: np.array([i]) for i, label in enumerate(labels)}
         self.n = scene.n
         self._maps: dict = {}
+        self._rules_cache: dict = {}
+        self._flat_cache: dict = {}
         self.known_topics = self._known_topics()
 
     def _known_topics(self) -> list[tuple[str, bool]]:
@@ -207,10 +210,55 @@ class TopicMap:
         return out
 
     # ------------------------------------------------------------------ per-cycle values
-    def values(self, record: dict) -> list[tuple[str, dict]]:
+    def json_messages(self, record: dict) -> list[tuple[str, bytes]]:
+        """:meth:`values` as JSON text (UTF-8), the same values; the ``rules`` part of
+        ``/fusion/decision`` - the largest, and the same while the decision vector is - is encoded
+        once per distinct content (cached), the rest per cycle."""
+        out = []
+        for topic, value in self.values(record, rules=False):
+            if topic == T_DECISION:
+                text = _json(value)[:-1] + self._rules_json(record.get("rules") or {}) + "}"
+            elif topic in (T_CONTACT, T_TRUTH):  # flat, and the same for many cycles
+                text = self._flat_json(value)
+            else:
+                text = _json(value)
+            out.append((topic, text.encode()))
+        return out
+
+    def _flat_json(self, value: dict) -> str:
+        try:
+            key = tuple(value.items())
+            text = self._flat_cache.get(key)
+        except TypeError:  # a list or dict inside: encoded each time
+            return _json(value)
+        if text is None:
+            if len(self._flat_cache) > 1024:
+                self._flat_cache.clear()
+            text = self._flat_cache[key] = _json(value)
+        return text
+
+    def _rules_json(self, rules: dict) -> str:
+        # the key: every rule's fields and values (a list - preferential's band - as a tuple).
+        # Values equal as Python numbers share a text (1 and 1.0): a rule's fields keep their type.
+        try:
+            key = tuple([(name, tuple([(k, tuple(v) if v.__class__ is list else v) for k, v in result.items()]))
+                         for name, result in rules.items()])
+            text = self._rules_cache.get(key)
+        except TypeError:  # an unhashable value: no caching
+            key, text = None, None
+        if text is None:
+            codes, renamed = _rules_parts(rules)
+            text = ',"rule_decisions":' + _json(codes) + ',"rules":' + _json(renamed)
+            if key is not None:
+                if len(self._rules_cache) > 1024:
+                    self._rules_cache.clear()
+                self._rules_cache[key] = text
+        return text
+
+    def values(self, record: dict, *, rules: bool = True) -> list[tuple[str, dict]]:
         """The JSON messages of one record: ``[(topic, dict), ...]`` in a fixed order; a topic
         whose data the record does not carry (no slip stage, no grip) is left out."""
-        out = [(T_DECISION, decision_message(record)), (T_BUS, bus_message(record))]
+        out = [(T_DECISION, decision_message(record, rules=rules)), (T_BUS, bus_message(record))]
         contact = {k: record[k] for k in ("area", "t_c", "contact_type", "fp_c", "contact_type_fp") if k in record}
         if contact:
             contact["present_count"] = record.get("present_count")
@@ -224,7 +272,7 @@ class TopicMap:
         return out
 
 
-def decision_message(record: dict) -> dict:
+def decision_message(record: dict, *, rules: bool = True) -> dict:
     """``/fusion/decision``: the deciding rule's U_G against its threshold, the decision (and
     as a number: H1 1, H0 0, undecided -1), P(H1), the truth, every rule's result as the record
     has it under ``rules`` (names with ``_`` for ``-``: ``k_of_n``) and each rule's decision as a
@@ -232,14 +280,7 @@ def decision_message(record: dict) -> dict:
     decision = record.get("decision", "undecided")
     u_g, threshold = record.get("U_G"), record.get("threshold")
     truth = record.get("truth")
-    rules = record.get("rules") or {}
-    codes = {}
-    renamed = {}
-    for name, result in rules.items():
-        key = _RULE_KEYS.get(name) or rule_key(name)
-        renamed[key] = result
-        codes[key] = DECISION_CODE.get(result.get("decision"), -1)
-    return {
+    out = {
         "cycle": record.get("cycle"),
         "decide_with": record.get("decide_with"),
         "decision": decision,
@@ -254,12 +295,24 @@ def decision_message(record: dict) -> dict:
         "degraded": record.get("degraded"),
         "truth": truth,
         "truth_code": TRUTH_CODE.get(truth),
-        "rule_decisions": codes,
-        "rules": renamed,
     }
+    if rules:  # (json_messages adds them itself, cached)
+        out["rule_decisions"], out["rules"] = _rules_parts(record.get("rules") or {})
+    return out
+
+
+def _rules_parts(rules: dict) -> tuple[dict, dict]:
+    codes, renamed = {}, {}
+    for name, result in rules.items():
+        key = _RULE_KEYS.get(name) or rule_key(name)
+        renamed[key] = result
+        codes[key] = DECISION_CODE.get(result.get("decision"), -1)
+    return codes, renamed
 
 
 _RULE_KEYS: dict[str, str] = {}
+# one encoder for every message: C-accelerated, compact, no NaN (records have none), no cycle check
+_json = json.JSONEncoder(separators=(",", ":"), allow_nan=False, check_circular=False).encode
 
 
 def bus_message(record: dict) -> dict:

@@ -1,0 +1,194 @@
+"""The centre's CPU per cycle with and without the robotics outputs (issue 24: at most +5 %),
+side by side in one run, at matrix57 and skin4096.
+
+    .venv/bin/python bench/robotics_outputs.py [--cycles 300] [--rounds 3] [--scenes matrix57 skin4096]
+
+Per scene, a demo records a CAN trace once (``--log``); its frames are read into memory. Then,
+round after round, the same frames go through a fresh centre - the event stream, the cycle
+assembler and the per-cycle pipeline, as ``replay`` does, paced at the trace's own times (a SYNC
+every 10 ms, as live) - once per variant, in turn:
+
+* ``bare``: no output;
+* ``mcap``: ``--mcap`` (the publisher thread, the SDK's MCAP writer);
+* ``live, no viewer``: ``--foxglove`` with nobody connected;
+* ``live, 1 viewer``: ``--foxglove`` with a WebSocket client in another process subscribed to
+  every channel and reading everything (its CPU is not the centre's);
+* ``mcap + live``: both, the viewer connected.
+
+Measured, from the first frame to the outputs closed (the last cycle written), per cycle:
+
+* ``process``: this process's CPU time (``time.process_time``: every thread - the centre's, the
+  publisher, the SDK's Rust threads of the writer and the server) - the side-by-side figure, and
+  its ratio to ``bare`` of the same round (paired: the variants of a round run back to back);
+* ``outputs``: the CPU time of every thread but the centre's (``/proc/self/task/*/schedstat``,
+  ns): what the outputs add besides the callback's append, as a share of the centre's own CPU
+  per cycle in that pass. On a shared, loaded host the process figure moves by +-10-20 % from
+  pass to pass whatever runs; this one does not depend on the centre's noise.
+
+What it leaves out is the reading of sockets and python-can's frame handling of a live run (the
+centre's own per-cycle CPU is larger live, so the ratios here are upper bounds). Printed: the
+median over rounds; the host's load average before and after.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+VIEWER = r'''
+import asyncio, json, sys
+from websockets.asyncio.client import connect
+
+async def main(port):
+    async with connect(f"ws://127.0.0.1:{port}", subprotocols=["foxglove.sdk.v1"], max_size=None) as ws:
+        channels = {}
+        await ws.recv()  # serverInfo
+        while not channels:
+            msg = json.loads(await ws.recv())
+            if msg["op"] == "advertise":
+                channels = {c["id"]: c for c in msg["channels"]}
+        await ws.send(json.dumps({"op": "subscribe", "subscriptions": [
+            {"id": k, "channelId": cid} for k, cid in enumerate(channels)]}))
+        print("subscribed", flush=True)
+        n = 0
+        try:
+            while True:
+                await ws.recv()
+                n += 1
+        except Exception:
+            pass
+        print(n, flush=True)
+
+asyncio.run(main(int(sys.argv[1])))
+'''
+
+VARIANTS = ("bare", "mcap", "live, no viewer", "live, 1 viewer", "mcap + live")
+
+
+def record_trace(scene_name: str, cycles: int, out: Path) -> Path:
+    trace = out / f"{scene_name}.log"
+    subprocess.run([sys.executable, "-m", "fusion_center.cli", "demo", "--scene", scene_name, "--cycles", str(cycles),
+                    "--log", str(trace), "--no-live"], cwd=ROOT, check=True, capture_output=True, text=True)
+    return trace
+
+
+def one_pass(scene, frames, variant: str, tmp: Path) -> tuple[float, int, dict]:
+    from fusion_center.robotics.outputs import RoboticsOutputs
+    from fusion_center.service.cycles import CycleAssembler
+    from fusion_center.service.pipeline import CyclePipeline
+    from fusion_center.service.stream import EventStream
+    from fusion_center.service.traces import trace_channel
+
+    outputs = viewer = None
+    if variant != "bare":
+        mcap = tmp / "bench.mcap" if "mcap" in variant else None
+        live = ("127.0.0.1", 0) if "live" in variant else None
+        outputs = RoboticsOutputs(scene, mcap=mcap, foxglove=live, threaded=True)
+        if "viewer" in variant or variant == "mcap + live":
+            viewer = subprocess.Popen([sys.executable, "-c", VIEWER, str(outputs.live.port)], stdout=subprocess.PIPE,
+                                      text=True)
+            assert viewer.stdout.readline().strip() == "subscribed"
+            end = time.monotonic() + 10
+            while not outputs.live.watched and time.monotonic() < end:
+                time.sleep(0.01)
+    main_tid = threading.get_native_id()
+    assembler = CycleAssembler(scene)
+    pipeline = CyclePipeline(scene)
+    closed: list = []
+    stream = EventStream(assembler, on_closed=closed.append)
+    cycles = 0
+    first = frames[0].timestamp
+    wall0 = time.monotonic()
+    others0 = _thread_cpu_ns(exclude=main_tid)
+    main0 = time.thread_time()
+    cpu0 = time.process_time()
+    for msg in frames:
+        ahead = (msg.timestamp - first) - (time.monotonic() - wall0)
+        if ahead > 0.001:
+            time.sleep(ahead)  # the trace's pace: a SYNC every period, as live
+        stream.receive(msg, trace_channel(msg, ".log"))
+        while closed:
+            item = closed.pop(0)
+            record = pipeline.evaluate(item)
+            cycles += 1
+            if outputs is not None:
+                outputs.on_cycle(record, item)
+    stats = outputs.close() if outputs is not None else {}
+    cpu = time.process_time() - cpu0
+    main_cpu = time.thread_time() - main0
+    others = (_thread_cpu_ns(exclude=main_tid, before=others0)) * 1e-9
+    if viewer is not None:
+        viewer.terminate()
+        viewer.wait(timeout=10)
+    return cpu, main_cpu, others, cycles, stats
+
+
+def _thread_cpu_ns(*, exclude: int, before: dict | None = None):
+    """{tid: ns on CPU} of this process's threads but ``exclude`` (``/proc/self/task/*/schedstat``);
+    with ``before``: the total since then (threads that ended meanwhile are lost: none here but
+    the publisher, which is read before it is joined... so close() is inside: see one_pass)."""
+    now = {}
+    for task in os.listdir("/proc/self/task"):
+        tid = int(task)
+        if tid == exclude:
+            continue
+        try:
+            with open(f"/proc/self/task/{task}/schedstat") as f:
+                now[tid] = int(f.read().split()[0])
+        except OSError:
+            continue
+    if before is None:
+        return now
+    return sum(ns - before.get(tid, 0) for tid, ns in now.items())
+
+
+def main() -> None:
+    import can
+
+    from taxel_net.scene import load_scene
+
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--cycles", type=int, default=300)
+    parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument("--scenes", nargs="+", default=["matrix57", "skin4096"])
+    parser.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=VARIANTS)
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory() as tmp_name:
+        tmp = Path(tmp_name)
+        for scene_name in args.scenes:
+            scene = load_scene(scene_name)
+            frames = list(can.LogReader(str(record_trace(scene_name, args.cycles, tmp))))
+            per: dict[str, list] = {v: [] for v in args.variants}
+            added: dict[str, list] = {v: [] for v in args.variants}
+            load0 = os.getloadavg()[0]
+            for _ in range(args.rounds):
+                for variant in args.variants:
+                    cpu, main_cpu, others, cycles, _ = one_pass(scene, frames, variant, tmp)
+                    per[variant].append(cpu / cycles * 1e6)
+                    added[variant].append((others / cycles * 1e6, others / main_cpu))
+            base = per.get("bare")
+            print(f"{scene_name}: {args.cycles} cycles x {args.rounds} rounds, CPU per cycle (median of rounds; "
+                  f"load average {load0:.1f} -> {os.getloadavg()[0]:.1f})")
+            for variant in args.variants:
+                line = f"  {variant:<16} process {statistics.median(per[variant]):8.1f} us"
+                if base and variant != "bare":
+                    ratios = [v / b for v, b in zip(per[variant], base)]
+                    line += f" x{statistics.median(ratios):.3f} of bare (" + ", ".join(f"{r:.3f}" for r in ratios) + ")"
+                    us = statistics.median(a for a, _ in added[variant])
+                    share = statistics.median(b for _, b in added[variant])
+                    line += f"; outputs' threads {us:6.1f} us = +{100 * share:.1f} % of the centre's"
+                print(line, flush=True)
+
+
+if __name__ == "__main__":
+    main()
