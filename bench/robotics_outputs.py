@@ -126,7 +126,9 @@ def one_pass(scene, frames, variant: str, tmp: Path) -> tuple[float, int, dict]:
     stats = outputs.close() if outputs is not None else {}
     cpu = time.process_time() - cpu0
     main_cpu = time.thread_time() - main0
-    others = (_thread_cpu_ns(exclude=main_tid, before=others0)) * 1e-9
+    # the other threads' CPU: the SDK's (still running) from /proc, the publisher's (joined by
+    # close) as it read its own clock when it ended
+    others = _thread_cpu_ns(exclude=main_tid, before=others0) * 1e-9 + (outputs.worker_cpu_s if outputs else 0.0)
     if viewer is not None:
         viewer.terminate()
         viewer.wait(timeout=10)
@@ -136,7 +138,7 @@ def one_pass(scene, frames, variant: str, tmp: Path) -> tuple[float, int, dict]:
 def _thread_cpu_ns(*, exclude: int, before: dict | None = None):
     """{tid: ns on CPU} of this process's threads but ``exclude`` (``/proc/self/task/*/schedstat``);
     with ``before``: the total since then (threads that ended meanwhile are lost: none here but
-    the publisher, which is read before it is joined... so close() is inside: see one_pass)."""
+    the publisher: one_pass adds its own figure)."""
     now = {}
     for task in os.listdir("/proc/self/task"):
         tid = int(task)
