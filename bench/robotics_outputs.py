@@ -5,8 +5,9 @@ side by side in one run, at matrix57 and skin4096.
 
 Per scene, a demo records a CAN trace once (``--log``); its frames are read into memory. Then,
 round after round, the same frames go through a fresh centre - the event stream, the cycle
-assembler and the per-cycle pipeline, as ``replay`` does, paced at the trace's own times (a SYNC
-every 10 ms, as live) - once per variant, in turn:
+assembler and the per-cycle pipeline, as ``replay`` does; the boot's frames at once, unmeasured,
+then from the first SYNC on paced at the trace's own times (a SYNC every 10 ms, as live) - once
+per variant, in turn:
 
 * ``bare``: no output;
 * ``mcap``: ``--mcap`` (the publisher thread, the SDK's MCAP writer);
@@ -15,15 +16,18 @@ every 10 ms, as live) - once per variant, in turn:
   every channel and reading everything (its CPU is not the centre's);
 * ``mcap + live``: both, the viewer connected.
 
-Measured, from the first frame to the outputs closed (the last cycle written), per cycle:
+Measured, from the first frame to the last cycle published (the steady state: opening and closing
+the outputs - the server's start and stop, the file's summary - happen once a run and are left
+out), per cycle:
 
 * ``process``: this process's CPU time (``time.process_time``: every thread - the centre's, the
   publisher, the SDK's Rust threads of the writer and the server) - the side-by-side figure, and
   its ratio to ``bare`` of the same round (paired: the variants of a round run back to back);
-* ``outputs``: the CPU time of every thread but the centre's (``/proc/self/task/*/schedstat``,
-  ns): what the outputs add besides the callback's append, as a share of the centre's own CPU
-  per cycle in that pass. On a shared, loaded host the process figure moves by +-10-20 % from
-  pass to pass whatever runs; this one does not depend on the centre's noise.
+* ``other threads``: the CPU time of every thread but the centre's (``/proc/self/task/*/schedstat``,
+  ns) - the publisher, the SDK's threads, and numpy's BLAS threads, which run in ``bare`` too -
+  minus the same figure of ``bare`` in that round: what the outputs add besides the callback's
+  append, as a share of ``bare``'s process CPU per cycle. On a shared, loaded host the process
+  figure moves by +-10-20 % from pass to pass whatever runs; this one depends less on that.
 
 What it leaves out is the reading of sockets and python-can's frame handling of a live run (the
 centre's own per-cycle CPU is larger live, so the ratios here are upper bounds). Printed: the
@@ -107,12 +111,16 @@ def one_pass(scene, frames, variant: str, tmp: Path) -> tuple[float, int, dict]:
     closed: list = []
     stream = EventStream(assembler, on_closed=closed.append)
     cycles = 0
-    first = frames[0].timestamp
+    # the boot (boot-ups, the SDO configuration) unmeasured: fed at once, up to the first SYNC
+    start = next(k for k, msg in enumerate(frames) if msg.arbitration_id == 0x080 and not msg.is_extended_id)
+    for msg in frames[:start]:
+        stream.receive(msg, trace_channel(msg, ".log"))
+    first = frames[start].timestamp
     wall0 = time.monotonic()
     others0 = _thread_cpu_ns(exclude=main_tid)
     main0 = time.thread_time()
     cpu0 = time.process_time()
-    for msg in frames:
+    for msg in frames[start:]:
         ahead = (msg.timestamp - first) - (time.monotonic() - wall0)
         if ahead > 0.001:
             time.sleep(ahead)  # the trace's pace: a SYNC every period, as live
@@ -123,12 +131,15 @@ def one_pass(scene, frames, variant: str, tmp: Path) -> tuple[float, int, dict]:
             cycles += 1
             if outputs is not None:
                 outputs.on_cycle(record, item)
-    stats = outputs.close() if outputs is not None else {}
+    if outputs is not None:  # steady state: every cycle published (the publisher's next tick)
+        end = time.monotonic() + 30
+        while (outputs._queue or outputs.cycles + (outputs.live.unwatched if outputs.live else 0) < cycles) \
+                and time.monotonic() < end:
+            time.sleep(0.005)
     cpu = time.process_time() - cpu0
     main_cpu = time.thread_time() - main0
-    # the other threads' CPU: the SDK's (still running) from /proc, the publisher's (joined by
-    # close) as it read its own clock when it ended
-    others = _thread_cpu_ns(exclude=main_tid, before=others0) * 1e-9 + (outputs.worker_cpu_s if outputs else 0.0)
+    others = _thread_cpu_ns(exclude=main_tid, before=others0) * 1e-9  # the publisher, the SDK's threads
+    stats = outputs.close() if outputs is not None else {}  # once per run: not per cycle
     if viewer is not None:
         viewer.terminate()
         viewer.wait(timeout=10)
@@ -137,8 +148,7 @@ def one_pass(scene, frames, variant: str, tmp: Path) -> tuple[float, int, dict]:
 
 def _thread_cpu_ns(*, exclude: int, before: dict | None = None):
     """{tid: ns on CPU} of this process's threads but ``exclude`` (``/proc/self/task/*/schedstat``);
-    with ``before``: the total since then (threads that ended meanwhile are lost: none here but
-    the publisher: one_pass adds its own figure)."""
+    with ``before``: the total since then."""
     now = {}
     for task in os.listdir("/proc/self/task"):
         tid = int(task)
@@ -177,8 +187,8 @@ def main() -> None:
                 for variant in args.variants:
                     cpu, main_cpu, others, cycles, _ = one_pass(scene, frames, variant, tmp)
                     per[variant].append(cpu / cycles * 1e6)
-                    added[variant].append((others / cycles * 1e6, others / main_cpu))
-            base = per.get("bare")
+                    added[variant].append(others / cycles * 1e6)
+            base = per.get("bare") or [1.0] * args.rounds
             print(f"{scene_name}: {args.cycles} cycles x {args.rounds} rounds, CPU per cycle (median of rounds; "
                   f"load average {load0:.1f} -> {os.getloadavg()[0]:.1f})")
             for variant in args.variants:
@@ -186,9 +196,11 @@ def main() -> None:
                 if base and variant != "bare":
                     ratios = [v / b for v, b in zip(per[variant], base)]
                     line += f" x{statistics.median(ratios):.3f} of bare (" + ", ".join(f"{r:.3f}" for r in ratios) + ")"
-                    us = statistics.median(a for a, _ in added[variant])
-                    share = statistics.median(b for _, b in added[variant])
-                    line += f"; outputs' threads {us:6.1f} us = +{100 * share:.1f} % of the centre's"
+                    extra = [a - b for a, b in zip(added[variant], added["bare"])] if "bare" in added \
+                        else added[variant]
+                    shares = [e / b for e, b in zip(extra, base)]
+                    line += (f"; other threads +{statistics.median(extra):6.1f} us = "
+                             f"+{100 * statistics.median(shares):.1f} % of bare")
                 print(line, flush=True)
 
 

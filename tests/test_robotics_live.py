@@ -202,3 +202,10 @@ def test_a_port_in_use_is_one_line(capsys):
         assert main(["demo", "--foxglove", str(port), "--cycles", "2", "--no-live"]) == 2
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and "cannot listen" in err
+
+
+def test_demo_with_foxglove_names_the_server_in_its_summary(capsys):
+    assert main(["demo", "--cycles", "5", "--foxglove", "0", "--no-live"]) == 0
+    line = [x for x in capsys.readouterr().out.splitlines() if x.startswith("foxglove:")]
+    assert len(line) == 1 and "ws://127.0.0.1:" in line[0] and "0 client(s)" in line[0]
+    assert "5 with none subscribed" in line[0]

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import logging
 import threading
-import time
 from collections import deque
 
 from .topics import TopicMap
@@ -38,7 +37,6 @@ class RoboticsOutputs:
         self._thread = None
         self.cycles = 0
         self.errors = 0
-        self.worker_cpu_s = 0.0
         try:
             if ros2_bag is not None:
                 from .ros2_bag import Ros2Bag
@@ -118,12 +116,6 @@ class RoboticsOutputs:
                 self._publish(record, readings, live=live)
 
     def _worker(self) -> None:
-        try:
-            self._work()
-        finally:
-            self.worker_cpu_s = time.thread_time()  # the publisher's CPU time (benchmarks)
-
-    def _work(self) -> None:
         while True:
             if self._live_only and not self.live.watched and not self._queue:
                 # nobody subscribed: wait for a subscription (or the end), not on a clock
