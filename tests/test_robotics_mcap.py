@@ -357,3 +357,26 @@ def test_run_on_a_bus_writes_the_mcap(tmp_path, capsys):
     _, by_topic = read_mcap(out)
     decisions = [json.loads(p)["decision"] for _, _, p in by_topic["/fusion/decision"]]
     assert decisions == ["undecided"] * 3
+
+
+def test_a_fifo_whose_reader_goes_away_is_one_line_not_a_traceback(tmp_path, capsys):
+    import threading
+
+    demo_log = tmp_path / "d.log"
+    assert main(["demo", "--cycles", "400", "--log", str(demo_log), "--no-live"]) == 0
+    fifo = tmp_path / "pipe.mcap"
+    os.mkfifo(fifo)
+
+    def read_a_little():
+        with open(fifo, "rb") as f:
+            f.read(16)
+
+    reader = threading.Thread(target=read_a_little, daemon=True)
+    reader.start()
+    capsys.readouterr()
+    assert main(["replay", "--scene", "matrix57", str(demo_log), "--mcap", str(fifo),
+                 "--json-lines", str(tmp_path / "r.jsonl")]) == 2
+    reader.join(timeout=30)
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and "--mcap" in err.splitlines()[-1]
+    assert fifo.is_fifo()

@@ -19,7 +19,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from taxel_net.errors import UsageError
+from taxel_net.errors import UsageError, one_line
 from taxel_net.outputs import OutputPath
 from .topics import JSON_TOPICS, SCHEMAS, TopicMap, log_time_ns
 
@@ -148,7 +148,10 @@ class McapOutput:
         self.closed = False
 
     def write_metadata(self, name: str, values: dict) -> None:
-        self.writer.write_metadata(name, {str(k): str(v) for k, v in values.items()})
+        try:
+            self.writer.write_metadata(name, {str(k): str(v) for k, v in values.items()})
+        except (OSError, RuntimeError) as exc:  # the SDK's I/O errors are RuntimeErrors
+            raise UsageError(f"--mcap {str(self.path)!r}: cannot be written: {one_line(exc)}") from None
 
     def log(self, t: int, messages) -> None:
         self.sink.log(t, messages)

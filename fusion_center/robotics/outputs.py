@@ -20,6 +20,7 @@ import logging
 import threading
 from collections import deque
 
+from taxel_net.errors import UsageError, one_line
 from .topics import TopicMap
 
 logger = logging.getLogger("fusion_center.robotics")
@@ -62,10 +63,6 @@ class RoboticsOutputs:
             self._thread = threading.Thread(target=self._worker, name="robotics-publisher", daemon=True)
             self._thread.start()
 
-    @property
-    def active(self) -> bool:
-        return any(x is not None for x in (self.mcap, self.live, self.bag))
-
     def attach(self, service) -> None:
         """Publish every record of ``service`` (a ``FusionService``)."""
         service.on_cycle.append(self.on_cycle)
@@ -96,10 +93,11 @@ class RoboticsOutputs:
             if self.bag is not None:
                 self.bag.write(record, readings)
             self.cycles += 1
-        except Exception:  # noqa: BLE001 - an output never stops the run; counted and logged
+        except Exception as exc:  # noqa: BLE001 - an output never stops the run; counted, logged (3 lines at most)
             self.errors += 1
             if self.errors <= 3:
-                logger.exception("cycle %s: publishing failed", record.get("cycle"))
+                logger.error("cycle %s: publishing failed: %s%s", record.get("cycle"), one_line(exc),
+                             " (further failures only counted)" if self.errors == 3 else "")
 
     def _drain(self) -> None:
         from .foxglove_live import LIVE_BACKLOG
@@ -139,16 +137,17 @@ class RoboticsOutputs:
         elif self._queue:
             self._drain()
         stats = self.stats()
-        for output in (self.mcap, self.bag):
+        failed = []
+        for option, output in (("--mcap", self.mcap), ("--ros2-bag", self.bag)):
             if output is not None:
                 try:
                     output.close(ok=ok)
-                except Exception as exc:  # noqa: BLE001
-                    logger.error("closing %s failed: %s", type(output).__name__, exc)
-                    if ok:
-                        raise
+                except Exception as exc:  # noqa: BLE001 - a full disk, a FIFO's reader gone: one line
+                    failed.append(f"{option} {str(getattr(output, 'path', ''))!r}: {one_line(exc)}")
         if self.live is not None:
             self.live.close()
+        if failed and ok:
+            raise UsageError("; ".join(failed) + " (not finished: not renamed onto its name)")
         return stats
 
     def stats(self) -> dict:

@@ -69,7 +69,7 @@ class Ros2Bag:
         from rosbags.rosbag2 import StoragePlugin, Writer
         from rosbags.typesys import Stores, get_typestore
 
-        self.target = check_bag_target(path, option)
+        self.target = self.path = check_bag_target(path, option)
         # written as DIR.partial/DIR (rosbags names the storage file after the bag's directory:
         # DIR/DIR.mcap once moved), moved onto DIR when complete
         self.staging = self.target.with_name(self.target.name + PARTIAL)
