@@ -85,8 +85,7 @@ def test_advertise_subscribe_and_the_messages_are_the_records(records):
         try:
             assert ws.subprotocol == SUBPROTOCOL
             channels = await _advertised(ws)
-            assert set(channels) == {"/taxel/sensor/map", "/fusion/decision", "/bus", "/fusion/contact",
-                                     "/world/truth"}
+            assert set(channels) == {"/taxel/sensor/map", "/fusion/decision", "/bus", "/fusion/contact"}
             assert channels["/taxel/sensor/map"]["schemaName"] == "foxglove.RawImage"
             assert channels["/taxel/sensor/map"]["encoding"] == "protobuf"
             assert channels["/fusion/decision"]["encoding"] == "json"

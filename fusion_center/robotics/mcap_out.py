@@ -17,6 +17,7 @@ written in place (:class:`taxel_net.outputs.OutputPath`).
 from __future__ import annotations
 
 import os
+import struct
 from pathlib import Path
 
 from taxel_net.errors import UsageError, one_line
@@ -32,35 +33,58 @@ IMAGE, JSON_MSG = 0, 1
 def encode(topics: TopicMap, record: dict, readings=None) -> tuple[int, list[tuple[str, int, bytes]]]:
     """(log time ns, [(topic, kind, payload), ...]) of one record, in a fixed order: the taxel
     maps, the readings (raw mode, with ``readings``), then the JSON topics."""
-    RawImage, Timestamp = _messages()
     t = log_time_ns(record)
-    stamp = Timestamp(sec=t // 1_000_000_000, nsec=t % 1_000_000_000)
+    stamp = _stamp(t)
     out: list[tuple[str, int, bytes]] = []
     for pad, data in zip(topics.pads, topics.map_images(record)):
-        out.append((pad.map_topic, IMAGE, RawImage(timestamp=stamp, frame_id=pad.name, width=pad.width,
-                                                   height=pad.height, encoding="mono8", step=pad.width,
-                                                   data=data).encode()))
+        out.append((pad.map_topic, IMAGE, raw_image(stamp, pad.name, pad.width, pad.height, "mono8", pad.width, data)))
     if readings is not None:
         for pad, data in zip(topics.pads, topics.readings_images(readings)):
-            out.append((pad.readings_topic, IMAGE, RawImage(timestamp=stamp, frame_id=pad.name, width=pad.width,
-                                                            height=pad.height, encoding="32FC1",
-                                                            step=4 * pad.width, data=data).encode()))
+            out.append((pad.readings_topic, IMAGE,
+                        raw_image(stamp, pad.name, pad.width, pad.height, "32FC1", 4 * pad.width, data)))
     for topic, payload in topics.json_messages(record):
         out.append((topic, JSON_MSG, payload))
     return t, out
 
 
-_MESSAGE_TYPES: tuple | None = None
+# ``foxglove.RawImage`` in protobuf's wire format, made here: the SDK's message objects cost more
+# per cycle than the rest of an image (tests/test_robotics_mcap.py checks these bytes against
+# the SDK's RawImage(...).encode()). Fields (foxglove/schemas RawImage.proto): timestamp 1
+# (google.protobuf.Timestamp: seconds 1, nanos 2), width 2, height 3 (fixed32), encoding 4,
+# step 5 (fixed32), data 6, frame_id 7; proto3 leaves out zero numbers and empty strings.
+def _varint(n: int) -> bytes:
+    out = bytearray()
+    while True:
+        low, n = n & 0x7F, n >> 7
+        if n:
+            out.append(low | 0x80)
+        else:
+            out.append(low)
+            return bytes(out)
 
 
-def _messages() -> tuple:
-    """(RawImage, Timestamp) of the SDK, imported on first use."""
-    global _MESSAGE_TYPES  # noqa: PLW0603
-    if _MESSAGE_TYPES is None:
-        from foxglove.messages import RawImage, Timestamp
+def _stamp(t: int) -> bytes:
+    """Field 1 (the Timestamp) of a RawImage at ``t`` ns (t >= 0)."""
+    sec, nsec = divmod(t, 1_000_000_000)
+    inner = (b"\x08" + _varint(sec) if sec else b"") + (b"\x10" + _varint(nsec) if nsec else b"")
+    return b"\x0a" + _varint(len(inner)) + inner
 
-        _MESSAGE_TYPES = (RawImage, Timestamp)
-    return _MESSAGE_TYPES
+
+_IMAGE_FIELDS: dict = {}
+
+
+def raw_image(stamp: bytes, frame_id: str, width: int, height: int, encoding: str, step: int, data: bytes) -> bytes:
+    """One ``foxglove.RawImage`` (``stamp``: :func:`_stamp`)."""
+    key = (frame_id, width, height, encoding, step)
+    fields = _IMAGE_FIELDS.get(key)
+    if fields is None:
+        enc, frame = encoding.encode(), frame_id.encode()
+        head = b"".join(tag + struct.pack("<I", v) for tag, v in ((b"\x15", width), (b"\x1d", height)) if v)
+        head += (b"\x22" + _varint(len(enc)) + enc if enc else b"") + (b"\x2d" + struct.pack("<I", step) if step else b"")
+        tail = b"\x3a" + _varint(len(frame)) + frame if frame else b""
+        fields = _IMAGE_FIELDS[key] = (head, tail)
+    head, tail = fields
+    return stamp + head + (b"\x32" + _varint(len(data)) + data if data else b"") + tail
 
 
 class FoxgloveSink:
@@ -69,6 +93,7 @@ class FoxgloveSink:
     def __init__(self, context, known=()):
         self.context = context
         self.channels: dict[str, object] = {}
+        self._log: dict[str, object] = {}  # topic -> the channel's BaseChannel.log (no wrapper per message)
         self.messages = 0
         for topic, is_image in known:  # TopicMap.known_topics: open before the first cycle
             self.channel(topic, IMAGE if is_image else JSON_MSG)
@@ -86,11 +111,17 @@ class FoxgloveSink:
                 ch = foxglove.Channel(topic, schema=SCHEMAS[topic] if topic in JSON_TOPICS else {},
                                       context=self.context)
             self.channels[topic] = ch
+            self._log[topic] = ch.base.log
         return ch
 
     def log(self, t: int, messages) -> None:
+        logs = self._log
         for topic, kind, payload in messages:
-            self.channel(topic, kind).log(payload, log_time=t)
+            log = logs.get(topic)
+            if log is None:
+                self.channel(topic, kind)
+                log = logs[topic]
+            log(payload, t)
         self.messages += len(messages)
 
 

@@ -51,8 +51,9 @@ T_BUS = "/bus"
 
 
 def log_time_ns(record: dict) -> int:
-    """The cycle's SYNC time in integer ns since the run's first CAN event (``t`` is kept to the µs)."""
-    return int(round(float(record.get("t") or 0.0) * 1e6)) * 1000
+    """The cycle's SYNC time in integer ns since the run's first CAN event (``t`` is kept to the
+    µs); a hand-made record's negative ``t`` is 0 (MCAP and ROS times are unsigned)."""
+    return max(0, int(round(float(record.get("t") or 0.0) * 1e6)) * 1000)
 
 
 def rule_key(name: str) -> str:
@@ -129,8 +130,9 @@ class TopicMap:
             self.node_taxels = {label: np.array([i]) for i, label in enumerate(labels)}
         self.n = scene.n
         self._maps: dict = {}
-        self._rules_cache: dict = {}
-        self._flat_cache: dict = {}
+        self._decision_cache: dict = {}
+        self._contact_cache: dict = {}
+        self._bus_cache: dict = {}
         self.known_topics = self._known_topics()
 
     def _known_topics(self) -> list[tuple[str, bool]]:
@@ -152,7 +154,8 @@ class TopicMap:
             out.append((T_FORCES, False))
         if getattr(self.scene, "gripper", None) is not None:  # the grip stage (issue 23) reports it
             out.append((T_GRIP, False))
-        out.append((T_TRUTH, False))
+        if getattr(self.scene, "grasp", None) is not None:   # the grasp world's truth (issue 23)
+            out.append((T_TRUTH, False))
         return out
 
     # ------------------------------------------------------------------ taxel maps
@@ -211,58 +214,77 @@ class TopicMap:
 
     # ------------------------------------------------------------------ per-cycle values
     def json_messages(self, record: dict) -> list[tuple[str, bytes]]:
-        """:meth:`values` as JSON text (UTF-8), the same values; the ``rules`` part of
-        ``/fusion/decision`` - the largest, and the same while the decision vector is - is encoded
-        once per distinct content (cached), the rest per cycle."""
-        out = []
-        for topic, value in self.values(record, rules=False):
-            if topic == T_DECISION:
-                text = _json(value)[:-1] + self._rules_json(record.get("rules") or {}) + "}"
-            elif topic in (T_CONTACT, T_TRUTH):  # flat, and the same for many cycles
-                text = self._flat_json(value)
-            else:
-                text = _json(value)
-            out.append((topic, text.encode()))
+        """:meth:`values` as JSON (UTF-8 bytes): the same values, made cheaply. What repeats from
+        cycle to cycle is encoded once per distinct content and kept (at most 1024 entries each):
+        ``/fusion/decision`` but its ``cycle`` (a function of the decision vector, the truth and
+        the rules' results, which the pipeline itself caches per vector), ``/fusion/contact``,
+        and ``/bus`` but its per-cycle numbers when no node is named in it. Keys are the values
+        themselves: numbers equal in Python (1 and 1.0, 0.0 and -0.0) share a text - a field
+        keeps its type from cycle to cycle, and the JSON values are equal anyway."""
+        get = record.get
+        cycle = _scalar(get("cycle"))
+        out = [(T_DECISION, self._decision_json(record, cycle)), (T_BUS, self._bus_json(record, cycle))]
+        if "area" in record or "contact_type" in record:
+            key = tuple([get(k) for k in _CONTACT_KEYS])
+            text = self._contact_cache.get(key)
+            if text is None:
+                text = _remember(self._contact_cache, key, _json(contact_message(record)).encode())
+            out.append((T_CONTACT, text))
+        for topic, key in ((T_SLIP, "slip"), (T_FORCES, "forces"), (T_GRIP, "grip")):
+            value = get(key)
+            if isinstance(value, dict):
+                out.append((topic, _json(value).encode()))
+        truth = truth_message(record)
+        if truth is not None:
+            out.append((T_TRUTH, _json(truth).encode()))
         return out
 
-    def _flat_json(self, value: dict) -> str:
+    def _decision_json(self, record: dict, cycle: str) -> bytes:
+        get = record.get
+        rules = get("rules") or {}
         try:
-            key = tuple(value.items())
-            text = self._flat_cache.get(key)
-        except TypeError:  # a list or dict inside: encoded each time
-            return _json(value)
-        if text is None:
-            if len(self._flat_cache) > 1024:
-                self._flat_cache.clear()
-            text = self._flat_cache[key] = _json(value)
-        return text
-
-    def _rules_json(self, rules: dict) -> str:
-        # the key: every rule's fields and values (a list - preferential's band - as a tuple).
-        # Values equal as Python numbers share a text (1 and 1.0): a rule's fields keep their type.
-        try:
-            key = tuple([(name, tuple([(k, tuple(v) if v.__class__ is list else v) for k, v in result.items()]))
-                         for name, result in rules.items()])
-            text = self._rules_cache.get(key)
-        except TypeError:  # an unhashable value: no caching
-            key, text = None, None
-        if text is None:
-            codes, renamed = _rules_parts(rules)
-            text = ',"rule_decisions":' + _json(codes) + ',"rules":' + _json(renamed)
+            key = (tuple([get(k) for k in _DECISION_KEYS]), tuple(rules),
+                   tuple([tuple(r.values()) for r in rules.values()]))
+            hash(key)
+        except TypeError:  # a list inside (preferential's band): as tuples
+            try:
+                key = (tuple([get(k) for k in _DECISION_KEYS]), tuple(rules),
+                       tuple([tuple([tuple(v) if v.__class__ is list else v for v in r.values()])
+                              for r in rules.values()]))
+                hash(key)
+            except TypeError:
+                key = None
+        body = self._decision_cache.get(key) if key is not None else None
+        if body is None:
+            value = decision_message(record)
+            del value["cycle"]
+            body = _json(value)[1:].encode()  # '"decide_with":...}'
             if key is not None:
-                if len(self._rules_cache) > 1024:
-                    self._rules_cache.clear()
-                self._rules_cache[key] = text
-        return text
+                _remember(self._decision_cache, key, body)
+        return b'{"cycle":' + cycle.encode() + b"," + body
+
+    def _bus_json(self, record: dict, cycle: str) -> bytes:
+        get = record.get
+        if get("emcy") or get("nodes_by_state") or get("duplicate_nodes") or get("error") is not None \
+                or get("emcy_dropped"):
+            return _json(bus_message(record)).encode()
+        key = (get("closed_by"), get("n_expected"), get("n_live"), get("n_received"))
+        stable = self._bus_cache.get(key)
+        if stable is None:
+            stable = _remember(self._bus_cache, key, (
+                f',"closed_by":{_json(key[0])},"n_expected":{_scalar(key[1])},"n_live":{_scalar(key[2])},'
+                f'"n_received":{_scalar(key[3])},"emcy_count":0,"emcy":[],"not_taking_part":0,'
+                f'"nodes_by_state":{{}},"duplicate_nodes":[],"error":null}}'))
+        return (f'{{"cycle":{cycle},"sync_counter":{_scalar(get("sync_counter"))},'
+                f'"closed_after_ms":{_scalar(get("closed_after_ms"))},"late_frames":{_scalar(get("late_frames"))},'
+                f'"bad_frames":{_scalar(get("bad_frames"))}' + stable).encode()
 
     def values(self, record: dict, *, rules: bool = True) -> list[tuple[str, dict]]:
         """The JSON messages of one record: ``[(topic, dict), ...]`` in a fixed order; a topic
         whose data the record does not carry (no slip stage, no grip) is left out."""
         out = [(T_DECISION, decision_message(record, rules=rules)), (T_BUS, bus_message(record))]
-        contact = {k: record[k] for k in ("area", "t_c", "contact_type", "fp_c", "contact_type_fp") if k in record}
-        if contact:
-            contact["present_count"] = record.get("present_count")
-            out.append((T_CONTACT, contact))
+        if "area" in record or "contact_type" in record:
+            out.append((T_CONTACT, contact_message(record)))
         for topic, key in ((T_SLIP, "slip"), (T_FORCES, "forces"), (T_GRIP, "grip")):
             if isinstance(record.get(key), dict):
                 out.append((topic, record[key]))
@@ -338,18 +360,47 @@ def bus_message(record: dict) -> dict:
     }
 
 
-def truth_message(record: dict) -> dict | None:
-    """``/world/truth``: the simulated world's truth where known - the scene's object presence
-    (``truth``) and, in grasp scenes, ``grasp_truth`` (phase, normal force, minimum hold force,
-    slipping, slid distance, dropped, crushed)."""
-    truth = record.get("truth")
-    grasp = record.get("grasp_truth")
-    if truth is None and not isinstance(grasp, dict):
-        return None
-    out = {"truth": truth, "truth_code": TRUTH_CODE.get(truth)}
-    if isinstance(grasp, dict):
-        out.update(grasp)
+def contact_message(record: dict) -> dict:
+    """``/fusion/contact``: area (eq 35), t_c / fp_c and the contact types (eqs 34a/b) the
+    record has, and the number of present taxels."""
+    out = {k: record[k] for k in _CONTACT_KEYS[:-1] if k in record}
+    out["present_count"] = record.get("present_count")
     return out
+
+
+def truth_message(record: dict) -> dict | None:
+    """``/world/truth``, in grasp scenes (records with ``grasp_truth``): the simulated world's
+    state - phase, normal force, minimum hold force, slipping, slid distance, dropped, crushed -
+    with the object's presence (``truth``, as ``/fusion/decision`` has it in every scene)."""
+    grasp = record.get("grasp_truth")
+    if not isinstance(grasp, dict):
+        return None
+    truth = record.get("truth")
+    return {"truth": truth, "truth_code": TRUTH_CODE.get(truth), **grasp}
+
+
+_DECISION_KEYS = ("decide_with", "decision", "U_G", "threshold", "p_h1", "present_count", "n_received",
+                  "n_expected", "degraded", "truth")
+_CONTACT_KEYS = ("area", "t_c", "contact_type", "fp_c", "contact_type_fp", "present_count")
+
+
+def _scalar(value) -> str:
+    """JSON of one int, float or None as json writes it (a float's repr); anything else via json."""
+    cls = value.__class__
+    if cls is int:
+        return str(value)
+    if cls is float and math.isfinite(value):
+        return repr(value)
+    if value is None:
+        return "null"
+    return _json(value)
+
+
+def _remember(cache: dict, key, value):
+    if len(cache) > 1024:
+        cache.clear()
+    cache[key] = value
+    return value
 
 
 def _difference(a, b):
