@@ -98,7 +98,7 @@ def one_pass(scene, frames, variant: str, tmp: Path) -> tuple[float, int, dict]:
         mcap = tmp / "bench.mcap" if "mcap" in variant else None
         live = ("127.0.0.1", 0) if "live" in variant else None
         outputs = RoboticsOutputs(scene, mcap=mcap, foxglove=live, threaded=True)
-        if "viewer" in variant or variant == "mcap + live":
+        if variant in ("live, 1 viewer", "mcap + live"):
             viewer = subprocess.Popen([sys.executable, "-c", VIEWER, str(outputs.live.port)], stdout=subprocess.PIPE,
                                       text=True)
             assert viewer.stdout.readline().strip() == "subscribed"
@@ -174,7 +174,13 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--scenes", nargs="+", default=["matrix57", "skin4096"])
     parser.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=VARIANTS)
+    parser.add_argument("--poll-s", type=float, default=None,
+                        help="the publisher's period (fusion_center.robotics.outputs.POLL_S; default its own)")
     args = parser.parse_args()
+    if args.poll_s is not None:
+        from fusion_center.robotics import outputs
+
+        outputs.POLL_S = args.poll_s
     with tempfile.TemporaryDirectory() as tmp_name:
         tmp = Path(tmp_name)
         for scene_name in args.scenes:

@@ -32,7 +32,8 @@ def test_the_checked_in_layout_is_the_built_one(name):
     assert layout["version"] == 1 and {p["panelType"] for p in _panels(layout["content"])} == {"Image", "Plot"}
 
 
-@pytest.mark.parametrize("name, scene_name", [("taxel-can.json", "matrix57"), ("taxel-can-gripper.json", "grasp_drive")])
+@pytest.mark.parametrize("name, scene_name", [("taxel-can.json", "matrix57"),
+                                              ("taxel-can-gripper.json", "grasp_drive")])
 def test_every_plotted_field_and_image_topic_is_published(name, scene_name):
     from test_robotics_mcap import _grasp_record
 

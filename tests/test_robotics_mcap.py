@@ -279,7 +279,8 @@ def test_the_cached_json_is_the_plain_encoding_of_every_message(matrix57_run):
     odd = dict(records[60], emcy=[{"node": 5, "code": "0x8130", "register": "0x11", "manufacturer": "", "t": 1.0}],
                nodes_by_state={"silent": [5], "missing": [9]}, degraded=True)
     error = {"cycle": 7, "t": 0.5, "error": "boom"}
-    for scene_name, recs in (("matrix57", records + [odd, error]), ("grasp_drive", [_grasp_record(k) for k in range(3)])):
+    grasp = [_grasp_record(k) for k in range(3)]
+    for scene_name, recs in (("matrix57", records + [odd, error]), ("grasp_drive", grasp)):
         topics = TopicMap(load_scene(scene_name))
         for _ in range(2):
             for record in recs:
@@ -381,7 +382,8 @@ def test_a_fifo_whose_reader_goes_away_is_one_line_not_a_traceback(tmp_path, cap
     assert fifo.is_fifo()
 
 
-@pytest.mark.parametrize("t", [0, 5, 999_999_999, 1_000_000_000, 12_345_678_901_234, (2 ** 32 - 1) * 10 ** 9 + 999_999_999])
+@pytest.mark.parametrize("t", [0, 5, 999_999_999, 1_000_000_000, 12_345_678_901_234,
+                               (2 ** 32 - 1) * 10 ** 9 + 999_999_999])
 def test_the_raw_images_are_the_sdks_bytes(t):
     """mcap_out.raw_image builds foxglove.RawImage's protobuf bytes itself: the same as the SDK's."""
     from foxglove.messages import RawImage, Timestamp

@@ -80,7 +80,8 @@ def raw_image(stamp: bytes, frame_id: str, width: int, height: int, encoding: st
     if fields is None:
         enc, frame = encoding.encode(), frame_id.encode()
         head = b"".join(tag + struct.pack("<I", v) for tag, v in ((b"\x15", width), (b"\x1d", height)) if v)
-        head += (b"\x22" + _varint(len(enc)) + enc if enc else b"") + (b"\x2d" + struct.pack("<I", step) if step else b"")
+        head += b"\x22" + _varint(len(enc)) + enc if enc else b""
+        head += b"\x2d" + struct.pack("<I", step) if step else b""
         tail = b"\x3a" + _varint(len(frame)) + frame if frame else b""
         fields = _IMAGE_FIELDS[key] = (head, tail)
     head, tail = fields

@@ -20,7 +20,8 @@ user already has (the type definitions of ``rosbags``' Jazzy type store, stored 
 
 Stamps (``header.stamp`` and the bag's time) are the cycle's SYNC time, as in the MCAP file
 (:func:`.topics.log_time_ns`). The bag is written in ``DIR.partial/DIR`` and moved onto ``DIR``
-when complete (a failed run leaves only ``DIR.partial``); ``DIR`` must not exist (rosbag2's own rule: a bag is never appended to).
+when complete (a failed run leaves only ``DIR.partial``); ``DIR`` must not exist (rosbag2's own
+rule: a bag is never appended to).
 """
 
 from __future__ import annotations

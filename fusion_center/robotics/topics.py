@@ -75,6 +75,7 @@ class Pad:
     width: int
     height: int
     cell_mm: tuple       # (x, y) median spacing of the distinct coordinates, mm (None without coordinates)
+    shared_sites: bool = False  # some taxels share a pixel (matrix57's R pairs)
 
     @property
     def map_topic(self) -> str:
@@ -102,7 +103,7 @@ def _pads(scene: Scene) -> list[Pad]:
             row = {y: r for r, y in enumerate(ys)}
             cells = np.array([row[float(t.y)] * len(xs) + col[float(t.x)] for t in taxels], dtype=np.int64)
             spacing = tuple(float(np.median(np.diff(v))) if len(v) > 1 else 1.0 for v in (xs, ys))
-            pads.append(Pad(name, idx, cells, len(xs), len(ys), spacing))
+            pads.append(Pad(name, idx, cells, len(xs), len(ys), spacing, len(np.unique(cells)) < len(cells)))
         else:
             pads.append(Pad(name, idx, np.arange(len(idx), dtype=np.int64), len(idx), 1, None))
     return pads
@@ -184,7 +185,10 @@ class TopicMap:
             images = []
             for pad in self.pads:
                 img = np.zeros(pad.width * pad.height, dtype=np.uint8)
-                np.maximum.at(img, pad.cells, codes[pad.taxels])
+                if pad.shared_sites:  # taxels on one site: the highest value
+                    np.maximum.at(img, pad.cells, codes[pad.taxels])
+                else:
+                    img[pad.cells] = codes[pad.taxels]
                 images.append(img.tobytes())
             self._maps[key] = images
         return images
