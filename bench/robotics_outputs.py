@@ -14,7 +14,9 @@ per variant, in turn:
 * ``live, no viewer``: ``--foxglove`` with nobody connected;
 * ``live, 1 viewer``: ``--foxglove`` with a WebSocket client in another process subscribed to
   every channel and reading everything (its CPU is not the centre's);
-* ``mcap + live``: both, the viewer connected.
+* ``mcap + live``: both, the viewer connected;
+* ``mcap in the cycle`` (not a command's: ``RoboticsOutputs(threaded=False)``, as ``replay``): the
+  MCAP file written by the thread that made the record, no publisher thread.
 
 Measured, from the first frame to the last cycle published (the steady state: opening and closing
 the outputs - the server's start and stop, the file's summary - happen once a run and are left
@@ -76,7 +78,7 @@ async def main(port):
 asyncio.run(main(int(sys.argv[1])))
 '''
 
-VARIANTS = ("bare", "mcap", "live, no viewer", "live, 1 viewer", "mcap + live")
+VARIANTS = ("bare", "mcap", "live, no viewer", "live, 1 viewer", "mcap + live", "mcap in the cycle")
 
 
 def record_trace(scene_name: str, cycles: int, out: Path) -> Path:
@@ -97,7 +99,7 @@ def one_pass(scene, frames, variant: str, tmp: Path) -> tuple[float, int, dict]:
     if variant != "bare":
         mcap = tmp / "bench.mcap" if "mcap" in variant else None
         live = ("127.0.0.1", 0) if "live" in variant else None
-        outputs = RoboticsOutputs(scene, mcap=mcap, foxglove=live, threaded=True)
+        outputs = RoboticsOutputs(scene, mcap=mcap, foxglove=live, threaded=variant != "mcap in the cycle")
         if variant in ("live, 1 viewer", "mcap + live"):
             viewer = subprocess.Popen([sys.executable, "-c", VIEWER, str(outputs.live.port)], stdout=subprocess.PIPE,
                                       text=True)
@@ -164,6 +166,78 @@ def _thread_cpu_ns(*, exclude: int, before: dict | None = None):
     return sum(ns - before.get(tid, 0) for tid, ns in now.items())
 
 
+def bus_pass(variant: str, cycles: int, tmp: Path) -> tuple[float, float, int]:
+    """matrix57 on a bus: node-sim in its own process, the centre in this one on udp_multicast
+    (loopback) - its whole CPU per cycle, receive path included (from the first SYNC to the
+    last record, boot and outputs' opening and closing left out): (process s, other threads s, cycles)."""
+    import random
+
+    from fusion_center.robotics.outputs import RoboticsOutputs
+    from fusion_center.service import FusionService
+    from taxel_net.scene import load_scene
+
+    group, port = "239.74.163.2", random.randint(40000, 60000)
+    scene = load_scene("matrix57")
+    sim = subprocess.Popen([sys.executable, "-m", "node_sim.cli", "--scene", "matrix57", "--interface", "udp_multicast",
+                            "--channel", group, "--bus-option", f"port={port}", "--bus-option", "hop_limit=0"],
+                           cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    outputs = viewer = None
+    try:
+        assert "ready" in sim.stdout.readline()
+        with FusionService(scene, interface="udp_multicast", channels=[group], bus_kwargs={"port": port},
+                           keep_records=False) as service:
+            if variant != "bare":
+                outputs = RoboticsOutputs(scene, mcap=tmp / "bus.mcap" if "mcap" in variant else None,
+                                          foxglove=("127.0.0.1", 0) if "live" in variant else None,
+                                          threaded=variant != "mcap in the cycle")
+                outputs.attach(service)
+                if variant in ("live, 1 viewer", "mcap + live"):
+                    viewer = subprocess.Popen([sys.executable, "-c", VIEWER, str(outputs.live.port)],
+                                              stdout=subprocess.PIPE, text=True)
+                    assert viewer.stdout.readline().strip() == "subscribed"
+            service.boot(5.0)
+            main_tid = threading.get_native_id()
+            others0 = _thread_cpu_ns(exclude=main_tid)
+            cpu0 = time.process_time()
+            service.run(cycles)
+            if outputs is not None:
+                end = time.monotonic() + 30
+                while outputs._queue and time.monotonic() < end:
+                    time.sleep(0.005)
+            cpu = time.process_time() - cpu0
+            # the centre's own threads (receive, SYNC, heartbeat) are "others" here too: kept apart
+            # by name - the publisher's and the SDK's
+            publisher = outputs._thread.native_id if outputs is not None and outputs._thread is not None else None
+            others = _named_cpu_ns(others0, publisher) * 1e-9
+            done = service.stats.records
+    finally:
+        if outputs is not None:
+            outputs.close()
+        if viewer is not None:
+            viewer.terminate()
+            viewer.wait(timeout=10)
+        sim.terminate()
+        sim.wait(10)
+    return cpu, others, done
+
+
+def _named_cpu_ns(before: dict, publisher: int | None) -> int:
+    """CPU ns since ``before`` of the outputs' threads: the publisher (its thread id) and the
+    SDK's (tokio) ones."""
+    total = 0
+    for task in os.listdir("/proc/self/task"):
+        try:
+            with open(f"/proc/self/task/{task}/comm") as f:
+                name = f.read().strip()
+            if not (int(task) == publisher or name.startswith("tokio")):
+                continue
+            with open(f"/proc/self/task/{task}/schedstat") as f:
+                total += int(f.read().split()[0]) - before.get(int(task), 0)
+        except OSError:
+            continue
+    return total
+
+
 def main() -> None:
     import can
 
@@ -174,9 +248,34 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--scenes", nargs="+", default=["matrix57", "skin4096"])
     parser.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=VARIANTS)
+    parser.add_argument("--bus", action="store_true",
+                        help="instead: matrix57 live on udp_multicast against node-sim in another process (the "
+                             "centre's whole CPU per cycle, receive path included)")
     parser.add_argument("--poll-s", type=float, default=None,
                         help="the publisher's period (fusion_center.robotics.outputs.POLL_S; default its own)")
     args = parser.parse_args()
+    if args.bus:
+        with tempfile.TemporaryDirectory() as tmp_name:
+            per: dict[str, list] = {v: [] for v in args.variants}
+            extra: dict[str, list] = {v: [] for v in args.variants}
+            load0 = os.getloadavg()[0]
+            for _ in range(args.rounds):
+                for variant in args.variants:
+                    cpu, others, done = bus_pass(variant, args.cycles, Path(tmp_name))
+                    per[variant].append(cpu / done * 1e6)
+                    extra[variant].append(others / done * 1e6)
+            print(f"matrix57 on udp_multicast, node-sim in another process: {args.cycles} cycles x {args.rounds} "
+                  f"rounds, the centre's CPU per cycle (median; load average {load0:.1f} -> {os.getloadavg()[0]:.1f})")
+            base = per.get("bare")
+            for variant in args.variants:
+                line = f"  {variant:<17} process {statistics.median(per[variant]):8.1f} us"
+                if base and variant != "bare":
+                    ratios = [v / b for v, b in zip(per[variant], base)]
+                    line += (f" x{statistics.median(ratios):.3f} of bare (" + ", ".join(f"{r:.3f}" for r in ratios)
+                             + f"); publisher + SDK threads {statistics.median(extra[variant]):6.1f} us = "
+                             f"+{100 * statistics.median([e / b for e, b in zip(extra[variant], base)]):.1f} % of bare")
+                print(line, flush=True)
+        return
     if args.poll_s is not None:
         from fusion_center.robotics import outputs
 
