@@ -4,7 +4,7 @@
 :meth:`RoboticsOutputs.on_cycle` is the callback (``FusionService.on_cycle``,
 ``replay_trace(on_cycle=...)``): with ``threaded=True`` (``run``, ``demo``) it only appends the
 record (and its readings in raw mode) to a queue - no encoding, no I/O, no lock the cycle could
-wait on - and a publisher thread, woken every :data:`POLL_S` (20 times a second: a wake-up per
+wait on - and a publisher thread, woken every :data:`POLL_S` (10 times a second: a wake-up per
 cycle would cost more than the publishing on a loaded host), encodes each cycle once and logs it
 to every output in cycle order; the MCAP file and the bag get every cycle, the live server
 skips the oldest when more than ``LIVE_BACKLOG`` cycles wait (counted). With only the live server
@@ -24,7 +24,7 @@ from taxel_net.errors import UsageError, one_line
 from .topics import TopicMap
 
 logger = logging.getLogger("fusion_center.robotics")
-POLL_S = 0.05
+POLL_S = 0.1
 
 
 class RoboticsOutputs:
