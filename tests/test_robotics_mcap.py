@@ -399,3 +399,11 @@ def test_the_raw_images_are_the_sdks_bytes(t):
         sdk = RawImage(timestamp=Timestamp(sec=t // 10 ** 9, nsec=t % 10 ** 9), frame_id=frame_id, width=width,
                        height=height, encoding=encoding, step=step, data=data).encode()
         assert raw_image(_stamp(t), frame_id, width, height, encoding, step, data) == sdk
+
+
+def test_a_run_whose_bus_cannot_be_opened_leaves_no_output(tmp_path, capsys):
+    out = tmp_path / "run.mcap"
+    assert main(["run", "--scene", "matrix57", "-i", "udp_multicast", "-c", "not-an-address", "--cycles", "3",
+                 "--mcap", str(out), "--ros2-bag", str(tmp_path / "bag"), "--no-live"]) == 2
+    assert "--channel" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == []

@@ -189,8 +189,9 @@ class McapOutput:
         self.sink.log(t, messages)
 
     def close(self, ok: bool = True) -> None:
-        """Finish the file; ``ok``: rename it onto FILE, else leave ``FILE.partial`` and remove an
-        earlier FILE (a failed run's file must not pass for a complete one)."""
+        """Finish the file; ``ok``: rename it onto FILE, else leave ``FILE.partial`` (none when no
+        cycle was written) and remove an earlier FILE (a failed run's file must not pass for a
+        complete one)."""
         if self.closed:
             return
         self.closed = True
@@ -203,3 +204,5 @@ class McapOutput:
             self.out.commit()
         else:
             self.out.discard_stale()
+            if not self.sink.messages:  # failed before the first cycle (a bus that cannot be opened)
+                self.out.discard_partial()

@@ -195,6 +195,8 @@ class Ros2Bag:
         if ok:
             os.replace(self.partial, self.target)
             self.staging.rmdir()
+        elif not self.messages:  # failed before the first cycle: nothing worth keeping
+            shutil.rmtree(self.staging, ignore_errors=True)
 
 
 def _number(value) -> float:
