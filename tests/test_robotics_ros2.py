@@ -187,3 +187,15 @@ def test_export_refuses_an_existing_directory_and_missing_arguments(tmp_path, ca
     assert "OUT_DIR" in capsys.readouterr().err
     assert main(["export", str(log), "--scene", "matrix57"]) == 2
     assert "nothing to export" in capsys.readouterr().err
+
+
+def test_demo_writes_a_bag_and_bad_targets_are_one_line(tmp_path, capsys):
+    assert main(["demo", "--cycles", "5", "--ros2-bag", str(tmp_path / "bag"), "--no-live"]) == 0
+    assert "ros2_bag:" in capsys.readouterr().out
+    _, info = _rosbags_messages(tmp_path / "bag")
+    assert info["counts"] == {"/taxel/sensor/map": 5, "/diagnostics": 5}
+    for args, says in ((["--ros2-bag", str(tmp_path / "no" / "bag")], "no directory"),
+                       (["--mcap", str(tmp_path / "no" / "x.mcap")], "cannot be written")):
+        assert main(["demo", "--cycles", "3", "--no-live", *args]) == 2
+        err = capsys.readouterr().err.strip()
+        assert "\n" not in err and says in err
