@@ -27,6 +27,7 @@ COMMANDS: dict[str, str] = {
     "dcf": "dcf",
     "plot": "plot",
     "assemble": "assemble",
+    "export": "export",
 }
 
 

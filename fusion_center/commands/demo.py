@@ -23,6 +23,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "inhibit and event timers), 1..1000 (default 1: the scene's own times): for a "
                              "scene whose twins and centre do not keep its SYNC period in one process")
     add_common_outputs(parser)
+    from ..robotics.cli import add_arguments as add_robotics_arguments
+
+    add_robotics_arguments(parser, live=True, bag=True)
 
 
 def parse_drops(items: list[str], scene) -> dict[int, list[int]]:
@@ -102,7 +105,7 @@ def fell_behind(summary: dict, period_ms: float) -> str | None:
 
 def run_demo(scene, cycles: int, *, drops: dict[int, list[int]] | None = None, json_lines=None, trace=None,
              live: bool = False, boot_timeout: float = 3.0, channel_tag: str | None = None,
-             keep_records: bool | int = True, on_record=()):
+             keep_records: bool | int = True, on_record=(), outputs=None):
     """Start the node twins (``node_sim.rig.Rig``) and the fusion centre on a private virtual
     channel, run ``cycles`` SYNC cycles, return (service, summary dict)."""
     from node_sim.rig import Rig
@@ -127,17 +130,23 @@ def run_demo(scene, cycles: int, *, drops: dict[int, list[int]] | None = None, j
         for node_id in drops.get(cycle, ()):
             rig.drop_node(node_id)
 
-    with service:
+    from .run import run_with_outputs
+
+    def body():
         try:
-            summary = execute(service, cycles, live=live, boot_timeout=boot_timeout,
-                              before_sync=before_sync, on_start=rig.start)
+            return execute(service, cycles, live=live, boot_timeout=boot_timeout,
+                           before_sync=before_sync, on_start=rig.start)
         finally:
             rig.stop()
+
+    summary = run_with_outputs(service, outputs, body)
     return service, summary
 
 
 def run(args) -> int:
     from ..service.traces import check_trace_target
+
+    from ..robotics import cli as robotics
 
     setup_logging()
     scene, cycles = load_run_scene(args)
@@ -145,13 +154,15 @@ def run(args) -> int:
     scene = slowed_down(scene, args.slow_down)
     drops = parse_drops(args.drop_node, scene)
     check_trace_target(args.log)
+    robotics.check(args)
     from .run import zenoh_publisher
 
     publisher = zenoh_publisher(args, scene)
     try:
         _, summary = run_demo(scene, cycles, drops=drops, json_lines=args.json_lines, trace=args.log,
                               live=not args.no_live, boot_timeout=args.boot_timeout, keep_records=False,
-                              on_record=[publisher] if publisher is not None else [])
+                              on_record=[publisher] if publisher is not None else [],
+                              outputs=robotics.open_outputs(args, scene, threaded=True))
     finally:
         if publisher is not None:
             publisher.close()

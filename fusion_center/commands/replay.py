@@ -19,6 +19,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--truth-log", metavar="FILE", default=None,
                         help="the grasp world's truth of the run (`node-sim --truth-log`): records of a scene "
                              "with [gripper] and [grasp] then carry grasp_truth")
+    from ..robotics.cli import add_arguments as add_robotics_arguments
+
+    add_robotics_arguments(parser, live=False, bag=True)
     parser.add_argument("--force", action="store_true",
                         help="replay even when the trace does not match the scene (a channel the scene does "
                              "not have, node-IDs of another scene, the other mode, a .csv of several channels)")
@@ -33,6 +36,8 @@ def run(args) -> int:
     from ..service.traces import check_trace
     from .run import apply_mode, setup_logging
 
+    from ..robotics import cli as robotics
+
     setup_logging()
     scene = apply_mode(load_scene(args.scene), args.mode)  # the mode of the recorded run
     grasp_truth = None
@@ -42,17 +47,31 @@ def run(args) -> int:
         if scene.gripper is None or getattr(scene, "grasp", None) is None:
             raise UsageError(f"--truth-log: scene {scene.name!r} has no grasp world ([gripper] and [grasp])")
         grasp_truth = TruthTable.from_file(args.truth_log)
+    robotics.check(args)
     if not args.force:
         try:
             check_trace(scene, args.trace)  # before anything is written
         except UsageError:
-            if args.json_lines:
-                discard_stale(args.json_lines)  # a log of an earlier replay must not pass for this one's
+            for stale in (args.json_lines, args.mcap):
+                if stale:
+                    discard_stale(stale)  # an output of an earlier replay must not pass for this one's
             raise
     on_record = None if args.json_lines else (lambda r: print(dumps(r)))
-    records, counters = replay_trace(scene, args.trace, json_lines=args.json_lines, on_record=on_record,
-                                     grasp_truth=grasp_truth)
+    outputs = robotics.open_outputs(args, scene, threaded=False)
+    try:
+        records, counters = replay_trace(scene, args.trace, json_lines=args.json_lines, on_record=on_record,
+                                         grasp_truth=grasp_truth,
+                                         on_cycle=outputs.on_cycle if outputs is not None else None)
+    except BaseException:
+        if outputs is not None:
+            outputs.close(ok=False)
+        raise
+    robotics_stats = outputs.close(ok=True) if outputs is not None else {}
     out = sys.stderr if not args.json_lines else sys.stdout
     print(f"records: {len(records)}", file=out)
     print(f"counters: {({k: v for k, v in counters.items() if v})}", file=out)
+    from ..robotics.outputs import summary_lines
+
+    for label, text in summary_lines(robotics_stats):
+        print(f"{label}: {text}", file=out)
     return 0

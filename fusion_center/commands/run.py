@@ -75,6 +75,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "and fuse their cycles instead of assembling them here (beyond loopback: the same "
                              "FUSION_CENTER_AUTHKEY on every host; on loopback without it a key of this run's, "
                              "in a file only this user can read; docs/service.md)")
+    from ..robotics.cli import add_arguments as add_robotics_arguments
+
+    add_robotics_arguments(parser, live=True, bag=True)
 
 
 def setup_logging() -> None:
@@ -238,6 +241,10 @@ def format_summary(summary: dict) -> list[str]:
         lines.append(("zenoh", f"{z['records']} records on {z['keys']['record']}, {z['grip']} on .../grip, "
                                f"{z['contact']} contact events on .../contact, {z['failed']} failed, "
                                f"{z['unmatched']} with no subscriber ({z['session']})"))
+    if "robotics" in summary:
+        from ..robotics.outputs import summary_lines
+
+        lines += summary_lines(summary["robotics"])
     if "slow_down" in summary:
         lines.append(("slow_down", summary["slow_down"]))
     if "warning" in summary:
@@ -322,6 +329,24 @@ def check_boot_timeout(value: float) -> None:
         raise UsageError(f"--boot-timeout {value}: must be a number of seconds in (0, {BOOT_TIMEOUT_MAX_S:g}]")
 
 
+def run_with_outputs(service, outputs, body) -> dict:
+    """Open ``service``, publish its records to the robotics ``outputs`` (or None) while ``body()``
+    runs it, close both: the outputs' files are committed when ``body`` returns a summary (also
+    an interrupted run's), left partial when it raises; their figures join the summary."""
+    try:
+        with service:
+            if outputs is not None:
+                outputs.attach(service)
+            summary = body()
+    except BaseException:
+        if outputs is not None:
+            outputs.close(ok=False)
+        raise
+    if outputs is not None:
+        summary["robotics"] = outputs.close(ok=True)
+    return summary
+
+
 def print_summary(summary: dict) -> None:
     for line in format_summary(summary):
         print(line)
@@ -332,9 +357,12 @@ def run(args) -> int:
     from . import resolve_bus
     from ..service.traces import check_trace_target
 
+    from ..robotics import cli as robotics
+
     setup_logging()
     scene, cycles = load_run_scene(args)
     check_trace_target(args.log)
+    robotics.check(args)
     bus = resolve_bus(args, scene)
     options = dict(interface=bus.interface, channels=bus.channels, bitrate=bus.bitrate, bus_kwargs=bus.kwargs,
                    json_lines=args.json_lines, trace=args.log, keep_records=False)
@@ -350,9 +378,10 @@ def run(args) -> int:
     try:
         if publisher is not None:
             service.on_record.append(publisher)
-        with service:
-            summary = execute(service, cycles, live=not args.no_live, boot_timeout=args.boot_timeout,
-                              bus=bus.describe(service.channel_names))
+        summary = run_with_outputs(service, robotics.open_outputs(args, scene, threaded=True),
+                                   lambda: execute(service, cycles, live=not args.no_live,
+                                                   boot_timeout=args.boot_timeout,
+                                                   bus=bus.describe(service.channel_names)))
     finally:
         if publisher is not None:
             publisher.close()

@@ -112,6 +112,9 @@ class FusionService:
         self.eds_path = Path(eds_path)
         self.keep_records = keep_records
         self.on_record: list[Callable[[dict], None]] = [on_record] if on_record else []
+        # called after on_record with (record, closed cycle): outputs that need more than the
+        # record (fusion_center.robotics: the raw readings); same rules as on_record
+        self.on_cycle: list[Callable[[dict, ClosedCycle], None]] = []
         self.assembler = CycleAssembler(scene)
         self.labels = self.assembler.labels
         self.pipeline = CyclePipeline(scene, truth=truth)
@@ -391,6 +394,11 @@ class FusionService:
                 callback(record)
             except Exception:  # noqa: BLE001
                 logger.exception("on_record callback failed")
+        for callback in self.on_cycle:
+            try:
+                callback(record, item)
+            except Exception:  # noqa: BLE001
+                logger.exception("on_cycle callback failed")
         if item.bad_frames:
             self._log_malformed()
 

@@ -98,7 +98,8 @@ def trace_channel(msg: can.Message, suffix: str = "") -> int:
 
 def replay_trace(scene: Scene, trace_path, *, json_lines=None, truth: bool = True,
                  on_record: Callable[[dict], None] | None = None,
-                 grasp_truth=None) -> tuple[list[dict], dict[str, int]]:
+                 grasp_truth=None,
+                 on_cycle: Callable[[dict, ClosedCycle], None] | None = None) -> tuple[list[dict], dict[str, int]]:
     """Re-fuse a recorded trace offline: the same stream -> the same records as live.
 
     Returns (records, counters). The open cycle at the end of the trace is not reported
@@ -143,12 +144,15 @@ def replay_trace(scene: Scene, trace_path, *, json_lines=None, truth: bool = Tru
                 frames += 1
                 stream.receive(msg, trace_channel(msg, suffix))
                 while closed_cycles:
-                    record = pipeline.evaluate(closed_cycles.pop(0))
+                    closed = closed_cycles.pop(0)
+                    record = pipeline.evaluate(closed)
                     records.append(record)
                     if writer is not None:
                         writer.write(record)
                     if on_record is not None:
                         on_record(record)
+                    if on_cycle is not None:  # with the closed cycle, as FusionService.on_cycle
+                        on_cycle(record, closed)
             ok = True
         except BrokenPipeError:
             raise  # stdout's reader went away: not the trace's fault (the CLI exits quietly)
