@@ -107,8 +107,8 @@ def test_complete_trace_replays(traces, tmp_path, suffix):
     assert out.read_text().count("\n") >= 15 and not (tmp_path / "o.jsonl.partial").exists()
 
 
-# an .asc cut (no End TriggerBlock) or a .blf its writer never closed is read up to its last
-# complete line or container, with a warning: tests/test_trace_durability.py
+# an .asc cut (no End TriggerBlock), a .log cut in a line or a .blf its writer never closed is read
+# up to its last complete line or container, with a warning: tests/test_trace_durability.py
 @pytest.mark.parametrize("suffix, cut, needle", [
     (".blf", 0.6, "truncated or altered after its writer closed it"),
     (".log", 0.6, "unreadable after frame"),
@@ -121,8 +121,9 @@ def test_truncated_or_corrupted_trace_leaves_no_complete_looking_log(traces, tmp
         bad.write_bytes(bytes((7 * k + 3) % 256 for k in range(4096)))
     else:
         data = src[:int(len(src) * cut)]
-        if suffix == ".log":
-            data += b"(1.0) can0 18"  # the line being written when the writer died
+        if suffix == ".log":  # a broken line inside the trace (cut short at its end: read up to it)
+            data = data[:data.rfind(b"\n") + 1]
+            data += b"(1.0) can0 18\n" + src[len(data):]
         bad.write_bytes(data)
     out = tmp_path / "o.jsonl"
     out.write_text('{"an earlier": "log"}\n')

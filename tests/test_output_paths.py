@@ -31,7 +31,9 @@ TINY = scene_text("tiny3")  # three nodes: a short demo
 
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
-    """A short demo: (scene path, its trace, its live decision log, the trace cut in a line)."""
+    """A short demo: (scene path, its trace, its live decision log, the trace with a broken line
+    after ~10 cycles - replay fails there; a trace merely cut in a line is read up to its last
+    complete line, tests/test_trace_durability.py)."""
     d = tmp_path_factory.mktemp("outputs")
     scene = d / "tiny3.toml"
     scene.write_text(TINY)
@@ -39,7 +41,9 @@ def run(tmp_path_factory):
     run_demo(load_scene(scene), 20, json_lines=live, trace=trace)
     text = trace.read_bytes()
     cut = d / "cut.log"
-    cut.write_bytes(text[: int(len(text) * 0.6)] + b"(12")  # a line cut short after ~10 cycles
+    head = text[: int(len(text) * 0.6)]
+    head = head[: head.rfind(b"\n") + 1]
+    cut.write_bytes(head + b"(12\n" + text[len(head):])  # a broken line after ~10 cycles
     return scene, trace, live, cut
 
 
