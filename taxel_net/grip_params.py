@@ -56,7 +56,7 @@ def check_params(p: GripParams) -> None:
         value = getattr(p, name)
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
             raise ParameterError(name, value, "must be a finite number")
-    for name in ("max_n", "mu", "open_n"):
+    for name in ("grasp_n", "max_n", "mu", "open_n"):
         if getattr(p, name) <= 0:
             raise ParameterError(name, getattr(p, name), "must be > 0")
     for name in ("min_n", "raise_n", "raise_fraction", "settle_s", "margin", "relax_delay_s", "return_delay_s",

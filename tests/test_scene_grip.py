@@ -84,6 +84,7 @@ ERRORS = [  # (the [grip] body, field, value, words in the problem)
     ("grasp_n = true\n", "grip.grasp_n", True, "number"),
     ("grasp_n = nan\n", "grip.grasp_n", "nan", "finite"),
     ("grasp_n = 0.2\nmin_n = 0.5\n", "grip.grasp_n", 0.2, "min_n"),
+    ("grasp_n = 0\nmin_n = 0\n", "grip.grasp_n", 0.0, "> 0"),
     ("grasp_n = 70.0\nmax_n = 60.0\n", "grip.grasp_n", 70.0, "max_n"),
     ("min_n = -1.0\n", "grip.min_n", -1.0, ">= 0"),
     ("min_n = inf\n", "grip.min_n", "inf", "finite"),

@@ -65,6 +65,7 @@ from taxel_net.grip_params import GripParams, check_params  # noqa: F401  (the s
 
 LAW_PHASES = ("open", "grasp", "hold", "release")
 TASKS = ("open", "close", "release")  # what the task asks of the gripper this cycle
+TIME_EPS_S = 1e-9                      # times summed from dt_s: 6 x 0.01 s is "60 ms" whatever the rounding
 
 
 @dataclass(frozen=True)
@@ -132,12 +133,12 @@ def grip_step(p: GripParams, state: GripState, f: GripFindings) -> tuple[GripCom
     else:
         target = p.min_n
     if f.slip:
-        if math.isinf(state.since_raise_s) or state.quiet_s >= p.return_delay_s:
+        if math.isinf(state.since_raise_s) or state.quiet_s >= p.return_delay_s - TIME_EPS_S:
             # a new slip episode (the first of the grasp, or return_delay_s after the last): the command failed
             learned = max(learned, (1.0 + p.margin) * before)
             flags.append("slip_onset")
         quiet = 0.0
-        if since_raise >= p.settle_s:
+        if since_raise >= p.settle_s - TIME_EPS_S:
             command = max(command * (1.0 + p.raise_fraction), command + p.raise_n)
             since_raise = 0.0
             flags.append("slip_raise")
@@ -150,9 +151,9 @@ def grip_step(p: GripParams, state: GripState, f: GripFindings) -> tuple[GripCom
             command = floor                           # the load grew (raw) or a floor was learned
         elif command > floor and (least is None or least > 0):
             if learned > 0:                           # back from a raise, down to the floor slips taught
-                if quiet >= p.return_delay_s:
+                if quiet >= p.return_delay_s - TIME_EPS_S:
                     command = max(floor, command * max(0.0, 1.0 - p.return_per_s * dt))
-            elif quiet >= p.relax_delay_s:            # probing (decision) / following the target down (raw)
+            elif quiet >= p.relax_delay_s - TIME_EPS_S:            # probing (decision) / following the target down (raw)
                 command = max(floor, command * max(0.0, 1.0 - p.relax_per_s * dt))
     if f.degraded and command < before:
         command = before
