@@ -21,7 +21,8 @@ RPDO. Seeded and deterministic (the same ``--seed`` and ``--grasps`` give the sa
 holding force over the least holding force, crushing events on the fragile objects, bus bits per
 cycle. ``--json FILE`` writes every grasp's numbers; ``docs/grip-control.md`` shows a run.
 
-Usage: python bench/grasp.py [--grasps 1000] [--seed 23] [--jobs 2] [--json out.json] [--plot out.png]
+Usage: python bench/grasp.py [--grasps 1000] [--seed 23] [--jobs N] [--json out.json] [--plot out.png]
+       [--set FIELD=VALUE ...] (a [grip] parameter for every grasp)
 """
 
 from __future__ import annotations
@@ -330,13 +331,84 @@ def render(table: dict, dt_ms: float) -> str:
     return "\n".join(lines)
 
 
+def plot(results: list[dict], table: dict, path: Path, title: str) -> None:
+    """The table as a figure: holding force / least, slid distance, onset -> detection and
+    onset -> stuck again, drops and crushes per mode."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    colours = {"decision": "tab:blue", "raw": "tab:orange", "fixed 2x": "tab:green", "fixed 26b": "tab:red"}
+    fig, ax = plt.subplots(2, 2, figsize=(11, 7.5))
+    # (a) steady holding force over the least holding force
+    a = ax[0, 0]
+    data = [[m["ratio"] for m in (r[mode] for r in results) if m["ratio"] is not None] for mode in MODES]
+    keep = [i for i, d in enumerate(data) if d]
+    a.boxplot([data[i] for i in keep], whis=(5, 95), showfliers=False)
+    a.set_xticks(range(1, len(keep) + 1), [MODES[i] for i in keep])
+    a.axhline(1.0, color="k", lw=0.8)
+    a.axhline(1.3, color="tab:purple", ls="--", lw=1, label="goal 1.3x")
+    a.axhline(2.0, color="tab:green", ls=":", lw=1, label="vendors' 2x")
+    a.set_ylabel("holding force / least holding force")
+    a.set_title("steady hold (end of the hold; box 25-75 %, whiskers 5-95 %)", fontsize=9)
+    a.legend(fontsize=8)
+    # (b) slid distance per grasp
+    b = ax[0, 1]
+    slid = [[r[mode]["slid_mm"] for r in results] for mode in MODES]
+    b.boxplot(slid, whis=(5, 95), showfliers=True, flierprops={"markersize": 2})
+    b.set_xticks(range(1, len(MODES) + 1), MODES)
+    b.set_ylabel("largest slide before the place, mm")
+    b.axhline(20.0, color="k", ls=":", lw=1, label="contact leaves the pad (base pads)")
+    b.set_title("slid distance per grasp", fontsize=9)
+    # (c) onset -> detection and onset -> stuck, ms, centre modes
+    c = ax[1, 0]
+    dt = _base().bus.sync_period_ms
+    for mode in ("decision", "raw"):
+        eps = [e for r in results for e in r[mode]["episodes"]]
+        det = [e["detect_cycles"] * dt for e in eps if e["detect_cycles"] is not None]
+        stk = [e["stuck_ms"] for e in eps if e["stuck_ms"] is not None]
+        bins = np.arange(0, 260, 10)
+        c.hist(det, bins=bins, histtype="step", color=colours[mode], lw=1.5, label=f"{mode}: onset -> detected")
+        c.hist(stk, bins=bins, histtype="step", color=colours[mode], ls="--", lw=1.5,
+               label=f"{mode}: onset -> stuck again")
+    c.axvline(20.4, color="k", lw=0.8)
+    c.axvspan(20.4 - 6, 20.4 + 6, color="k", alpha=0.08, label="Ayral et al. 20.4 +- 6 ms")
+    c.axvline(50, color="tab:purple", ls="--", lw=1, label="goal: stuck <= 50 ms")
+    c.set_xlabel("ms after the world's slip onset")
+    c.set_ylabel("slip episodes")
+    c.legend(fontsize=7)
+    # (d) drops and crushes
+    d = ax[1, 1]
+    x = np.arange(len(MODES))
+    drops = [table[m]["dropped"] for m in MODES]
+    crush = [table[m]["crushed_fragile"] for m in MODES]
+    d.bar(x - 0.2, drops, 0.4, label="objects lost", color=[colours[m] for m in MODES])
+    d.bar(x + 0.2, crush, 0.4, label="fragile objects crushed", color=[colours[m] for m in MODES], hatch="//",
+          alpha=0.6)
+    for i, (u, v) in enumerate(zip(drops, crush)):
+        d.text(i - 0.2, u, str(u), ha="center", va="bottom", fontsize=8)
+        d.text(i + 0.2, v, str(v), ha="center", va="bottom", fontsize=8)
+    d.set_xticks(x, MODES)
+    n = len(results)
+    n_frag = table[MODES[0]]["fragile"]
+    d.set_title(f"of {n} grasps ({n_frag} fragile)", fontsize=9)
+    d.legend(fontsize=8)
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--grasps", type=int, default=1000, help="randomised grasps (default 1000)")
     ap.add_argument("--seed", type=int, default=23)
-    ap.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1), help="worker processes")
+    ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="worker processes (default: the CPUs)")
     ap.add_argument("--bits-every", type=int, default=10, help="count the bus bits on every N-th grasp")
     ap.add_argument("--json", type=Path, help="write every grasp's numbers and the table here")
+    ap.add_argument("--plot", type=Path, help="draw the table's figure into this PNG (matplotlib)")
+    ap.add_argument("--from-json", type=Path, help="no run: the table (and --plot) of a --json file written before")
     ap.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
                     help="override a [grip] parameter of the law for every grasp (repeatable)")
     args = ap.parse_args(argv)
@@ -348,6 +420,16 @@ def main(argv=None) -> int:
         if key not in GRIP_FIELDS or not value:
             ap.error(f"--set {item!r}: FIELD=VALUE with FIELD one of {', '.join(GRIP_FIELDS)}")
         overrides[key] = int(value) if key == "presence_cycles" else float(value)
+    if args.from_json:
+        saved = json.loads(args.from_json.read_text())
+        results, table = saved["grasps"], summarise(saved["grasps"])
+        dt_ms = _base().bus.sync_period_ms
+        print(render(table, dt_ms))
+        if args.plot:
+            a = saved["args"]
+            plot(results, table, args.plot, f"bench/grasp.py --grasps {a['grasps']} --seed {a['seed']} "
+                                             f"({a.get('date', '')})")
+        return 0
     rng = np.random.default_rng(args.seed)
     cases = [make_case(rng, i) for i in range(args.grasps)]
     jobs = [(c, c.index % args.bits_every == 0, overrides) for c in cases]
@@ -363,8 +445,14 @@ def main(argv=None) -> int:
     print(f"bench/grasp.py --grasps {args.grasps} --seed {args.seed}: {args.grasps} grasps x {len(MODES)} modes "
           f"in {elapsed:.0f} s ({args.jobs} job(s)); SYNC {dt_ms:g} ms")
     print(render(table, dt_ms))
+    if args.plot:
+        plot(results, table, args.plot, f"bench/grasp.py --grasps {args.grasps} --seed {args.seed} "
+                                         f"({time.strftime('%Y-%m-%d', time.gmtime())})")
     if args.json:
-        args.json.write_text(json.dumps({"args": {"grasps": args.grasps, "seed": args.seed}, "table": table,
+        args.json.write_text(json.dumps({"args": {"grasps": args.grasps, "seed": args.seed, "overrides": overrides,
+                                                  "date": time.strftime("%Y-%m-%d", time.gmtime()),
+                                                  "elapsed_s": round(elapsed, 1), "jobs": args.jobs},
+                                         "table": table,
                                          "grasps": results}, indent=None, default=float))
     return 0
 

@@ -28,14 +28,14 @@ class GripParams:
     grasp_n: float = 5.0            # the first squeeze once the object is present
     min_n: float = 0.5              # the least command while holding
     max_n: float = 100.0            # the most (the drive's range; a fragile object's limit)
-    raise_fraction: float = 1.0     # a slip raises the command to max(command (1 + raise_fraction), command + raise_n)
+    raise_fraction: float = 2.0     # a slip raises the command to max(command (1 + raise_fraction), command + raise_n)
     raise_n: float = 0.5
     settle_s: float = 0.06          # after a raise, slip raises again only after this long (the drive catching up)
     margin: float = 0.2             # the floor a slip teaches: (1 + margin) x the command the slip began under
     relax_delay_s: float = 1.0      # no probing until this long after the grasp or the last slip
     return_delay_s: float = 0.2     # no return toward the floor / target until this long after the last slip
     relax_per_s: float = 0.5        # probing (no floor learned yet): the command falls by this fraction of itself per s
-    return_per_s: float = 3.0       # above the floor or raw mode's target: falls by this fraction of itself per s
+    return_per_s: float = 6.0       # above the floor or raw mode's target: falls by this fraction of itself per s
     safety_factor: float = 1.2      # raw mode: the target is safety_factor * T / mu (eq 26a per jaw)
     mu: float = 0.5                 # the friction coefficient of eq 26a ([forces] mu by default)
     open_n: float = 10.0            # release: opening force
