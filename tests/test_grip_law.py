@@ -87,9 +87,16 @@ def test_safety_rules_hold_on_any_sequence(p, seq):
             least = f.least_hold_n
             if least is not None and math.isfinite(least) and least > 0:
                 assert cmd.force_n >= min(p.safety_factor * least, p.max_n) - 1e-9
-            # a learned floor is kept (capped by max_n) and never falls
-            assert after.learned_n >= before.learned_n
-            assert cmd.force_n >= min(before.learned_n, p.max_n) - 1e-9
+            # decision mode: a learned floor is kept (capped by max_n) and never falls; raw mode's
+            # gives way only to the measured target, and by at most relax_per_s dt of itself
+            raw = least is not None and math.isfinite(least) and least > 0
+            if not raw:
+                assert after.learned_n >= before.learned_n
+                if not f.slip:
+                    assert cmd.force_n >= min(before.learned_n, p.max_n) - 1e-9
+            else:
+                assert after.learned_n >= min(before.learned_n, max(p.min_n, p.safety_factor * least)) - 1e-9
+                assert after.learned_n >= before.learned_n * (1 - p.relax_per_s * f.dt_s) - 1e-9
         if before.phase == "open" and f.task != "release":
             grasped = f.task == "close" and after.present_run >= p.presence_cycles
             assert (cmd.force_n > 0) == grasped
@@ -204,6 +211,9 @@ def test_raw_mode_rises_to_the_target_at_once_and_follows_it_down_slowly():
     state = GripState(phase="hold", command_n=20.0, quiet_s=2.0)
     cmd, state = grip_step(P, state, close(least=0.0))
     assert cmd.force_n == 20.0                                        # nothing carried: hold
+    for bad in (float("inf"), float("nan")):                          # no number: hold, floor kept
+        c2, s2 = grip_step(P, replace(state, learned_n=15.0), close(least=bad))
+        assert c2.force_n == 20.0 and s2.learned_n == 15.0
     forces = []
     for _ in range(200):
         cmd, state = grip_step(P, state, close(least=10.0))
@@ -212,6 +222,30 @@ def test_raw_mode_rises_to_the_target_at_once_and_follows_it_down_slowly():
     for f in forces:
         expected = max(12.0, expected * (1 - 0.5 * DT))
         assert f == pytest.approx(expected, rel=1e-12)
+
+
+def test_raw_mode_forgets_a_slip_floor_for_the_measured_target():
+    """Raw mode: a slip at 8 N teaches 9.6 N; the load measured afterwards needs 1.2 x 5 = 6 N. After
+    return_delay_s the command returns to the floor (6 %/cycle), and relax_delay_s after the slip
+    the floor itself gives way by 0.5 %/cycle down to the target; decision mode keeps it."""
+    state = GripState(phase="hold", command_n=8.0, quiet_s=5.0)
+    _, state = grip_step(P, state, close(slip=True, least=5.0))
+    assert state.learned_n == pytest.approx(9.6)
+    raw, dec = state, state
+    floors_raw, floors_dec = [], []
+    for _ in range(400):
+        c_raw, raw = grip_step(P, raw, close(least=5.0))
+        c_dec, dec = grip_step(P, dec, close())
+        floors_raw.append(raw.learned_n)
+        floors_dec.append(dec.learned_n)
+    assert floors_dec == [pytest.approx(9.6)] * 400 and c_dec.force_n == pytest.approx(9.6)
+    # quiet_s reaches relax_delay_s (1 s) at the 100th quiet cycle (index 99)
+    assert floors_raw[:98] == [pytest.approx(9.6)] * 98
+    expected = 9.6
+    for f in floors_raw[99:]:
+        expected = max(6.0, expected * (1 - 0.5 * DT))
+        assert f == pytest.approx(expected, rel=1e-9)
+    assert c_raw.force_n == pytest.approx(max(6.0, expected), rel=1e-9)
 
 
 def test_degraded_and_absent_cycles_hold_the_command():

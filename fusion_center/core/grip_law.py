@@ -32,11 +32,12 @@ Phases (``GripState.phase``):
      least ``settle_s`` old (the drive's torque slope and the jaws' force lag need that long to
      deliver it; raising on every cycle of the detection's tail would compound). The first
      slipping cycle of an episode (no slip for ``relax_delay_s`` before it) teaches the floor
-     ``(1 + margin) * command``: the command it began under, plus the margin. A floor never falls.
-     A new episode is the grasp's first slip or one ``return_delay_s`` after the last slipping
-     cycle.
+     ``(1 + margin) * command``: the command it began under, plus the margin. A new episode is the
+     grasp's first slip or one ``return_delay_s`` after the last slipping cycle. In decision mode
+     a floor never falls within a grasp; in raw mode, which measures the load, it gives way to
+     the measured target ``relax_delay_s`` after the last slip, at the slow ``relax_per_s``.
   3. **relax** (not on a degraded or absent cycle; in raw mode only while the pads carry a load,
-     ``least_hold_n > 0``: an object resting on the table weighs nothing on them, and the lift to
+     a finite ``least_hold_n > 0``: an object resting on the table weighs nothing on them, and the lift to
      come needs the grip), never below ``max(floor, target)``: **return** - above a learned floor,
      ``return_delay_s`` after the last slip - by ``return_per_s`` of itself per second (back from
      a raise); otherwise - no floor learned in this grasp - from ``relax_delay_s`` after the grasp
@@ -128,10 +129,8 @@ def grip_step(p: GripParams, state: GripState, f: GripFindings) -> tuple[GripCom
     quiet = state.quiet_s + dt
     since_raise = state.since_raise_s + dt
     least = f.least_hold_n
-    if least is not None and math.isfinite(least) and least > 0:
-        target = max(p.min_n, p.safety_factor * least)
-    else:
-        target = p.min_n
+    carried = least is not None and math.isfinite(least) and least > 0   # raw mode: the pads carry a load
+    target = max(p.min_n, p.safety_factor * least) if carried else p.min_n
     if f.slip:
         if math.isinf(state.since_raise_s) or state.quiet_s >= p.return_delay_s - TIME_EPS_S:
             # a new slip episode (the first of the grasp, or return_delay_s after the last): the command failed
@@ -146,10 +145,14 @@ def grip_step(p: GripParams, state: GripState, f: GripFindings) -> tuple[GripCom
     else:
         if state.slipping:
             flags.append("stuck")
+        if carried and learned > target and quiet >= p.relax_delay_s - TIME_EPS_S:
+            # raw mode measures the load: a quiet while after a slip, its floor gives way to the
+            # measured target (at the follow's slow rate) - a lesson from a load that has passed
+            learned = max(target, learned * max(0.0, 1.0 - p.relax_per_s * dt))
         floor = max(target, learned)
         if command < floor:
             command = floor                           # the load grew (raw) or a floor was learned
-        elif command > floor and (least is None or least > 0):
+        elif command > floor and (least is None or carried):     # raw: no relaxing on a load of 0 or no number
             if learned > 0:                           # back from a raise, down to the floor slips taught
                 if quiet >= p.return_delay_s - TIME_EPS_S:
                     command = max(floor, command * max(0.0, 1.0 - p.return_per_s * dt))
