@@ -217,6 +217,8 @@ def run_case(args) -> dict:
             force = (2.0 if mode == "fixed 2x" else 1.0) * case.static_least_n
             res = run_grasp(scene, "fixed", fixed_n=force)
         m = grasp_metrics(res["rows"], case, dt)
+        if res.get("centre_us"):
+            m["centre_us"] = [round(x, 1) for x in np.percentile(res["centre_us"], (50, 99))] + [len(res["centre_us"])]
         for key in ("taxel_bits_per_cycle", "loop_bits_per_cycle"):
             if key in res:
                 m[key] = res[key]
@@ -290,6 +292,9 @@ def summarise(results: list[dict]) -> dict:
         top["crushed_fragile"] = sum(m["crushed"] for m in fragile)
         bits = [m["taxel_bits_per_cycle"] for m in rows if "taxel_bits_per_cycle" in m]
         loop = [m["loop_bits_per_cycle"] for m in rows if "loop_bits_per_cycle" in m]
+        cu = [m["centre_us"] for m in rows if "centre_us" in m]
+        top["centre_ms_p50"] = float(np.median([c[0] for c in cu])) / 1000 if cu else None
+        top["centre_ms_p99"] = float(np.median([c[1] for c in cu])) / 1000 if cu else None
         top["taxel_bits_per_cycle"] = float(np.mean(bits)) if bits else None
         top["loop_bits_per_cycle"] = float(np.mean(loop)) if loop else None
         table[mode] = top
@@ -326,8 +331,11 @@ def render(table: dict, dt_ms: float) -> str:
     row("hold force/least med/p95", lambda t: f"{_fmt(t['ratio_median'], 2)}/{_fmt(t['ratio_p95'], 2)}")
     row("hold force/least <= 1.3", lambda t: f"{_fmt(100 * t['ratio_le_1_3'], 0)} %")
     row("crushed (fragile)", lambda t: f"{t['crushed_fragile']}/{t['fragile']}")
+    row("centre ms/cycle p50/p99 (*)", lambda t: f"{_fmt(t.get('centre_ms_p50'), 2)}/{_fmt(t.get('centre_ms_p99'), 2)}")
     row("taxel bits/cycle", lambda t: _fmt(t["taxel_bits_per_cycle"], 0))
     row("+ SYNC, drive PDOs, RPDO bits", lambda t: _fmt(t["loop_bits_per_cycle"], 0))
+    lines.append("(*) evaluate + findings + grip_step per cycle, the median over grasps of each grasp's p50 / p99; "
+                 "this machine, under the bench's own load")
     return "\n".join(lines)
 
 
@@ -359,8 +367,10 @@ def plot(results: list[dict], table: dict, path: Path, title: str) -> None:
     b.boxplot(slid, whis=(5, 95), showfliers=True, flierprops={"markersize": 2})
     b.set_xticks(range(1, len(MODES) + 1), MODES)
     b.set_ylabel("largest slide before the place, mm")
-    b.axhline(20.0, color="k", ls=":", lw=1, label="contact leaves the pad (base pads)")
+    base = _base().grasp
+    b.axhline(base.slide_down_mm, color="k", ls=":", lw=1, label=f"the contact leaves the pads ({base.slide_down_mm:g} mm)")
     b.set_title("slid distance per grasp", fontsize=9)
+    b.legend(fontsize=8)
     # (c) onset -> detection and onset -> stuck, ms, centre modes
     c = ax[1, 0]
     dt = _base().bus.sync_period_ms

@@ -30,6 +30,7 @@ import functools
 import math
 import struct
 import threading
+import time
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -244,6 +245,7 @@ def run_grasp(scene, mode: str, fixed_n: float | None = None, count_bits: bool =
     bits = BitCounter(scene) if count_bits else None
     held: dict = {}
     rows = []
+    centre_us: list[float] = []            # the centre's work per cycle: evaluate + findings + law, µs
     release_cycles = 0
     try:
         drv.send(CW_SHUTDOWN, 0.0)
@@ -272,9 +274,11 @@ def run_grasp(scene, mode: str, fixed_n: float | None = None, count_bits: bool =
                     closed = closed_cycle(scene, k, period_us, readings=x32.astype(float))
                     if bits is not None and k % 5 == 0:
                         bits.add_readings(x32)
+                t0 = time.perf_counter()
                 record = pipeline.evaluate(closed)
                 f = findings_of(record, mem, task, params, period_s, mode == "raw")
                 cmd, state = grip_step(params, state, f)
+                centre_us.append((time.perf_counter() - t0) * 1e6)
                 force = cmd.force_n
                 slip_now = f.slip
                 flags = cmd.flags
@@ -291,7 +295,7 @@ def run_grasp(scene, mode: str, fixed_n: float | None = None, count_bits: bool =
                 break
     finally:
         drv.close()
-    out = {"rows": rows}
+    out = {"rows": rows, "centre_us": centre_us}
     if bits is not None and bits.cycles:
         out["taxel_bits_per_cycle"] = bits.total / bits.cycles
         out["loop_bits_per_cycle"] = BitCounter.loop_bits(scene.gripper.node_id)

@@ -50,7 +50,8 @@ def test_lift_slips_under_the_first_squeeze_and_is_caught(name):
     assert not rows[-1][DROPPED] and rows[-1][MODE] != "left"
     hold = [r for r in rows if r[PHASE] == "hold"]
     assert not any(r[SLIPPING] for r in hold)
-    assert max(r[SLID] for r in rows if r[PHASE] in ("lift", "hold")) < 20.0   # the contact stays on the pads
+    # well within the 30 mm (grip_at 20 + contact 20 / 2) at which the contact leaves the pads
+    assert max(r[SLID] for r in rows if r[PHASE] in ("lift", "hold")) < 15.0
     # the floor the slip taught: 1.2 x 6 N; the hold ends there (raw: the floor gives way to 1.2 x eq 26a)
     end = hold[-1][COMMAND]
     if name == "grasp_lift":
