@@ -55,8 +55,9 @@ MODES = ("decision", "raw", "fixed 2x", "fixed 26b")
 PITCHES = (1.5, 2.0, 2.5, 3.0, 4.0)
 DISTURBANCES = ("none", "load", "shake")
 BASE_SCENE = "grasp_lift"
-HOLD_S = 2.2                   # the hold phase: the law's probe, then the disturbance
-DISTURB_AT_S = 1.3
+HOLD_S = 2.2                   # the hold phase: the law's probe and a disturbance
+DISTURB_AT_S = (0.2, 1.2)      # the disturbance starts this far into the hold (uniform)
+DRIVE_MAX_TORQUE = 1000        # the bench's drive: the base scene's, up to 1000 ‰ (100 N per jaw)
 G = 9.80665
 
 
@@ -70,6 +71,7 @@ class Case:
     mu_k: float
     accel_m_s2: float
     disturbance: str
+    disturb_at_s: float
     load_kg: float
     shake_m_s2: float
     shake_hz: float
@@ -85,18 +87,17 @@ class Case:
 
     @property
     def hardest_least_n(self) -> float:
-        """The least holding force at the task's hardest moment (lift, load, shake), per jaw."""
-        m = self.mass_kg + self.load_kg
-        a = max(self.accel_m_s2, self.shake_m_s2)
-        return max(self.mass_kg * (G + self.accel_m_s2), m * (G + (self.shake_m_s2 if self.disturbance == "shake"
-                                                                    else 0.0))) / (2 * self.mu_s) if a >= 0 else 0.0
+        """The least holding force at the task's hardest moment, per jaw: the lift's
+        ``m (g + a)`` or the hold's ``(m + load) (g + shake)``, over ``2 mu_s`` (eq 26b)."""
+        lift = self.mass_kg * (G + self.accel_m_s2)
+        hold = (self.mass_kg + self.load_kg) * (G + self.shake_m_s2)
+        return max(lift, hold) / (2 * self.mu_s)
 
 
 def make_case(rng: np.random.Generator, index: int) -> Case:
     """Draw one grasp (module docstring): log-uniform mass 0.1-1.5 kg, mu_s 0.3-0.9, mu_k / mu_s
     0.6-0.95, lift acceleration 1-6 m/s², a disturbance in the hold (none, an added load of 10-50 %
-    of the mass, or two periods of a 3-6 Hz shake at 1-4 m/s², 1.3 s into the hold: after the law's
-    probe), pad pitch 1.5-4 mm; one in four
+    of the mass, or two periods of a 3-6 Hz shake at 1-4 m/s², 0.2-1.2 s into the hold), pad pitch 1.5-4 mm; one in four
     fragile (crushed above 1.4-1.8 x the lift's least holding force, no disturbance). The law's
     first squeeze ``grasp_n`` is the vendors' sizing, twice the static least holding force (at most
     0.9 x the crushing force): the law's job is to come down from it and to react when the load
@@ -110,14 +111,20 @@ def make_case(rng: np.random.Generator, index: int) -> Case:
     load = float(mass * rng.uniform(0.1, 0.5)) if disturbance == "load" else 0.0
     shake = float(rng.uniform(1.0, 4.0)) if disturbance == "shake" else 0.0
     hz = float(rng.uniform(3.0, 6.0)) if disturbance == "shake" else 0.0
+    at = float(rng.uniform(*DISTURB_AT_S)) if disturbance != "none" else 0.0
     pitch = float(rng.choice(PITCHES))
     static = mass * G / (2 * mu_s)
     lift = mass * (G + accel) / (2 * mu_s)
     max_force = float(lift * rng.uniform(1.4, 1.8)) if fragile else None
-    grasp = 2.0 * static
+    grasp = min(2.0 * static, drive_max_n())
     if max_force is not None:
         grasp = min(grasp, 0.9 * max_force)
-    return Case(index, mass, mu_s, mu_k, accel, disturbance, load, shake, hz, pitch, fragile, max_force, grasp)
+    return Case(index, mass, mu_s, mu_k, accel, disturbance, at, load, shake, hz, pitch, fragile, max_force, grasp)
+
+
+def drive_max_n() -> float:
+    g = _base().gripper
+    return g.rated_force_n * DRIVE_MAX_TORQUE / 1000.0
 
 
 def case_scene(base, case: Case, mode: str):
@@ -132,22 +139,24 @@ def case_scene(base, case: Case, mode: str):
     phases = [PhaseSpec("approach", 1.0), PhaseSpec("close", 0.35),
               PhaseSpec("lift", 0.6, height_mm=lift_h, accel_m_s2=case.accel_m_s2, speed_m_s=0.3)]
     if case.disturbance == "load":
-        phases.append(PhaseSpec("hold", HOLD_S, load_kg=case.load_kg, load_at_s=DISTURB_AT_S))
+        phases.append(PhaseSpec("hold", HOLD_S, load_kg=case.load_kg, load_at_s=case.disturb_at_s))
     elif case.disturbance == "shake":
         phases.append(PhaseSpec("hold", HOLD_S, shake_m_s2=case.shake_m_s2, shake_hz=case.shake_hz, shake_cycles=2,
-                                shake_at_s=DISTURB_AT_S))
+                                shake_at_s=case.disturb_at_s))
     else:
         phases.append(PhaseSpec("hold", HOLD_S))
     phases += [PhaseSpec("place", 0.6, height_mm=lift_h, accel_m_s2=2.0, speed_m_s=0.3), PhaseSpec("release", 0.3)]
     grasp = dataclasses.replace(base.grasp, mass_kg=case.mass_kg, mu_s=case.mu_s, mu_k=case.mu_k,
                                 max_force_n=case.max_force_n, phases=tuple(phases))
-    top = base.gripper.rated_force_n * base.gripper.max_torque_permille / 1000.0
+    gripper = dataclasses.replace(base.gripper, max_torque_permille=DRIVE_MAX_TORQUE)
+    top = drive_max_n()
     max_n = min(top, 0.9 * case.max_force_n) if case.fragile else top
     grip = dataclasses.replace(base.grip, grasp_n=case.grasp_n, max_n=max_n, min_n=min(base.grip.min_n, case.grasp_n),
                                mu=case.mu_s)
     bus = dataclasses.replace(base.bus, mode="raw" if mode == "raw" else "decision")
     forces = dataclasses.replace(base.forces, mu=case.mu_s)
-    return dataclasses.replace(base, taxels=tuple(taxels), grasp=grasp, grip=grip, bus=bus, forces=forces)
+    return dataclasses.replace(base, taxels=tuple(taxels), grasp=grasp, grip=grip, bus=bus, forces=forces,
+                               gripper=gripper)
 
 
 # ---------------------------------------------------------------------------------------- metrics
@@ -201,7 +210,18 @@ def grasp_metrics(rows, case: Case, dt_s: float) -> dict:
 
 
 def run_case(args) -> dict:
-    """All four modes of one case (a worker's job)."""
+    """All four modes of one case (a worker's job); an exception comes back as text (a worker's
+    exception that does not unpickle would hang the pool)."""
+    try:
+        return _run_case(args)
+    except Exception as exc:  # noqa: BLE001 - reported by main, never lost
+        import traceback
+
+        return {"case": dataclasses.asdict(args[0]), "error": f"{type(exc).__name__}: {exc}",
+                "traceback": traceback.format_exc()}
+
+
+def _run_case(args) -> dict:
     case, want_bits, overrides = args
     base = _base()
     if overrides:
@@ -260,7 +280,8 @@ def summarise(results: list[dict]) -> dict:
         rows = [r[mode] for r in results]
         cases = [Case(**r["case"]) for r in results]
         top = {}
-        holdable = [m for m, c in zip(rows, cases) if not c.fragile or c.hardest_least_n <= 0.9 * c.max_force_n]
+        holdable = [m for m, c in zip(rows, cases)
+                    if c.hardest_least_n <= (min(drive_max_n(), 0.9 * c.max_force_n) if c.fragile else drive_max_n())]
         eps = [e for m in rows for e in m["episodes"]]
         det = [e["detect_cycles"] for e in eps if e["detect_cycles"] is not None]
         det_p = [e["detect_after_pitch"] for e in eps if e["detect_after_pitch"] is not None]
@@ -444,12 +465,24 @@ def main(argv=None) -> int:
     cases = [make_case(rng, i) for i in range(args.grasps)]
     jobs = [(c, c.index % args.bits_every == 0, overrides) for c in cases]
     t0 = time.perf_counter()
-    if args.jobs == 1:
-        results = [run_case(j) for j in jobs]
-    else:
-        with multiprocessing.get_context("spawn").Pool(args.jobs) as pool:
-            results = pool.map(run_case, jobs, chunksize=4)
+    results = []
+    pool = multiprocessing.get_context("spawn").Pool(args.jobs) if args.jobs > 1 else None
+    try:
+        it = pool.imap(run_case, jobs, chunksize=2) if pool else map(run_case, jobs)
+        for n, res in enumerate(it, 1):
+            results.append(res)
+            if n % 50 == 0 or n == len(jobs):
+                print(f"  {n}/{len(jobs)} grasps, {time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True)
+    finally:
+        if pool:
+            pool.terminate()
     elapsed = time.perf_counter() - t0
+    errors = [r for r in results if "error" in r]
+    for r in errors:
+        print(f"grasp {r['case']['index']}: {r['error']}\n{r['traceback']}", file=sys.stderr)
+    if errors:
+        print(f"{len(errors)} grasp(s) failed (above); the table is of the others", file=sys.stderr)
+    results = [r for r in results if "error" not in r]
     table = summarise(results)
     dt_ms = _base().bus.sync_period_ms
     print(f"bench/grasp.py --grasps {args.grasps} --seed {args.seed}: {args.grasps} grasps x {len(MODES)} modes "
