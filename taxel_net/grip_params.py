@@ -20,16 +20,24 @@ from taxel_net.errors import ParameterError
 
 @dataclass(frozen=True)
 class GripParams:
-    """The law's gains and limits (the scene's ``[grip]`` table; per-jaw forces in N)."""
+    """The law's gains and limits (the scene's ``[grip]`` table; per-jaw forces in N, times in s).
+
+    Defaults suit a 100 Hz SYNC and a drive of some hundreds of N/s torque slope with a force lag
+    of some tens of ms (``docs/grip-control.md`` says why each is what it is)."""
 
     grasp_n: float = 5.0            # the first squeeze once the object is present
     min_n: float = 0.5              # the least command while holding
     max_n: float = 100.0            # the most (the drive's range; a fragile object's limit)
-    raise_fraction: float = 0.25    # a slipping cycle raises by max(raise_fraction * command, raise_n)
+    raise_fraction: float = 2.0     # a slip raises the command to max(command (1 + raise_fraction), command + raise_n)
     raise_n: float = 0.5
-    relax_n_s: float = 2.0          # above the target the command falls at most this fast, N/s
-    safety_factor: float = 1.2      # raw mode: the target is safety_factor * T / mu (eq 26a)
-    mu: float = 0.5                 # the friction coefficient of eq 26a ([forces] mu)
+    settle_s: float = 0.06          # after a raise, slip raises again only after this long (the drive catching up)
+    margin: float = 0.2             # the floor a slip teaches: (1 + margin) x the command the slip began under
+    relax_delay_s: float = 1.0      # no probing until this long after the grasp or the last slip
+    return_delay_s: float = 0.2     # no return toward the floor / target until this long after the last slip
+    relax_per_s: float = 0.5        # probing (no floor learned yet): the command falls by this fraction of itself per s
+    return_per_s: float = 6.0       # above the floor or raw mode's target: falls by this fraction of itself per s
+    safety_factor: float = 1.2      # raw mode: the target is safety_factor * T / mu (eq 26a per jaw)
+    mu: float = 0.5                 # the friction coefficient of eq 26a ([forces] mu by default)
     open_n: float = 10.0            # release: opening force
     presence_cycles: int = 2        # H1 this many cycles in a row before the squeeze
 
@@ -37,8 +45,8 @@ class GripParams:
         check_params(self)
 
 
-FLOAT_FIELDS = ("grasp_n", "min_n", "max_n", "raise_fraction", "raise_n", "relax_n_s", "safety_factor", "mu",
-                "open_n")
+FLOAT_FIELDS = ("grasp_n", "min_n", "max_n", "raise_fraction", "raise_n", "settle_s", "margin", "relax_delay_s",
+                "return_delay_s", "relax_per_s", "return_per_s", "safety_factor", "mu", "open_n")
 INT_FIELDS = ("presence_cycles",)
 
 
@@ -48,14 +56,18 @@ def check_params(p: GripParams) -> None:
         value = getattr(p, name)
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
             raise ParameterError(name, value, "must be a finite number")
-    for name in ("max_n", "mu", "open_n"):
+    for name in ("grasp_n", "max_n", "mu", "open_n"):
         if getattr(p, name) <= 0:
             raise ParameterError(name, getattr(p, name), "must be > 0")
-    for name in ("min_n", "raise_n", "relax_n_s", "raise_fraction"):
+    for name in ("min_n", "raise_n", "raise_fraction", "settle_s", "margin", "relax_delay_s", "return_delay_s",
+                 "relax_per_s", "return_per_s"):
         if getattr(p, name) < 0:
             raise ParameterError(name, getattr(p, name), "must be >= 0")
     if p.raise_fraction == 0 and p.raise_n == 0:
         raise ParameterError("raise_n", p.raise_n, "must be > 0 when raise_fraction is 0 (a slip must raise the force)")
+    if p.return_per_s < p.relax_per_s:
+        raise ParameterError("return_per_s", p.return_per_s, f"must be >= relax_per_s ({p.relax_per_s:g}): probing "
+                                                             "below the floor is the slow part")
     if p.safety_factor < 1:
         raise ParameterError("safety_factor", p.safety_factor, "must be >= 1 (eq 26a's bound is the least)")
     if not p.min_n <= p.grasp_n <= p.max_n:

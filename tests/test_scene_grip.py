@@ -56,13 +56,14 @@ def test_empty_table_defaults(tmp_path):
     assert isinstance(g, grip_law.GripParams)
     assert g.max_n == pytest.approx(112.0) and g.mu == 0.35
     d = grip_law.GripParams()
-    for name in ("grasp_n", "min_n", "raise_fraction", "raise_n", "relax_n_s", "safety_factor", "open_n",
-                 "presence_cycles"):
+    for name in ("grasp_n", "min_n", "raise_fraction", "raise_n", "settle_s", "margin", "relax_delay_s",
+                 "return_delay_s", "relax_per_s", "return_per_s", "safety_factor", "open_n", "presence_cycles"):
         assert getattr(g, name) == getattr(d, name), name
 
 
 # every field, with a value that is not its default, read as given
-ALL = {"grasp_n": 7.5, "min_n": 1.25, "max_n": 60.0, "raise_fraction": 0.4, "raise_n": 0.75, "relax_n_s": 3.5,
+ALL = {"grasp_n": 7.5, "min_n": 1.25, "max_n": 60.0, "raise_fraction": 0.4, "raise_n": 0.75, "settle_s": 0.03,
+       "margin": 0.3, "relax_delay_s": 0.8, "return_delay_s": 0.1, "relax_per_s": 0.25, "return_per_s": 2.5,
        "safety_factor": 1.5, "mu": 0.6, "open_n": 20.0, "presence_cycles": 3}
 
 
@@ -83,6 +84,7 @@ ERRORS = [  # (the [grip] body, field, value, words in the problem)
     ("grasp_n = true\n", "grip.grasp_n", True, "number"),
     ("grasp_n = nan\n", "grip.grasp_n", "nan", "finite"),
     ("grasp_n = 0.2\nmin_n = 0.5\n", "grip.grasp_n", 0.2, "min_n"),
+    ("grasp_n = 0\nmin_n = 0\n", "grip.grasp_n", 0.0, "> 0"),
     ("grasp_n = 70.0\nmax_n = 60.0\n", "grip.grasp_n", 70.0, "max_n"),
     ("min_n = -1.0\n", "grip.min_n", -1.0, ">= 0"),
     ("min_n = inf\n", "grip.min_n", "inf", "finite"),
@@ -93,7 +95,13 @@ ERRORS = [  # (the [grip] body, field, value, words in the problem)
     ("raise_fraction = -0.1\n", "grip.raise_fraction", -0.1, ">= 0"),
     ("raise_fraction = 0\nraise_n = 0\n", "grip.raise_n", 0.0, "slip must raise"),
     ("raise_n = -0.5\n", "grip.raise_n", -0.5, ">= 0"),
-    ("relax_n_s = -2.0\n", "grip.relax_n_s", -2.0, ">= 0"),
+    ("settle_s = -0.1\n", "grip.settle_s", -0.1, ">= 0"),
+    ("margin = -0.1\n", "grip.margin", -0.1, ">= 0"),
+    ("relax_delay_s = -1\n", "grip.relax_delay_s", -1.0, ">= 0"),
+    ("return_delay_s = -1\n", "grip.return_delay_s", -1.0, ">= 0"),
+    ("relax_per_s = -0.5\n", "grip.relax_per_s", -0.5, ">= 0"),
+    ("return_per_s = -3\n", "grip.return_per_s", -3.0, ">= 0"),
+    ("relax_per_s = 2.0\nreturn_per_s = 1.0\n", "grip.return_per_s", 1.0, "relax_per_s"),
     ("safety_factor = 0.9\n", "grip.safety_factor", 0.9, ">= 1"),
     ("safety_factor = \"high\"\n", "grip.safety_factor", "high", "number"),
     ("mu = 0.0\n", "grip.mu", 0.0, "> 0"),

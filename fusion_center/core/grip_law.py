@@ -7,36 +7,53 @@ slips (sec. 4) and, from raw readings, the tangential load it carries (eqs 24-30
 force the gripper squeezes with. This module is that law and nothing else: parameters, the
 law's state and this cycle's findings in, the command and the new state out (no bus, no
 clock, no I/O). :mod:`fusion_center.service` feeds it every closed cycle and sends the command
-in the drive's RPDO; ``bench/grasp.py`` feeds it the same way without the bus.
+in the drive's RPDO; ``bench/grasp.py`` feeds it the same way without the bus. The reasoning
+behind each rule and the measured behaviour: ``docs/grip-control.md``.
 
 Forces are **per jaw** (the drive's convention, 0x2101: the normal force one jaw exerts), in N.
 A positive command grips with that force, a negative one opens the jaws with that force, 0
-leaves the jaws without torque.
+leaves the jaws without torque. ``f.slip`` is slip **this cycle** (the caller derives it from the
+slip stage, whose ``slipping`` latches until contact is lost).
 
-Phases of the law (``GripState.phase``):
+Phases (``GripState.phase``):
 
-* ``open``: nothing held. While the task asks to close and the decision has said "present"
-  (H1) for ``presence_cycles`` cycles in a row, the law squeezes with ``grasp_n`` -> ``grasp``.
+* ``open``: nothing held; command 0. While the task asks to close and the decision has said
+  "present" (H1) for ``presence_cycles`` cycles in a row, the law squeezes with ``grasp_n``
+  -> ``grasp``.
 * ``grasp`` / ``hold``: ``grasp`` until the first cycle the object is present and not slipping
-  after the squeeze, then ``hold``. Every cycle the command goes toward the **least safe force**
+  after the squeeze, then ``hold``. The command follows these rules, in this order:
 
-      target = max(min_n, learned_n, safety_factor * least_hold_n)
-
-  where ``least_hold_n`` is the raw-mode estimate of eq 26a per jaw, ``F_g = T / mu`` (T the
-  tangential load one pad carries, eqs 24-25/28-30; None in decision mode, which cannot see
-  it) and ``learned_n`` the force at which the last slip stopped (decision mode learns the
-  least holding force from slip). Above the target the command relaxes at most ``relax_n_s``
-  N/s (slowly: a load that grows while relaxing is caught by the next slip); below it, it rises
-  to the target at once.
-* **raise on slip**: a cycle whose slip stage says "slipping" raises the command by
-  ``max(raise_fraction * command, raise_n)`` (never below the target); the first cycle without
-  slip after slipping stores the command as ``learned_n``.
-* ``release``: the task asks to release: the command is ``-open_n`` (the jaws open).
+  1. **target** = ``max(min_n, floor, safety_factor * least_hold_n)``: ``floor`` is what slips
+     taught (rule 2), ``least_hold_n`` raw mode's eq 26a per jaw, ``F_g = T / mu`` (T the
+     tangential load one pad carries, eqs 24-25 / 28-30; None in decision mode, which cannot see
+     it). Below the target the command rises to it at once.
+  2. **raise on slip**: a slipping cycle raises the command to
+     ``max(command (1 + raise_fraction), command + raise_n)`` - but only if the last raise is at
+     least ``settle_s`` old (the drive's torque slope and the jaws' force lag need that long to
+     deliver it; raising on every cycle of the detection's tail would compound). The first
+     slipping cycle of an episode (no slip for ``relax_delay_s`` before it) teaches the floor
+     ``(1 + margin) * command``: the command it began under, plus the margin. A new episode is the
+     grasp's first slip or one ``return_delay_s`` after the last slipping cycle. In decision mode
+     a floor never falls within a grasp; in raw mode, which measures the load, it gives way to
+     the measured target ``relax_delay_s`` after the last slip, at the slow ``relax_per_s``.
+  3. **relax** (not on a degraded or absent cycle; in raw mode only while the pads carry a load,
+     a finite ``least_hold_n > 0``: an object resting on the table weighs nothing on them, and the lift to
+     come needs the grip), never below ``max(floor, target)``: **return** - above a learned floor,
+     ``return_delay_s`` after the last slip - by ``return_per_s`` of itself per second (back from
+     a raise); otherwise - no floor learned in this grasp - from ``relax_delay_s`` after the grasp
+     or the last slip by the slower ``relax_per_s``: in decision mode this is **probing** (it
+     cannot see the load, so it finds the least holding force by the slip that ends the probe;
+     rule 2's floor then holds it at ``1 + margin`` times that), in raw mode it follows the
+     measured target down slowly (a load that falls for a moment, the arm accelerating downward,
+     comes back).
+* ``release``: the task asks to release: the command is ``-open_n`` (the jaws open); once the
+  task no longer says release, the law waits ``open`` again.
 
 Safety: a cycle with missing, late or degraded taxel data (``degraded``) never lowers the
 command - it holds the last one (flag ``held_degraded``); an H0 or undecided cycle while holding
-does not open the jaws either (flag ``absent_while_held``). The command never exceeds ``max_n``
-(flag ``at_max`` when it would). The law never opens the jaws except on the task's release.
+does not lower it either (flag ``absent_while_held``). The command never exceeds ``max_n``
+(flag ``at_max`` when a rule asked for more). The law never opens the jaws except on the task's
+release.
 """
 
 from __future__ import annotations
@@ -49,6 +66,7 @@ from taxel_net.grip_params import GripParams, check_params  # noqa: F401  (the s
 
 LAW_PHASES = ("open", "grasp", "hold", "release")
 TASKS = ("open", "close", "release")  # what the task asks of the gripper this cycle
+TIME_EPS_S = 1e-9                      # times summed from dt_s: 6 x 0.01 s is "60 ms" whatever the rounding
 
 
 @dataclass(frozen=True)
@@ -57,9 +75,11 @@ class GripState:
 
     phase: str = "open"
     command_n: float = 0.0
-    learned_n: float = 0.0          # the force at which the last slip stopped (0: none yet)
+    learned_n: float = 0.0          # the floor slips taught (0: none yet in this grasp)
     present_run: int = 0            # consecutive cycles with the object present
     slipping: bool = False          # the previous cycle slipped
+    quiet_s: float = 0.0            # time since the grasp began or the last slipping cycle
+    since_raise_s: float = math.inf  # time since the last raise on slip
 
 
 @dataclass(frozen=True)
@@ -86,6 +106,8 @@ def grip_step(p: GripParams, state: GripState, f: GripFindings) -> tuple[GripCom
     """One cycle of the law (module docstring): ``(command, new state)``."""
     if f.task not in TASKS:
         raise ParameterError("task", f.task, f"must be one of {TASKS}")
+    if isinstance(f.dt_s, bool) or not isinstance(f.dt_s, (int, float)) or not f.dt_s > 0 or not math.isfinite(f.dt_s):
+        raise ParameterError("dt_s", f.dt_s, "the SYNC period must be a finite number of seconds > 0")
     flags: list[str] = []
     present_run = state.present_run + 1 if f.present else 0
     if f.task == "release" or state.phase == "release":
@@ -97,36 +119,55 @@ def grip_step(p: GripParams, state: GripState, f: GripFindings) -> tuple[GripCom
             command = min(max(p.grasp_n, p.min_n), p.max_n)
             return (GripCommand(command, ("grasp",)),
                     GripState(phase="grasp", command_n=command, present_run=present_run))
-        return GripCommand(0.0), replace(state, present_run=present_run, slipping=False)
+        return GripCommand(0.0), GripState(phase="open", present_run=present_run)
 
     # grasp / hold
-    command = state.command_n
+    dt = float(f.dt_s)
+    before = state.command_n
+    command = before
     learned = state.learned_n
-    target = max(p.min_n, learned)
-    if f.least_hold_n is not None and math.isfinite(f.least_hold_n) and f.least_hold_n > 0:
-        target = max(target, p.safety_factor * f.least_hold_n)
+    quiet = state.quiet_s + dt
+    since_raise = state.since_raise_s + dt
+    least = f.least_hold_n
+    carried = least is not None and math.isfinite(least) and least > 0   # raw mode: the pads carry a load
+    target = max(p.min_n, p.safety_factor * least) if carried else p.min_n
     if f.slip:
-        command = max(command + max(p.raise_fraction * command, p.raise_n), target)
-        flags.append("slip_raise")
+        if math.isinf(state.since_raise_s) or state.quiet_s >= p.return_delay_s - TIME_EPS_S:
+            # a new slip episode (the first of the grasp, or return_delay_s after the last): the command failed
+            learned = max(learned, (1.0 + p.margin) * before)
+            flags.append("slip_onset")
+        quiet = 0.0
+        if since_raise >= p.settle_s - TIME_EPS_S:
+            command = max(command * (1.0 + p.raise_fraction), command + p.raise_n)
+            since_raise = 0.0
+            flags.append("slip_raise")
+        command = max(command, target, learned)
     else:
         if state.slipping:
-            learned = command
-            target = max(target, learned)
             flags.append("stuck")
-        if command < target:
-            command = target
-        else:
-            command = max(target, command - p.relax_n_s * f.dt_s)
-    if f.degraded and command < state.command_n:
-        command = state.command_n
+        if carried and learned > target and quiet >= p.relax_delay_s - TIME_EPS_S:
+            # raw mode measures the load: a quiet while after a slip, its floor gives way to the
+            # measured target (at the follow's slow rate) - a lesson from a load that has passed
+            learned = max(target, learned * max(0.0, 1.0 - p.relax_per_s * dt))
+        floor = max(target, learned)
+        if command < floor:
+            command = floor                           # the load grew (raw) or a floor was learned
+        elif command > floor and (least is None or carried):     # raw: no relaxing on a load of 0 or no number
+            if learned > 0:                           # back from a raise, down to the floor slips taught
+                if quiet >= p.return_delay_s - TIME_EPS_S:
+                    command = max(floor, command * max(0.0, 1.0 - p.return_per_s * dt))
+            elif quiet >= p.relax_delay_s - TIME_EPS_S:            # probing (decision) / following the target down (raw)
+                command = max(floor, command * max(0.0, 1.0 - p.relax_per_s * dt))
+    if f.degraded and command < before:
+        command = before
         flags.append("held_degraded")
-    if not f.present and state.phase in ("grasp", "hold"):
+    if not f.present and command < before:
+        command = before
         flags.append("absent_while_held")
-        command = max(command, state.command_n)
     if command > p.max_n:
         command = p.max_n
         flags.append("at_max")
     phase = "hold" if (state.phase == "hold" or (f.present and not f.slip)) else "grasp"
     return (GripCommand(command, tuple(flags)),
             GripState(phase=phase, command_n=command, learned_n=learned, present_run=present_run,
-                      slipping=bool(f.slip)))
+                      slipping=bool(f.slip), quiet_s=quiet, since_raise_s=since_raise))
