@@ -123,7 +123,7 @@ def test_a_degraded_cycle_never_lowers_the_command():
     stage.evaluate(dict(record), _drive(0x8027 | 0x0400, torque=100, force=140, grip=4))
     assert stage.takeover and stage.law.phase == "hold" and stage.law.command_n == 14.0  # took over at 14 N
     assert stage.law.learned_n == 14.0  # and does not relax below what held the part
-    stage.law = GripState(phase="hold", command_n=14.0)  # a hold of this centre's own: it may relax
+    stage.law = GripState(phase="hold", command_n=14.0, quiet_s=100.0)  # a hold of this centre's own, long quiet: it may relax
     for k in range(1, 50):  # degraded cycles: the law may not relax
         r = dict(record, cycle=k, t=k * 0.01, degraded=True)
         stage.evaluate(r, _drive(0x8027 | 0x0400, torque=100, force=140, grip=4))
