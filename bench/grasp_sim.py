@@ -12,12 +12,15 @@ Per SYNC cycle ``k`` (10 ms; the bus skipped, not the stages):
    the centre sent in cycle ``k - 1`` and steps its actuator.
 2. **The world** steps once (:class:`node_sim.world.JawCoupling`: the drive's force through the
    jaws' lag, stick / slip / drop).
-3. **The centre** closes cycle ``k`` (every node delivered: a :class:`ClosedCycle`), evaluates it
-   with :class:`fusion_center.service.pipeline.CyclePipeline` (fusion, forces in raw mode, slip),
-   derives the law's findings (:func:`findings_of`), steps the law
-   (:func:`fusion_center.core.grip_law.grip_step`) and sends the command in the drive's RPDO1
-   (controlword, target torque in ‰ of the rated force, target position) - applied at SYNC
-   ``k + 1``.
+3. **The centre** closes cycle ``k`` (every node delivered: a :class:`ClosedCycle`, with the
+   drive's TPDO values of SYNC ``k`` as the stream would have decoded them,
+   :class:`fusion_center.service.drive_frames.DriveCycle`) and evaluates it with the live centre's
+   :class:`fusion_center.service.pipeline.CyclePipeline` - fusion, forces in raw mode, slip and
+   **the grip stage** (:class:`fusion_center.service.grip_stage.GripStage`: the drive's walk to
+   OPERATION ENABLED, the task from ``[grasp]``'s phases, the findings, the law
+   :func:`fusion_center.core.grip_law.grip_step`, the controlword) - and sends the stage's command
+   in the drive's RPDO1 (controlword, target torque in ‰ of the rated force) - applied at SYNC
+   ``k + 1``. The same code as a live run's, cycle for cycle.
 
 The baselines (a fixed force) skip the centre: the same drive, world and task, a constant command
 from the close phase to the release.
@@ -27,18 +30,16 @@ from __future__ import annotations
 
 import copy
 import functools
-import math
 import struct
 import threading
 import time
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 import numpy as np
 
 from fusion_center.core.bus_timing import frame_bits
-from fusion_center.core.grip_law import GripFindings, GripParams, GripState, grip_step
 from fusion_center.service.cycle_records import ClosedCycle
-from fusion_center.service.physical import PhysicalEvaluation
+from fusion_center.service.drive_frames import DriveCycle
 from fusion_center.service.pipeline import CyclePipeline
 from node_sim import od as odx
 from node_sim.gripper.drive import GRIPPER_EDS_PATH, GripperDrive
@@ -63,60 +64,6 @@ def torque_of(force_n: float, gripper) -> int:
     """Per-jaw force (N; < 0 opens) -> target torque ‰ of the rated force (0x2103), clamped to I16."""
     t = int(round(force_n / gripper.rated_force_n * 1000.0))
     return max(-32768, min(32767, t))
-
-
-@dataclass
-class SlipMemory:
-    """What the bench's findings function carries from cycle to cycle (the grip stage's own
-    ``slip_now`` state: the farthest displacement of this contact and the cycle it was reached)."""
-
-    band: float = 0.0
-    hold: int = 3
-    peak: float | None = None
-    peak_cycle: int | None = None
-
-
-def slip_now(record: dict, mem: SlipMemory, raw: bool) -> bool:
-    """Slip **this cycle** from the slip stage's record, as the centre's grip stage derives it (the
-    slip stage latches ``slipping`` until contact is lost): the present taxels' centroid reached a
-    new farthest displacement from the contact's reference, beyond the slip stage's noise band
-    (half a taxel pitch), in this cycle or the ``hold - 1`` before it; or, in raw mode, the force
-    criterion ``TotF_t > mu F_g`` (eq 26a) holds this cycle."""
-    slip = record.get("slip")
-    if not slip or not slip.get("contact"):
-        mem.peak = mem.peak_cycle = None
-        return False
-    now = False
-    displacement = slip.get("displacement")
-    if displacement is not None:
-        peak = mem.band if mem.peak is None else mem.peak
-        if displacement > peak + 1e-9:
-            mem.peak_cycle = record["cycle"]
-            mem.peak = displacement
-        elif mem.peak is None:
-            mem.peak = mem.band
-        now = mem.peak_cycle is not None and record["cycle"] - mem.peak_cycle < mem.hold
-    ratio = slip.get("force_ratio")
-    if raw and ratio is not None and ratio > 1.0:
-        now = True
-    return now
-
-
-def findings_of(record: dict, mem: SlipMemory, task: str, params: GripParams, dt: float, raw: bool) -> GripFindings:
-    """The law's findings of one record (the bench's copy of the centre's grip stage, until it lands
-    on this branch): ``present`` the decision of ``[fusion] decide_with`` (H1 True, H0 False, else
-    None); ``slip`` :func:`slip_now`; ``degraded`` a node missing, silent or late; ``least_hold_n``
-    raw mode's eq 26a per jaw with the law's mu, ``total_tangential / mu``."""
-    decision = record.get("decision")
-    present = True if decision == "H1" else False if decision == "H0" else None
-    least = None
-    forces = record.get("forces")
-    if raw and forces is not None and forces.get("total_tangential") is not None:
-        total = float(forces["total_tangential"])
-        least = abs(total) / params.mu if math.isfinite(total) else None
-    degraded = bool(record.get("degraded") or record.get("late_frames") or record.get("missing_nodes"))
-    return GripFindings(task=task, present=present, slip=slip_now(record, mem, raw), degraded=degraded,
-                        least_hold_n=least, dt_s=dt)
 
 
 @functools.lru_cache(maxsize=4)
@@ -148,8 +95,19 @@ class OfflineDrive:
         self.cycle = -1
 
     def send(self, controlword: int, force_n: float) -> None:
+        self.send_torque(controlword, torque_of(force_n, self.gripper))
+
+    def send_torque(self, controlword: int, torque_permille: int) -> None:
         with self.lock:
-            self.drive.on_rpdo(self.rpdo_id, rpdo1(controlword, torque_of(force_n, self.gripper)))
+            self.drive.on_rpdo(self.rpdo_id, rpdo1(controlword, torque_permille))
+
+    def state(self, t_us: int) -> DriveCycle:
+        """What the centre's stream decodes of the drive's TPDO1 / TPDO2 of this SYNC
+        (:class:`fusion_center.service.drive_frames.DriveCycle`), read from its OD."""
+        with self.lock:
+            read = self.drive.objects.read
+            values = [read(index) for index in (0x6041, 0x6077, 0x6064, 0x6061, 0x2100, 0x2101, 0x2102, 0x603F)]
+        return DriveCycle(True, False, 0x05, *values, t_us, None)
 
     def sync(self) -> None:
         with self.lock:
@@ -214,13 +172,13 @@ def run_grasp(scene, mode: str, fixed_n: float | None = None, count_bits: bool =
               pipeline: CyclePipeline | None = None) -> dict:
     """One grasp of ``scene`` (its ``[grasp]`` task, ``[gripper]`` drive, ``[grip]`` law) in ``mode``:
     "decision" / "raw" (the centre; the scene's bus mode must match) or "fixed" (``fixed_n`` N per
-    jaw from the close phase to the release). ``pipeline``: a :class:`CyclePipeline` of this
-    scene's layout and mode to reuse (its stateful part, the slip stage, is made afresh here).
+    jaw from the close phase to the release, the drive enabled by the bench). ``pipeline``: a
+    :class:`CyclePipeline` of this scene's layout and mode to reuse (its per-run state, the slip
+    tracker and the grip stage, renewed here: :meth:`CyclePipeline.new_run`).
 
-    The centre runs from 50 ms before the close phase: before, the task is "open" and the law's
-    command is 0 whatever the taxels say (its state stays "open" with no presence run: nothing
-    is between the jaws), so skipping those cycles changes nothing but the run time. The grasp
-    ends 5 cycles into the release (the object is down) or when it is dropped.
+    The centre evaluates every cycle from the first: it walks the drive to OPERATION ENABLED as a
+    live centre does, and the world's task starts there (``docs/grasp-world.md``). The grasp ends
+    5 cycles into the release (the object is down) or when it is dropped.
 
     Returns ``{"rows": [(cycle, phase, normal_n, min_hold_n, slipping, slid_mm, dropped, crushed,
     command_n, centre_slip, in_grip, grip_flags, world_mode), ...], ...}``."""
@@ -234,35 +192,33 @@ def run_grasp(scene, mode: str, fixed_n: float | None = None, count_bits: bool =
     if centre:
         if pipeline is None:
             pipeline = CyclePipeline(scene, truth=False)
-        else:  # a fresh slip stage (the pipeline's only state) for this grasp
-            pipeline.physical = PhysicalEvaluation(scene, pipeline.labels, pipeline.noise,
-                                                   slip="slip" in pipeline.plan.run)
+        else:
+            pipeline.new_run()
+        if pipeline.grip is None:
+            raise ValueError(f"scene {scene.name!r}: the grip stage does not run ({pipeline.plan.skipped.get('grip')})")
     noise = np.array([t.noise_mv for t in scene.taxels])
     zeta = np.array([t.zeta_mv for t in scene.taxels])
-    close_at = world.timeline.phase_starts["close"] - 0.05
-    state = GripState()
-    mem = SlipMemory(band=pipeline.physical._noise_band() if centre else 0.0)
     bits = BitCounter(scene) if count_bits else None
     held: dict = {}
     rows = []
-    centre_us: list[float] = []            # the centre's work per cycle: evaluate + findings + law, µs
+    centre_us: list[float] = []            # the centre's work per cycle: the pipeline with its grip stage, µs
     release_cycles = 0
     try:
-        drv.send(CW_SHUTDOWN, 0.0)
-        drv.sync()
+        if not centre:  # the baselines: the bench enables the drive itself
+            drv.send(CW_SHUTDOWN, 0.0)
+            drv.sync()
+            drv.send(CW_ENABLE, 0.0)
         truth = coupling.step()
-        drv.send(CW_ENABLE, 0.0)
         k = 0
         while True:
             k += 1
-            awake = centre and truth.task_s is not None and truth.task_s >= close_at
-            x = truth_readings(scene, truth, k, held) if awake else None   # SYNC k: the world's latest step
+            x = truth_readings(scene, truth, k, held) if centre else None   # SYNC k: the world's latest step
             drv.sync()                                          # the RPDO of cycle k - 1 applies
             truth = coupling.step()                             # the world during cycle k
             task = TASK_OF_PHASE.get(truth.phase, "close")
             slip_now = False
             flags: tuple = ()
-            if awake:
+            if centre:
                 if mode == "decision":
                     # each node's detector, eqs 1-4 (local_decision_pm1's comparison, vectorised)
                     u = np.where(x - noise >= zeta, 1, -1).astype(np.int8)
@@ -274,21 +230,22 @@ def run_grasp(scene, mode: str, fixed_n: float | None = None, count_bits: bool =
                     closed = closed_cycle(scene, k, period_us, readings=x32.astype(float))
                     if bits is not None and k % 5 == 0:
                         bits.add_readings(x32)
+                closed = replace(closed, drive=drv.state(period_us * k))
                 t0 = time.perf_counter()
                 record = pipeline.evaluate(closed)
-                f = findings_of(record, mem, task, params, period_s, mode == "raw")
-                cmd, state = grip_step(params, state, f)
                 centre_us.append((time.perf_counter() - t0) * 1e6)
-                force = cmd.force_n
-                slip_now = f.slip
-                flags = cmd.flags
-            elif centre:
-                force = 0.0
+                grip = record["grip"]
+                force = grip["command_n"] if grip["command_n"] is not None else 0.0
+                slip_now = bool(grip["slip"])
+                flags = tuple(record.get("grip_flags", ()))
+                command = pipeline.grip.command
+                if command is not None:
+                    drv.send_torque(*command)
             else:
                 force = fixed_n if task == "close" else (-params.open_n if task == "release" else 0.0)
-            drv.send(CW_ENABLE, force)
+                drv.send(CW_ENABLE, force)
             rows.append((k, truth.phase, truth.normal_n, truth.min_hold_n, truth.slipping, truth.slid_mm,
-                         truth.dropped, truth.crushed, force, bool(slip_now), truth.in_grip, flags, truth.mode))
+                         truth.dropped, truth.crushed, force, slip_now, truth.in_grip, flags, truth.mode))
             if truth.phase in ("release", "done"):
                 release_cycles += 1
             if truth.dropped or truth.mode == "left" or release_cycles >= 5:
@@ -302,4 +259,4 @@ def run_grasp(scene, mode: str, fixed_n: float | None = None, count_bits: bool =
     return out
 
 
-__all__ = ["run_grasp", "findings_of", "slip_now", "OfflineDrive", "rpdo1", "torque_of", "TASK_OF_PHASE"]
+__all__ = ["run_grasp", "OfflineDrive", "rpdo1", "torque_of", "TASK_OF_PHASE"]

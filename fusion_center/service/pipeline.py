@@ -112,20 +112,14 @@ class CyclePipeline:
         self.centralised = CentralisedTests(scene, self.plan.central_run)
         self.central = self.centralised.params  # test name -> parameters of the full set
         self.hold = scene.bus.transmission_type != 1
-        self.physical = PhysicalEvaluation(scene, self.labels, self.noise, slip="slip" in self.plan.run)
+        self.grip = None  # the grip stage ([gripper] scenes, .grip_stage): a command for the drive per cycle
+        self.new_run()   # the slip tracker (self.physical) and the grip stage
         self.xy = self.physical.xy
         self.want_forces = "forces" in self.plan.run and self.raw_mode
         self.want_area = "area" in self.plan.run and self.xy is not None
         self.want_contact = "contact_type" in self.plan.run
         self.want_slip = self.physical.slip is not None
         self.fusion = DecisionFusion(scene, tuple(r for r in fusion.rules if r in self.plan.rules_run))
-        self.grip = None  # the grip stage ([gripper] scenes, .grip_stage): a command for the drive per cycle
-        if "grip" in self.plan.run:
-            from .grip_stage import GripStage
-
-            slip = self.physical.slip
-            self.grip = GripStage(scene, noise_band=slip.noise_band if slip is not None else None,
-                                  slip_hold=slip.motion_consecutive if slip is not None else 3)
         self.grasp_truth = None  # cycle -> the world's truth (a .grasp_truth.TruthTable), demo / replay --truth-log
         self._patterns: dict[bytes, _Pattern] = {}
         self._truth: list[str] = []
@@ -136,6 +130,19 @@ class CyclePipeline:
             first = np.arange(min(scene.cycles, TRUTH_PRECOMPUTED))
             self._truth = ["H1" if present else "H0" for present in truth_batch(scene, first)]
         self.fusion.warm_up()
+
+    def new_run(self) -> None:
+        """Forget what the pipeline carries from cycle to cycle - the slip tracker and the grip
+        stage (its law's state, the drive's state machine): the next cycle begins a run as a new
+        pipeline would (``bench/grasp.py`` reuses one pipeline, its caches, for many grasps)."""
+        scene = self.scene
+        self.physical = PhysicalEvaluation(scene, self.labels, self.noise, slip="slip" in self.plan.run)
+        if "grip" in self.plan.run:
+            from .grip_stage import GripStage
+
+            slip = self.physical.slip
+            self.grip = GripStage(scene, noise_band=slip.noise_band if slip is not None else None,
+                                  slip_hold=slip.motion_consecutive if slip is not None else 3)
 
     # ------------------------------------------------------------------ the record
     def evaluate(self, closed: ClosedCycle) -> dict:
