@@ -34,6 +34,26 @@ def test_record_k_gets_the_steps_tagged_k_minus_1():
     assert t.for_cycle(6)["phase"] == "lift" and set(t.for_cycle(6)) == set(FIELDS)
 
 
+def test_the_records_truth_on_a_grasp_scene_is_the_worlds_in_grip():
+    """A grasp world's readings do not come from [object] (model "none": its truth would say H0 in
+    every cycle - 102/600 "agreed" on grasp_lift); the record's truth is the world's in_grip."""
+    t = TruthTable()
+    t.add(step(0, in_grip=False, phase="approach"))
+    t.add(step(1, in_grip=True))
+    t.add(step(2, in_grip=None))                          # a log without it: not known
+    assert [t.presence(c) for c in (0, 1, 2, 3)] == [None, "H0", "H1", None]
+    assert "in_grip" not in t.for_cycle(2)
+
+
+def test_a_grasp_demo_agrees_with_the_worlds_truth():
+    from fusion_center.commands.demo import run_demo
+    from taxel_net.scene import load_scene
+
+    _, summary = run_demo(load_scene("grasp_lift"), 300, keep_records=False)
+    agree, total = map(int, summary["agree_with_truth"].split("/"))
+    assert total >= 290 and agree >= 0.95 * total, summary["agree_with_truth"]
+
+
 @pytest.mark.parametrize("line, what", [
     ("not json", "line 2: not a JSON object"),
     ("[1, 2]", "line 2: not a JSON object"),

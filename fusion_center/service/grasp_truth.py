@@ -44,6 +44,8 @@ class TruthTable:
         if cycle is None:
             return
         entry = {k: step.get(k) for k in FIELDS}
+        in_grip = step.get("in_grip")
+        entry["in_grip"] = in_grip if isinstance(in_grip, bool) else None  # the record's "truth" (H1 / H0)
         with self._lock:
             self.steps += 1
             before = self._by_cycle.get(cycle)
@@ -55,11 +57,25 @@ class TruthTable:
                     del self._by_cycle[old]
 
     def for_cycle(self, cycle: int) -> dict | None:
+        """The record's ``grasp_truth`` (exactly :data:`FIELDS`), None when not known."""
+        entry = self._entry(cycle)
+        return None if entry is None else {k: entry[k] for k in FIELDS}
+
+    def presence(self, cycle: int) -> str | None:
+        """The record's ``truth`` on a grasp scene: "H1" while the object is between the jaws and
+        not lost (the world's ``in_grip``), else "H0"; None when not known (the scene's
+        ``[object]`` says nothing there: the world gives the readings)."""
+        entry = self._entry(cycle)
+        if entry is None or entry["in_grip"] is None:
+            return None
+        return "H1" if entry["in_grip"] else "H0"
+
+    def _entry(self, cycle: int) -> dict | None:
         with self._lock:
             for k in range(cycle - 1, cycle - 1 - LOOK_BACK, -1):
                 entry = self._by_cycle.get(k)
                 if entry is not None:
-                    return dict(entry)
+                    return entry
         return None
 
     @classmethod

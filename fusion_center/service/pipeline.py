@@ -241,7 +241,11 @@ class CyclePipeline:
         record["stages_skipped"] = self.stages_skipped
         record["rules_skipped"] = self.rules_skipped
         if self.with_truth:
-            record["truth"] = self.truth(closed.cycle)
+            if self.scene.grasp is None:
+                record["truth"] = self.truth(closed.cycle)
+            else:  # a grasp world's readings: the truth is the world's (None where it is not known)
+                table = self.grasp_truth
+                record["truth"] = None if table is None else table.presence(closed.cycle)
         return record
 
     def _nodes_by_state(self, closed: ClosedCycle, missing: np.ndarray, silent: np.ndarray) -> dict:
