@@ -35,6 +35,7 @@ class GripParams:
     relax_delay_s: float = 1.0      # no probing until this long after the grasp or the last slip
     return_delay_s: float = 0.2     # no return toward the floor / target until this long after the last slip
     relax_per_s: float = 0.5        # probing (no floor learned yet): the command falls by this fraction of itself per s
+    probe_headroom: float = 1.7     # decision mode probes only while max_n >= probe_headroom x the command
     return_per_s: float = 6.0       # above the floor or raw mode's target: falls by this fraction of itself per s
     safety_factor: float = 1.2      # raw mode: the target is safety_factor * T / mu (eq 26a per jaw)
     mu: float = 0.5                 # the friction coefficient of eq 26a ([forces] mu by default)
@@ -46,7 +47,7 @@ class GripParams:
 
 
 FLOAT_FIELDS = ("grasp_n", "min_n", "max_n", "raise_fraction", "raise_n", "settle_s", "margin", "relax_delay_s",
-                "return_delay_s", "relax_per_s", "return_per_s", "safety_factor", "mu", "open_n")
+                "return_delay_s", "relax_per_s", "probe_headroom", "return_per_s", "safety_factor", "mu", "open_n")
 INT_FIELDS = ("presence_cycles",)
 
 
@@ -68,6 +69,8 @@ def check_params(p: GripParams) -> None:
     if p.return_per_s < p.relax_per_s:
         raise ParameterError("return_per_s", p.return_per_s, f"must be >= relax_per_s ({p.relax_per_s:g}): probing "
                                                              "below the floor is the slow part")
+    if p.probe_headroom < 1:
+        raise ParameterError("probe_headroom", p.probe_headroom, "must be >= 1 (a slip must be stoppable below max_n)")
     if p.safety_factor < 1:
         raise ParameterError("safety_factor", p.safety_factor, "must be >= 1 (eq 26a's bound is the least)")
     if not p.min_n <= p.grasp_n <= p.max_n:

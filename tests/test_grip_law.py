@@ -28,6 +28,7 @@ def params(draw):
                       settle_s=draw(st.floats(0.0, 0.2)), margin=draw(st.floats(0.0, 1.0)),
                       relax_delay_s=draw(st.floats(0.0, 2.0)), return_delay_s=draw(st.floats(0.0, 1.0)),
                       relax_per_s=relax, return_per_s=draw(st.floats(relax, 20.0)),
+                      probe_headroom=draw(st.floats(1.0, 3.0)),
                       safety_factor=draw(st.floats(1.0, 3.0)), mu=draw(st.floats(0.05, 1.5)),
                       open_n=draw(st.floats(0.1, 50.0)), presence_cycles=draw(st.integers(1, 4)))
 
@@ -83,6 +84,8 @@ def test_safety_rules_hold_on_any_sequence(p, seq):
                 assert cmd.force_n >= before.command_n * (1 - p.return_per_s * f.dt_s) - 1e-9
                 if before.learned_n == 0:
                     assert cmd.force_n >= before.command_n * (1 - p.relax_per_s * f.dt_s) - 1e-9
+                    if f.least_hold_n is None and before.command_n * p.probe_headroom > p.max_n:
+                        assert cmd.force_n >= before.command_n                 # no probe near max_n
             # raw mode: at least the safety factor times eq 26a's bound (capped by max_n)
             least = f.least_hold_n
             if least is not None and math.isfinite(least) and least > 0:
@@ -127,8 +130,8 @@ def test_held_object_is_never_let_go_without_release(p, cycles):
 # ------------------------------------------------------------------ closed forms
 
 P = GripParams(grasp_n=10.0, min_n=1.0, max_n=40.0, raise_fraction=1.0, raise_n=0.5, settle_s=0.06, margin=0.2,
-               relax_delay_s=1.0, return_delay_s=0.2, relax_per_s=0.5, return_per_s=3.0, safety_factor=1.2,
-               mu=0.5, open_n=10.0, presence_cycles=2)
+               relax_delay_s=1.0, return_delay_s=0.2, relax_per_s=0.5, probe_headroom=1.7, return_per_s=3.0,
+               safety_factor=1.2, mu=0.5, open_n=10.0, presence_cycles=2)
 
 
 def close(present=True, slip=False, least=None, degraded=False):
@@ -159,6 +162,18 @@ def test_grasp_on_presence_then_probe_down_geometrically():
     state = replace(state, command_n=1.001)
     cmd, state = grip_step(P, state, close())
     assert cmd.force_n == 1.0                                       # min_n
+
+
+def test_no_probe_where_a_slip_could_not_be_stopped_below_max_n():
+    """max_n 15 N, probe_headroom 1.7: from 10 N no probe (1.7 x 10 > 15); from 8.5 N it probes
+    (1.7 x 8.5 = 14.45 <= 15)."""
+    p = replace(P, max_n=15.0)
+    for start, probes in ((10.0, False), (8.5, True)):
+        state = GripState(phase="hold", command_n=start, quiet_s=5.0)
+        cmd, _ = grip_step(p, state, close())
+        assert (cmd.force_n < start) == probes
+        if probes:
+            assert cmd.force_n == pytest.approx(start * (1 - 0.5 * DT))
 
 
 def test_slip_raises_once_per_settle_teaches_the_floor_and_returns_to_it():
@@ -285,7 +300,7 @@ def test_bad_findings_are_refused():
     ("max_n", 0.0, "> 0"), ("mu", -1.0, "> 0"), ("open_n", 0.0, "> 0"), ("min_n", -0.1, ">= 0"),
     ("settle_s", -1.0, ">= 0"), ("margin", float("nan"), "finite"), ("grasp_n", 500.0, "[min_n, max_n]"),
     ("safety_factor", 0.99, ">= 1"), ("grasp_n", 0.0, "> 0"), ("presence_cycles", 0, "integer >= 1"), ("presence_cycles", 1.5, "integer"),
-    ("return_per_s", 0.1, "relax_per_s"), ("raise_fraction", True, "finite number"),
+    ("return_per_s", 0.1, "relax_per_s"), ("probe_headroom", 0.9, ">= 1"), ("raise_fraction", True, "finite number"),
 ])
 def test_bad_params_name_the_field(field, value, words):
     with pytest.raises(ParameterError) as info:

@@ -57,13 +57,14 @@ def test_empty_table_defaults(tmp_path):
     assert g.max_n == pytest.approx(112.0) and g.mu == 0.35
     d = grip_law.GripParams()
     for name in ("grasp_n", "min_n", "raise_fraction", "raise_n", "settle_s", "margin", "relax_delay_s",
-                 "return_delay_s", "relax_per_s", "return_per_s", "safety_factor", "open_n", "presence_cycles"):
+                 "return_delay_s", "relax_per_s", "probe_headroom", "return_per_s", "safety_factor", "open_n",
+                 "presence_cycles"):
         assert getattr(g, name) == getattr(d, name), name
 
 
 # every field, with a value that is not its default, read as given
 ALL = {"grasp_n": 7.5, "min_n": 1.25, "max_n": 60.0, "raise_fraction": 0.4, "raise_n": 0.75, "settle_s": 0.03,
-       "margin": 0.3, "relax_delay_s": 0.8, "return_delay_s": 0.1, "relax_per_s": 0.25, "return_per_s": 2.5,
+       "margin": 0.3, "relax_delay_s": 0.8, "return_delay_s": 0.1, "relax_per_s": 0.25, "probe_headroom": 2.0, "return_per_s": 2.5,
        "safety_factor": 1.5, "mu": 0.6, "open_n": 20.0, "presence_cycles": 3}
 
 
@@ -101,6 +102,7 @@ ERRORS = [  # (the [grip] body, field, value, words in the problem)
     ("return_delay_s = -1\n", "grip.return_delay_s", -1.0, ">= 0"),
     ("relax_per_s = -0.5\n", "grip.relax_per_s", -0.5, ">= 0"),
     ("return_per_s = -3\n", "grip.return_per_s", -3.0, ">= 0"),
+    ("probe_headroom = 0.5\n", "grip.probe_headroom", 0.5, ">= 1"),
     ("relax_per_s = 2.0\nreturn_per_s = 1.0\n", "grip.return_per_s", 1.0, "relax_per_s"),
     ("safety_factor = 0.9\n", "grip.safety_factor", 0.9, ">= 1"),
     ("safety_factor = \"high\"\n", "grip.safety_factor", "high", "number"),

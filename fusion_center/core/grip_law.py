@@ -43,7 +43,10 @@ Phases (``GripState.phase``):
      a raise); otherwise - no floor learned in this grasp - from ``relax_delay_s`` after the grasp
      or the last slip by the slower ``relax_per_s``: in decision mode this is **probing** (it
      cannot see the load, so it finds the least holding force by the slip that ends the probe;
-     rule 2's floor then holds it at ``1 + margin`` times that), in raw mode it follows the
+     rule 2's floor then holds it at ``1 + margin`` times that) - only while
+     ``probe_headroom * command <= max_n``: a slide is stopped only by ``mu_s / mu_k`` times the
+     force it began under, so a probe near a fragile object's ``max_n`` could start a slip the
+     law is not allowed to stop; in raw mode it follows the
      measured target down slowly (a load that falls for a moment, the arm accelerating downward,
      comes back).
 * ``release``: the task asks to release: the command is ``-open_n`` (the jaws open); once the
@@ -156,7 +159,9 @@ def grip_step(p: GripParams, state: GripState, f: GripFindings) -> tuple[GripCom
             if learned > 0:                           # back from a raise, down to the floor slips taught
                 if quiet >= p.return_delay_s - TIME_EPS_S:
                     command = max(floor, command * max(0.0, 1.0 - p.return_per_s * dt))
-            elif quiet >= p.relax_delay_s - TIME_EPS_S:            # probing (decision) / following the target down (raw)
+            elif quiet >= p.relax_delay_s - TIME_EPS_S and (carried or command * p.probe_headroom <= p.max_n):
+                # probing (decision: only where a slip can still be stopped below max_n) /
+                # following the measured target down (raw)
                 command = max(floor, command * max(0.0, 1.0 - p.relax_per_s * dt))
     if f.degraded and command < before:
         command = before
