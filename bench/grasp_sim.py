@@ -193,7 +193,7 @@ def run_grasp(scene, mode: str, fixed_n: float | None = None, count_bits: bool =
         if pipeline is None:
             pipeline = CyclePipeline(scene, truth=False)
         else:
-            pipeline.new_run()
+            pipeline.new_run(scene)  # this grasp's mu, [grip], [grasp] and drive
         if pipeline.grip is None:
             raise ValueError(f"scene {scene.name!r}: the grip stage does not run ({pipeline.plan.skipped.get('grip')})")
     noise = np.array([t.noise_mv for t in scene.taxels])

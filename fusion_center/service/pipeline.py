@@ -131,11 +131,14 @@ class CyclePipeline:
             self._truth = ["H1" if present else "H0" for present in truth_batch(scene, first)]
         self.fusion.warm_up()
 
-    def new_run(self) -> None:
+    def new_run(self, scene: Scene | None = None) -> None:
         """Forget what the pipeline carries from cycle to cycle - the slip tracker and the grip
         stage (its law's state, the drive's state machine): the next cycle begins a run as a new
-        pipeline would (``bench/grasp.py`` reuses one pipeline, its caches, for many grasps)."""
-        scene = self.scene
+        pipeline would (``bench/grasp.py`` reuses one pipeline, its caches, for many grasps).
+        ``scene``: the run's own scene where it differs from the pipeline's only in what those two
+        read - ``[forces] mu``, ``[grip]``, ``[grasp]``, ``[gripper]`` - not in its taxels or mode
+        (the bench's randomised grasps: one pipeline per layout and mode)."""
+        scene = self.scene if scene is None else scene
         self.physical = PhysicalEvaluation(scene, self.labels, self.noise, slip="slip" in self.plan.run)
         if "grip" in self.plan.run:
             from .grip_stage import GripStage
