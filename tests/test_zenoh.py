@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import json
 import math
-import random
 import subprocess
 import sys
 import threading
@@ -27,7 +26,18 @@ GRIP = {"command_n": 12.5, "actual_n": 11.75, "drive_state": "operation enabled"
 
 
 def _ports(k: int) -> list[int]:
-    return random.sample(range(40000, 60000), k)
+    """``k`` loopback TCP ports the system has just handed out as free (not a random pick that
+    may be another test's listener: a peer connected there never matches)."""
+    import socket
+
+    sockets = [socket.socket() for _ in range(k)]
+    try:
+        for s in sockets:
+            s.bind(("127.0.0.1", 0))
+        return [s.getsockname()[1] for s in sockets]
+    finally:
+        for s in sockets:
+            s.close()
 
 
 def _subscribe(session, key: str):
@@ -48,13 +58,16 @@ def _subscribe(session, key: str):
     return sub, got, wait
 
 
-def _connected(publisher, subscriber_session, key: str) -> None:
-    """Waits until the subscriber's interest reached the publisher (a safety limit)."""
+def _connected(publisher, *names: str) -> None:
+    """Waits until the publisher itself knows a subscriber wants each of ``names`` (its matching
+    listener, which decides whether a record is put: polling Zenoh's matching status instead
+    raced that listener's thread); a safety limit, not a timing claim."""
     import time
 
     end = time.monotonic() + 30
-    while not publisher._publishers["record"].matching_status.matching and time.monotonic() < end:
+    while not all(publisher._matching.get(n) for n in names) and time.monotonic() < end:
         time.sleep(0.01)
+    assert all(publisher._matching.get(n) for n in names), f"no subscriber matched {names} within 30 s"
 
 
 def test_a_hand_made_record_with_grip_goes_out_on_its_keys():
@@ -78,7 +91,7 @@ def test_a_hand_made_record_with_grip_goes_out_on_its_keys():
         peer = zenoh_peer(connect=port)
         try:
             sub, got, wait = _subscribe(peer, "taxel/grasp_scene_1/*")
-            _connected(pub, peer, "taxel/grasp_scene_1/*")
+            _connected(pub, "record", "grip", "contact")
             for r in records:
                 pub(r)
             pub({"cycle": 4, "t": math.nan, "decision": "H0"})  # JSON cannot hold it: counted, not raised
@@ -120,7 +133,7 @@ def test_a_stalled_subscriber_never_holds_the_publishing_thread():
                 release.wait(120)  # stalls Zenoh's receive path of this session (a safety limit)
 
             peer.declare_subscriber("taxel/stall/record", on_sample)
-            _connected(pub, peer, "taxel/stall/record")
+            _connected(pub, "record")
             big = {"cycle": 0, "decision": "H0", "present_nodes": list(range(6000))}
             for k in range(1500):  # ~50 MB: far beyond the queues and socket buffers
                 pub({**big, "cycle": k})
@@ -260,7 +273,7 @@ def test_with_no_subscriber_nothing_is_serialised_or_put():
         peer = zenoh_peer(connect=port)
         try:
             sub, got, wait = _subscribe(peer, "taxel/lonely/record")
-            _connected(pub, peer, "taxel/lonely/record")
+            _connected(pub, "record")
             pub({"cycle": 5, "t": 0.05, "decision": "H1", "grip": GRIP})
             assert [json.loads(p)["cycle"] for _, p, _ in wait(1)] == [5]
         finally:
