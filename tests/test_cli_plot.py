@@ -132,6 +132,7 @@ def test_plot_cli_exit_code(tmp_path):
     ('{"cycle": 0}\n[1, 2]\n', "line 2: not a decision record"),
     ('{"scene": "x"}\n', "line 1: not a decision record"),
     (b"\xff\xfe\x00garbage", "not a UTF-8 text file"),
+    ('{"cycle": 0}\n' + "[" * 200_000 + "\n", "line 2: not a JSON record (nested too deeply)"),  # was a RecursionError
 ])
 def test_bad_logs_exit_2_with_one_line(tmp_path, capsys, content, needle):
     log = tmp_path / "bad.jsonl"

@@ -71,6 +71,15 @@ def test_a_bad_truth_log_is_one_line(tmp_path, line, what):
     assert what in str(err.value) and str(path) in str(err.value) and "\n" not in str(err.value)
 
 
+def test_a_truth_log_that_is_not_utf8_is_one_line(tmp_path):
+    """(It was a UnicodeDecodeError: replay --truth-log ended in a traceback, exit 1.)"""
+    path = tmp_path / "truth.jsonl"
+    path.write_bytes(json.dumps(step(0)).encode() + b"\n" + b'{"phase": "\xff"}\n')
+    with pytest.raises(UsageError) as err:
+        TruthTable.from_file(path)
+    assert str(err.value) == f"--truth-log {str(path)!r}: not a UTF-8 text file (byte 0xFF in line 2, column 12)"
+
+
 def test_a_missing_truth_log(tmp_path):
     with pytest.raises(UsageError, match="cannot be read"):
         TruthTable.from_file(tmp_path / "nope.jsonl")

@@ -167,10 +167,12 @@ def test_grip_records_become_joint_states(tmp_path):
     ('{"cycle": 0, "t": 0.0}\n[1, 2]\n', "line 2: not a record"),
     ('{"cycle": "x", "t": 0.0}\n', "line 1: not a record"),
     ("", "no records"),
+    ("[" * 200_000 + "\n", "line 1: not JSON (nested too deeply)"),  # was a RecursionError, exit 1
+    (b'{"cycle": 0, "t": 0.0}\n{"cycle": 1, "t": 0.01, "x": "\xe9"}\n', "byte 0xE9 in line 2, column 31"),
 ])
 def test_a_bad_log_is_one_line_naming_file_and_line(tmp_path, capsys, content, says):
     log = tmp_path / "bad.jsonl"
-    log.write_text(content)
+    log.write_bytes(content) if isinstance(content, bytes) else log.write_text(content)
     assert main(["export", "--ros2", str(log), str(tmp_path / "bag"), "--scene", "matrix57"]) == 2
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and str(log) in err and says in err

@@ -22,36 +22,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def read_log(path) -> list[dict]:
     """Every record of a decision log; a line that is not one JSON object: one line naming the
-    file and the line."""
-    import json
-
+    file and the line (:func:`taxel_net.json_lines.iter_log`)."""
     from taxel_net.errors import UsageError
+    from taxel_net.json_lines import iter_log
 
-    records = []
-    try:
-        f = open(path, encoding="utf-8")
-    except OSError as exc:
-        raise UsageError(f"decision log {str(path)!r}: cannot be read: {exc.strerror or exc}") from None
-    with f:
-        try:
-            for number, line in enumerate(f, 1):
-                if not line.strip():
-                    continue
-                try:
-                    record = json.loads(line)
-                except ValueError as exc:
-                    raise UsageError(f"decision log {str(path)!r}, line {number}: not JSON ({exc.msg} at column "
-                                     f"{exc.colno})") from None
-                if not isinstance(record, dict) or not isinstance(record.get("cycle"), int) \
-                        or not isinstance(record.get("t"), (int, float)) or isinstance(record.get("t"), bool):
-                    raise UsageError(f"decision log {str(path)!r}, line {number}: not a record of the decision log "
-                                     "(a JSON object with an integer 'cycle' and a number 't')")
-                records.append(record)
-        except UnicodeDecodeError as exc:
-            raise UsageError(f"decision log {str(path)!r}: not UTF-8 text ({exc.reason})") from None
+    records = [record for _, record in iter_log(path, check=_not_a_record)]
     if not records:
         raise UsageError(f"decision log {str(path)!r}: no records")
     return records
+
+
+def _not_a_record(record) -> str | None:
+    if not isinstance(record, dict) or not isinstance(record.get("cycle"), int) \
+            or not isinstance(record.get("t"), (int, float)) or isinstance(record.get("t"), bool):
+        return "not a record of the decision log (a JSON object with an integer 'cycle' and a number 't')"
+    return None
 
 
 def run(args) -> int:

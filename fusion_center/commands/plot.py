@@ -24,7 +24,6 @@ records) exits 2 with one line naming the file and the line.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import tempfile
@@ -50,6 +49,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def read_log(path: Path) -> dict:
     """The per-cycle series of a decision log, as lists (one entry per record)."""
     from taxel_net.errors import UsageError
+    from taxel_net.json_lines import iter_log
 
     name = str(path)
     if not path.is_file():
@@ -60,45 +60,36 @@ def read_log(path: Path) -> dict:
     series["states"] = {state: [] for state in STATES}
     series["errors"] = 0
     meta: dict = {}
-    try:
-        with open(path, encoding="utf-8") as f:
-            for number, line in enumerate(f, 1):
-                if not line.strip():
-                    continue
-                try:
-                    record = json.loads(line)
-                except ValueError as exc:
-                    raise UsageError(f"decision log {name!r} line {number}: not a JSON record ({exc}); "
-                                     "expected one JSON object per line (--json-lines of run, demo or replay)") from None
-                if not isinstance(record, dict) or not isinstance(record.get("cycle"), int):
-                    raise UsageError(f"decision log {name!r} line {number}: not a decision record (no integer "
-                                     "'cycle'); expected the --json-lines of run, demo or replay")
-                if "error" in record and "decision" not in record:
-                    series["errors"] += 1  # the service logged a failed evaluation for this cycle
-                meta.setdefault("decide_with", record.get("decide_with"))
-                meta.setdefault("mode", record.get("mode"))
-                meta["n_expected"] = record.get("n_expected", meta.get("n_expected"))
-                for key in keys:
-                    series[key].append(record.get(key))
-                if "grip" in record:  # a grasp run (issue 23): its own figure (.plot_grasp)
-                    from .plot_grasp import collect
+    for _, record in iter_log(path, check=_not_a_record,
+                              not_json="not a JSON record ({why}); expected one JSON object per line "
+                                       "(--json-lines of run, demo or replay)"):
+        if "error" in record and "decision" not in record:
+            series["errors"] += 1  # the service logged a failed evaluation for this cycle
+        meta.setdefault("decide_with", record.get("decide_with"))
+        meta.setdefault("mode", record.get("mode"))
+        meta["n_expected"] = record.get("n_expected", meta.get("n_expected"))
+        for key in keys:
+            series[key].append(record.get(key))
+        if "grip" in record:  # a grasp run (issue 23): its own figure (.plot_grasp)
+            from .plot_grasp import collect
 
-                    collect(record, series)
-                by_state = record.get("nodes_by_state") or {}
-                for state in STATES:
-                    nodes = by_state.get(state)
-                    if nodes is None and state in ("missing", "silent"):
-                        nodes = record.get(f"{state}_nodes")
-                    series["states"][state].append(len(nodes or ()))
-    except UnicodeDecodeError as exc:
-        raise UsageError(f"decision log {name!r}: not a UTF-8 text file (byte 0x{exc.object[exc.start]:02X} at "
-                         f"offset {exc.start} of its block)") from None
-    except OSError as exc:
-        raise UsageError(f"decision log {name!r} cannot be read: {exc.strerror or exc}") from None
+            collect(record, series)
+        by_state = record.get("nodes_by_state") or {}
+        for state in STATES:
+            nodes = by_state.get(state)
+            if nodes is None and state in ("missing", "silent"):
+                nodes = record.get(f"{state}_nodes")
+            series["states"][state].append(len(nodes or ()))
     if not series["cycle"]:
         raise UsageError(f"decision log {name!r}: no records (a run writes one JSON line per SYNC cycle)")
     series["meta"] = meta
     return series
+
+
+def _not_a_record(record) -> str | None:
+    if not isinstance(record, dict) or not isinstance(record.get("cycle"), int):
+        return "not a decision record (no integer 'cycle'); expected the --json-lines of run, demo or replay"
+    return None
 
 
 def _legend(ax, ncol: int) -> None:

@@ -17,12 +17,10 @@ saw before - the truth there is for plots, not for checks.
 
 from __future__ import annotations
 
-import json
 import math
 import threading
-from pathlib import Path
 
-from taxel_net.errors import UsageError
+from taxel_net.json_lines import iter_log
 
 FIELDS = ("phase", "normal_n", "min_hold_n", "slipping", "slid_mm", "dropped", "crushed")
 LOOK_BACK = 3
@@ -82,36 +80,24 @@ class TruthTable:
     def from_file(cls, path) -> "TruthTable":
         """Read node-sim's ``--truth-log`` (JSON lines); a bad line is one UsageError naming it."""
         table = cls(bounded=False)
-        name = str(path)
-        try:
-            handle = Path(path).open("r", encoding="utf-8")
-        except OSError as exc:
-            raise UsageError(f"--truth-log {name!r}: cannot be read: {exc.strerror or exc}") from None
-        with handle:
-            for number, line in enumerate(handle, start=1):
-                if not line.strip():
-                    continue
-                try:
-                    step = json.loads(line, parse_constant=_no_constant)
-                except (ValueError, RecursionError) as exc:
-                    raise UsageError(f"--truth-log {name!r} line {number}: not a JSON object ({exc})") from None
-                if not isinstance(step, dict):
-                    raise UsageError(f"--truth-log {name!r} line {number}: not a JSON object")
-                cycle = step.get("cycle")
-                if cycle is not None and (isinstance(cycle, bool) or not isinstance(cycle, int) or cycle < 0):
-                    raise UsageError(f"--truth-log {name!r} line {number}: cycle {cycle!r} must be an integer "
-                                     ">= 0 or null")
-                missing = [k for k in FIELDS if k not in step]
-                if missing:
-                    raise UsageError(f"--truth-log {name!r} line {number}: missing {', '.join(missing)} "
-                                     "(not a node-sim truth log?)")
-                for k in ("normal_n", "min_hold_n", "slid_mm"):
-                    v = step[k]
-                    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-                        raise UsageError(f"--truth-log {name!r} line {number}: {k} {v!r} must be a finite number")
-                table.add(step)
+        for _, step in iter_log(path, "--truth-log", check=_not_a_step, not_json="not a JSON object ({why})",
+                                allow_nan=False):
+            table.add(step)
         return table
 
 
-def _no_constant(name: str):
-    raise ValueError(f"{name} is not JSON")
+def _not_a_step(step) -> str | None:
+    """What is wrong with one line of a truth log, None if nothing."""
+    if not isinstance(step, dict):
+        return "not a JSON object"
+    cycle = step.get("cycle")
+    if cycle is not None and (isinstance(cycle, bool) or not isinstance(cycle, int) or cycle < 0):
+        return f"cycle {cycle!r} must be an integer >= 0 or null"
+    missing = [k for k in FIELDS if k not in step]
+    if missing:
+        return f"missing {', '.join(missing)} (not a node-sim truth log?)"
+    for k in ("normal_n", "min_hold_n", "slid_mm"):
+        v = step[k]
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            return f"{k} {v!r} must be a finite number"
+    return None

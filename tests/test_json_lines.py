@@ -1,0 +1,99 @@
+"""The one reader of JSON-lines files (taxel_net.json_lines.iter_log): the decision log of ``plot``
+and ``export``, node-sim's ``--truth-log``. Every bad line is one UsageError naming the file, the
+line and what is wrong; what came before it was read."""
+
+import json
+
+import pytest
+
+from taxel_net.errors import UsageError
+from taxel_net.json_lines import iter_log
+
+
+def write(tmp_path, content) -> str:
+    path = tmp_path / "log.jsonl"
+    if isinstance(content, bytes):
+        path.write_bytes(content)
+    else:
+        path.write_text(content, encoding="utf-8")
+    return str(path)
+
+
+def error_of(path, **kw) -> tuple[list, str]:
+    """(the values read before the error, the error's text)."""
+    seen = []
+    with pytest.raises(UsageError) as err:
+        for number, value in iter_log(path, **kw):
+            seen.append((number, value))
+    text = str(err.value)
+    assert "\n" not in text and repr(path) in text, text
+    return seen, text
+
+
+def test_values_with_their_line_numbers_blank_lines_counted(tmp_path):
+    path = write(tmp_path, '{"cycle": 0}\n\n  \n{"cycle": 1, "t": 0.5}\r\n{"cycle": 2}')
+    assert list(iter_log(path)) == [(1, {"cycle": 0}), (4, {"cycle": 1, "t": 0.5}), (5, {"cycle": 2})]
+
+
+def test_bad_json_in_the_middle_names_its_line_after_the_lines_before(tmp_path):
+    path = write(tmp_path, '{"cycle": 0}\n{"cycle": 1}\n{"cycle": 2,, "t": 0}\n{"cycle": 3}\n')
+    seen, text = error_of(path)
+    assert seen == [(1, {"cycle": 0}), (2, {"cycle": 1})]
+    # the second comma: '{"cycle": 2,' is 12 characters
+    assert f"decision log {path!r}, line 3: not JSON (" in text and text.endswith("at column 13)")
+
+
+def test_a_cut_last_line_is_refused_naming_it(tmp_path):
+    """A run killed mid-write leaves a last line without its newline and its end: no caller reads
+    one today (a record cut short is not a record), so it is one error naming that line."""
+    whole = json.dumps({"cycle": 1, "t": 0.01, "decision": "H1"})
+    path = write(tmp_path, '{"cycle": 0}\n' + whole[:len(whole) // 2])
+    seen, text = error_of(path)
+    assert seen == [(1, {"cycle": 0})] and ", line 2: not JSON (" in text
+
+
+def test_an_empty_file_yields_nothing(tmp_path):
+    assert list(iter_log(write(tmp_path, ""))) == []
+    assert list(iter_log(write(tmp_path, "\n \n\t\n"))) == []
+
+
+@pytest.mark.parametrize("line", ["[1, 2]", "3", '"text"', "null", "true"])
+def test_a_line_that_is_not_an_object(tmp_path, line):
+    seen, text = error_of(write(tmp_path, '{"cycle": 0}\n' + line + "\n"))
+    assert seen == [(1, {"cycle": 0})] and text.endswith(", line 2: not a JSON object")
+
+
+def test_the_callers_check_and_wording(tmp_path):
+    path = write(tmp_path, '{"cycle": 0}\n{"cycle": "x"}\n')
+    _, text = error_of(path, label="--truth-log",
+                       check=lambda v: None if isinstance(v.get("cycle"), int) else f"cycle {v['cycle']!r}")
+    assert text == f"--truth-log {path!r}, line 2: cycle 'x'"
+    _, text = error_of(write(tmp_path, "{oops\n"), not_json="not a record ({why}); see the docs")
+    assert ", line 1: not a record (" in text and text.endswith("); see the docs")
+
+
+def test_nan_only_where_allowed(tmp_path):
+    path = write(tmp_path, '{"x": NaN}\n{"x": -Infinity}\n')
+    values = [v["x"] for _, v in iter_log(path)]
+    assert values[0] != values[0] and values[1] == float("-inf")
+    _, text = error_of(path, allow_nan=False)
+    assert text.endswith(", line 1: not JSON (NaN is not JSON)")
+
+
+def test_a_byte_that_is_not_utf8_names_its_line_and_column(tmp_path):
+    path = write(tmp_path, b'{"a": 1}\n{"b": "\xff"}\n')
+    seen, text = error_of(path)
+    assert seen == [(1, {"a": 1})]
+    assert text == f"decision log {path!r}: not a UTF-8 text file (byte 0xFF in line 2, column 8)"
+
+
+def test_nesting_too_deep_is_a_bad_line_not_a_crash(tmp_path):
+    _, text = error_of(write(tmp_path, '{"a": 1}\n' + "[" * 200_000 + "\n"))
+    assert text.endswith(", line 2: not JSON (nested too deeply)")
+
+
+def test_a_file_that_cannot_be_read(tmp_path):
+    _, text = error_of(str(tmp_path / "nope.jsonl"))
+    assert text.endswith(": cannot be read: No such file or directory")
+    _, text = error_of(str(tmp_path))
+    assert ": cannot be read: " in text
