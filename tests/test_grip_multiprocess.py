@@ -7,58 +7,34 @@ world's truth, and the world's own log says the object was gripped and lifted, n
 from __future__ import annotations
 
 import json
-import os
-import random
 import subprocess
 import sys
-import threading
 from pathlib import Path
 
 import pytest
 
 from fusion_center.cli import main
 
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT / "tests"))
+from process_helpers import multicast_group_port, node_sim, udp_loopback  # noqa: E402
+
 pytestmark = pytest.mark.multiprocess
 
-ROOT = Path(__file__).resolve().parent.parent
 CYCLES = 350  # 3.5 s: approach 1 s, close 0.8 s, lift 1 s, then the hold
 # grasp_scripted with a 0.2 kg object and an 8 s hold: the law's default hold lifts it without a slip
 # whatever the host's timing (the slip in the lift is tested in one process: tests/test_grip_stage.py)
 SCENE = str(ROOT / "tests" / "data" / "grasp_light.toml")
 
 
-def _start_node_sim(group: str, port: int, truth: Path) -> subprocess.Popen:
-    proc = subprocess.Popen([sys.executable, "-m", "node_sim.cli", "--scene", SCENE,
-                             "--interface", "udp_multicast", "--channel", group, "--bus-option", f"port={port}",
-                             "--bus-option", "hop_limit=0", "--truth-log", str(truth)],
-                            cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    out: list[str] = []
-    reader = threading.Thread(target=lambda: out.append(proc.stdout.readline()), daemon=True)
-    reader.start()
-    reader.join(60)
-    if not out or "ready" not in out[0]:
-        proc.kill()
-        raise AssertionError(f"node-sim did not start: {out} {proc.stderr.read()}")
-    return proc
-
-
 def test_run_against_node_sim_in_another_process_and_replay_with_its_truth_log(tmp_path):
-    group = f"239.74.{random.randint(164, 250)}.{random.randint(1, 250)}"
-    port = 47000 + (os.getpid() % 1000) + random.randint(0, 999)
+    bus = udp_loopback(*multicast_group_port())
     truth, trace, live, again = (tmp_path / n for n in ("truth.jsonl", "run.log", "run.jsonl", "replay.jsonl"))
-    sim = _start_node_sim(group, port, truth)
-    try:
+    with node_sim("--scene", SCENE, *bus, "--truth-log", str(truth)):
         centre = subprocess.run(
-            [sys.executable, "-m", "fusion_center.cli", "run", "--scene", SCENE, "-i", "udp_multicast",
-             "-c", group, "--bus-option", f"port={port}", "--bus-option", "hop_limit=0", "--cycles", str(CYCLES),
+            [sys.executable, "-m", "fusion_center.cli", "run", "--scene", SCENE, *bus, "--cycles", str(CYCLES),
              "--json-lines", str(live), "--log", str(trace), "--no-live", "--boot-timeout", "5"],
             cwd=ROOT, capture_output=True, text=True, timeout=300)
-    finally:
-        sim.terminate()
-        try:
-            sim.wait(10)
-        except subprocess.TimeoutExpired:
-            sim.kill()
     assert centre.returncode == 0, centre.stderr
     summary = centre.stdout
     print(summary)
@@ -92,16 +68,13 @@ def test_a_killed_centre_leaves_the_part_held_and_a_new_one_takes_it_over(tmp_pa
     import signal
     import time
 
-    group = f"239.74.{random.randint(164, 250)}.{random.randint(1, 250)}"
-    port = 47000 + (os.getpid() % 1000) + random.randint(0, 999)
+    bus = udp_loopback(*multicast_group_port())
     truth, second = tmp_path / "truth.jsonl", tmp_path / "second.jsonl"
-    sim = _start_node_sim(group, port, truth)
-    bus = ["-i", "udp_multicast", "-c", group, "--bus-option", f"port={port}", "--bus-option", "hop_limit=0"]
 
     def steps():
         return [json.loads(line) for line in truth.read_text().splitlines() if line.endswith("}")]
 
-    try:
+    with node_sim("--scene", SCENE, *bus, "--truth-log", str(truth)):
         first = subprocess.Popen([sys.executable, "-m", "fusion_center.cli", "run", "--scene", SCENE, *bus,
                                   "--cycles", "3000", "--no-live", "--boot-timeout", "5"],
                                  cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
@@ -126,12 +99,6 @@ def test_a_killed_centre_leaves_the_part_held_and_a_new_one_takes_it_over(tmp_pa
                                  "--cycles", "100", "--no-live", "--boot-timeout", "5", "--json-lines", str(second)],
                                 cwd=ROOT, capture_output=True, text=True, timeout=300)
         after = steps()[killed_at:]
-    finally:
-        sim.terminate()
-        try:
-            sim.wait(10)
-        except subprocess.TimeoutExpired:
-            sim.kill()
     assert centre.returncode == 0, centre.stderr
     story = [(s["cycle"], s["phase"], round(s["normal_n"], 2), s["in_grip"], s["dropped"]) for s in after[::20]]
     # from the kill through the second centre's run: held all along, never opened, never dropped

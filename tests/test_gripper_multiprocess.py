@@ -11,12 +11,7 @@ SYNC, 0x6007 = 0; the drive watches node 127's heartbeat for 150 ms (3 x 50 ms).
 
 from __future__ import annotations
 
-import os
-import random
-import signal
-import subprocess
 import sys
-import threading
 import time
 from pathlib import Path
 
@@ -26,36 +21,16 @@ from canopen.profiles.p402 import BaseNode402
 
 from node_sim.gripper.drive import GRIPPER_EDS_PATH
 
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT / "tests"))
+from process_helpers import multicast_group_port, node_sim, udp_loopback  # noqa: E402
+
 pytestmark = pytest.mark.multiprocess
 
-ROOT = Path(__file__).resolve().parent.parent
 DRIVE = 32
 MASTER = 127
 SYNC_S = 0.01
 WAIT_S = 10.0
-
-
-@pytest.fixture
-def multicast():
-    group = f"239.74.{random.randint(164, 250)}.{random.randint(1, 250)}"
-    port = 47000 + (os.getpid() % 1000) + random.randint(0, 999)
-    return group, port
-
-
-def start_node_sim(group: str, port: int) -> subprocess.Popen:
-    proc = subprocess.Popen([sys.executable, "-m", "node_sim.cli", "--scene", "grasp_drive",
-                             "--interface", "udp_multicast", "--channel", group,
-                             "--bus-option", f"port={port}", "--bus-option", "hop_limit=0"],
-                            cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    out: list[str] = []
-    reader = threading.Thread(target=lambda: out.append(proc.stdout.readline()), daemon=True)
-    reader.start()
-    reader.join(60)
-    if not out or "ready" not in out[0]:
-        proc.kill()
-        raise AssertionError(f"node-sim did not start: {out} {proc.stderr.read()}")
-    assert "gripper drive 32" in out[0], out[0]
-    return proc
 
 
 class Master:
@@ -94,13 +69,18 @@ class Master:
         self.net.sync.stop()
         self.net.disconnect()
 
+    def __enter__(self):
+        return self
 
-def test_base_node_402_drives_the_drive_of_node_sim_over_udp_multicast(multicast):
-    group, port = multicast
-    proc = start_node_sim(group, port)
-    master = None
-    try:
-        master = Master(group, port)
+    def __exit__(self, *exc):
+        self.close()
+
+
+def test_base_node_402_drives_the_drive_of_node_sim_over_udp_multicast():
+    group, port = multicast_group_port()
+    with node_sim("--scene", "grasp_drive", *udp_loopback(group, port), stop_s=30) as proc, \
+            Master(group, port) as master:
+        assert "gripper drive 32" in proc.ready_line, proc.ready_line
         node, values = master.node, master.values
         master.wait(lambda: node.state == "SWITCH ON DISABLED", "SWITCH ON DISABLED")
         assert node.sdo[0x2103].raw == 1400 and node.sdo[0x6072].raw == 800      # the scene's start-up values
@@ -159,10 +139,4 @@ def test_base_node_402_drives_the_drive_of_node_sim_over_udp_multicast(multicast
         assert node.state == "OPERATION ENABLED" and values[0x6077] == 400 and values[0x603F] == 0x8130
         master.heartbeat = master.net.send_periodic(0x700 + MASTER, b"\x05", 0.05)   # back
         master.wait(lambda: not node.statusword & 0x0080, "warning cleared")
-    finally:
-        if master is not None:
-            master.close()
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGTERM)
-        rc = proc.wait(timeout=30)
-    assert rc == 0, proc.stderr.read()
+    assert proc.returncode == 0, proc.stderr.read()

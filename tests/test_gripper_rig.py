@@ -9,9 +9,7 @@ max torque 800 ‰, slope 4000 ‰/s = 40 ‰ per 10 ms SYNC, stroke 2..60 mm.""
 from __future__ import annotations
 
 import dataclasses
-import subprocess
 import sys
-import threading
 import time
 import uuid
 from pathlib import Path
@@ -29,6 +27,9 @@ from taxel_net.gripper import startup_values
 from taxel_net.scene import load_scene
 
 ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT / "tests"))
+from process_helpers import node_sim  # noqa: E402
+
 DRIVE = 32
 MASTER = 127
 WAIT_S = 5.0
@@ -146,18 +147,11 @@ def test_a_scene_object_with_a_colliding_node_id_is_refused():
 
 
 def test_node_sim_says_the_drive_is_ready():
-    proc = subprocess.Popen([sys.executable, "-m", "node_sim.cli", "--scene", "grasp_drive", "-i", "virtual",
-                             "-c", f"g22b-{uuid.uuid4().hex[:8]}"], cwd=ROOT, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
-    lines: list[str] = []
-    reader = threading.Thread(target=lambda: lines.append(proc.stdout.readline()), daemon=True)
-    reader.start()
-    reader.join(60)
-    proc.terminate()
-    rc = proc.wait(timeout=30)
-    line = lines[0] if lines else ""
+    with node_sim("--scene", "grasp_drive", "-i", "virtual", "-c", f"g22b-{uuid.uuid4().hex[:8]}",
+                  stop_s=30) as proc:
+        line = proc.ready_line
     assert line.startswith("node-sim: ready: 6 nodes and gripper drive 32 of scene 'grasp_drive'"), line
-    assert rc == 0, proc.stderr.read()
+    assert proc.returncode == 0, proc.stderr.read()
 
 
 def test_drive_host_filters_take_only_what_the_drive_consumes():

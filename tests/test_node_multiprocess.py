@@ -4,13 +4,10 @@ the CLI's exit codes; socketcan by name (skipped without a vcan interface)."""
 
 from __future__ import annotations
 
-import os
-import random
 import signal
 import struct
 import subprocess
 import sys
-import threading
 import time
 from pathlib import Path
 
@@ -20,9 +17,11 @@ import pytest
 
 from node_sim.od import EDS_PATH
 
-pytestmark = pytest.mark.multiprocess
-
 ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT / "tests"))
+from process_helpers import multicast_group_port, start_node_sim, stop, udp_loopback, wait_ready  # noqa: E402
+
+pytestmark = pytest.mark.multiprocess
 
 SCENE = """
 [scene]
@@ -71,10 +70,7 @@ def start_on_multicast(tmp_path, group, port):
     """``node-sim`` on the mp3 scene, on udp_multicast ``group:port`` (loopback: hop limit 0)."""
     scene = tmp_path / "mp3.toml"
     scene.write_text(SCENE)
-    return subprocess.Popen([sys.executable, "-m", "node_sim.cli", "--scene", str(scene),
-                             "--interface", "udp_multicast", "--channel", group,
-                             "--bus-option", f"port={port}", "--bus-option", "hop_limit=0"],
-                            cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    return start_node_sim("--scene", str(scene), *udp_loopback(group, port))
 
 
 def heartbeat_states(received: list[can.Message]) -> dict[int, int]:
@@ -91,26 +87,9 @@ def wait_until(pred, describe, timeout: float = 10.0) -> None:
         time.sleep(0.02)
 
 
-def wait_ready(proc, timeout=60.0) -> str:
-    out: list[str] = []
-
-    def reader():
-        out.append(proc.stdout.readline())
-
-    t = threading.Thread(target=reader, daemon=True)
-    t.start()
-    t.join(timeout)
-    if not out or "ready" not in out[0]:
-        proc.kill()
-        raise AssertionError(f"node-sim did not start: {out} {proc.stderr.read()}")
-    return out[0]
-
-
 @pytest.fixture
 def multicast():
-    group = f"239.74.{random.randint(164, 250)}.{random.randint(1, 250)}"
-    port = 47000 + (os.getpid() % 1000) + random.randint(0, 999)
-    return group, port
+    return multicast_group_port()
 
 
 def test_node_sim_process_serves_a_canopen_master(tmp_path, multicast):
@@ -168,18 +147,19 @@ def test_node_sim_process_serves_a_canopen_master(tmp_path, multicast):
         assert heartbeat_states(received).get(4) == 0x05   # addressed: the others stay operational
     finally:
         network.disconnect()
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGTERM)
-        rc = proc.wait(timeout=30)
+        rc = stop(proc, 30)
     assert rc == 0, proc.stderr.read()
 
 
 def test_node_sim_sigint_clean_exit(tmp_path, multicast):
     group, port = multicast
     proc = start_on_multicast(tmp_path, group, port)
-    wait_ready(proc)
-    proc.send_signal(signal.SIGINT)
-    assert proc.wait(timeout=30) == 0
+    try:
+        wait_ready(proc)
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(timeout=30) == 0
+    finally:
+        stop(proc)
     assert proc.stderr.read() == ""
 
 

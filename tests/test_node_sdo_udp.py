@@ -9,8 +9,6 @@ import os
 import random
 import re
 import socket
-import subprocess
-import sys
 import threading
 from pathlib import Path
 
@@ -122,6 +120,7 @@ def test_57_concurrent_sdo_clients_lose_no_transfer_on_udp_multicast():
     thread, drops exactly those."""
     from node_sim.channel import CONSUMED_FILTERS
     from taxel_net.udp_filter import set_filters
+    from process_helpers import start_node_sim, stop, udp_loopback, wait_ready
     from test_service_multiprocess import GROUP, multicast_port
 
     port = multicast_port()
@@ -138,15 +137,10 @@ def test_57_concurrent_sdo_clients_lose_no_transfer_on_udp_multicast():
 
     shadow_reader = threading.Thread(target=read_shadow, daemon=True)
     shadow_reader.start()
-    sim = subprocess.Popen(
-        [sys.executable, "-c", "import sys; from node_sim.cli import main; sys.exit(main())",
-         "--scene", str(MATRIX), "--interface", "udp_multicast", "--channel", GROUP,
-         "--bus-option", f"port={port}", "--bus-option", "hop_limit=0"],
-        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    sim = start_node_sim("--scene", str(MATRIX), *udp_loopback(GROUP, port))
     transfers = 30
     try:
-        ready = sim.stdout.readline()
-        assert "ready" in ready, sim.stderr.read() if sim.poll() is not None else ready
+        wait_ready(sim)
         inodes = _socket_inodes(sim.pid)
         drops_before = _udp_drops(inodes, port)
         filtered_before = _udp_drops(shadow_inodes, port)
@@ -193,11 +187,7 @@ def test_57_concurrent_sdo_clients_lose_no_transfer_on_udp_multicast():
         reading.clear()
         shadow_reader.join(2)
         shadow.shutdown()
-        sim.terminate()
-        try:
-            sim.wait(10)
-        except subprocess.TimeoutExpired:
-            sim.kill()
+        stop(sim)
     outcomes = [r for rs in results for r in rs]
     failed = [r for r in outcomes if r != "ok"]
     assert len(outcomes) == 57 * transfers and failed == [], failed[:10]

@@ -4,8 +4,8 @@ match the physics of that cycle (the readings are a function of scene and cycle,
 
 from __future__ import annotations
 
-import subprocess
 import sys
+from contextlib import ExitStack
 from pathlib import Path
 
 import pytest
@@ -82,6 +82,7 @@ def test_two_node_sim_shards_and_the_centre_on_udp_multicast(tmp_path):
     sys.path.insert(0, str(ROOT / "tests"))
     sys.path.insert(0, str(ROOT / "bench"))
     from skin_scale import check_records
+    from process_helpers import node_sim, wait_ready
     from test_service_multiprocess import multicast_port
 
     from fusion_center.service import FusionService
@@ -89,27 +90,18 @@ def test_two_node_sim_shards_and_the_centre_on_udp_multicast(tmp_path):
     port = multicast_port()
     path = _scene_file(tmp_path)
     scene = load_scene(path)
-    shards = []
-    try:
-        for serve in ("0", "1"):
-            shards.append(subprocess.Popen(
-                [sys.executable, "-c", "import sys; from node_sim.cli import main; sys.exit(main())",
-                 "--scene", str(path), "-i", "udp_multicast", "-c", ",".join(GROUPS),
-                 "--bus-kwargs", f"port={port}", "hop_limit=0", "--serve", serve],
-                cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True))
+    with ExitStack() as running:
+        shards = [running.enter_context(node_sim("--scene", str(path), "-i", "udp_multicast", "-c", ",".join(GROUPS),
+                                                 "--bus-kwargs", f"port={port}", "hop_limit=0", "--serve", serve,
+                                                 ready=False)) for serve in ("0", "1")]
         for shard, name in zip(shards, GROUPS):
-            line = shard.stdout.readline()
-            assert "ready: 2 patch nodes (40 taxels)" in line and name in line, (line, shard.stderr.read()
-                                                                                if shard.poll() is not None else "")
+            line = wait_ready(shard)
+            assert "ready: 2 patch nodes (40 taxels)" in line and name in line, line
         with FusionService(scene, interface="udp_multicast", channels=GROUPS,
                            bus_kwargs={"port": port, "hop_limit": 0}) as service:
             service.boot(5.0)
             assert not service.summary().missing_at_boot
             service.run(60)
-    finally:
-        for shard in shards:
-            shard.terminate()
-            shard.wait(10)
     figures = check_records(scene, service.records)
     print(figures)
     assert figures["misattributed"] == 0

@@ -1,8 +1,6 @@
 """Node twins (the node-sim CLI) and the fusion centre in two processes on udp_multicast."""
 
-import os
 import random
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -13,9 +11,12 @@ import pytest
 from taxel_net.scene import load_scene
 from fusion_center.service import FusionService
 
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT / "tests"))
+from process_helpers import node_sim  # noqa: E402
+
 pytestmark = pytest.mark.multiprocess
 
-ROOT = Path(__file__).resolve().parent.parent
 MATRIX = ROOT / "scenes" / "matrix57.toml"
 GROUP = "239.74.163.2"  # python-can's UdpMulticastBus.DEFAULT_GROUP_IPv4
 
@@ -52,25 +53,13 @@ def multicast_port() -> int:
 def test_node_sim_process_and_fusion_centre_on_udp_multicast(tmp_path):
     port = multicast_port()
     scene = load_scene(MATRIX)
-    sim = subprocess.Popen(
-        [sys.executable, "-c", "import sys; from node_sim.cli import main; sys.exit(main())",
-         "--scene", str(MATRIX), "--interface", "udp_multicast", "--channel", GROUP,
-         "--bus-option", f"port={port}"],
-        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        ready = sim.stdout.readline()
-        assert "ready" in ready, sim.stderr.read() if sim.poll() is not None else ready
+    with node_sim("--scene", str(MATRIX), "--interface", "udp_multicast", "--channel", GROUP,
+                  "--bus-option", f"port={port}"):
         cycles = 60
         with FusionService(scene, interface="udp_multicast", channels=[GROUP], bus_kwargs={"port": port},
                            json_lines=tmp_path / "mp.jsonl") as service:
             missing = service.boot(5.0)
             summary = service.run(cycles)
-    finally:
-        sim.terminate()
-        try:
-            sim.wait(10)
-        except subprocess.TimeoutExpired:
-            sim.kill()
     assert missing == []  # every node answered the NMT reset-communication with a boot-up
     records = service.records
     assert [r["cycle"] for r in records] == list(range(cycles))

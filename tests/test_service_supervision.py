@@ -157,22 +157,18 @@ def test_second_run_against_running_node_sim_decides_as_well_as_the_first(tmp_pa
     import subprocess
     import sys
 
+    from process_helpers import node_sim, udp_loopback
     from test_service_multiprocess import GROUP, multicast_port
 
     port = multicast_port()
-    bus = ["--interface", "udp_multicast", "--channel", GROUP, "--bus-option", f"port={port}",
-           "--bus-option", "hop_limit=0"]
+    bus = udp_loopback(GROUP, port)
     # matrix57 at a 40 ms SYNC (window 80 %: 32 ms): two processes on a host whose other test
     # worker holds a core still get PDOs in time (at 10 ms a loaded run saw the contact in 0 cycles)
     scene_file = tmp_path / "matrix57_40ms.toml"
     scene_file.write_text(MATRIX.read_text().replace('taxels_file = "data/', f'taxels_file = "{MATRIX.parent}/data/')
                           .replace("sync_period_ms = 10.0", "sync_period_ms = 40.0"))
     assert load_scene(scene_file).bus.sync_window == 32000
-    sim = subprocess.Popen([sys.executable, "-c", "import sys; from node_sim.cli import main; sys.exit(main())",
-                            "--scene", str(scene_file)] + bus,
-                           cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        assert "ready" in sim.stdout.readline()
+    with node_sim("--scene", str(scene_file), *bus):
         runs = []
         for k in range(2):
             out = tmp_path / f"run{k}.jsonl"
@@ -182,12 +178,6 @@ def test_second_run_against_running_node_sim_decides_as_well_as_the_first(tmp_pa
                                   cwd=ROOT, capture_output=True, text=True, timeout=120)
             assert done.returncode == 0, done.stderr
             runs.append([json.loads(line) for line in out.read_text().splitlines()])
-    finally:
-        sim.terminate()
-        try:
-            sim.wait(10)
-        except subprocess.TimeoutExpired:
-            sim.kill()
     agreement, seen = [], []
     for records in runs:
         decided = [r for r in records if r["decision"] != "undecided"]

@@ -29,6 +29,7 @@ SCENE = load_scene("scenes/grasp_scripted.toml")
 WAIT_S = 10.0
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from process_helpers import start_node_sim, stop  # noqa: E402
 from test_grasp_coupling import FakeDrive as _FakeDrive  # noqa: E402
 
 
@@ -155,8 +156,7 @@ def test_truth_log_refused_without_a_world(tmp_path):
 
 
 def _run_until_lines(args, path: Path, lines: int):
-    proc = subprocess.Popen([sys.executable, "-m", "node_sim.cli", *args], cwd=ROOT, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+    proc = start_node_sim(*args)
     try:
         deadline = time.monotonic() + 60
         while time.monotonic() < deadline:
@@ -166,8 +166,7 @@ def _run_until_lines(args, path: Path, lines: int):
                 break
             time.sleep(0.05)
     finally:
-        proc.terminate()
-        proc.wait(timeout=30)
+        stop(proc, 30)
     return proc
 
 
@@ -199,14 +198,12 @@ def test_truth_log_to_a_fifo_stays_a_fifo(tmp_path):
 
     t = threading.Thread(target=reader, daemon=True)
     t.start()
-    proc = subprocess.Popen([sys.executable, "-m", "node_sim.cli", "--scene", "grasp_scripted", "-i", "virtual",
-                             "-c", f"g22w-{uuid.uuid4().hex[:8]}", "--truth-log", str(fifo)], cwd=ROOT,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = start_node_sim("--scene", "grasp_scripted", "-i", "virtual", "-c", f"g22w-{uuid.uuid4().hex[:8]}",
+                          "--truth-log", str(fifo))
     try:
         t.join(60)
     finally:
-        proc.terminate()
-        rc = proc.wait(timeout=30)
+        rc = stop(proc, 30)
     assert len(lines) >= 5 and json.loads(lines[0])["phase"] == "idle"
     assert stat.S_ISFIFO(os.stat(fifo).st_mode)
     assert rc == 0

@@ -1,0 +1,86 @@
+"""node-sim in another process for the multiprocess tests: started, waited for until it says
+"ready" (a bounded wait), and stopped whatever happens - SIGTERM, then SIGKILL after a bounded
+wait, so no process outlives its test, also when the test fails or node-sim never starts.
+
+    with node_sim("--scene", scene, *udp_loopback(group, port)) as sim:
+        ...                                   # sim.ready_line: what node-sim printed
+    assert sim.returncode == 0, sim.stderr.read()
+
+A test that must listen before node-sim's boot-ups uses ``node_sim(..., ready=False)`` and calls
+``wait_ready(sim)`` itself. Loopback only: :func:`udp_loopback` gives hop limit 0.
+"""
+
+from __future__ import annotations
+
+import os
+import random
+import subprocess
+import sys
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+NODE_SIM = [sys.executable, "-m", "node_sim.cli"]
+READY_S = 60.0  # node-sim imports and builds its nodes: seconds on a loaded 2-core host
+STOP_S = 10.0
+
+
+def multicast_group_port() -> tuple[str, int]:
+    """A udp_multicast group and port of this test (another test or run beside it has others)."""
+    group = f"239.74.{random.randint(164, 250)}.{random.randint(1, 250)}"
+    port = 47000 + (os.getpid() % 1000) + random.randint(0, 999)
+    return group, port
+
+
+def udp_loopback(group: str, port: int) -> list[str]:
+    """The bus options of node-sim and ``fusion-center run`` for udp_multicast on loopback only."""
+    return ["--interface", "udp_multicast", "--channel", group, "--bus-option", f"port={port}",
+            "--bus-option", "hop_limit=0"]
+
+
+def start_node_sim(*args: str) -> subprocess.Popen:
+    """``node-sim ARGS`` in another process, stdout and stderr piped (text)."""
+    return subprocess.Popen([*NODE_SIM, *args], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+
+
+def wait_ready(proc: subprocess.Popen, timeout: float = READY_S) -> str:
+    """The process's first line on stdout, which must say "ready", within ``timeout`` s. If it does
+    not come (or says something else) the process is stopped and the AssertionError holds what it
+    printed on stdout and stderr."""
+    out: list[str] = []
+    reader = threading.Thread(target=lambda: out.append(proc.stdout.readline()), daemon=True)
+    reader.start()
+    reader.join(timeout)
+    if not out or "ready" not in out[0]:
+        stop(proc)
+        raise AssertionError(f"node-sim did not start within {timeout:.0f} s (exit code {proc.returncode}): "
+                             f"stdout {out[:1]}, stderr {proc.stderr.read()!r}")
+    return out[0]
+
+
+def stop(proc: subprocess.Popen, timeout: float = STOP_S) -> int:
+    """SIGTERM, and SIGKILL if the process has not ended ``timeout`` s later; its exit code (the
+    caller asserts a clean exit where it wants one: a killed process has -9)."""
+    if proc.poll() is None:
+        proc.terminate()
+        try:
+            return proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+    return proc.wait(timeout)
+
+
+@contextmanager
+def node_sim(*args: str, ready: bool = True, ready_s: float = READY_S,
+             stop_s: float = STOP_S) -> Iterator[subprocess.Popen]:
+    """``node-sim ARGS`` running for the block (``ready``: its "ready" line read first, kept as
+    ``proc.ready_line``), stopped at its end as :func:`stop` does."""
+    proc = start_node_sim(*args)
+    try:
+        proc.ready_line = wait_ready(proc, ready_s) if ready else None
+        yield proc
+    finally:
+        stop(proc, stop_s)
