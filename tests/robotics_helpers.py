@@ -1,10 +1,13 @@
 """Readers the robotics tests check the outputs with, independent of the code that writes them:
 a protobuf wire-format decoder for ``foxglove.RawImage`` (field numbers of Foxglove's
-RawImage.proto) and the scene geometry of a taxel map recomputed from the scene file."""
+RawImage.proto), the scene geometry of a taxel map recomputed from the scene file, an MCAP file
+read back with the ``mcap`` package's reader, any reader's messages grouped by topic; and
+:func:`publish`, hand-made records through the outputs."""
 
 from __future__ import annotations
 
 import struct
+from collections.abc import Iterable
 
 import numpy as np
 
@@ -71,3 +74,39 @@ def image_array(img: dict) -> np.ndarray:
         return np.frombuffer(img["data"], dtype=np.uint8).reshape(img["height"], img["width"])
     assert img["encoding"] == "32FC1"
     return np.frombuffer(img["data"], dtype="<f4").reshape(img["height"], img["width"])
+
+
+def by_topic(messages: Iterable[tuple[str, object]]) -> dict[str, list]:
+    """A reader's ``(topic, message)`` pairs as topic -> its messages, in the order read."""
+    out: dict[str, list] = {}
+    for topic, message in messages:
+        out.setdefault(topic, []).append(message)
+    return out
+
+
+def message_counts(grouped: dict[str, list]) -> dict[str, int]:
+    """topic -> how many messages :func:`by_topic` found on it."""
+    return {topic: len(messages) for topic, messages in grouped.items()}
+
+
+def read_mcap(path) -> tuple[object, dict[str, list]]:
+    """(summary, topic -> [(log_time, publish_time, payload), ...] in file order)."""
+    from mcap.reader import make_reader
+
+    with open(path, "rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        grouped = by_topic((channel.topic, (message.log_time, message.publish_time, message.data))
+                           for _schema, channel, message in reader.iter_messages(log_time_order=False))
+    return summary, grouped
+
+
+def publish(scene, records, **where) -> dict:
+    """Every record through ``RoboticsOutputs(scene, **where)`` (``mcap=``, ``ros2_bag=``), closed:
+    its statistics."""
+    from fusion_center.robotics.outputs import RoboticsOutputs
+
+    outputs = RoboticsOutputs(scene, **where)
+    for record in records:
+        outputs.on_cycle(record)
+    return outputs.close()

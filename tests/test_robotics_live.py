@@ -20,7 +20,7 @@ from taxel_net.scene import load_scene
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "tests"))
-from robotics_helpers import decode_raw_image, image_array  # noqa: E402
+from robotics_helpers import decode_raw_image, image_array, read_mcap  # noqa: E402
 
 SUBPROTOCOL = "foxglove.sdk.v1"
 TIMEOUT = 30.0  # seconds any single wait may take (a bound, not a speed assertion)
@@ -163,7 +163,6 @@ def test_a_stalled_viewer_loses_messages_not_cycles(records, tmp_path, monkeypat
     assert stats["foxglove"]["cycles"] == cycles and stats["foxglove"]["dropped_cycles"] == 0
     assert stats["mcap"]["cycles"] == cycles
     assert received < cycles * n_subs  # the stalled viewer lost messages in the SDK's outbox
-    from test_robotics_mcap import read_mcap
 
     _, by_topic = read_mcap(tmp_path / "stall.mcap")
     assert len(by_topic["/fusion/decision"]) == cycles

@@ -18,22 +18,9 @@ from taxel_net.scene import load_scene
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "tests"))
-from robotics_helpers import decode_raw_image, image_array, site_grid  # noqa: E402
+from robotics_helpers import decode_raw_image, image_array, publish, read_mcap, site_grid  # noqa: E402
 
 DECISION_CODE = {"H1": 1, "H0": 0, "undecided": -1}
-
-
-def read_mcap(path) -> tuple[object, dict[str, list]]:
-    """(summary, topic -> [(log_time, publish_time, payload), ...] in file order)."""
-    from mcap.reader import make_reader
-
-    with open(path, "rb") as f:
-        reader = make_reader(f)
-        summary = reader.get_summary()
-        by_topic: dict[str, list] = {}
-        for _schema, channel, message in reader.iter_messages(log_time_order=False):
-            by_topic.setdefault(channel.topic, []).append((message.log_time, message.publish_time, message.data))
-    return summary, by_topic
 
 
 @pytest.fixture(scope="module")
@@ -189,10 +176,7 @@ def test_grip_and_grasp_truth_are_published_when_records_carry_them(tmp_path):
     carry them as they are."""
     scene = load_scene("grasp_drive")
     records = [_grasp_record(k) for k in range(5)]
-    outputs = RoboticsOutputs(scene, mcap=tmp_path / "grip.mcap")
-    for record in records:
-        outputs.on_cycle(record)
-    outputs.close()
+    publish(scene, records, mcap=tmp_path / "grip.mcap")
     _, by_topic = read_mcap(tmp_path / "grip.mcap")
     assert [json.loads(p) for _, _, p in by_topic["/grip"]] == [r["grip"] for r in records]
     truth = [json.loads(p) for _, _, p in by_topic["/world/truth"]]
@@ -303,9 +287,7 @@ def test_a_patch_scene_map_is_its_64_by_64_grid(tmp_path):
     silent_device = devices(scene)[3]
     record = {"cycle": 0, "t": 0.25, "present_nodes": [labels[i] for i in present],
               "nodes_by_state": {"silent": [node_labels(scene)[3]]}, "decision": "H1"}
-    outputs = RoboticsOutputs(scene, mcap=tmp_path / "skin.mcap")
-    outputs.on_cycle(record)
-    outputs.close()
+    publish(scene, [record], mcap=tmp_path / "skin.mcap")
     _, by_topic = read_mcap(tmp_path / "skin.mcap")
     img = decode_raw_image(by_topic["/taxel/sensor/map"][0][2])
     grid = image_array(img)

@@ -12,12 +12,11 @@ import numpy as np
 import pytest
 
 from fusion_center.cli import main
-from fusion_center.robotics.outputs import RoboticsOutputs
 from taxel_net.scene import load_scene
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "tests"))
-from robotics_helpers import site_grid  # noqa: E402
+from robotics_helpers import by_topic, message_counts, publish, site_grid  # noqa: E402
 
 KGF_N = 9.80665  # standard gravity (CGPM 1901): 1 kgf in N
 
@@ -37,12 +36,12 @@ def _rosbags_messages(bag: Path) -> tuple[dict, dict]:
     from rosbags.typesys import Stores, get_typestore
 
     store = get_typestore(Stores.ROS2_JAZZY)
-    out: dict[str, list] = {}
     with Reader(bag) as reader:
         types = {c.topic: c.msgtype for c in reader.connections}
         counts = {c.topic: c.msgcount for c in reader.connections}
-        for connection, timestamp, raw in reader.messages():
-            out.setdefault(connection.topic, []).append((timestamp, store.deserialize_cdr(raw, connection.msgtype)))
+        out = by_topic((connection.topic, (timestamp, store.deserialize_cdr(raw, connection.msgtype)))
+                       for connection, timestamp, raw in reader.messages())
+    assert message_counts(out) == {topic: n for topic, n in counts.items() if n}  # the index and the messages
     return out, {"types": types, "counts": counts}
 
 
@@ -93,13 +92,11 @@ def test_the_bag_decodes_with_the_mcap_ros2_decoder(matrix57_log):
     from mcap_ros2.decoder import DecoderFactory
 
     out, records = matrix57_log
-    decoded: dict[str, list] = {}
     with open(out / "bag" / "bag.mcap", "rb") as f:
-        reader = make_reader(f, decoder_factories=[DecoderFactory()])
-        for schema, channel, message, ros_msg in reader.iter_decoded_messages():
-            assert schema.encoding == "ros2msg" and channel.message_encoding == "cdr"
-            decoded.setdefault(channel.topic, []).append((message.log_time, ros_msg))
-    assert {k: len(v) for k, v in decoded.items()} == {"/taxel/sensor/map": 200, "/diagnostics": 200}
+        messages = list(make_reader(f, decoder_factories=[DecoderFactory()]).iter_decoded_messages())
+    assert {(schema.encoding, channel.message_encoding) for schema, channel, _, _ in messages} == {("ros2msg", "cdr")}
+    decoded = by_topic((channel.topic, (message.log_time, ros_msg)) for _, channel, message, ros_msg in messages)
+    assert message_counts(decoded) == {"/taxel/sensor/map": 200, "/diagnostics": 200}
     for record, (t, img), (_, diag) in zip(records, decoded["/taxel/sensor/map"], decoded["/diagnostics"]):
         assert t == round(record["t"] * 1e6) * 1000
         assert int(np.count_nonzero(np.frombuffer(bytes(img.data), dtype=np.uint8) == 255)) == len(
@@ -144,10 +141,7 @@ def test_grip_records_become_joint_states(tmp_path):
 
     scene = load_scene("grasp_drive")
     records = [_grasp_record(k) for k in range(4)]
-    outputs = RoboticsOutputs(scene, ros2_bag=tmp_path / "bag")
-    for record in records:
-        outputs.on_cycle(record)
-    outputs.close()
+    publish(scene, records, ros2_bag=tmp_path / "bag")
     messages, info = _rosbags_messages(tmp_path / "bag")
     assert info["types"]["/grip/joint_states"] == "sensor_msgs/msg/JointState"
     for record, (_, actual), (_, command), (_, diag) in zip(records, messages["/grip/joint_states"],
