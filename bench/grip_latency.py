@@ -26,12 +26,21 @@ marks taken by wrappers put around the centre's methods (they add ~1 µs a mark)
 * ``answers``: SYNC -> the frame that closed the cycle (its stamp: the record's
   ``closed_after_ms``) - the nodes' answers, not the centre's work; ``closed_by`` other than
   ``complete`` (a late answer: the window or the next SYNC closes the cycle) is counted apart;
-* ``receive``: that frame's stamp -> the centre starts the cycle's evaluation (the receive
-  thread's wake-up, the turn's frames fed to the assembler under the stream lock);
+* ``wake``: that frame's stamp -> the receive turn that handed it to the centre began (the
+  receive thread's wake-up; 0 when the turn had begun before the frame was sent - a burst
+  drained as it comes);
+* ``assemble``: -> the cycle's evaluation starts (the turn's frames fed to the assembler under
+  the stream lock, the cycle closed);
 * ``rules``, ``forces``, ``slip``, ``grip``: the pipeline's stages (decision-vector part with the
   fusion rules; eqs 24-30 / 26a in raw mode; the slip tracker; the grip law and CiA 402);
 * ``record``: the rest of the evaluation before the command (record fields);
-* ``send``: end of the grip stage -> the RPDO1's stamp on the bus.
+* ``send``: end of the grip stage -> the RPDO1's stamp on the bus;
+* ``centre``: the closing frame's stamp -> the RPDO1's stamp: the centre's whole part.
+
+The wire floor printed per scene: what the same cycle takes on a real CAN bus at the scene's
+bit rate whatever the hosts (``fusion_center.core.bus_timing.frame_bits``, exact stuff bits):
+the SYNC, every taxel node's answer (TPDO1 of 1 byte in decision mode, TPDO2 of 4 in raw mode;
+the SYNC wins arbitration, the answers follow back to back) and the command's RPDO1.
 
 ``--echo N``: the floor of any such path on this host - a python-can virtual bus, one thread
 sends a frame, a receive thread blocked on it (as the centre's and the twins' are) wakes: the
@@ -69,7 +78,7 @@ from taxel_net.resources import resolve_scene  # noqa: E402
 SCENES = ("grasp_lift", "grasp_lift_raw", "grasp_fragile")
 TRANSPORTS = ("embedded", "udp")
 COB_SYNC = 0x080
-STAGES = ("answers", "receive", "rules", "forces", "slip", "record", "grip", "send")
+STAGES = ("answers", "wake", "assemble", "rules", "forces", "slip", "record", "grip", "send", "centre")
 
 
 # --------------------------------------------------------------------------- centre-side marks
@@ -108,6 +117,13 @@ def instrument(service, marks: Marks) -> None:
     pipeline = service.pipeline
     assembler = service.assembler
 
+    turn = [0.0, 0]  # the last receive turn's start and size (the stream's receive_all)
+
+    def turn_start(msgs, *a, **k):
+        turn[0], turn[1] = time.time(), len(msgs) if hasattr(msgs, "__len__") else -1
+
+    _wrap(service.stream, "receive_all", before=turn_start)
+
     def eval_start(closed, *a, **k):
         t = time.time()
         cur = marks.by_cycle.setdefault(closed.cycle, {})
@@ -115,6 +131,7 @@ def instrument(service, marks: Marks) -> None:
             cur["eval"] = t
             cur["close_frame"] = (assembler.t0_us + closed.close_us) * 1e-6
             cur["closed_by"] = closed.closed_by
+            cur["turn"], cur["turn_frames"] = turn
         marks.current = cur
 
     for name in ("evaluate_command", "evaluate"):
@@ -148,7 +165,12 @@ def breakdown(marks: Marks, sync_at: dict[int, float], cmd_at: dict[int, float])
         grip = ms(m["grip0"], m["grip"])
         evaluation = ms(m["eval"], m["grip"])
         out["answers"].append(ms(sync, m["close_frame"]))
-        out["receive"].append(ms(m["close_frame"], m["eval"]))
+        # the turn that closed the cycle may have begun before its last frame was stamped (a
+        # burst drained as it comes): the wake-up is then 0, the turn's feeding all "assemble"
+        turn = max(m["turn"], m["close_frame"])
+        out["wake"].append(ms(m["close_frame"], turn))
+        out["assemble"].append(ms(turn, m["eval"]))
+        out["centre"].append(ms(m["close_frame"], cmd))
         out["rules"].append(rules)
         out["forces"].append(forces)
         out["slip"].append(slip)
@@ -306,6 +328,22 @@ def run_udp(name: str, cycles: int) -> dict:
     return finish(scene, service, summary, frames, marks)
 
 
+def wire_floor(name: str) -> str:
+    """The cycle's frames on a real bus at the scene's bit rate (module docstring)."""
+    from fusion_center.core.bus_timing import frame_bits
+
+    scene = scene_for(name)
+    raw = scene.bus.mode == "raw"
+    sync = frame_bits(COB_SYNC, b"" if not scene.bus.sync_counter else b"\x01")
+    answers = sum(frame_bits((0x280 if raw else 0x180) + t.node_id,
+                             struct.pack("<f", 100.0) if raw else b"\x01") for t in scene.taxels)
+    command = frame_bits(0x200 + scene.gripper.node_id, struct.pack("<Hhi", 0x0F, 100, 0))
+    rate = scene.bus.bitrate / 1e3  # bits per ms
+    return (f"wire floor at {scene.bus.bitrate / 1e6:g} Mbit/s: SYNC + {scene.n} answers "
+            f"{(sync + answers) / rate:.2f} ms, + the command {(sync + answers + command) / rate:.2f} ms "
+            f"({sync + answers + command} bits)")
+
+
 # --------------------------------------------------------------------------- the echo floor
 def echo_virtual(n: int) -> list[float]:
     """send (the frame's stamp) -> a receive thread blocked in ``recv`` has it, ms."""
@@ -395,7 +433,9 @@ def print_row(name: str, transport: str, runs: list[dict], label: str = "") -> N
 def print_breakdown(runs: list[dict]) -> None:
     parts = []
     for stage in STAGES:
-        values = [v for r in runs for v in r["stages"][stage]]
+        values = [v for r in runs for v in r["stages"].get(stage, [])]
+        if not values:
+            continue
         parts.append(f"{stage} {_pct(values, 50):.3f}/{_pct(values, 99):.3f}")
     n = sum(len(r["stages"]["send"]) for r in runs)
     print(f"{'':10s}breakdown p50/p99 ms over {n} complete cycles: " + ", ".join(parts))
@@ -434,7 +474,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=3)
     ap.add_argument("--cycles", type=int, default=600)
-    ap.add_argument("--scenes", nargs="+", default=list(SCENES))
+    ap.add_argument("--scenes", nargs="*", default=list(SCENES))
     ap.add_argument("--transports", nargs="+", default=list(TRANSPORTS), choices=TRANSPORTS)
     ap.add_argument("--echo", type=int, default=2000, help="echo samples (0: skip)")
     ap.add_argument("--json", metavar="OUT", help="append each scene x transport's runs to OUT (JSON lines)")
@@ -453,6 +493,7 @@ def main(argv=None) -> int:
           "figures: median over runs (min-max)")
     print(HEADER)
     for name in args.scenes:
+        print(f"{name}: {wire_floor(name)}")
         for transport in args.transports:
             runs = []
             for _ in range(args.runs):
