@@ -13,6 +13,7 @@ explicitly (``"kgf"`` or ``"N"``, converted with 1 kgf = 9.80665 N).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -34,6 +35,8 @@ __all__ = [
     "LoadCellGrip",
     "ForceReport",
     "matrix_force_report",
+    "LayoutForces",
+    "CycleForces",
 ]
 
 
@@ -321,3 +324,185 @@ def matrix_force_report(readings, slope, intercept, mu, *, unit: str,
     total = total_tangential(per_cell, inclusion_angle)
     limit = grip_force_limit(total, mu)
     return ForceReport(per_cell, total, limit, max_load(limit, mu), float(mu), unit)
+
+
+# --------------------------------------------------------------------------- one layout, per cycle
+SEQUENTIAL_SUM_MAX = 7  # numpy sums fewer than 8 float64 values left to right (pairwise above)
+
+
+def _abs_sum(values: list[float]) -> float:
+    """``float(np.abs(np.array(values)).sum())`` with the same rounding: left to right from -0.0
+    for a few values (what numpy's pairwise summation does below 8 values), numpy above."""
+    if len(values) > SEQUENTIAL_SUM_MAX:
+        return float(np.abs(np.array(values, dtype=float)).sum())
+    out = -0.0
+    for v in values:
+        out += abs(v)
+    return out
+
+
+def _mean(values: list[float]) -> float:
+    """``float(np.mean(values))`` with the same rounding (see :func:`_abs_sum`)."""
+    if len(values) > SEQUENTIAL_SUM_MAX:
+        return float(np.mean(np.array(values, dtype=float)))
+    out = -0.0
+    for v in values:
+        out += v
+    return out / len(values)
+
+
+class CycleForces(NamedTuple):
+    """One cycle's forces of a :class:`LayoutForces` (calibration unit)."""
+
+    per_cell: list[tuple[int, float]]   # (cell index, F_t eq 30) of the cells used, in index order
+    per_jaw: dict[str, float] | None    # eqs 28a/28b/29 per jaw (jaw layout), else None
+    total: float | None                 # TotF_t (eqs 24-25, or the mean of per_jaw); None: no tangential cell
+    grip_per_cell: list[float] | None   # eq 27b per load cell, 0.0 where it is not used; None: no load cell
+    grip: float | None                  # the mean of grip_per_cell (sec 7.2)
+
+
+class LayoutForces:
+    """Eqs 30, 24-25 or 28a/28b/29, and 27b for one fixed cell layout, cycle after cycle.
+
+    The pure functions above check their arguments and work on numpy arrays at every call:
+    on a gripper pad's few cells (4 TBS per jaw) that cost ~1.5 ms a cycle, almost all of it
+    per-call overhead. This class checks the layout once (slopes, intercepts, grip factors,
+    the inclusion angle; cos(alpha) taken once) and computes each cycle in float arithmetic,
+    with exactly the operations and the order of those functions, so its results are the same
+    floats, bit for bit (tests/test_forces_layout.py checks it against them and the closed forms):
+
+    * eq 30: ``F = (Y - c) / m`` for each tangential cell (``slope`` != 0) that is ``used``;
+    * ``jaws`` (``{jaw: (y-axis cell indexes, x-axis cell indexes)}``, every tangential cell in
+      one): per jaw eq 28a/28b over its y cells (an unused cell counts 0; no y cell: one 0),
+      its x cells summed as eqs 24-25 at alpha = 0, eq 29; the total is the mean over the jaws
+      (sec 7.2). Else eqs 24-25 over the used tangential cells at ``inclusion_angle`` (0 when
+      none is used);
+    * eq 27b: ``F_g = Y / M`` for each load cell (``grip_factor`` != 0) that is used, 0.0 for
+      the others, and their mean.
+
+    A layout the checks refuse (a non-finite slope, intercept or grip factor, an angle outside
+    [0, pi]), or a cycle with a non-finite reading in a used cell, is left to those functions
+    (:attr:`checked` False, or per cycle), so every error is theirs, word for word.
+    """
+
+    def __init__(self, slope, intercept, grip_factor, *, jaws=None, inclusion_angle=0.0):
+        self.slope = [float(v) for v in np.asarray(slope, dtype=float)]
+        self.intercept = [float(v) for v in np.asarray(intercept, dtype=float)]
+        self.grip_factor = [float(v) for v in np.asarray(grip_factor, dtype=float)]
+        self.tangential = [i for i, m in enumerate(self.slope) if m != 0.0]
+        self.load_cells = [i for i, m in enumerate(self.grip_factor) if m != 0.0]
+        self.jaws = None if jaws is None else {jaw: ([int(i) for i in ys], [int(i) for i in xs])
+                                               for jaw, (ys, xs) in jaws.items()}
+        self.angle = inclusion_angle
+        self.checked = True
+        try:
+            alpha = _check_angle(inclusion_angle)
+            if alpha.ndim != 0:
+                raise ParameterError("inclusion_angle", inclusion_angle, "must be a scalar")
+        except ParameterError:
+            self.checked = False
+            return
+        self.alpha_zero = float(alpha) == 0.0
+        self.cos_alpha = float(np.cos(alpha))  # compose_pair's np.cos(alpha), once
+        cells = [(self.slope[i], self.intercept[i]) for i in self.tangential]
+        if any(not np.isfinite(m) or not np.isfinite(c) for m, c in cells) or \
+                any(not np.isfinite(self.grip_factor[i]) for i in self.load_cells):
+            self.checked = False
+
+    def _compose(self, a: float, b: float) -> float:
+        """compose_pair (eq 25 / 28b) of two floats at the layout's angle."""
+        a, b = abs(a), abs(b)
+        if self.alpha_zero:
+            return a + b
+        sq = a * a + b * b + 2.0 * a * b * self.cos_alpha
+        return math.sqrt(max(sq, 0.0))
+
+    def _jaw(self, fy: list[float], fx: float) -> float:
+        """jaw_tangential: eq 28a's pairwise tree of eq 28b, then eq 29."""
+        level = fy
+        while len(level) > 1:
+            nxt = [self._compose(level[k], level[k + 1]) for k in range(0, len(level) - 1, 2)]
+            if len(level) % 2:
+                nxt.append(abs(level[-1]))
+            level = nxt
+        tot_y = abs(level[0])
+        return math.sqrt(tot_y * tot_y + fx * fx)
+
+    def cycle(self, y, used) -> CycleForces:
+        """The forces of one cycle: ``y`` the cells' Y = X - N (mV, eq 4), ``used`` which cells
+        count (present and read); both indexable by cell (lists are fastest)."""
+        if not self.checked:
+            return self._reference(y, used)
+        slope, intercept = self.slope, self.intercept
+        per_cell: list[tuple[int, float]] = []
+        force = {}
+        for i in self.tangential:
+            if used[i]:
+                yi = y[i]
+                if not math.isfinite(yi):
+                    return self._reference(y, used)
+                f = (yi - intercept[i]) / slope[i]
+                per_cell.append((i, f))
+                force[i] = f
+        total = per_jaw = None
+        if self.tangential:
+            if self.jaws is not None:
+                per_jaw = {}
+                for jaw, (ys, xs) in self.jaws.items():
+                    fy = [force.get(i, 0.0) for i in ys] if ys else [0.0]
+                    fx = _abs_sum([force.get(i, 0.0) for i in xs]) if xs else 0.0
+                    per_jaw[jaw] = self._jaw(fy, fx)
+                total = _mean(list(per_jaw.values()))
+            elif not per_cell:
+                total = 0.0
+            elif self.alpha_zero:
+                total = _abs_sum([f for _, f in per_cell])
+            else:
+                total = abs(per_cell[0][1])
+                for _, f in per_cell[1:]:
+                    total = self._compose(total, f)
+        grip_per_cell = grip = None
+        if self.load_cells:
+            grip_per_cell = []
+            for i in self.load_cells:
+                if used[i]:
+                    yi = y[i]
+                    if not math.isfinite(yi):
+                        return self._reference(y, used)
+                    grip_per_cell.append(yi / self.grip_factor[i])
+                else:
+                    grip_per_cell.append(0.0)
+            grip = _mean(grip_per_cell)
+        return CycleForces(per_cell, per_jaw, total, grip_per_cell, grip)
+
+    def _reference(self, y, used) -> CycleForces:
+        """The same cycle through the pure functions (their checks, their errors)."""
+        y = np.asarray(y, dtype=float)
+        used = np.asarray(used, dtype=bool)
+        slope, intercept = np.array(self.slope), np.array(self.intercept)
+        per_cell = np.zeros(len(self.slope))
+        cells = used & (slope != 0.0)
+        if cells.any():
+            per_cell[cells] = tangential_force(y[cells], slope[cells], intercept[cells])
+        total = per_jaw = None
+        if self.tangential:
+            if self.jaws is not None:
+                per_jaw = {}
+                for jaw, (ys, xs) in self.jaws.items():
+                    fy = per_cell[ys] if ys else np.zeros(1)
+                    fx = total_tangential(per_cell[xs], 0.0) if xs else 0.0
+                    per_jaw[jaw] = jaw_tangential(fy, fx, self.angle)
+                total = float(np.mean(list(per_jaw.values())))
+            else:
+                total = total_tangential(per_cell[cells], self.angle) if cells.any() else 0.0
+        grip_per_cell = grip = None
+        if self.load_cells:
+            lc = np.array(self.load_cells)
+            per_lc = np.zeros(lc.size)
+            live = used[lc]
+            if live.any():
+                per_lc[live] = load_cell_grip_force(y[lc][live], np.array(self.grip_factor)[lc][live]).per_jaw
+            grip_per_cell = [float(v) for v in per_lc]
+            grip = float(per_lc.mean())
+        return CycleForces([(int(i), float(per_cell[i])) for i in np.flatnonzero(cells)], per_jaw, total,
+                           grip_per_cell, grip)

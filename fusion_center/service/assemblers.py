@@ -305,9 +305,9 @@ class AssembledFusionService(FusionService):
             except Exception:  # noqa: BLE001 - the deadline thread never dies
                 logger.exception("merge tick failed")
 
-    def evaluate(self, closed: ClosedCycle) -> dict:
-        record = self.pipeline.evaluate(closed)
-        info = self.merger.info.pop(closed.cycle, None)
+    def finish_record(self, pending) -> dict:
+        record = super().finish_record(pending)
+        info = self.merger.info.pop(pending.closed.cycle, None)
         record["parts_missing"] = info["parts_missing"] if info else []
         return record
 

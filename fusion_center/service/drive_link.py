@@ -17,8 +17,9 @@ broadcast, and the NMT start that follows is harmless to a running drive. Its Ci
 OPERATION ENABLED is done per cycle by the grip stage in RPDO1 (a synchronous RPDO, applied at the
 next SYNC).
 
-**Each cycle** (:meth:`DriveLink.after_record`, called by the service right after the record is
-evaluated, in the thread that evaluated it): the grip stage's ``(controlword, target torque ‰)``
+**Each cycle** (:meth:`DriveLink.send_command`, called by the service as soon as the pipeline has
+what the command needs - ``CyclePipeline.evaluate_command`` - before the rest of the record is
+made, in the thread that evaluated it; :meth:`DriveLink.after_record` once the record is made): the grip stage's ``(controlword, target torque ‰)``
 goes out in RPDO1 (0x200 + node-ID: 0x6040 U16, 0x6071 I16, 0x607A I32 = 0), through the event
 stream (so it is in the trace); SYNC -> command on the bus is measured (perf_counter at the SYNC's
 send to perf_counter after this send) into :attr:`latency` (a histogram like SYNC -> record's).
@@ -128,8 +129,9 @@ class DriveLink:
                               value, exc)
 
     # ------------------------------------------------------------------ every cycle
-    def after_record(self, cycle: int, record: dict, sync_sent: float | None) -> None:
-        """Send the grip stage's command of this cycle (if any), measure SYNC -> command, log."""
+    def send_command(self, sync_sent: float | None) -> None:
+        """Send the grip stage's command of this cycle (if any) and measure SYNC -> command: right
+        after ``CyclePipeline.evaluate_command``, before the rest of the record is made."""
         grip = self.service.pipeline.grip
         command = grip.command if grip is not None else None
         if command is not None:
@@ -139,6 +141,9 @@ class DriveLink:
                 ms = (time.perf_counter() - sync_sent) * 1e3
                 self.latency.add(ms)
                 self.latency_ms.append(ms)
+
+    def after_record(self, cycle: int, record: dict) -> None:
+        """The cycle's record, once made: the grasp's verdict, rate-limited log lines."""
         self.outcome.add(record)
         flags = record.get("grip_flags") or ()
         if flags:

@@ -353,19 +353,30 @@ class FusionService:
                 self._eval_lock.release()
 
     def _handle(self, item: ClosedCycle) -> None:
-        """Evaluate one closed cycle, log the record (flushed), call ``on_record`` (eval lock held)."""
+        """Evaluate one closed cycle (eval lock held): what the grip command needs first
+        (:meth:`evaluate_command`), the command out on the bus at once, then the rest of the
+        record (:meth:`finish_record`), the decision log (flushed), ``on_record``."""
+        pending = record = None
         try:
-            record = self.evaluate(item)
+            pending = self.evaluate_command(item)
         except Exception as exc:  # noqa: BLE001
-            self.pipeline_errors += 1
-            logger.exception("cycle %d: evaluation failed", item.cycle)
-            record = {"cycle": item.cycle, "t": round(item.sync_us * 1e-6, 6), "error": str(exc)}
+            record = self._failed(item, exc)
         sent = self.master.sync_sent_at.pop(item.cycle, None) if self.master else None
-        if self.drive is not None:  # the grip command right after its record, from this thread
+        if self.drive is not None:  # the grip command before the rest of the record, from this thread
             try:
-                self.drive.after_record(item.cycle, record, sent)
+                self.drive.send_command(sent)
             except Exception:  # noqa: BLE001 - never stop the records
                 logger.exception("cycle %d: sending the grip command failed", item.cycle)
+        if pending is not None:
+            try:
+                record = self.finish_record(pending)
+            except Exception as exc:  # noqa: BLE001
+                record = self._failed(item, exc)
+        if self.drive is not None:
+            try:
+                self.drive.after_record(item.cycle, record)
+            except Exception:  # noqa: BLE001 - never stop the records
+                logger.exception("cycle %d: the grip stage's bookkeeping failed", item.cycle)
         if sent is not None:
             ms = (time.perf_counter() - sent) * 1e3
             self.latency.add(ms)
@@ -402,8 +413,21 @@ class FusionService:
         if item.bad_frames:
             self._log_malformed()
 
+    def _failed(self, item: ClosedCycle, exc: Exception) -> dict:
+        self.pipeline_errors += 1
+        logger.error("cycle %d: evaluation failed", item.cycle, exc_info=exc)
+        return {"cycle": item.cycle, "t": round(item.sync_us * 1e-6, 6), "error": str(exc)}
+
+    def evaluate_command(self, closed: ClosedCycle):
+        """The part of the cycle's evaluation the grip command needs (``CyclePipeline.evaluate_command``)."""
+        return self.pipeline.evaluate_command(closed)
+
+    def finish_record(self, pending) -> dict:
+        """The cycle's record once its command has left (``CyclePipeline.finish``)."""
+        return self.pipeline.finish(pending)
+
     def evaluate(self, closed: ClosedCycle) -> dict:
-        return self.pipeline.evaluate(closed)
+        return self.finish_record(self.evaluate_command(closed))
 
     def _log_malformed(self) -> None:
         counters = self.stream.counters()

@@ -30,6 +30,7 @@ import math
 import numpy as np
 
 from ..core import contact, forces, geometry
+from ..core.forces import CycleForces
 from taxel_net.scene import Scene
 from .records import jsonable
 
@@ -51,6 +52,8 @@ class PhysicalEvaluation:
         self.grip_factor = np.array([t.grip_factor if t.grip_factor else 0.0 for t in taxels], dtype=float)
         self.load_cells = self.grip_factor != 0.0
         self.jaws = self._jaw_layout(taxels)
+        self.layout_forces = forces.LayoutForces(self.slope, self.intercept, self.grip_factor, jaws=self.jaws,
+                                                 inclusion_angle=math.radians(scene.forces.inclusion_angle_deg))
         has_xy = all(t.x is not None and t.y is not None for t in taxels)
         self.xy = np.array([[t.x, t.y] for t in taxels], dtype=float) if has_xy else None
         self.total_area = geometry.contact_area(self.xy) if has_xy and self.n >= 3 else 0.0
@@ -104,49 +107,41 @@ class PhysicalEvaluation:
             area = self._areas[key] = self.locations.contact_area(present_mask)
         return area
 
-    def forces(self, readings: np.ndarray, present_mask: np.ndarray) -> tuple[dict, float | None, float | None]:
-        """Raw-mode forces of one cycle (module docstring: eqs 30, 24-25 or 28-29, 27b, 26a/b)."""
+    def force_totals(self, readings: np.ndarray, present_mask: np.ndarray) -> CycleForces:
+        """Raw-mode forces of one cycle (module docstring: eqs 30, 24-25 or 28-29, 27b) through
+        the layout's :class:`~fusion_center.core.forces.LayoutForces` (checked once, float
+        arithmetic per cycle): what the slip stage and the grip law need - ``total`` (TotF_t) and
+        ``grip`` (F_g) - before the command; :meth:`forces_record` makes the record's part after."""
+        y = (readings - self.noise).tolist()  # Y = X - N (eq 4)
+        used = (present_mask & ~np.isnan(readings)).tolist()  # a cell deciding "absent" carries no force
+        return self.layout_forces.cycle(y, used)
+
+    def forces_record(self, cycle: CycleForces) -> dict:
+        """The record's ``forces`` of a cycle's :meth:`force_totals` (eqs 26a, 26b added here)."""
         scene = self.scene
         labels = self.labels
         mu = scene.forces.mu
-        angle = math.radians(scene.forces.inclusion_angle_deg)
-        valid = present_mask & ~np.isnan(readings)
-        y = readings - self.noise  # Y = X - N (eq 4)
         out: dict = {"unit": scene.forces.unit}
-        tangential_cells = self.tangential
-        per_cell = np.zeros(self.n)
-        cells = valid & tangential_cells
-        if cells.any():
-            per_cell[cells] = forces.tangential_force(y[cells], self.slope[cells], self.intercept[cells])  # eq 30
-        out["per_taxel"] = {str(labels[i]): jsonable(per_cell[i]) for i in np.flatnonzero(cells)}
-        total = None
-        if tangential_cells.any():
-            if self.jaws is not None:
-                per_jaw = {}
-                for jaw, (ys, xs) in self.jaws.items():
-                    fy = per_cell[ys] if ys.size else np.zeros(1)
-                    fx = forces.total_tangential(per_cell[xs], 0.0) if xs.size else 0.0
-                    per_jaw[jaw] = forces.jaw_tangential(fy, fx, angle)  # eqs 28a, 28b, 29
-                total = float(np.mean(list(per_jaw.values())))  # sec 7.2: mean over the jaws
-                out["tangential_per_jaw"] = {jaw: jsonable(v) for jaw, v in per_jaw.items()}
-            else:
-                total = forces.total_tangential(per_cell[cells], angle) if cells.any() else 0.0  # eqs 24-25
+        out["per_taxel"] = {str(labels[i]): jsonable(f) for i, f in cycle.per_cell}
+        total = cycle.total
+        if total is not None:
+            if cycle.per_jaw is not None:
+                out["tangential_per_jaw"] = {jaw: jsonable(v) for jaw, v in cycle.per_jaw.items()}
             out["total_tangential"] = jsonable(total)
-        grip = None
-        if self.load_cells.any():
-            lc = np.flatnonzero(self.load_cells)
-            per_lc = np.zeros(lc.size)
-            live = valid[lc]
-            if live.any():  # eq 27b: F_g = Y / M; a load cell deciding "absent" carries no grip
-                per_lc[live] = forces.load_cell_grip_force(y[lc][live], self.grip_factor[lc][live]).per_jaw
-            grip = float(per_lc.mean())
-            out["grip_force"] = jsonable(grip)
-            out["grip_force_per_cell"] = {str(labels[i]): jsonable(f) for i, f in zip(lc, per_lc)}
+        if cycle.grip is not None:
+            out["grip_force"] = jsonable(cycle.grip)
+            out["grip_force_per_cell"] = {str(labels[i]): jsonable(f)
+                                          for i, f in zip(self.layout_forces.load_cells, cycle.grip_per_cell)}
         if total is not None:
             limit = forces.grip_force_limit(total, mu)  # eq 26a
             out["grip_force_limit"] = jsonable(limit)
             out["max_load"] = jsonable(forces.max_load(limit, mu))  # eq 26b
-        return out, total, grip
+        return out
+
+    def forces(self, readings: np.ndarray, present_mask: np.ndarray) -> tuple[dict, float | None, float | None]:
+        """Raw-mode forces of one cycle: (the record's ``forces``, TotF_t, F_g)."""
+        cycle = self.force_totals(readings, present_mask)
+        return self.forces_record(cycle), cycle.total, cycle.grip
 
     def contact_fields(self, present: int, n_received: int, area: float | None) -> tuple:
         """(key, value) pairs of the contact type (eqs 34a/34b): t_c, contact_type and, with an

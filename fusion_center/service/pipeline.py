@@ -89,6 +89,22 @@ class _Pattern(NamedTuple):
     contact: tuple              # (key, value) pairs: t_c, contact_type, fp_c, contact_type_fp
 
 
+class PendingRecord:
+    """One cycle between :meth:`CyclePipeline.evaluate_command` and :meth:`CyclePipeline.finish`."""
+
+    __slots__ = ("closed", "readings", "available", "pattern", "central", "t_seconds", "forces", "slip",
+                 "grip_view")
+
+    def __init__(self, closed: ClosedCycle):
+        self.closed = closed
+        self.readings = self.available = self.pattern = None
+        self.central: dict | None = None       # the centralised tests' results, when one decides
+        self.t_seconds = 0.0
+        self.forces = None                     # raw mode: .core.forces.CycleForces
+        self.slip: dict | None = None          # the slip stage's record
+        self.grip_view: dict | None = None     # what the grip stage read and wrote (grip, grip_flags, grip_detail)
+
+
 class CyclePipeline:
     """Evaluate closed cycles of one scene (stateful only through the slip tracker)."""
 
@@ -149,7 +165,21 @@ class CyclePipeline:
 
     # ------------------------------------------------------------------ the record
     def evaluate(self, closed: ClosedCycle) -> dict:
-        labels = self.labels
+        """The record of a closed cycle: :meth:`evaluate_command`, then :meth:`finish`."""
+        return self.finish(self.evaluate_command(closed))
+
+    def evaluate_command(self, closed: ClosedCycle) -> "PendingRecord":
+        """What the grip command of the cycle needs, and nothing else (the stage order of
+        docs/service.md): the decision-vector part (cached per vector: received and present
+        sets, the fusion rules), the verdict of ``[fusion] decide_with`` (a centralised test only
+        when it decides), raw mode's tangential load and grip force (eqs 24-30, 27b), the slip
+        stage, then the grip stage, which sets ``self.grip.command`` (the service sends it at
+        once). Everything else of the record - the other rules' copies and the centralised tests,
+        node lists, the forces' record with eqs 26a/26b, area, contact type, the truth - is
+        :meth:`finish`'s, after the command has left. Same stages, same state, same order of
+        state changes as one pass: ``finish(evaluate_command(c))`` is the record ``evaluate``
+        always gave."""
+        pending = PendingRecord(closed)
         if self.raw_mode:
             readings = closed.readings
             if self.hold:
@@ -165,7 +195,41 @@ class CyclePipeline:
                 wire = np.where((wire == 0) & ~closed.missing, closed.held_decisions, wire).astype(np.int8)
             available = None  # wire != 0, computed on a pattern-cache miss
             readings = None
-        pattern = self._pattern(wire, available)
+        pending.readings, pending.available = readings, available
+        pending.pattern = pattern = self._pattern(wire, available)
+        n_received = pattern.n_received
+        if n_received > 0 and self.central and self.decide_with in self.central:
+            pending.central = self.centralised.results(readings, available)  # it decides: before the command
+        pending.t_seconds = t_seconds = closed.sync_us * 1e-6
+        total_tangential = grip_force = None
+        if self.want_forces and readings is not None:
+            pending.forces = cycle_forces = self.physical.force_totals(readings, pattern.present_mask)
+            total_tangential, grip_force = cycle_forces.total, cycle_forces.grip
+        if self.want_slip:
+            pending.slip = self.physical.slip_record(t_seconds, pattern.present_mask, total_tangential, grip_force,
+                                                     closed.cycle)
+        if self.grip is not None:
+            main = (pending.central or pattern.rules).get(self.decide_with)
+            device = closed.devices
+            missing = closed.missing if device is None else device.missing
+            # the fields of the record the grip stage reads (.grip_stage), as the record has them
+            view = pending.grip_view = {
+                "cycle": closed.cycle, "t": round(t_seconds, 6),
+                "decision": main["decision"] if main else "undecided",
+                "degraded": n_received < self.n, "late_frames": closed.late_frames,
+                "missing_nodes": bool(missing.any()),
+            }
+            if pending.forces is not None:
+                view["forces"] = {"total_tangential": jsonable(total_tangential)}
+            if pending.slip is not None:
+                view["slip"] = pending.slip
+            self.grip.evaluate(view, closed.drive)
+        return pending
+
+    def finish(self, pending: "PendingRecord") -> dict:
+        """The record of :meth:`evaluate_command`'s cycle (its fields in their documented order)."""
+        closed, pattern = pending.closed, pending.pattern
+        labels = self.labels
         present_mask, n_received = pattern.present_mask, pattern.n_received
         missing = closed.missing
         silent = closed.expected & ~closed.received
@@ -193,7 +257,10 @@ class CyclePipeline:
                 copied["band"] = list(copied["band"])
         if n_received > 0:
             if self.central:
-                rule_results.update(self.centralised.results(readings, available))
+                central = pending.central
+                if central is None:
+                    central = self.centralised.results(pending.readings, pending.available)
+                rule_results.update(central)
             stages_run.append("fusion")
         main = rule_results.get(self.decide_with)
         record["U_G"] = main["U_G"] if main else None
@@ -217,10 +284,8 @@ class CyclePipeline:
             record["emcy_dropped"] = closed.emcy_dropped
         record["rules"] = rule_results
 
-        t_seconds = closed.sync_us * 1e-6
-        total_tangential = grip_force = None
-        if self.want_forces and readings is not None:
-            record["forces"], total_tangential, grip_force = self.physical.forces(readings, present_mask)
+        if pending.forces is not None:
+            record["forces"] = self.physical.forces_record(pending.forces)
             stages_run.append("forces")
         if self.want_area:
             record["area"] = jsonable(pattern.area)
@@ -228,13 +293,13 @@ class CyclePipeline:
         if self.want_contact and n_received > 0:
             record.update(pattern.contact)
             stages_run.append("contact_type")
-        if self.want_slip:
-            slip = self.physical.slip_record(t_seconds, present_mask, total_tangential, grip_force, closed.cycle)
-            if slip is not None:
-                record["slip"] = slip
-                stages_run.append("slip")
-        if self.grip is not None:
-            self.grip.evaluate(record, closed.drive)
+        if pending.slip is not None:
+            record["slip"] = pending.slip
+            stages_run.append("slip")
+        if pending.grip_view is not None:
+            view = pending.grip_view
+            record["grip"], record["grip_flags"], record["grip_detail"] = \
+                view["grip"], view["grip_flags"], view["grip_detail"]
             stages_run.append("grip")
             if self.grasp_truth is not None:
                 truth = self.grasp_truth.for_cycle(closed.cycle)

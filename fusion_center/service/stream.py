@@ -38,6 +38,7 @@ import can
 from taxel_net.canmsg import TxMessage
 from taxel_net.udp_wire import udp_multicast_burst_sender
 from .common_frames import CommonFrames
+from .node_frames import NodeFrames
 from .trace_writers import flush_to_os
 from .decoder import COB_SYNC
 from .cycles import (
@@ -228,8 +229,10 @@ class EventStream:
         self.foreign_syncs = 0
         self._sent_any = False
         self._senders: dict[int, Callable[[list[tuple]], None] | None] = {}  # channel -> _direct_sender
-        # the common frames of a receive turn fed in one loop (None: each by _feed_locked)
-        self.common: CommonFrames | None = CommonFrames.for_assembler(assembler)
+        # the common frames of a receive turn fed in one loop (None: each by _feed_locked): packed
+        # patch TPDOs (.common_frames), or one-taxel nodes' TPDO1 / TPDO2 (.node_frames)
+        self.common: CommonFrames | NodeFrames | None = (CommonFrames.for_assembler(assembler)
+                                                         or NodeFrames.for_assembler(assembler))
 
     def _feed_locked(self, msg: can.Message, channel: int) -> bool:
         """Feed one event (stream lock held); True when it closed a cycle."""
@@ -298,10 +301,10 @@ class EventStream:
         the stream lock; the cycles they close are evaluated after the last. Returns those the
         assembler took as the answer an SDO request of the centre awaits (``solicited``), in order.
 
-        With no trace, runs of common frames (well-formed patch TPDOs of packed decisions that
-        do not complete the open cycle, nor end its window) are fed by :attr:`common` in one
-        loop, every other frame by :meth:`_feed_locked`: the same result as feeding each by
-        :meth:`_feed_locked` (:mod:`.common_frames`)."""
+        With no trace, runs of common frames (well-formed patch TPDOs of packed decisions, or
+        one-taxel nodes' TPDO1 / TPDO2, that do not complete the open cycle, nor end its window)
+        are fed by :attr:`common` in one loop, every other frame by :meth:`_feed_locked`: the same
+        result as feeding each by :meth:`_feed_locked` (:mod:`.common_frames`, :mod:`.node_frames`)."""
         solicited = self.assembler.solicited
         answers = []
         closed = False

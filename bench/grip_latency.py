@@ -1,0 +1,518 @@
+"""SYNC -> grip command on the bus, as a bus observer sees it, and where the time goes.
+
+    .venv/bin/python bench/grip_latency.py [--runs 3] [--cycles 600]
+        [--scenes grasp_lift grasp_lift_raw grasp_fragile] [--transports embedded udp] [--echo 2000]
+
+Issue 23's goal: SYNC -> command p99 at most 2 ms on the grasp scenes at a 100 Hz SYNC. For
+each scene and transport, ``--runs`` times:
+
+* ``embedded``: the node twins, the drive and the grasp world (``node_sim.rig.Rig``) and the
+  centre in this process on one python-can virtual bus - ``fusion-center demo``'s set-up. The
+  observer is one more virtual bus on that channel: python-can stamps every frame when it is
+  sent (``VirtualBus.send``, ``time.time()``), so the observer's SYNC and RPDO1 stamps are the
+  sender's send times.
+* ``udp``: ``node-sim --scene S`` in another process, the centre in this one, over
+  udp_multicast on loopback (``fusion-center run``'s set-up); the observer is a third process
+  on the group, which reads the kernel's receive stamps (``SO_TIMESTAMP``) in batches every
+  0.2 s (so it adds no wake-up per frame).
+
+Latency of cycle k: the observer's stamp of the drive's RPDO1 (0x200 + node-ID) that carries
+cycle k's command minus its stamp of SYNC k (the k-th SYNC on the bus; the RPDO1s are matched
+to the records with a command, in order, and checked against their controlword and torque).
+
+Breakdown (centre side, same clock, ``time.time()``): where SYNC -> command goes, per cycle, as
+marks taken by wrappers put around the centre's methods (they add ~1 µs a mark):
+
+* ``answers``: SYNC -> the frame that closed the cycle (its stamp: the record's
+  ``closed_after_ms``) - the nodes' answers, not the centre's work; ``closed_by`` other than
+  ``complete`` (a late answer: the window or the next SYNC closes the cycle) is counted apart;
+* ``wake``: that frame's stamp -> the receive turn that handed it to the centre began (the
+  receive thread's wake-up; 0 when the turn had begun before the frame was sent - a burst
+  drained as it comes);
+* ``assemble``: -> the cycle's evaluation starts (the turn's frames fed to the assembler under
+  the stream lock, the cycle closed);
+* ``rules``, ``forces``, ``slip``, ``grip``: the pipeline's stages (decision-vector part with the
+  fusion rules; eqs 24-30 / 26a in raw mode; the slip tracker; the grip law and CiA 402);
+* ``record``: the rest of the evaluation before the command (record fields);
+* ``send``: end of the grip stage -> the RPDO1's stamp on the bus;
+* ``centre``: the closing frame's stamp -> the RPDO1's stamp: the centre's whole part.
+
+The wire floor printed per scene: what the same cycle takes on a real CAN bus at the scene's
+bit rate whatever the hosts (``fusion_center.core.bus_timing.frame_bits``, exact stuff bits):
+the SYNC, every taxel node's answer (TPDO1 of 1 byte in decision mode, TPDO2 of 4 in raw mode;
+the SYNC wins arbitration, the answers follow back to back) and the command's RPDO1.
+
+``--echo N``: the floor of any such path on this host - a python-can virtual bus, one thread
+sends a frame, a receive thread blocked on it (as the centre's and the twins' are) wakes: the
+send -> wake-up time, N times, p50/p99/max; and the same between two processes over
+udp_multicast (kernel stamp -> the receiving process's read).
+
+Prints one table per scene x transport over all runs (p50/p90/p99/max and cycles per run, and
+their spread), the breakdown's p50/p99 per stage, then ``uptime``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import random
+import socket
+import struct
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+import uuid
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+import can  # noqa: E402
+import numpy as np  # noqa: E402
+
+from taxel_net.resources import resolve_scene  # noqa: E402
+
+SCENES = ("grasp_lift", "grasp_lift_raw", "grasp_fragile")
+TRANSPORTS = ("embedded", "udp")
+COB_SYNC = 0x080
+STAGES = ("answers", "wake", "assemble", "rules", "forces", "slip", "record", "grip", "send", "centre")
+
+
+# --------------------------------------------------------------------------- centre-side marks
+class Marks:
+    """Per cycle: time.time() marks taken by wrappers around the centre's methods."""
+
+    def __init__(self):
+        self.by_cycle: dict[int, dict[str, float]] = {}
+        self.current: dict[str, float] | None = None
+
+    def mark(self, name: str) -> None:
+        if self.current is not None:
+            self.current[name] = time.time()
+
+
+def _wrap(obj, name: str, before=None, after=None) -> bool:
+    fn = getattr(obj, name, None)
+    if fn is None:
+        return False
+
+    def wrapped(*args, **kwargs):
+        if before is not None:
+            before(*args, **kwargs)
+        out = fn(*args, **kwargs)
+        if after is not None:
+            after(*args, **kwargs)
+        return out
+
+    setattr(obj, name, wrapped)
+    return True
+
+
+def instrument(service, marks: Marks) -> None:
+    """Wrap the centre's evaluation path (works on the code before and after the reorder: the
+    wrapped names exist in both)."""
+    pipeline = service.pipeline
+    assembler = service.assembler
+
+    turn = [0.0, 0]  # the last receive turn's start and size (the stream's receive_all)
+
+    def turn_start(msgs, *a, **k):
+        turn[0], turn[1] = time.time(), len(msgs) if hasattr(msgs, "__len__") else -1
+
+    _wrap(service.stream, "receive_all", before=turn_start)
+
+    def eval_start(closed, *a, **k):
+        t = time.time()
+        cur = marks.by_cycle.setdefault(closed.cycle, {})
+        if "eval" not in cur:
+            cur["eval"] = t
+            cur["close_frame"] = (assembler.t0_us + closed.close_us) * 1e-6
+            cur["closed_by"] = closed.closed_by
+            cur["turn"], cur["turn_frames"] = turn
+        marks.current = cur
+
+    for name in ("evaluate_command", "evaluate"):
+        if getattr(pipeline, name, None) is not None:
+            _wrap(pipeline, name, before=eval_start)
+    _wrap(pipeline, "_pattern", after=lambda *a, **k: marks.mark("rules"))
+    physical = pipeline.physical
+    # what the command waits for of the forces: all of them before the reorder, the totals after
+    forces_name = "force_totals" if getattr(physical, "force_totals", None) is not None else "forces"
+    _wrap(physical, forces_name, before=lambda *a, **k: marks.mark("forces0"),
+          after=lambda *a, **k: marks.mark("forces"))
+    _wrap(physical, "slip_record", before=lambda *a, **k: marks.mark("slip0"),
+          after=lambda *a, **k: marks.mark("slip"))
+    if pipeline.grip is not None:
+        _wrap(pipeline.grip, "evaluate", before=lambda *a, **k: marks.mark("grip0"),
+              after=lambda *a, **k: marks.mark("grip"))
+
+
+def breakdown(marks: Marks, sync_at: dict[int, float], cmd_at: dict[int, float]) -> dict[str, list[float]]:
+    """Per stage, the ms of every complete cycle with a command (module docstring)."""
+    out: dict[str, list[float]] = {s: [] for s in STAGES}
+    for cycle, cmd in cmd_at.items():
+        m = marks.by_cycle.get(cycle)
+        sync = sync_at.get(cycle)
+        if m is None or sync is None or m.get("closed_by") != "complete" or "grip" not in m:
+            continue
+        ms = lambda a, b: (b - a) * 1e3  # noqa: E731
+        forces = ms(m["forces0"], m["forces"]) if "forces" in m else 0.0
+        slip = ms(m["slip0"], m["slip"]) if "slip" in m else 0.0
+        rules = ms(m["eval"], m["rules"]) if "rules" in m else 0.0
+        grip = ms(m["grip0"], m["grip"])
+        evaluation = ms(m["eval"], m["grip"])
+        out["answers"].append(ms(sync, m["close_frame"]))
+        # the turn that closed the cycle may have begun before its last frame was stamped (a
+        # burst drained as it comes): the wake-up is then 0, the turn's feeding all "assemble"
+        turn = max(m["turn"], m["close_frame"])
+        out["wake"].append(ms(m["close_frame"], turn))
+        out["assemble"].append(ms(turn, m["eval"]))
+        out["centre"].append(ms(m["close_frame"], cmd))
+        out["rules"].append(rules)
+        out["forces"].append(forces)
+        out["slip"].append(slip)
+        out["grip"].append(grip)
+        out["record"].append(evaluation - rules - forces - slip - grip)
+        out["send"].append(ms(m["grip"], cmd))
+    return out
+
+
+# --------------------------------------------------------------------------- matching
+def match(records, syncs: list[float], cmds: list[tuple[float, bytes]], node_id: int):
+    """cycle -> SYNC stamp, cycle -> RPDO1 stamp (module docstring); raises on a mismatch."""
+    with_cmd = [r for r in records if (r.get("grip_detail") or {}).get("controlword") is not None]
+    if len(with_cmd) != len(cmds):
+        raise SystemExit(f"{len(cmds)} RPDO1 frames seen for {len(with_cmd)} records with a command")
+    sync_at = {k: t for k, t in enumerate(syncs)}
+    cmd_at = {}
+    for r, (t, data) in zip(with_cmd, cmds):
+        cw, permille, _ = struct.unpack("<Hhi", bytes(data))
+        d = r["grip_detail"]
+        if (cw, permille) != (d["controlword"], d["target_permille"]):
+            raise SystemExit(f"cycle {r['cycle']}: RPDO1 {cw:#x}/{permille} against the record's "
+                             f"{d['controlword']:#x}/{d['target_permille']}")
+        cmd_at[r["cycle"]] = t
+    return sync_at, cmd_at
+
+
+def latencies(sync_at, cmd_at) -> list[float]:
+    return [(cmd_at[c] - sync_at[c]) * 1e3 for c in sorted(cmd_at) if c in sync_at]
+
+
+# --------------------------------------------------------------------------- one run
+def scene_for(name: str):
+    from taxel_net.scene import load_scene
+
+    return load_scene(resolve_scene(name))
+
+
+def run_embedded(name: str, cycles: int) -> dict:
+    from fusion_center.commands.demo import run_demo
+    from fusion_center.service import fusion_service
+
+    scene = scene_for(name)
+    tag = uuid.uuid4().hex[:8]
+    observer = can.Bus(interface="virtual", channel=f"demo-{tag}-{scene.bus.channels[0]}")
+    marks = Marks()
+    original = fusion_service.FusionService.open
+
+    def open_and_instrument(self):
+        out = original(self)
+        instrument(self, marks)
+        return out
+
+    fusion_service.FusionService.open = open_and_instrument
+    try:
+        service, summary = run_demo(scene, cycles, channel_tag=tag, keep_records=True)
+    finally:
+        fusion_service.FusionService.open = original
+    frames = []
+    while (msg := observer.recv(0)) is not None:
+        frames.append(msg)
+    observer.shutdown()
+    return finish(scene, service, summary, frames, marks)
+
+
+def finish(scene, service, summary, frames, marks) -> dict:
+    node = scene.gripper.node_id
+    syncs = [m.timestamp for m in frames if m.arbitration_id == COB_SYNC]
+    cmds = [(m.timestamp, bytes(m.data)) for m in frames if m.arbitration_id == 0x200 + node]
+    records = list(service.records)
+    sync_at, cmd_at = match(records, syncs, cmds, node)
+    closed_by: dict[str, int] = {}
+    for r in records:
+        closed_by[r["closed_by"]] = closed_by.get(r["closed_by"], 0) + 1
+    centre = service.drive.latency_ms if service.drive is not None else []
+    return {"lat": latencies(sync_at, cmd_at), "stages": breakdown(marks, sync_at, cmd_at),
+            "closed_by": closed_by, "centre_p99": _pct(list(centre), 99),
+            "late": summary["counters"].get("late", 0)}
+
+
+def observer_main(group: str, port: int, out: str) -> int:
+    """``--observe``: a bus observer process (module docstring), until SIGTERM; writes JSON."""
+    import signal
+
+    from taxel_net.udp_wire import udp_multicast_drain
+
+    bus = can.Bus(interface="udp_multicast", channel=group, port=port, receive_own_messages=False)
+    sock = getattr(bus, "_multicast", None)
+    raw = getattr(sock, "_socket", None)
+    if raw is not None:
+        raw.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 16 << 20)
+    drain = udp_multicast_drain(bus)
+    if drain is None:
+        raise SystemExit("observer: not a python-can 4.x udp_multicast bus")
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *a: stop.set())
+    seen: list[tuple[float, int, str]] = []
+    print("observing", flush=True)
+    while True:
+        last = stop.is_set()
+        for msg in drain():
+            if msg.arbitration_id == COB_SYNC or 0x200 < msg.arbitration_id < 0x280:
+                seen.append((msg.timestamp, msg.arbitration_id, bytes(msg.data).hex()))
+        if last:
+            break
+        time.sleep(0.2)
+    bus.shutdown()
+    Path(out).write_text(json.dumps(seen))
+    return 0
+
+
+def _start(cmd: list[str], word: str) -> subprocess.Popen:
+    proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    got: list[str] = []
+    reader = threading.Thread(target=lambda: got.append(proc.stdout.readline()), daemon=True)
+    reader.start()
+    reader.join(60)
+    if not got or word not in got[0]:
+        proc.kill()
+        raise SystemExit(f"{cmd[2:4]} did not start: {got} {proc.stderr.read()}")
+    return proc
+
+
+def run_udp(name: str, cycles: int) -> dict:
+    from fusion_center.commands.run import execute
+    from fusion_center.service import FusionService
+
+    scene = scene_for(name)
+    group = f"239.74.{random.randint(164, 250)}.{random.randint(1, 250)}"
+    port = random.randint(40000, 60000)
+    with tempfile.TemporaryDirectory() as tmp:
+        seen_file = Path(tmp) / "observed.json"
+        observer = _start([sys.executable, str(Path(__file__).resolve()), "--observe", group, str(port),
+                           str(seen_file)], "observing")
+        sim = None
+        try:
+            sim = _start([sys.executable, "-m", "node_sim.cli", "--scene", str(resolve_scene(name)), "--interface",
+                          "udp_multicast", "--channel", group, "--bus-option", f"port={port}",
+                          "--bus-option", "hop_limit=0"], "ready")
+            marks = Marks()
+            service = FusionService(scene, interface="udp_multicast", channels=[group],
+                                    bus_kwargs={"port": port, "hop_limit": 0}, keep_records=True)
+            with service:
+                instrument(service, marks)
+                summary = execute(service, cycles, live=False, boot_timeout=5.0)
+        finally:
+            if sim is not None:
+                sim.terminate()
+                sim.wait(10)
+            time.sleep(0.3)
+            observer.terminate()
+            observer.wait(20)
+        seen = json.loads(seen_file.read_text())
+    frames = [can.Message(timestamp=t, arbitration_id=i, data=bytes.fromhex(d)) for t, i, d in seen]
+    return finish(scene, service, summary, frames, marks)
+
+
+def wire_floor(name: str) -> str:
+    """The cycle's frames on a real bus at the scene's bit rate (module docstring)."""
+    from fusion_center.core.bus_timing import frame_bits
+
+    scene = scene_for(name)
+    raw = scene.bus.mode == "raw"
+    sync = frame_bits(COB_SYNC, b"" if not scene.bus.sync_counter else b"\x01")
+    answers = sum(frame_bits((0x280 if raw else 0x180) + t.node_id,
+                             struct.pack("<f", 100.0) if raw else b"\x01") for t in scene.taxels)
+    command = frame_bits(0x200 + scene.gripper.node_id, struct.pack("<Hhi", 0x0F, 100, 0))
+    rate = scene.bus.bitrate / 1e3  # bits per ms
+    return (f"wire floor at {scene.bus.bitrate / 1e6:g} Mbit/s: SYNC + {scene.n} answers "
+            f"{(sync + answers) / rate:.2f} ms, + the command {(sync + answers + command) / rate:.2f} ms "
+            f"({sync + answers + command} bits)")
+
+
+# --------------------------------------------------------------------------- the echo floor
+def echo_virtual(n: int) -> list[float]:
+    """send (the frame's stamp) -> a receive thread blocked in ``recv`` has it, ms."""
+    channel = f"echo-{uuid.uuid4().hex[:8]}"
+    tx = can.Bus(interface="virtual", channel=channel)
+    rx = can.Bus(interface="virtual", channel=channel)
+    out: list[float] = []
+    done = threading.Event()
+
+    def receive():
+        while len(out) < n:
+            msg = rx.recv(1.0)
+            if msg is None:
+                break
+            out.append((time.time() - msg.timestamp) * 1e3)
+        done.set()
+
+    thread = threading.Thread(target=receive, daemon=True)
+    thread.start()
+    for _ in range(n):
+        tx.send(can.Message(arbitration_id=0x80, data=b"", is_extended_id=False))
+        time.sleep(0.002)  # the receiver is asleep again before the next one, as in a 10 ms cycle
+    done.wait(10)
+    tx.shutdown()
+    rx.shutdown()
+    return out
+
+
+def echo_udp(n: int) -> list[float]:
+    """Another process sends a frame every 2 ms over udp_multicast; this one blocks in ``recv``:
+    the kernel's receive stamp -> this thread has it, and the sender's send -> the kernel stamp."""
+    group = f"239.74.{random.randint(164, 250)}.{random.randint(1, 250)}"
+    port = random.randint(40000, 60000)
+    rx = can.Bus(interface="udp_multicast", channel=group, port=port, hop_limit=0)
+    code = ("import can, time, sys\n"
+            f"b = can.Bus(interface='udp_multicast', channel='{group}', port={port}, hop_limit=0)\n"
+            "print('ready', flush=True); time.sleep(0.5)\n"
+            f"for i in range({n}):\n"
+            "    b.send(can.Message(arbitration_id=0x81, data=[1], is_extended_id=False)); time.sleep(0.002)\n"
+            "b.shutdown()\n")
+    proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+    proc.stdout.readline()
+    out = []
+    try:
+        while len(out) < n:
+            msg = rx.recv(2.0)
+            if msg is None:
+                break
+            if msg.arbitration_id == 0x81:
+                out.append((time.time() - msg.timestamp) * 1e3)
+    finally:
+        proc.wait(30)
+        rx.shutdown()
+    return out
+
+
+# --------------------------------------------------------------------------- printing
+def _pct(values, q):
+    return float(np.percentile(values, q)) if len(values) else float("nan")
+
+
+def _spread(values) -> str:
+    values = [v for v in values if v == v]
+    if not values:
+        return "-"
+    if len(values) == 1:
+        return f"{values[0]:.2f}"
+    return f"{np.median(values):.2f} ({min(values):.2f}-{max(values):.2f})"
+
+
+def uptime() -> str:
+    try:
+        return subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip()
+    except OSError:
+        return "uptime: n/a"
+
+
+def print_row(name: str, transport: str, runs: list[dict], label: str = "") -> None:
+    stats = {q: [_pct(r["lat"], q) for r in runs] for q in (50, 90, 99, 100)}
+    other = [sum(v for k, v in r["closed_by"].items() if k != "complete") for r in runs]
+    print(f"{label}{name:16s} {transport:9s} {'/'.join(str(len(r['lat'])) for r in runs):>11s} "
+          f"{_spread(stats[50]):>17s} {_spread(stats[90]):>17s} {_spread(stats[99]):>18s} "
+          f"{_spread(stats[100]):>20s} {'/'.join(map(str, other)):>12s} "
+          f"{_spread([r['centre_p99'] for r in runs]):>18s}")
+
+
+def print_breakdown(runs: list[dict]) -> None:
+    parts = []
+    for stage in STAGES:
+        values = [v for r in runs for v in r["stages"].get(stage, [])]
+        if not values:
+            continue
+        parts.append(f"{stage} {_pct(values, 50):.3f}/{_pct(values, 99):.3f}")
+    n = sum(len(r["stages"]["send"]) for r in runs)
+    print(f"{'':10s}breakdown p50/p99 ms over {n} complete cycles: " + ", ".join(parts))
+
+
+HEADER = (f"{'scene':16s} {'transport':9s} {'cycles/run':>11s} {'p50':>17s} {'p90':>17s} {'p99':>18s} "
+          f"{'max':>20s} {'not complete':>12s} {'centre p99':>18s}")
+
+
+def compare(files: list[str]) -> int:
+    """``--compare A.jsonl B.jsonl ...``: the results of several ``--json`` files side by side."""
+    data = []
+    for f in files:
+        rows = [json.loads(line) for line in Path(f).read_text().splitlines() if line.strip()]
+        data.append((Path(f).stem, rows))
+    keys = []
+    for _, rows in data:
+        for row in rows:
+            if (row["scene"], row["transport"]) not in keys:
+                keys.append((row["scene"], row["transport"]))
+    print("label      " + HEADER)
+    for scene, transport in keys:
+        for label, rows in data:
+            runs = [run for row in rows if (row["scene"], row["transport"]) == (scene, transport) for run in row["runs"]]
+            if runs:
+                print_row(scene, transport, runs, f"{label[:10]:10s} ")
+        for label, rows in data:
+            runs = [run for row in rows if (row["scene"], row["transport"]) == (scene, transport) for run in row["runs"]]
+            if runs:
+                print(f"{label[:10]:10s}", end="")
+                print_breakdown(runs)
+    return 0
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--runs", type=int, default=3)
+    ap.add_argument("--cycles", type=int, default=600)
+    ap.add_argument("--scenes", nargs="*", default=list(SCENES))
+    ap.add_argument("--transports", nargs="+", default=list(TRANSPORTS), choices=TRANSPORTS)
+    ap.add_argument("--echo", type=int, default=2000, help="echo samples (0: skip)")
+    ap.add_argument("--json", metavar="OUT", help="append each scene x transport's runs to OUT (JSON lines)")
+    ap.add_argument("--compare", nargs="+", metavar="JSONL", help="print --json files side by side, run nothing")
+    ap.add_argument("--observe", nargs=3, metavar=("GROUP", "PORT", "OUT"), help=argparse.SUPPRESS)
+    args = ap.parse_args(argv)
+    if args.observe:
+        return observer_main(args.observe[0], int(args.observe[1]), args.observe[2])
+    if args.compare:
+        return compare(args.compare)
+    import logging
+
+    logging.basicConfig(level=logging.ERROR)
+    print(f"code: {ROOT}   start: {uptime()}")
+    print(f"SYNC -> command on the bus (observer's stamps), ms; {args.runs} run(s) x {args.cycles} cycles; "
+          "figures: median over runs (min-max)")
+    print(HEADER)
+    for name in args.scenes:
+        print(f"{name}: {wire_floor(name)}")
+        for transport in args.transports:
+            runs = []
+            for _ in range(args.runs):
+                runs.append((run_embedded if transport == "embedded" else run_udp)(name, args.cycles))
+            print_row(name, transport, runs)
+            print_breakdown(runs)
+            if args.json:
+                with open(args.json, "a", encoding="utf-8") as out:
+                    out.write(json.dumps({"scene": name, "transport": transport, "code": str(ROOT),
+                                          "uptime": uptime(), "runs": runs}) + "\n")
+    if args.echo:
+        for label, fn in (("virtual bus, one process", echo_virtual), ("udp_multicast, two processes", echo_udp)):
+            values = fn(args.echo)
+            print(f"echo floor ({label}): send -> receive thread has it, {len(values)} frames: p50 "
+                  f"{_pct(values, 50):.3f} ms, p90 {_pct(values, 90):.3f}, p99 {_pct(values, 99):.3f}, "
+                  f"max {max(values):.3f}")
+    print(f"end: {uptime()}   cpus: {os.cpu_count()}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
