@@ -186,7 +186,9 @@ def _median(runs, key):
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--other", type=Path, default=Path("/work/main"), help="the tree to compare the link with")
+    ap.add_argument("--other", type=Path, action="append", default=None,
+                    help="a tree to compare the link with (repeatable; default /work/main); the ratios are "
+                         "this tree's medians over each other's")
     ap.add_argument("--cycles", type=int, default=300)
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--part", default="assemblers,publication")
@@ -202,30 +204,34 @@ def main(argv=None) -> int:
         return 0
     parts = set(args.part.split(","))
     me = (sys.executable, HERE)
-    other = (str(args.other / ".venv" / "bin" / "python"), args.other.resolve())
+    others = [(str(tree / ".venv" / "bin" / "python"), tree.resolve()) for tree in (args.other or [Path("/work/main")])]
     commit = lambda root: subprocess.run(["git", "-C", str(root), "log", "-1", "--format=%h"], capture_output=True,  # noqa: E731
                                          text=True).stdout.strip()
     if "assemblers" in parts:
+        trees = [("zenoh", me)] + [(f"other{k + 1}" if len(others) > 1 else "other", tree)
+                                   for k, tree in enumerate(others)]
         print(f"assemblers, skin4096, {args.cycles} cycles, 2 shards + 2 assemblers + fuser; this tree "
-              f"{commit(HERE)} (Zenoh link) against {args.other} {commit(args.other)}", flush=True)
-        runs = {"zenoh": [], "other": []}
+              f"{commit(HERE)} (Zenoh link) against " + ", ".join(f"{name} = {root} {commit(root)}"
+                                                                    for name, (_, root) in trees[1:]), flush=True)
+        runs = {name: [] for name, _ in trees}
         for k in range(args.repeat):
-            for name, (python, root) in (("other", other), ("zenoh", me)):
+            for name, (python, root) in trees[1:] + trees[:1]:
                 r = _child(python, root, "--child", "assemblers", "--cycles", str(args.cycles))
                 runs[name].append(r)
-                print(f"  {name:5s} run {k + 1}: complete {r['complete']}/{r['cycles']}, degraded {r['degraded']}, "
+                print(f"  {name:6s} run {k + 1}: complete {r['complete']}/{r['cycles']}, degraded {r['degraded']}, "
                       f"late parts {r['late_parts']}, unmatched {r['unmatched']}, misattributed {r['misattributed']}; "
                       f"SYNC -> part sent p50 {r['to_send_p50']:.2f} / p99 {r['to_send_p99']:.2f} ms, transport p50 "
                       f"{r['transport_p50']:.2f} / p99 {r['transport_p99']:.2f} ms, SYNC -> record p50 "
                       f"{r['record_p50']:.2f} / p99 {r['record_p99']:.2f} ms; CPU a cycle: fuser "
                       f"{r['fuser_cpu_ms']:.2f} ms, assemblers {r['assemblers_cpu_ms']:.2f} ms (load {r['load']:.1f})",
                       flush=True)
-        print("  medians (zenoh / other = ratio):")
-        for key in ("complete", "degraded", "to_send_p50", "to_send_p99", "transport_p50", "transport_p99",
-                    "record_p50", "record_p99", "fuser_cpu_ms", "assemblers_cpu_ms"):
-            z, o = _median(runs["zenoh"], key), _median(runs["other"], key)
-            ratio = f"{z / o:.2f}" if z is not None and o else "-"
-            print(f"    {key:14s} {z:10.2f} / {o:10.2f} = {ratio}")
+        for name, _ in trees[1:]:
+            print(f"  medians (zenoh / {name} = ratio):")
+            for key in ("complete", "degraded", "to_send_p50", "to_send_p99", "transport_p50", "transport_p99",
+                        "record_p50", "record_p99", "fuser_cpu_ms", "assemblers_cpu_ms"):
+                z, o = _median(runs["zenoh"], key), _median(runs[name], key)
+                ratio = f"{z / o:.2f}" if z is not None and o else "-"
+                print(f"    {key:17s} {z:10.2f} / {o:10.2f} = {ratio}")
     if "publication" in parts:
         print(f"--zenoh publication, the centre alone (twins in a node-sim process), {args.cycles} cycles, "
               f"a subscriber in another process", flush=True)
