@@ -100,10 +100,17 @@ def assembler_run(cycles: int) -> dict:
             if proc.poll() is None:
                 proc.terminate()
                 proc.wait(10)
+    sent = unsent = 0
+    for proc in assemblers:  # "fusion-center assemble: N cycles sent, M not sent, ..."
+        for line in (proc.stdout.read() or "").splitlines():
+            if " cycles sent, " in line:
+                words = line.split(": ", 1)[1].split()
+                sent, unsent = sent + int(words[0]), unsent + int(words[3])
     stats = service.merger.stats.as_dict()
     figures = check_records(scene, service.records)
     hist = service.latency
     return {"cycles": len(service.records), "complete": stats["complete"], "degraded": stats["degraded"],
+            "parts_sent": sent, "parts_unsent": unsent, "parts": stats["parts"],
             "late_parts": stats["late_parts"], "unmatched": stats["unmatched_parts"],
             "misattributed": figures["misattributed"],
             "to_send_p50": stats["to_send_ms"]["p50"], "to_send_p99": stats["to_send_ms"]["p99"],
@@ -219,7 +226,8 @@ def main(argv=None) -> int:
                 r = _child(python, root, "--child", "assemblers", "--cycles", str(args.cycles))
                 runs[name].append(r)
                 print(f"  {name:6s} run {k + 1}: complete {r['complete']}/{r['cycles']}, degraded {r['degraded']}, "
-                      f"late parts {r['late_parts']}, unmatched {r['unmatched']}, misattributed {r['misattributed']}; "
+                      f"late parts {r['late_parts']}, unmatched {r['unmatched']}, misattributed {r['misattributed']}, parts "
+                      f"sent {r['parts_sent']} / not sent {r['parts_unsent']} / received {r['parts']}; "
                       f"SYNC -> part sent p50 {r['to_send_p50']:.2f} / p99 {r['to_send_p99']:.2f} ms, transport p50 "
                       f"{r['transport_p50']:.2f} / p99 {r['transport_p99']:.2f} ms, SYNC -> record p50 "
                       f"{r['record_p50']:.2f} / p99 {r['record_p99']:.2f} ms; CPU a cycle: fuser "
