@@ -16,6 +16,11 @@ Modes (each a fresh pair of processes, run alternating ``--repeat`` times):
 * ``zenoh-fifo``     the subscriber's samples through a ``FifoChannel`` read by a thread of ours;
 * ``zenoh-direct``   the callback run in Zenoh's network thread (``Callback(indirect=False)``).
 
+Zenoh settings to try go in the environment, which the processes inherit: ``FLOOR_ZCONFIG``
+a JSON map of Zenoh configuration keys to values set on both sessions (e.g.
+``'{"transport/unicast/lowlatency": true, "transport/unicast/qos/enabled": false}'``), and
+Zenoh's own ``ZENOH_RUNTIME`` (e.g. ``'(rx: (handover: app), tx: (handover: app))'``).
+
 Per mode: the latency from the sender's ``time.time()`` before the send to the receiver's
 callback (p50 / p99 / max, ms; one host's clock), and the CPU per message of each process
 (user + system over the run, including the runtime's own threads, divided by the messages).
