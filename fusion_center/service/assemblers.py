@@ -40,8 +40,11 @@ evaluates them with the usual pipeline, writing the same records as
   arrived when a later part of that group arrived (parts come in order), when the group
   disconnected, or ``part_deadline_s`` after the SYNC, is *missing*: its taxels count as
   silent (received nothing), the record is degraded and names the group in
-  ``parts_missing`` (``closed_by: "part_missing"``). Cycles are evaluated in SYNC order;
-  a part for a cycle already evaluated is counted (``late_parts``), never mixed in.
+  ``parts_missing`` (``closed_by: "part_missing"``). Cycles are evaluated in SYNC order,
+  by the fuser's merge thread (woken by each merged part, and every tick for the deadlines) -
+  not by Zenoh's callback thread, which takes every link's parts one after the other and only
+  checks, decodes and merges them; a part for a cycle already evaluated is counted
+  (``late_parts``), never mixed in.
 * **Reconnects**: an assembler whose link breaks without the fuser's ``bye`` (the fuser's
   liveliness token gone, or the fuser dropped the link) keeps
   assembling its buses (the parts closed meanwhile are counted as not sent, never queued) and
