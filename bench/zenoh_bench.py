@@ -235,8 +235,9 @@ def main(argv=None) -> int:
                 r = _child(python, root, "--child", "assemblers", "--cycles", str(args.cycles))
                 runs[name].append(r)
                 print(f"  {name:6s} run {k + 1}: complete {r['complete']}/{r['cycles']}, degraded {r['degraded']}, "
-                      f"late parts {r['late_parts']}, unmatched {r['unmatched']}, misattributed {r['misattributed']}, parts "
-                      f"sent {r['parts_sent']} / not sent {r['parts_unsent']} / received {r['parts']}; "
+                      f"late parts {r['late_parts']}, unmatched {r['unmatched']}, misattributed "
+                      f"{r['misattributed']}, parts sent {r['parts_sent']} / not sent {r['parts_unsent']} / "
+                      f"received {r['parts']}; "
                       f"SYNC -> part sent p50 {r['to_send_p50']:.2f} / p99 {r['to_send_p99']:.2f} ms, transport p50 "
                       f"{r['transport_p50']:.2f} / p99 {r['transport_p99']:.2f} ms, SYNC -> record p50 "
                       f"{r['record_p50']:.2f} / p99 {r['record_p99']:.2f} ms; CPU a cycle: fuser "
@@ -257,7 +258,8 @@ def main(argv=None) -> int:
             runs = {"off": [], "on": []}
             for k in range(args.repeat):
                 for on in (False, True):
-                    r = _child(me[0], me[1], "--child", f"publication:{scene}:{int(on)}:{int(args.log)}", "--cycles", str(args.cycles))
+                    r = _child(me[0], me[1], "--child", f"publication:{scene}:{int(on)}:{int(args.log)}",
+                               "--cycles", str(args.cycles))
                     runs["on" if on else "off"].append(r)
                     print(f"  {scene} {'on ' if on else 'off'} run {k + 1}: CPU {r['cpu_ms']:.3f} ms a cycle, "
                           f"publisher {r['publisher_ms']:.4f} ms, records {r['records']}, failed {r['failed']}, "
