@@ -1,26 +1,31 @@
-"""Zenoh's cost (issue 24): the assembler link at skin scale against another tree's, and the
+"""Zenoh's cost (issue 24): the assembler link at skin scale against other trees', and the
 CPU of ``--zenoh`` per cycle, side by side in one run.
 
-    .venv/bin/python bench/zenoh_bench.py [--other /work/main] [--cycles 300] [--repeat 3]
-                                          [--part assemblers,publication]
+    .venv/bin/python bench/zenoh_bench.py [--other TREE ...] [--cycles 300] [--repeat 3]
+                                          [--part assemblers,publication] [--log]
 
 * **assemblers** - skin4096 (8 channels, 100 Hz) as two node-sim shards (channels 0-3, 4-7),
   two ``fusion-center assemble`` processes (the same groups) and the fuser in this process,
-  udp_multicast on the loopback, ``--cycles`` SYNCs; the same set-up run on the tree
-  ``--other`` (its own interpreter, ``OTHER/.venv/bin/python``, the link it has - on main the
-  TCP link of ``multiprocessing.connection``), alternating, ``--repeat`` times each. Per run:
-  cycles with both parts (complete), degraded (a part missing), late parts, unmatched parts;
-  SYNC -> part sent p50 / p99 (the assembler's side), part transport p50 / p99 (sent ->
-  received by the fuser) and SYNC -> record p50 / p99. Then medians over the runs and their
-  ratios (this tree / other), and the CPU per cycle of the fuser's process and of the two
-  assembler processes. Goal: the figures within 10 %.
+  udp_multicast on the loopback, ``--cycles`` SYNCs; the same set-up run on each tree
+  ``--other`` (repeatable, default /work/main; its own interpreter, ``TREE/.venv/bin/python``,
+  the link it has - the TCP link of ``multiprocessing.connection`` before commit 83387cb, e.g.
+  ``git archive c6a1f5d`` unpacked with a venv of its own), alternating, ``--repeat`` times
+  each. Per run: cycles with both parts (complete), degraded (a part missing), late parts,
+  unmatched parts, the parts the assemblers sent / did not send (their end lines) and the
+  fuser received; SYNC -> part sent p50 / p99 (the assembler's side), part transport p50 / p99
+  (sent -> received by the fuser) and SYNC -> record p50 / p99. Then medians over the runs and
+  their ratios (this tree / each other), and the CPU per cycle of the fuser's process and of
+  the two assembler processes. Goal: the figures within 10 %.
 * **publication** - the centre alone in this process (the twins in one node-sim process,
   udp_multicast), matrix57 and skin4096, ``--cycles`` SYNCs, with and without ``--zenoh``
   (``ZenohPublisher``, a subscriber in another process - docs/examples/zenoh_subscriber.py -
   so that every sample goes out), alternating, ``--repeat`` times each: the process's CPU per
   cycle (median of the runs), and the publisher's own CPU per cycle (thread time inside its
-  calls); the ratio on / off and the publisher's share. Goal: at most +5 %.
+  calls); the ratio on / off and the publisher's share. ``--log``: both settings write a
+  decision log (to /dev/null), whose line the publisher puts instead of serialising the record
+  again. Goal: at most +5 %.
 
+bench/zenoh_floor.py measures Zenoh's per-message cost alone (two processes, no centre).
 The host's load is printed with each run: on a shared 2-core machine the spread between runs
 is the figure to compare the ratios with.
 """
@@ -100,10 +105,17 @@ def assembler_run(cycles: int) -> dict:
             if proc.poll() is None:
                 proc.terminate()
                 proc.wait(10)
+    sent = unsent = 0
+    for proc in assemblers:  # "fusion-center assemble: N cycles sent, M not sent, ..."
+        for line in (proc.stdout.read() or "").splitlines():
+            if " cycles sent, " in line:
+                words = line.split(": ", 1)[1].split()
+                sent, unsent = sent + int(words[0]), unsent + int(words[3])
     stats = service.merger.stats.as_dict()
     figures = check_records(scene, service.records)
     hist = service.latency
     return {"cycles": len(service.records), "complete": stats["complete"], "degraded": stats["degraded"],
+            "parts_sent": sent, "parts_unsent": unsent, "parts": stats["parts"],
             "late_parts": stats["late_parts"], "unmatched": stats["unmatched_parts"],
             "misattributed": figures["misattributed"],
             "to_send_p50": stats["to_send_ms"]["p50"], "to_send_p99": stats["to_send_ms"]["p99"],
@@ -115,7 +127,7 @@ def assembler_run(cycles: int) -> dict:
 
 # ---------------------------------------------------------------------------- one publication run
 
-def publication_run(scene_name: str, cycles: int, zenoh_on: bool) -> dict:
+def publication_run(scene_name: str, cycles: int, zenoh_on: bool, log: bool = False) -> dict:
     import time as _time
 
     from fusion_center.service import FusionService
@@ -131,7 +143,8 @@ def publication_run(scene_name: str, cycles: int, zenoh_on: bool) -> dict:
     try:
         start_shards(scene, 1, groups, port, procs)
         service = FusionService(scene, interface="udp_multicast", channels=groups,
-                                bus_kwargs={"port": port, "hop_limit": 0}, keep_records=False)
+                                bus_kwargs={"port": port, "hop_limit": 0}, keep_records=False,
+                                json_lines=os.devnull if log else None)
         if zenoh_on:
             from fusion_center.service.zenoh_publisher import ZenohPublisher
 
@@ -186,10 +199,15 @@ def _median(runs, key):
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--other", type=Path, default=Path("/work/main"), help="the tree to compare the link with")
+    ap.add_argument("--other", type=Path, action="append", default=None,
+                    help="a tree to compare the link with (repeatable; default /work/main); the ratios are "
+                         "this tree's medians over each other's")
     ap.add_argument("--cycles", type=int, default=300)
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--part", default="assemblers,publication")
+    ap.add_argument("--log", action="store_true",
+                    help="publication: both settings write a decision log (to /dev/null; the publisher reuses "
+                         "its line)")
     ap.add_argument("--root", type=Path, default=HERE, help=argparse.SUPPRESS)
     ap.add_argument("--child", default=None, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
@@ -197,43 +215,51 @@ def main(argv=None) -> int:
         print(json.dumps(assembler_run(args.cycles)))
         return 0
     if args.child and args.child.startswith("publication:"):
-        _, scene, on = args.child.split(":")
-        print(json.dumps(publication_run(scene, args.cycles, on == "1")))
+        _, scene, on, log = args.child.split(":")
+        print(json.dumps(publication_run(scene, args.cycles, on == "1", log == "1")))
         return 0
     parts = set(args.part.split(","))
     me = (sys.executable, HERE)
-    other = (str(args.other / ".venv" / "bin" / "python"), args.other.resolve())
+    others = [(str(tree / ".venv" / "bin" / "python"), tree.resolve()) for tree in (args.other or [Path("/work/main")])]
     commit = lambda root: subprocess.run(["git", "-C", str(root), "log", "-1", "--format=%h"], capture_output=True,  # noqa: E731
                                          text=True).stdout.strip()
     if "assemblers" in parts:
+        trees = [("zenoh", me)] + [(f"other{k + 1}" if len(others) > 1 else "other", tree)
+                                   for k, tree in enumerate(others)]
         print(f"assemblers, skin4096, {args.cycles} cycles, 2 shards + 2 assemblers + fuser; this tree "
-              f"{commit(HERE)} (Zenoh link) against {args.other} {commit(args.other)}", flush=True)
-        runs = {"zenoh": [], "other": []}
+              f"{commit(HERE)} (Zenoh link) against " + ", ".join(f"{name} = {root} {commit(root)}"
+                                                                    for name, (_, root) in trees[1:]), flush=True)
+        runs = {name: [] for name, _ in trees}
         for k in range(args.repeat):
-            for name, (python, root) in (("other", other), ("zenoh", me)):
+            for name, (python, root) in trees[1:] + trees[:1]:
                 r = _child(python, root, "--child", "assemblers", "--cycles", str(args.cycles))
                 runs[name].append(r)
-                print(f"  {name:5s} run {k + 1}: complete {r['complete']}/{r['cycles']}, degraded {r['degraded']}, "
-                      f"late parts {r['late_parts']}, unmatched {r['unmatched']}, misattributed {r['misattributed']}; "
+                print(f"  {name:6s} run {k + 1}: complete {r['complete']}/{r['cycles']}, degraded {r['degraded']}, "
+                      f"late parts {r['late_parts']}, unmatched {r['unmatched']}, misattributed "
+                      f"{r['misattributed']}, parts sent {r['parts_sent']} / not sent {r['parts_unsent']} / "
+                      f"received {r['parts']}; "
                       f"SYNC -> part sent p50 {r['to_send_p50']:.2f} / p99 {r['to_send_p99']:.2f} ms, transport p50 "
                       f"{r['transport_p50']:.2f} / p99 {r['transport_p99']:.2f} ms, SYNC -> record p50 "
                       f"{r['record_p50']:.2f} / p99 {r['record_p99']:.2f} ms; CPU a cycle: fuser "
                       f"{r['fuser_cpu_ms']:.2f} ms, assemblers {r['assemblers_cpu_ms']:.2f} ms (load {r['load']:.1f})",
                       flush=True)
-        print("  medians (zenoh / other = ratio):")
-        for key in ("complete", "degraded", "to_send_p50", "to_send_p99", "transport_p50", "transport_p99",
-                    "record_p50", "record_p99", "fuser_cpu_ms", "assemblers_cpu_ms"):
-            z, o = _median(runs["zenoh"], key), _median(runs["other"], key)
-            ratio = f"{z / o:.2f}" if z is not None and o else "-"
-            print(f"    {key:14s} {z:10.2f} / {o:10.2f} = {ratio}")
+        for name, _ in trees[1:]:
+            print(f"  medians (zenoh / {name} = ratio):")
+            for key in ("complete", "degraded", "to_send_p50", "to_send_p99", "transport_p50", "transport_p99",
+                        "record_p50", "record_p99", "fuser_cpu_ms", "assemblers_cpu_ms"):
+                z, o = _median(runs["zenoh"], key), _median(runs[name], key)
+                ratio = f"{z / o:.2f}" if z is not None and o else "-"
+                print(f"    {key:17s} {z:10.2f} / {o:10.2f} = {ratio}")
     if "publication" in parts:
         print(f"--zenoh publication, the centre alone (twins in a node-sim process), {args.cycles} cycles, "
-              f"a subscriber in another process", flush=True)
+              f"a subscriber in another process" + (", both with a decision log (--log)" if args.log else ""),
+              flush=True)
         for scene in ("matrix57", "skin4096"):
             runs = {"off": [], "on": []}
             for k in range(args.repeat):
                 for on in (False, True):
-                    r = _child(me[0], me[1], "--child", f"publication:{scene}:{int(on)}", "--cycles", str(args.cycles))
+                    r = _child(me[0], me[1], "--child", f"publication:{scene}:{int(on)}:{int(args.log)}",
+                               "--cycles", str(args.cycles))
                     runs["on" if on else "off"].append(r)
                     print(f"  {scene} {'on ' if on else 'off'} run {k + 1}: CPU {r['cpu_ms']:.3f} ms a cycle, "
                           f"publisher {r['publisher_ms']:.4f} ms, records {r['records']}, failed {r['failed']}, "

@@ -279,3 +279,40 @@ def test_with_no_subscriber_nothing_is_serialised_or_put():
         finally:
             peer.close()
     assert (pub.records, pub.grips, pub.unmatched) == (1, 0, 5)  # .../grip and .../contact: nobody
+
+
+def test_a_logged_record_is_published_as_the_logs_line_serialised_once(tmp_path, monkeypatch):
+    """With a decision log and the publication on, a record's JSON is made once: the publisher
+    puts the line the log just wrote (the same bytes); a record the log did not write - another
+    dict, even an equal one - is serialised by the publisher itself."""
+    from fusion_center.service import records as records_mod
+    from fusion_center.service.records import RecordWriter
+    from fusion_center.service.zenoh_publisher import ZenohPublisher
+
+    made = []
+    dumps = records_mod.dumps
+
+    def counting(record):
+        made.append(record.get("cycle"))
+        return dumps(record)
+
+    monkeypatch.setattr(records_mod, "dumps", counting)
+    port, = _ports(1)
+    log = tmp_path / "run.jsonl"
+    with ZenohPublisher("logged", listen=[f"tcp/127.0.0.1:{port}"]) as pub:
+        peer = zenoh_peer(connect=port)
+        try:
+            sub, got, wait = _subscribe(peer, "taxel/logged/record")
+            _connected(pub, "record")
+            with RecordWriter(log) as writer:
+                for k in range(3):
+                    record = {"cycle": k, "t": k * 0.01, "decision": "H0", "u_g": -1.5 - k}
+                    writer.write(record)
+                    pub(record)
+            pub({"cycle": 2, "t": 0.02, "decision": "H0", "u_g": -3.5})  # equal to the last, not it
+            payloads = [p for _, p, _ in wait(4)]
+        finally:
+            peer.close()
+    lines = log.read_bytes().splitlines()
+    assert payloads == lines + [lines[-1]]
+    assert made == [0, 1, 2, 2]  # three by the log, one by the publisher (the unlogged dict)

@@ -7,7 +7,8 @@ JSON payloads, encoding ``application/json``; docs/robotics.md, *Zenoh*):
 
 * ``taxel/<scene>/record`` - every record: the bytes of its decision-log line
   (:func:`.records.dumps`, no newline), so a subscriber reads what ``--json-lines`` writes -
-  the JSON stream a tactile user knows from XELA's uSkin server;
+  the JSON stream a tactile user knows from XELA's uSkin server; with ``--json-lines`` on, the
+  line the log just wrote (:func:`.records.logged_line`: one serialisation a record);
 * ``taxel/<scene>/grip`` - where a record has the grip stage's ``grip`` object (grasp scenes):
   ``{"cycle", "t", "command_n", "actual_n", "drive_state", "grip_state", "slip"}``, the
   record's ``grip`` with its cycle and SYNC time - what a gripper controller subscribes to;
@@ -38,7 +39,7 @@ import json
 import logging
 
 from taxel_net.errors import UsageError
-from .records import dumps
+from .records import dumps, logged_line
 from .zenoh_config import key_segment, open_session, resolve
 
 logger = logging.getLogger("fusion_center.service.zenoh")
@@ -154,7 +155,7 @@ class ZenohPublisher:
     def _publish(self, record: dict) -> None:
         matching = self._matching
         if matching["record"]:
-            self.records += self._put("record", dumps(record).encode())
+            self.records += self._put("record", logged_line(record).encode())
         else:
             self.unmatched += 1
         grip = grip_message(record) if matching["grip"] else None
