@@ -280,7 +280,9 @@ def reference(pieces, m, mu_s, mu_k, g, s_down, s_up):
                 return y[0] + s_up
             top.terminal, top.direction = True, -1
 
-            sol = solve_ivp(rhs, (t, h), [s, v], method="DOP853", rtol=1e-12, atol=1e-15,
+            # max_step: solve_ivp sees an event only as a sign change between its step ends - a
+            # slide that reaches s_down and turns back within one long step was not seen dropping
+            sol = solve_ivp(rhs, (t, h), [s, v], method="DOP853", rtol=1e-12, atol=1e-15, max_step=1e-3,
                             events=[stop, bottom, top])
             s, v = sol.y[0, -1], sol.y[1, -1]
             t = sol.t[-1]
