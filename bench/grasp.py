@@ -233,7 +233,7 @@ def stuck_parts(rows, i: int, j: int, d: int | None, case: Case, dt_s: float) ->
 
     Episodes whose slide ended before the centre raised (the load fell by itself, or an earlier
     raise's force was still on its way) have no parts (``parts`` None); ``self_stopped`` says
-    which. ``slid_at_detect_mm``: the slide of the world step the detecting cycle sampled (the
+    which. ``raises``: the law's raises from the onset to 10 cycles after the stop. ``slid_at_detect_mm``: the slide of the world step the detecting cycle sampled (the
     step before its row) since the onset; ``onset_accel_m_s2``: the slide's acceleration in its
     first step, ``2 s / dt²`` (from rest)."""
     slid = [r[5] for r in rows]
@@ -241,6 +241,7 @@ def stuck_parts(rows, i: int, j: int, d: int | None, case: Case, dt_s: float) ->
     out: dict = {"parts": None, "self_stopped": False,
                  "slid_at_detect_mm": None if d is None or d == 0 else slid[d - 1] - base}
     out["onset_accel_m_s2"] = 2.0 * (slid[i] - base) * 1e-3 / dt_s ** 2
+    out["raises"] = sum(1 for k in range(i, min(len(rows), j + 10)) if "slip_raise" in rows[k][11])
     if d is None or d >= j:
         out["self_stopped"] = True
         return out
@@ -354,6 +355,7 @@ def summarise(results: list[dict]) -> dict:
         top["stuck_ms_p95"] = _pct(stuck, 95)
         chained = [e["parts"] for e in eps if e.get("parts")]
         top["parts_episodes"] = len(chained)
+        top["episodes_raised_twice"] = sum(1 for e in eps if e.get("raises", 0) >= 2)
         top["self_stopped"] = sum(1 for e in eps if e.get("self_stopped"))
         for n_part, part in enumerate(PARTS):
             vals = [c[n_part] for c in chained]
@@ -420,6 +422,7 @@ def render(table: dict, dt_ms: float) -> str:
                                                           f"{_fmt(t.get(f'part_{part}_p95', float('nan')) * dt_ms, 0)}")
     row("  their sum (onset->stuck) ms med/p95", lambda t: f"{_fmt(t.get('parts_stuck_median', float('nan')) * dt_ms, 0)}/"
                                                           f"{_fmt(t.get('parts_stuck_p95', float('nan')) * dt_ms, 0)}")
+    row("episodes raised twice or more", lambda t: str(t.get("episodes_raised_twice", "-")))
     row("slid at detection mm med/p95", lambda t: f"{_fmt(t.get('slid_at_detect_mm_median'))}/"
                                                   f"{_fmt(t.get('slid_at_detect_mm_p95'))}")
     row("slide accel at onset m/s2 med/p5", lambda t: f"{_fmt(t.get('onset_accel_median'))}/"

@@ -116,7 +116,7 @@ def test_stuck_parts_on_hand_made_rows():
             row(3, True, 1.2, det=True, normal=6.2), row(4, True, 1.8, det=True, normal=6.25),
             row(5, True, 2.0, normal=9.0), row(6, False, 2.0, normal=12.0)]
     parts = stuck_parts(rows, 1, 6, 2, case, 0.01)
-    assert parts["parts"] == [1, 0, 2, 2] and not parts["self_stopped"]
+    assert parts["parts"] == [1, 0, 2, 2] and not parts["self_stopped"] and parts["raises"] == 1
     assert parts["slid_at_detect_mm"] == pytest.approx(0.1)   # the step the detecting cycle sampled
     assert parts["onset_accel_m_s2"] == pytest.approx(2 * 0.1e-3 / 0.01 ** 2)
     # the law held the raise back (settle) until row 3: detect -> raise 1 cycle
@@ -125,6 +125,6 @@ def test_stuck_parts_on_hand_made_rows():
     assert stuck_parts(held, 1, 6, 2, case, 0.01)["parts"] == [1, 1, 1, 2]
     # stopped before any raise: no parts
     quiet = [row(0), row(1, True, 0.1), row(2, True, 0.2), row(3, False, 0.2, det=True)]
-    assert stuck_parts(quiet, 1, 3, 3, case, 0.01) == {"parts": None, "self_stopped": True,
+    assert stuck_parts(quiet, 1, 3, 3, case, 0.01) == {"parts": None, "self_stopped": True, "raises": 0,
                                                        "slid_at_detect_mm": pytest.approx(0.2),
                                                        "onset_accel_m_s2": pytest.approx(2.0)}
