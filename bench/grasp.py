@@ -169,7 +169,9 @@ def grasp_metrics(rows, case: Case, dt_s: float) -> dict:
       slipping cycle, stuck again = the first cycle after it that does not slip; detection = the
       first cycle from the onset on in which the centre's slip flag is set (within the episode or
       up to 10 cycles after it), also counted from the cycle the contact had slid one taxel pitch
-      since the onset;
+      since the onset; onset -> stuck again in its parts (:func:`stuck_parts`);
+    * ``false_flags``: the centre's slip flags that rose with no slip in the world's truth in the
+      10 cycles up to them (a cue that fires on nothing);
     * ``slid_mm``: the largest slide (mm, down) before the place;
     * ``ratio``: the steady holding force over the least holding force, ``normal_n / min_hold_n``
       averaged over the hold's last 0.2 s (the object at rest; None if it is gone).
@@ -194,10 +196,14 @@ def grasp_metrics(rows, case: Case, dt_s: float) -> dict:
                             None)
             ep["detect_after_pitch"] = None if d is None or pitch_at is None else d - pitch_at
             ep["slid_mm"] = max(slid[i:j]) - (slid[i - 1] if i else 0.0)
+            ep.update(stuck_parts(rows, i, j, d, case, dt_s))
             episodes.append(ep)
             i = j
         else:
             i += 1
+    # the centre's slip flags that rose with no slip in the world's truth in the 10 cycles up to them
+    false_flags = sum(1 for k in range(n) if det[k] and (k == 0 or not det[k - 1])
+                      and not any(slipping[max(0, k - 10):k + 1]))
     before_place = [s for s, p in zip(slid, phase) if p in ("close", "lift", "hold")]
     hold_idx = [c for c, p in enumerate(phase) if p == "hold"]
     ratio = None
@@ -206,7 +212,50 @@ def grasp_metrics(rows, case: Case, dt_s: float) -> dict:
         vals = [rows[c][2] / rows[c][3] for c in tail if rows[c][3] > 0]
         ratio = float(np.mean(vals)) if vals else None
     return {"dropped": bool(rows[-1][6]) or rows[-1][12] == "left", "crushed": bool(rows[-1][7]),
-            "slid_mm": max([0.0] + before_place), "ratio": ratio, "episodes": episodes}
+            "slid_mm": max([0.0] + before_place), "ratio": ratio, "episodes": episodes, "false_flags": false_flags}
+
+
+PARTS = ("detect", "raise", "force", "stop")   # onset -> stuck again, in cycles (stuck_parts)
+
+
+def stuck_parts(rows, i: int, j: int, d: int | None, case: Case, dt_s: float) -> dict:
+    """Onset -> stuck again of the slip episode of rows ``i`` .. ``j - 1`` split into its parts,
+    in cycles (``parts``), where they happen in this order:
+
+    * ``detect``: the onset -> the centre's first slip flag (row ``d``);
+    * ``raise``: -> the first cycle from ``d`` on whose command carries the law's ``slip_raise``
+      (0: the law raised in the cycle it was told; more: ``settle_s`` held it back);
+    * ``force``: -> the first world step from the raise on whose jaw force ``N`` stops the slide,
+      ``N >= m (g + a) / (2 mu_k) = min_hold_n mu_s / mu_k`` (the slide decelerates from then on):
+      the RPDO's next SYNC, the drive's torque slope and the jaws' force lag;
+    * ``stop``: -> the first step without slip (the object decelerated to the pads' speed, back
+      to static friction).
+
+    Episodes whose slide ended before the centre raised (the load fell by itself, or an earlier
+    raise's force was still on its way) have no parts (``parts`` None); ``self_stopped`` says
+    which. ``raises``: the law's raises from the onset to 10 cycles after the stop. ``slid_at_detect_mm``: the slide of the world step the detecting cycle sampled (the
+    step before its row) since the onset; ``onset_accel_m_s2``: the slide's acceleration in its
+    first step, ``2 s / dt²`` (from rest)."""
+    slid = [r[5] for r in rows]
+    base = slid[i - 1] if i else 0.0
+    out: dict = {"parts": None, "self_stopped": False,
+                 "slid_at_detect_mm": None if d is None or d == 0 else slid[d - 1] - base}
+    out["onset_accel_m_s2"] = 2.0 * (slid[i] - base) * 1e-3 / dt_s ** 2
+    out["raises"] = sum(1 for k in range(i, min(len(rows), j + 10)) if "slip_raise" in rows[k][11])
+    if d is None or d >= j:
+        out["self_stopped"] = True
+        return out
+    c = next((k for k in range(d, j) if "slip_raise" in rows[k][11]), None)
+    if c is None:
+        out["self_stopped"] = True
+        return out
+    ratio = case.mu_s / case.mu_k
+    h = next((k for k in range(c, j) if rows[k][2] >= rows[k][3] * ratio), None)
+    if h is None:
+        out["self_stopped"] = True
+        return out
+    out["parts"] = [d - i, c - d, h - c, j - h]
+    return out
 
 
 def run_case(args) -> dict:
@@ -294,6 +343,8 @@ def summarise(results: list[dict]) -> dict:
         top["dropped"] = sum(m["dropped"] for m in rows)
         top["dropped_holdable"] = sum(m["dropped"] for m in holdable)
         top["grasps_with_slip"] = sum(1 for m in rows if m["episodes"])
+        top["false_flags"] = sum(m.get("false_flags", 0) for m in rows)
+        top["grasps_false_flags"] = sum(1 for m in rows if m.get("false_flags", 0))
         top["slip_episodes"] = len(eps)
         top["episodes_detected"] = len(det)
         top["detect_cycles_median"] = _pct(det, 50)
@@ -302,6 +353,23 @@ def summarise(results: list[dict]) -> dict:
         top["detect_after_pitch_p95"] = _pct(det_p, 95)
         top["stuck_ms_median"] = _pct(stuck, 50)
         top["stuck_ms_p95"] = _pct(stuck, 95)
+        chained = [e["parts"] for e in eps if e.get("parts")]
+        top["parts_episodes"] = len(chained)
+        top["episodes_raised_twice"] = sum(1 for e in eps if e.get("raises", 0) >= 2)
+        top["self_stopped"] = sum(1 for e in eps if e.get("self_stopped"))
+        for n_part, part in enumerate(PARTS):
+            vals = [c[n_part] for c in chained]
+            top[f"part_{part}_median"] = _pct(vals, 50)
+            top[f"part_{part}_p95"] = _pct(vals, 95)
+        sums = [sum(c) for c in chained]
+        top["parts_stuck_median"] = _pct(sums, 50)
+        top["parts_stuck_p95"] = _pct(sums, 95)
+        at_det = [e["slid_at_detect_mm"] for e in eps if e.get("slid_at_detect_mm") is not None]
+        top["slid_at_detect_mm_median"] = _pct(at_det, 50)
+        top["slid_at_detect_mm_p95"] = _pct(at_det, 95)
+        acc = [e["onset_accel_m_s2"] for e in eps if e.get("onset_accel_m_s2") is not None]
+        top["onset_accel_median"] = _pct(acc, 50)
+        top["onset_accel_p5"] = _pct(acc, 5)
         top["slid_mm_median"] = _pct(slid, 50)
         top["slid_mm_p95"] = _pct(slid, 95)
         top["slid_pitches_median"] = _pct(pitches, 50)
@@ -332,21 +400,33 @@ def _fmt(v, digits=1):
 
 def render(table: dict, dt_ms: float) -> str:
     lines = []
-    head = f"{'':34s}" + "".join(f"{m:>14s}" for m in MODES)
+    head = f"{'':40s}" + "".join(f"{m:>14s}" for m in MODES)
     lines.append(head)
 
     def row(label, fn):
-        lines.append(f"{label:34s}" + "".join(f"{fn(table[m]):>14s}" for m in MODES))
+        lines.append(f"{label:40s}" + "".join(f"{fn(table[m]):>14s}" for m in MODES))
 
     row("grasps", lambda t: str(t["grasps"]))
     row("dropped (holdable)", lambda t: f"{t['dropped']} ({t['dropped_holdable']})")
     row("grasps with slip / episodes", lambda t: f"{t['grasps_with_slip']}/{t['slip_episodes']}")
+    row("slip flags without slip (grasps)", lambda t: f"{t.get('false_flags', 0)} ({t.get('grasps_false_flags', 0)})")
     row("onset->detect cycles med/p95", lambda t: f"{_fmt(t['detect_cycles_median'], 0)}/{_fmt(t['detect_cycles_p95'], 0)}")
     row("onset->detect ms med/p95", lambda t: f"{_fmt(t['detect_cycles_median'] * dt_ms, 0)}/"
                                              f"{_fmt(t['detect_cycles_p95'] * dt_ms, 0)}")
     row("one pitch->detect cycles med/p95", lambda t: f"{_fmt(t['detect_after_pitch_median'], 0)}/"
                                                      f"{_fmt(t['detect_after_pitch_p95'], 0)}")
     row("onset->stuck ms med/p95", lambda t: f"{_fmt(t['stuck_ms_median'], 0)}/{_fmt(t['stuck_ms_p95'], 0)}")
+    row("stuck in parts: episodes (self-stopped)", lambda t: f"{t.get('parts_episodes', 0)} ({t.get('self_stopped', 0)})")
+    for part, label in zip(PARTS, ("onset->detect", "detect->raise", "raise->force holds", "force->stuck")):
+        row(f"  {label} ms med/p95", lambda t, part=part: f"{_fmt(t.get(f'part_{part}_median', float('nan')) * dt_ms, 0)}/"
+                                                          f"{_fmt(t.get(f'part_{part}_p95', float('nan')) * dt_ms, 0)}")
+    row("  their sum (onset->stuck) ms med/p95", lambda t: f"{_fmt(t.get('parts_stuck_median', float('nan')) * dt_ms, 0)}/"
+                                                          f"{_fmt(t.get('parts_stuck_p95', float('nan')) * dt_ms, 0)}")
+    row("episodes raised twice or more", lambda t: str(t.get("episodes_raised_twice", "-")))
+    row("slid at detection mm med/p95", lambda t: f"{_fmt(t.get('slid_at_detect_mm_median'))}/"
+                                                  f"{_fmt(t.get('slid_at_detect_mm_p95'))}")
+    row("slide accel at onset m/s2 med/p5", lambda t: f"{_fmt(t.get('onset_accel_median'))}/"
+                                                      f"{_fmt(t.get('onset_accel_p5'))}")
     row("slid mm med/p95", lambda t: f"{_fmt(t['slid_mm_median'])}/{_fmt(t['slid_mm_p95'])}")
     row("slid pitches med/p95", lambda t: f"{_fmt(t['slid_pitches_median'])}/{_fmt(t['slid_pitches_p95'])}")
     row("hold force/least med/p95", lambda t: f"{_fmt(t['ratio_median'], 2)}/{_fmt(t['ratio_p95'], 2)}")

@@ -30,7 +30,7 @@ class GripParams:
     max_n: float = 100.0            # the most (the drive's range; a fragile object's limit)
     raise_fraction: float = 2.0     # a slip raises the command to max(command (1 + raise_fraction), command + raise_n)
     raise_n: float = 0.5
-    settle_s: float = 0.06          # after a raise, slip raises again only after this long (the drive catching up)
+    settle_s: float = 0.06          # after a raise arrived (the drive's force reached it), slip raises again only after this long
     margin: float = 0.2             # the floor a slip teaches: (1 + margin) x the command the slip began under
     relax_delay_s: float = 1.0      # no probing until this long after the grasp or the last slip
     return_delay_s: float = 0.2     # no return toward the floor / target until this long after the last slip

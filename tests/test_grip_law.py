@@ -40,7 +40,8 @@ finding = st.builds(
     slip=st.booleans(),
     degraded=st.booleans(),
     least_hold_n=st.one_of(st.none(), st.floats(0.0, 300.0), st.just(float("nan")), st.just(float("inf"))),
-    dt_s=st.just(DT))
+    dt_s=st.just(DT),
+    actual_n=st.one_of(st.none(), st.floats(0.0, 300.0), st.just(float("nan"))))
 
 
 def run(p: GripParams, seq, state: GripState | None = None):
@@ -75,10 +76,15 @@ def test_safety_rules_hold_on_any_sequence(p, seq):
             # a slip never lowers the command; one whose last raise has settled raises it
             if f.slip:
                 assert cmd.force_n >= min(before.command_n, p.max_n)
-                if before.since_raise_s + f.dt_s >= p.settle_s:
+                if before.raise_pending_n == 0 and before.since_raise_s + f.dt_s >= p.settle_s:
                     want = max(before.command_n * (1 + p.raise_fraction), before.command_n + p.raise_n)
                     assert cmd.force_n >= min(want, p.max_n) - 1e-9
                     assert "slip_raise" in cmd.flags
+                # no raise while the last one is on its way: the drive's force still rising toward it
+                a = f.actual_n
+                if (before.raise_pending_n > 0 and a is not None and math.isfinite(a) and before.actual_n is not None
+                        and before.actual_n < a < 0.95 * before.raise_pending_n):
+                    assert "slip_raise" not in cmd.flags and after.raise_pending_n == before.raise_pending_n
             else:
                 # the fall per cycle is bounded: at most return_per_s of the command per second
                 assert cmd.force_n >= before.command_n * (1 - p.return_per_s * f.dt_s) - 1e-9
@@ -201,6 +207,40 @@ def test_slip_raises_once_per_settle_teaches_the_floor_and_returns_to_it():
         expected = max(9.6, expected * (1 - 3.0 * DT))
         assert f == pytest.approx(expected, rel=1e-12)
     assert forces[-1] == pytest.approx(9.6)
+
+
+def _raises_after(state, actuals):
+    """The cycles (1, 2, ...) after ``state`` whose slipping findings, with the drive's force
+    ``actuals[k - 1]`` (None: not known), raise the command; and the raised commands."""
+    out = []
+    for k, actual in enumerate(actuals, 1):
+        cmd, state = grip_step(P, state, replace(close(slip=True), actual_n=actual))
+        if "slip_raise" in cmd.flags:
+            out.append((k, cmd.force_n))
+    return out
+
+
+def test_a_raise_settles_from_when_the_drive_delivered_it():
+    """With the drive's force known (findings.actual_n), settle_s counts from the cycle the force
+    reached 95 % of the raise (or stopped rising: the drive delivers no more), not from the send: a
+    slip at 8 N raises to 16 N; the drive (5 N a cycle from the next SYNC) shows 13 N, then 16 N
+    (arrived, cycle 2); slipping cycles go on: the next raise is 60 ms after the arrival (cycle 8),
+    where without the drive's force it came 60 ms after the send (cycle 6)."""
+    start = GripState(phase="hold", command_n=8.0, quiet_s=5.0, actual_n=8.0)
+    cmd, state = grip_step(P, start, replace(close(slip=True), actual_n=8.0))
+    assert cmd.force_n == 16.0 and "slip_raise" in cmd.flags and state.raise_pending_n == 16.0
+    assert _raises_after(state, [13.0, 16.0] + [16.0] * 7)[0] == (8, 32.0)
+    # 15.2 N is 95 % of 16 N: arrived at cycle 2 as well
+    assert _raises_after(state, [13.0, 15.2] + [15.2] * 7)[0] == (8, 32.0)
+    # a drive that delivers no more (at its torque limit, 12 N from cycle 1 on): settled from cycle 2,
+    # the first that shows no rise
+    assert _raises_after(state, [12.0] * 9)[0] == (8, 32.0)
+    # still rising toward it (the slope-limited ramp of a large raise): no second raise meanwhile
+    assert _raises_after(state, [8.5 + 0.5 * k for k in range(1, 14)]) == []
+    # without the drive's force: 60 ms after the send, as before
+    cmd, state = grip_step(P, replace(start, actual_n=None), close(slip=True))
+    assert state.raise_pending_n == 0.0
+    assert _raises_after(state, [None] * 9)[0] == (6, 32.0)
 
 
 def test_slip_raise_is_capped_at_max_n():

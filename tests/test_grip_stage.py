@@ -309,3 +309,40 @@ def test_the_task_follows_sync_time_not_the_cycle_count():
     assert r["grip_detail"]["task"] == "close"
     assert stage.task(0.99) == "open" and stage.task(1.0) == "close" and stage.task(1.8 + 1.0 + 4.0) == "close"
     assert stage.task(1.0 + 0.8 + 1.0 + 4.0 + 1.0) == "release"  # approach, close, lift, hold, place: release
+
+
+def _slip_flags(stage, displacements):
+    return [stage.slip_now({"cycle": k, "slip": {"contact": True, "displacement": d}})
+            for k, d in enumerate(displacements)]
+
+
+def test_slip_now_edge_cue_flags_the_contacts_first_edge_before_a_full_pitch():
+    """The sub-pitch edge cue (docs/grip-control.md, "Why these rules"): before the first slip flag
+    of a contact, a displacement beyond EDGE_FRACTION x the noise band for EDGE_CYCLES cycles in a
+    row is slip - the first location at the footprint's edge switching moves the centroid of the
+    2 mm pads by 0.625 mm, less than the band (1 mm, half a pitch), which a full pitch of slide
+    (1.875 mm) crosses only 2 mm later. A one-cycle flicker is no slip; the full pitch flags again."""
+    from fusion_center.service.grip_stage import EDGE_CYCLES, EDGE_FRACTION
+
+    assert EDGE_CYCLES == 2 and 0.4 * 1.0 <= EDGE_FRACTION * 1.0 < 0.625
+    scene = load_scene("grasp_scripted")
+    stage = GripStage(scene, noise_band=1.0, slip_hold=3)
+    # at rest, then the first edge location leaves the footprint (0.625 mm) and stays: flagged the 2nd cycle
+    flags = _slip_flags(stage, [0.0, 0.0, 0.0, 0.625, 0.625, 0.625, 0.625, 0.625, 0.625])
+    assert flags == [False, False, False, False, True, True, True, False, False]
+    # a full pitch later (1.875 mm > the band): a new farthest displacement flags again, for slip_hold cycles
+    more = [stage.slip_now({"cycle": 9 + k, "slip": {"contact": True, "displacement": d}})
+            for k, d in enumerate([0.625, 1.875, 1.875, 1.875, 1.875])]
+    assert more == [False, True, True, True, False]
+    # a flicker of one cycle at a time (the edge location on, off, on ...) is no slip
+    flicker = GripStage(scene, noise_band=1.0)
+    assert not any(_slip_flags(flicker, [0.0, 0.625, 0.0, 0.625, 0.0, 0.625, 0.0]))
+    # a displacement below EDGE_FRACTION x the band, however long, is no slip
+    small = GripStage(scene, noise_band=1.0)
+    assert not any(_slip_flags(small, [0.0] + [0.39] * 20))
+    # losing the contact forgets the run: the edge cue needs EDGE_CYCLES cycles of the new contact
+    lost = GripStage(scene, noise_band=1.0)
+    _slip_flags(lost, [0.0, 0.625])
+    assert lost.slip_now({"cycle": 2, "slip": {"contact": False}}) is False
+    assert [lost.slip_now({"cycle": 3 + k, "slip": {"contact": True, "displacement": d}})
+            for k, d in enumerate([0.625, 0.625])] == [False, True]

@@ -28,9 +28,14 @@ Phases (``GripState.phase``):
      tangential load one pad carries, eqs 24-25 / 28-30; None in decision mode, which cannot see
      it). Below the target the command rises to it at once.
   2. **raise on slip**: a slipping cycle raises the command to
-     ``max(command (1 + raise_fraction), command + raise_n)`` - but only if the last raise is at
-     least ``settle_s`` old (the drive's torque slope and the jaws' force lag need that long to
-     deliver it; raising on every cycle of the detection's tail would compound). The first
+     ``max(command (1 + raise_fraction), command + raise_n)`` - but only once the last raise has
+     **arrived** and is ``settle_s`` old: with the drive's force known (``actual_n``, 0x2101 of
+     this SYNC) the settle counts from the cycle that force reached ``ARRIVED_FRACTION`` (95 %) of
+     the raise or stopped rising (the drive delivers no more: its torque limit), without it from
+     the send. The drive's torque slope delivers a large raise over several cycles and the jaws'
+     force lag and the slide's stop take ``settle_s`` more, while the centre's slip flags trail the
+     slide (the taxels see it a cycle late, the grip stage holds a flag ``slip_hold`` cycles):
+     raising on that tail compounded - 3 x 3 = 9 times the force a slip began under. The first
      slipping cycle of an episode (no slip for ``relax_delay_s`` before it) teaches the floor
      ``(1 + margin) * command``: the command it began under, plus the margin. A new episode is the
      grasp's first slip or one ``return_delay_s`` after the last slipping cycle. In decision mode
@@ -70,6 +75,7 @@ from taxel_net.grip_params import GripParams, check_params  # noqa: F401  (the s
 LAW_PHASES = ("open", "grasp", "hold", "release")
 TASKS = ("open", "close", "release")  # what the task asks of the gripper this cycle
 TIME_EPS_S = 1e-9                      # times summed from dt_s: 6 x 0.01 s is "60 ms" whatever the rounding
+ARRIVED_FRACTION = 0.95                # a raise has arrived when the drive's force reached this share of it
 
 
 @dataclass(frozen=True)
@@ -82,7 +88,9 @@ class GripState:
     present_run: int = 0            # consecutive cycles with the object present
     slipping: bool = False          # the previous cycle slipped
     quiet_s: float = 0.0            # time since the grasp began or the last slipping cycle
-    since_raise_s: float = math.inf  # time since the last raise on slip
+    since_raise_s: float = math.inf  # time since the last raise on slip arrived (sent, without the drive's force)
+    raise_pending_n: float = 0.0     # the last raise's command while the drive's force is on its way to it (0: none)
+    actual_n: float | None = None    # the drive's force of the previous cycle (findings.actual_n)
 
 
 @dataclass(frozen=True)
@@ -95,6 +103,7 @@ class GripFindings:
     degraded: bool = False          # missing, late or degraded taxel data this cycle
     least_hold_n: float | None = None  # raw mode: eq 26a per jaw, T / mu (None: decision mode)
     dt_s: float = 0.01              # the SYNC period
+    actual_n: float | None = None   # the drive's force per jaw at this SYNC (0x2101; None: not known)
 
 
 @dataclass(frozen=True)
@@ -131,6 +140,14 @@ def grip_step(p: GripParams, state: GripState, f: GripFindings) -> tuple[GripCom
     learned = state.learned_n
     quiet = state.quiet_s + dt
     since_raise = state.since_raise_s + dt
+    pending = state.raise_pending_n
+    actual = f.actual_n if f.actual_n is not None and math.isfinite(f.actual_n) else None
+    if pending > 0:
+        if actual is None:
+            pending = 0.0                             # the drive's force not known: settle from the send
+        elif actual >= ARRIVED_FRACTION * pending or (state.actual_n is not None and actual <= state.actual_n):
+            pending = 0.0                             # arrived, or the drive delivers no more: settle from now
+            since_raise = 0.0
     least = f.least_hold_n
     carried = least is not None and math.isfinite(least) and least > 0   # raw mode: the pads carry a load
     target = max(p.min_n, p.safety_factor * least) if carried else p.min_n
@@ -140,9 +157,10 @@ def grip_step(p: GripParams, state: GripState, f: GripFindings) -> tuple[GripCom
             learned = max(learned, (1.0 + p.margin) * before)
             flags.append("slip_onset")
         quiet = 0.0
-        if since_raise >= p.settle_s - TIME_EPS_S:
+        if pending == 0 and since_raise >= p.settle_s - TIME_EPS_S:
             command = max(command * (1.0 + p.raise_fraction), command + p.raise_n)
             since_raise = 0.0
+            pending = min(command, p.max_n) if actual is not None else 0.0
             flags.append("slip_raise")
         command = max(command, target, learned)
     else:
@@ -175,4 +193,5 @@ def grip_step(p: GripParams, state: GripState, f: GripFindings) -> tuple[GripCom
     phase = "hold" if (state.phase == "hold" or (f.present and not f.slip)) else "grasp"
     return (GripCommand(command, tuple(flags)),
             GripState(phase=phase, command_n=command, learned_n=learned, present_run=present_run,
-                      slipping=bool(f.slip), quiet_s=quiet, since_raise_s=since_raise))
+                      slipping=bool(f.slip), quiet_s=quiet, since_raise_s=since_raise, raise_pending_n=pending,
+                      actual_n=actual))

@@ -15,8 +15,12 @@ Per cycle (``docs/service.md``, "The grip stage"; the law: ``docs/grip-control.m
   farthest displacement from the contact's reference - beyond the slip stage's noise band, half a
   taxel pitch - in this cycle or the ``slip_hold`` - 1 before it (default 3, the slip stage's
   ``motion_consecutive``: one-bit decisions see the position only in taxel pitches, so a sliding
-  contact moves the centroid once per pitch, not every cycle), or, in raw mode, ``TotF_t > mu F_g``
-  this cycle, eq 26a); ``degraded`` a cycle with a
+  contact moves the centroid once per pitch, not every cycle); before the contact's first such
+  event also the **edge cue**: a displacement beyond :data:`EDGE_FRACTION` of the band for
+  :data:`EDGE_CYCLES` cycles in a row - the first location at the footprint's edge switching
+  moves the centroid by less than the band, below a pitch of slide (``docs/grip-control.md``); or,
+  in raw mode, ``TotF_t > mu F_g`` this cycle, eq 26a); ``actual_n`` the drive's force (0x2101:
+  when the law's last raise has arrived); ``degraded`` a cycle with a
   taxel missing, silent or late; ``least_hold_n`` in raw mode eq 26a per jaw, ``T / mu`` with T the
   forces stage's tangential load per jaw (sec 7.2: the mean over the jaws) and mu the law's.
 * **task** from the scene's ``[grasp]`` phases and the SYNC time (the record's ``t``) since the
@@ -54,6 +58,8 @@ from .records import jsonable
 
 RECOVER_EVERY_S = 1.0   # at most one fault reset / re-enable attempt per this many seconds
 WALK_CYCLES = 10        # cycles a re-enable walk may take (SWITCH ON DISABLED -> OPERATION ENABLED: 2-4)
+EDGE_FRACTION = 0.4     # slip_now's edge cue: beyond this fraction of the noise band ...
+EDGE_CYCLES = 2         # ... this many cycles in a row (a one-cycle flicker is no slip)
 PROFILE_TORQUE = 4      # 0x6060 / 0x6061
 
 OE = "OPERATION ENABLED"
@@ -123,6 +129,8 @@ class GripStage:
         self.peak: float | None = None       # slip_now: farthest displacement reached in this contact
         self.peak_cycle: int | None = None   # the cycle it was reached
         self.slip_hold = slip_hold
+        self.edge_band = self.band * EDGE_FRACTION  # slip_now's edge cue (sub-pitch), before the first slip flag
+        self.edge_run = 0                           # cycles in a row beyond edge_band
         self.counts = {"drive_faults": 0, "quick_stops": 0, "drive_disabled": 0, "drive_lost": 0,
                        "fault_resets": 0, "enable_walks": 0, "takeovers": 0, "degraded_holds": 0}
 
@@ -132,6 +140,7 @@ class GripStage:
         slip = record.get("slip")
         if not slip or not slip.get("contact"):
             self.peak = self.peak_cycle = None
+            self.edge_run = 0
             return False
         now = False
         displacement = slip.get("displacement")
@@ -142,6 +151,12 @@ class GripStage:
                 self.peak = displacement
             elif self.peak is None:
                 self.peak = self.band
+            if self.peak_cycle is None:
+                # the edge cue: the contact's first edge location switching (sub-pitch) moves the
+                # centroid by less than the band; beyond edge_band for EDGE_CYCLES cycles in a row
+                self.edge_run = self.edge_run + 1 if displacement > self.edge_band + 1e-9 else 0
+                if self.edge_run >= EDGE_CYCLES:
+                    self.peak_cycle = record["cycle"]   # the peak stays at the band: the full pitch flags again
             now = self.peak_cycle is not None and record["cycle"] - self.peak_cycle < self.slip_hold
         ratio = slip.get("force_ratio")
         if self.raw and ratio is not None and ratio > 1.0:
@@ -213,7 +228,7 @@ class GripStage:
             degraded = bool(record.get("degraded") or record.get("late_frames") or record.get("missing_nodes"))
             findings = GripFindings(task=task, present=present, slip=slip, degraded=degraded,
                                     least_hold_n=self.least_hold_n(record) if self.raw else None,
-                                    dt_s=self.period_s)
+                                    dt_s=self.period_s, actual_n=actual)
             out, self.law = grip_step(self.params, self.law, findings)
             command_n = out.force_n
             flags.extend(out.flags)
