@@ -36,14 +36,14 @@ def test_parts_merge_while_a_cycle_is_evaluated_and_none_is_lost_in_a_burst(tmp_
     port = random.randint(40000, 60000)
     service = _service(scene, port, part_deadline_s=3600.0)  # only the parts decide a cycle
     evaluating, release = threading.Event(), threading.Event()
-    evaluate = service.pipeline.evaluate
+    evaluate_command = service.pipeline.evaluate_command  # a cycle's evaluation begins there
 
     def held(closed):
         evaluating.set()
         release.wait(120)  # a safety limit: the test releases it
-        return evaluate(closed)
+        return evaluate_command(closed)
 
-    service.pipeline.evaluate = held
+    service.pipeline.evaluate_command = held
     processes = []
     try:
         service.open()
