@@ -38,6 +38,13 @@ DEFAULT_LISTEN = "tcp/127.0.0.1:7447"  # the publication's session: Zenoh's port
 MODES = ("peer", "client")
 # a sample larger than this is not reassembled by a session of ours (Zenoh's default: 1 GiB)
 MAX_MESSAGE = 16 * 1024 * 1024
+# batches a link may hold for data priority before a DROP put is dropped (Zenoh's default: 2).
+# An express put is a batch of its own, and a cycle puts up to three (record, grip, contact):
+# with two slots the third was dropped whenever Zenoh's transmit thread had not run within
+# ``wait_before_drop`` (1 ms) - on a busy host, one cycle's contact event in a few runs. 16
+# slots hold five cycles' puts; a stalled subscriber still fills them and loses samples, not
+# cycles. Batches are allocated as used (lazy), at most 64 KiB each.
+TX_QUEUE_DATA = 16
 
 _ENDPOINT = re.compile(r"[a-z0-9]+/[^\s#?]+:\d{1,5}([?#].*)?")
 _SEGMENT_BAD = re.compile(r"[^A-Za-z0-9_.-]")
@@ -168,6 +175,8 @@ def resolve(*, config_flag: str | None = None, listen=None, connect=None, mode: 
         _set(config, "connect/endpoints", connect_eps, what)
     if _is_default(config, "transport/link/rx/max_message_size"):
         _set(config, "transport/link/rx/max_message_size", MAX_MESSAGE, what)
+    if _is_default(config, "transport/link/tx/queue/size/data"):
+        _set(config, "transport/link/tx/queue/size/data", TX_QUEUE_DATA, what)
     return config, what
 
 
