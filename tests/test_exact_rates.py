@@ -18,11 +18,13 @@ from fusion_center.core.exact_rates import llr_error_rates, np_kinds_fusion, pre
 mp.mp.dps = 40
 
 
-def brute_preferential(pd, pf, p, q, encoding, low, high):
+def all_vectors(pd, pf, p, q, encoding):
+    """Every decision vector's U_G (eq 10, summed term by term in mpmath) and its probability
+    under H1 (``pd``) and H0 (``pf``): ``[(U_G, P(u | H1), P(u | H0)), ...]``, 2^n of them."""
     n = len(pd)
     absent = -1 if encoding == "pm1" else 0
     P, Q = mp.mpf(2) ** mp.mpf(p), mp.mpf(2) ** mp.mpf(q)
-    out = {"h1": [mp.mpf(0)] * 3, "h0": [mp.mpf(0)] * 3}  # [H1 decided, undecided, H0 decided]
+    vectors = []
     for bits in itertools.product((0, 1), repeat=n):
         u = [1 if b else absent for b in bits]
         padded = [0] + u + [0]
@@ -32,12 +34,24 @@ def brute_preferential(pd, pf, p, q, encoding, low, high):
             fp = P if nxt == 2 else (mp.mpf(1) if nxt == 1 else (mp.mpf(1) if p == 0 else mp.mpf(0)))
             fq = Q if prv == 2 else (mp.mpf(1) if prv == 1 else (mp.mpf(1) if q == 0 else mp.mpf(0)))
             val += u[i - 1] * fp * fq
-        k = 0 if val >= mp.mpf(high) else (2 if val < mp.mpf(low) else 1)
-        for name, probs in (("h1", pd), ("h0", pf)):
+        weights = []
+        for probs in (pd, pf):
             w = mp.mpf(1)
             for b, pi in zip(bits, probs):
                 w *= mp.mpf(pi) if b else 1 - mp.mpf(pi)
-            out[name][k] += w
+            weights.append(w)
+        vectors.append((val, *weights))
+    return vectors
+
+
+def brute_preferential(pd, pf, p, q, encoding, low, high, vectors=None):
+    """P(H1 decided), P(undecided), P(H0 decided) under H1 and H0 by summing over every vector
+    (``vectors``: :func:`all_vectors` of the same arguments, to classify them for more bands)."""
+    out = {"h1": [mp.mpf(0)] * 3, "h0": [mp.mpf(0)] * 3}  # [H1 decided, undecided, H0 decided]
+    for val, w1, w0 in vectors if vectors is not None else all_vectors(pd, pf, p, q, encoding):
+        k = 0 if val >= mp.mpf(high) else (2 if val < mp.mpf(low) else 1)
+        out["h1"][k] += w1
+        out["h0"][k] += w0
     return out
 
 
@@ -52,9 +66,10 @@ def test_preferential_dp_vs_all_vectors(encoding, p, q, n):
     pd = rng.uniform(0.5, 0.99, n)
     pf = rng.uniform(0.001, 0.3, n)
     g = 1.0 if n == 1 else 2.0**p + 2.0**q + (n - 2) * 2.0 ** (p + q)
+    vectors = all_vectors(pd, pf, p, q, encoding)
     for low, high in ((0.2 * g, 0.45 * g), (-0.1 * g, 0.1 * g), (0.6 * g, 0.6 * g + 1e-9)):
         ours = preferential_error_rates(pd, pf, p, q, encoding, low, high)
-        ref = brute_preferential(pd, pf, p, q, encoding, low, high)
+        ref = brute_preferential(pd, pf, p, q, encoding, low, high, vectors)
         got = {"h1": (ours.p_detect, ours.p_undecided_h1, ours.p_miss),
                "h0": (ours.p_false_alarm, ours.p_undecided_h0, ours.p_reject)}
         for hyp in ("h1", "h0"):
@@ -116,9 +131,10 @@ def test_preferential_dp_edge_ties_exact():
     """Integer p, q: U_G lands exactly on the band edges; H1 iff U_G >= high, H0 iff U_G < low."""
     pd, pf = [0.7] * 9, [0.2] * 9
     for encoding in ("pm1", "01"):
+        vectors = all_vectors(pd, pf, 1, 1, encoding)
         for low, high in ((4.0, 12.0), (0.0, 0.0), (-3.0, 8.0)):
             ours = preferential_error_rates(pd, pf, 1, 1, encoding, low, high)
-            ref = brute_preferential(pd, pf, 1, 1, encoding, low, high)
+            ref = brute_preferential(pd, pf, 1, 1, encoding, low, high, vectors)
             assert abs(ours.p_detect - float(ref["h1"][0])) <= 1e-13
             assert abs(ours.p_reject - float(ref["h0"][2])) <= 1e-13
 
