@@ -110,6 +110,7 @@ from .decoder import (
     STATE_OPERATIONAL,
     STATE_PRE_OPERATIONAL,
     STATE_STOPPED,
+    decision_of,
     decode_emcy,
     decode_real32,
 )
@@ -383,27 +384,17 @@ class CycleAssembler:
             if size != 1:
                 return self._bad(C_BAD_DLC)
             value = data[0]
-            if self.tagged:  # object 0x2003: u_i in bits 0-1, SYNC counter mod 64 in bits 2-7
-                code = value & 0b11
-                if code == 0b01:
-                    u = 1
-                elif code == 0b11:
-                    u = -1
-                else:
-                    return self._bad(C_BAD_VALUE)
+            u = decision_of(value, self.tagged)
+            if u is None:
+                return self._bad(C_BAD_VALUE)
+            if self.tagged:
                 # the tag names the SYNC it answers: the open cycle's, or it is late; and an
                 # answer is never stamped before its SYNC - one that is carries the same tag as
                 # a SYNC 64 (or overflow) cycles older, still queued behind a backlog
                 stale = (self.sync_counter is None or (value >> 2) != (self.sync_counter & TAG_MASK)
                          or raw < self.sync_raw)
-            elif value == 1:  # object 0x2000: INTEGER8 +1 / -1
-                u = 1
-                stale = raw < self.sync_raw
-            elif value == 0xFF:
-                u = -1
-                stale = raw < self.sync_raw
             else:
-                return self._bad(C_BAD_VALUE)
+                stale = raw < self.sync_raw
             self.last_heard[idx] = t
             self.state[idx] = STATE_OPERATIONAL
             self.held_decisions[idx] = u

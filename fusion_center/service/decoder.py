@@ -159,6 +159,16 @@ def decode_decision(data: bytes) -> int:
     return value - 256 if value > 127 else value
 
 
+def decision_of(value: int, tagged: bool) -> int | None:
+    """A TPDO1 byte -> u_i (+1 / -1), None where the byte is no decision: object 0x2000's
+    INTEGER8 +1 / -1 (0x01 / 0xFF), or with ``tagged`` object 0x2003's u_i in bits 0-1 (0b01 / 0b11;
+    the SYNC counter mod 64 in bits 2-7, for the caller)."""
+    if tagged:
+        code = value & 0b11
+        return 1 if code == 0b01 else -1 if code == 0b11 else None
+    return 1 if value == 1 else -1 if value == 0xFF else None
+
+
 def decode_real32(data: bytes) -> float:
     """TPDO2 payload (REAL32 little endian, CiA 301 data type 0x0008) -> float mV."""
     return _REAL32.unpack_from(data)[0]

@@ -30,7 +30,7 @@ import sys
 from typing import Sequence
 
 from .cycle_records import C_LATE, C_TPDO1, C_TPDO2, TAG_MASK
-from .decoder import K_TPDO1, K_TPDO2, STATE_OPERATIONAL
+from .decoder import K_TPDO1, K_TPDO2, STATE_OPERATIONAL, decision_of
 
 __all__ = ["NodeFrames"]
 
@@ -117,19 +117,8 @@ class NodeFrames:
                     if len(data) != 1:
                         break
                     value = data[0]
-                    if tagged:  # object 0x2003: u_i in bits 0-1, the SYNC counter mod 64 in bits 2-7
-                        code = value & 0b11
-                        if code == 0b01:
-                            u = 1
-                        elif code == 0b11:
-                            u = -1
-                        else:
-                            break  # bad_value
-                    elif value == 1:
-                        u = 1
-                    elif value == 0xFF:
-                        u = -1
-                    else:
+                    u = decision_of(value, tagged)
+                    if u is None:
                         break  # bad_value
                 else:
                     if len(data) != 4:
