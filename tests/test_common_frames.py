@@ -101,14 +101,15 @@ def sync_ahead(rng, events):
     return out
 
 
-def turns(rng, events):
+def turns(rng, events, odd_every: int = 50, longest: int = 15):
     """The events as receive turns ``(channel, [(t, cob, data, flags, odd)])``: runs of one
-    channel cut at random lengths; ``odd`` marks every 50th frame: its time stamp one that
-    quantise_timestamp maps to 0 (NaN, None), or its data one that makes the receive path raise."""
+    channel cut at random lengths (up to ``longest``); ``odd`` marks every ``odd_every``-th
+    frame: its time stamp one that quantise_timestamp maps to 0 (NaN, None), or its data one that
+    makes the receive path raise."""
     out = []
     for k, (t, ch, cob, data, flags) in enumerate(events):
-        odd = ("nan", "none", "no data")[k // 50 % 3] if k % 50 == 49 else None
-        if out and out[-1][0] == ch and len(out[-1][1]) < int(rng.integers(1, 16)):
+        odd = ("nan", "none", "no data")[k // odd_every % 3] if k % odd_every == odd_every - 1 else None
+        if out and out[-1][0] == ch and len(out[-1][1]) < int(rng.integers(1, longest + 1)):
             out[-1][1].append((t, cob, data, flags, odd))
         else:
             out.append((ch, [(t, cob, data, flags, odd)]))

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from test_common_frames import feed, message  # noqa: E402
+from test_common_frames import feed, message, turns  # noqa: E402
 
 from fusion_center.service.cycles import FLAG_ERROR, FLAG_EXTENDED, FLAG_REMOTE, CycleAssembler  # noqa: E402
 from fusion_center.service.node_frames import NodeFrames  # noqa: E402
@@ -105,20 +105,6 @@ def random_stream(scene, rng, cycles):
     return [(int(e[0]), int(e[1]), int(e[2]), bytes(e[3]), int(e[4])) for e in events]
 
 
-def turns(rng, events):
-    """The events as receive turns ``(channel, [(t, cob, data, flags, odd)])`` (as
-    test_common_frames.turns, which marks every 50th frame odd: here every 300th - its time stamp
-    NaN or None, or its data None - so that a cycle of 50-odd answers can still complete)."""
-    out = []
-    for k, (t, ch, cob, data, flags) in enumerate(events):
-        odd = ("nan", "none", "no data")[k // 300 % 3] if k % 300 == 299 else None
-        if out and out[-1][0] == ch and len(out[-1][1]) < int(rng.integers(1, 40)):
-            out[-1][1].append((t, cob, data, flags, odd))
-        else:
-            out.append((ch, [(t, cob, data, flags, odd)]))
-    return out
-
-
 def assert_same_closed(got, want):
     assert len(got) == len(want)
     for g, w in zip(got, want):
@@ -145,7 +131,8 @@ def assert_same_state(got: CycleAssembler, want: CycleAssembler):
 def test_a_turn_fed_in_one_loop_equals_its_frames_fed_one_by_one(name, seed, window_us):
     scene = one_taxel_scene(name, window_us)
     rng = np.random.default_rng(seed)
-    turn_list = turns(rng, random_stream(scene, rng, 40))
+    # every 300th frame odd (a cycle of 50-odd answers can still complete), runs up to 39 frames
+    turn_list = turns(rng, random_stream(scene, rng, 40), odd_every=300, longest=39)
     fails = frozenset({7, 19})
     stream, closed, answers, fed_common = feed(scene, turn_list, common=True, closing_fails=fails)
     reference, want, want_answers, _ = feed(scene, turn_list, common=False, closing_fails=fails)
