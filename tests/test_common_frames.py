@@ -18,8 +18,9 @@ from test_cycles_patch import frames, patch_scene  # noqa: E402
 from test_packed_decisions import assert_same_closed, random_stream  # noqa: E402
 
 from taxel_net.patches import devices  # noqa: E402
-from fusion_center.service.cycles import (  # noqa: E402
-    C_LATE, FLAG_ERROR, FLAG_EXTENDED, FLAG_FD, FLAG_REMOTE, CycleAssembler)
+from fusion_center.service.cycle_records import (  # noqa: E402
+    C_LATE, FLAG_ERROR, FLAG_EXTENDED, FLAG_FD, FLAG_REMOTE)
+from fusion_center.service.cycles import CycleAssembler  # noqa: E402
 from fusion_center.service.stream import EventStream  # noqa: E402
 
 MS = 1000  # µs

@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 from taxel_net.scene import BusSpec, FusionSpec, Scene, TaxelSpec
-from fusion_center.service.cycles import COUNTER_NAMES, FLAG_ERROR, FLAG_EXTENDED, FLAG_REMOTE, CycleAssembler
+from fusion_center.service.cycle_records import COUNTER_NAMES, FLAG_ERROR, FLAG_EXTENDED, FLAG_REMOTE
+from fusion_center.service.cycles import CycleAssembler
 
 MS = 1000  # µs
 

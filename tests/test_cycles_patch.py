@@ -8,7 +8,8 @@ import pytest
 
 from taxel_net.patches import devices, pack
 from taxel_net.scene import BusSpec, FusionSpec, Scene, TaxelSpec
-from fusion_center.service.cycles import FLAG_FD, CycleAssembler
+from fusion_center.service.cycle_records import FLAG_FD
+from fusion_center.service.cycles import CycleAssembler
 from fusion_center.service.pipeline import CyclePipeline
 
 MS = 1000  # µs
@@ -272,7 +273,8 @@ def test_non_contiguous_patch_taxels():
 def test_the_assemblers_slot_decoder_is_patches_unpack(mode, raw_format, fd, sync_counter):
     """The assembler's precomputed decoder gives what taxel_net.patches.unpack gives, refusals included."""
     from taxel_net.patches import PatchFrameError, unpack
-    from fusion_center.service.cycles import C_BAD_DLC, C_BAD_VALUE, SlotDecoder
+    from fusion_center.service.cycle_records import C_BAD_DLC, C_BAD_VALUE
+    from fusion_center.service.decoder import SlotDecoder
 
     rng = np.random.default_rng(14)
     sc = patch_scene(sizes=(3, 70, 13), mode=mode, raw_format=raw_format, fd=fd, sync_counter=sync_counter, lsb=0.25)

@@ -17,7 +17,8 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from test_common_frames import feed, message, turns  # noqa: E402
 
-from fusion_center.service.cycles import FLAG_ERROR, FLAG_EXTENDED, FLAG_REMOTE, CycleAssembler  # noqa: E402
+from fusion_center.service.cycle_records import FLAG_ERROR, FLAG_EXTENDED, FLAG_REMOTE  # noqa: E402
+from fusion_center.service.cycles import CycleAssembler  # noqa: E402
 from fusion_center.service.node_frames import NodeFrames  # noqa: E402
 from fusion_center.service.stream import EventStream  # noqa: E402
 from taxel_net.scene import load_scene  # noqa: E402

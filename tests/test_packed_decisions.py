@@ -12,7 +12,8 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from test_cycles_patch import boot, frames, patch_scene  # noqa: E402
 
-from fusion_center.service.cycles import FLAG_FD, CycleAssembler  # noqa: E402
+from fusion_center.service.cycle_records import FLAG_FD  # noqa: E402
+from fusion_center.service.cycles import CycleAssembler  # noqa: E402
 from fusion_center.service.packed_decisions import PackedDecisions  # noqa: E402
 
 MS = 1000  # µs

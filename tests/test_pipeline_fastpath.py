@@ -13,7 +13,7 @@ from fusion_center.core import baselines, contact, curves, rules, thresholds
 from taxel_net.errors import ParameterError
 from taxel_net.scene import BusSpec, FusionSpec, Scene, TaxelSpec, load_scene
 from fusion_center.service import decision_fusion
-from fusion_center.service.cycles import ClosedCycle
+from fusion_center.service.cycle_records import ClosedCycle
 from fusion_center.service.pipeline import CyclePipeline
 
 ALL_RULES = ("additive", "multiplicative", "preferential", "k-of-n", "llr", "np")

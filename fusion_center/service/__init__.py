@@ -3,7 +3,8 @@
 One module per job:
 
 * :mod:`.decoder` - COB-ID tables, payload decoding (the hot path);
-* :mod:`.cycles` - the deterministic SYNC-cycle assembler and its contract;
+* :mod:`.cycles` - the deterministic SYNC-cycle assembler and its contract, :mod:`.cycle_frames`
+  its frame decoding, :mod:`.cycle_records` what it reports;
 * :mod:`.stream` - the serialised event stream (time stamps, trace queue, assembler) and its
   python-can listener;
 * :mod:`.pipeline` - closed cycle -> record, composing:
@@ -27,7 +28,8 @@ One module per job:
 """
 
 from .fusion_service import FusionService, RunSummary
-from .cycles import COUNTER_NAMES, ClosedCycle, CycleAssembler, quantise_timestamp
+from .cycle_records import COUNTER_NAMES, ClosedCycle, quantise_timestamp
+from .cycles import CycleAssembler
 from .pipeline import CyclePipeline
 from .records import RecordWriter, read_records
 from .stream import EventStream

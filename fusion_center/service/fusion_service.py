@@ -38,7 +38,8 @@ from taxel_net.receiver import notifiers_for
 from taxel_net.resources import eds_path, patch_eds_path
 from taxel_net.scene import Scene
 from .aggregates import LatencyHistogram, RunAggregates
-from .cycles import MALFORMED, ClosedCycle, CycleAssembler
+from .cycle_records import MALFORMED, ClosedCycle
+from .cycles import CycleAssembler
 from .pipeline import CyclePipeline
 from .records import RecordWriter
 from .stream import EchoFilter, EventStream, RateLimitedLog, _StreamListener

@@ -63,7 +63,7 @@ from taxel_net import patches
 from taxel_net.scene import TAXEL_KINDS, Scene
 import numpy as np
 
-from .cycles import C_BOOTUP
+from .cycle_records import C_BOOTUP
 from .stream import RateLimitedLog
 from .decoder import (
     STATE_OPERATIONAL,

@@ -40,7 +40,7 @@ from taxel_net.patches import node_label
 from taxel_net.scene import Scene
 from ..stages import plan_stages
 from .centralised_tests import CentralisedTests
-from .cycles import STATE_RESETTING, ClosedCycle
+from .cycle_records import STATE_RESETTING, ClosedCycle
 from .decoder import STATE_NAMES as _DECODER_STATE_NAMES
 from .decision_fusion import DecisionFusion
 from .physical import PhysicalEvaluation

@@ -41,15 +41,15 @@ from .common_frames import CommonFrames
 from .node_frames import NodeFrames
 from .trace_writers import flush_to_os
 from .decoder import COB_SYNC
-from .cycles import (
+from .cycle_records import (
     FLAG_ERROR,
     FLAG_EXTENDED,
     FLAG_FD,
     FLAG_REMOTE,
     ClosedCycle,
-    CycleAssembler,
     quantise_timestamp,
 )
+from .cycles import CycleAssembler
 
 if TYPE_CHECKING:
     from .fusion_service import FusionService

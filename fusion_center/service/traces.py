@@ -19,7 +19,8 @@ from can.io.player import MESSAGE_READERS as _READERS  # ... and reads back
 from taxel_net.errors import UsageError, one_line
 from taxel_net.outputs import OutputPath
 from taxel_net.scene import Scene
-from .cycles import ClosedCycle, CycleAssembler
+from .cycle_records import ClosedCycle
+from .cycles import CycleAssembler
 from .pipeline import CyclePipeline
 from .records import RecordWriter
 from .stream import EventStream
