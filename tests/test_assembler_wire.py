@@ -318,6 +318,29 @@ def test_hello_and_answers_are_checked(tmp_path):
         decode_answer(msgpack.packb({"v": 3, "kind": "welcome", "group": "0"}))
 
 
+def test_an_answer_of_another_version_is_unpacked_once(monkeypatch):
+    """decode_answer reads a ``refused`` of another version from the map the check read, not by
+    unpacking the bytes a second time."""
+    from fusion_center.service import assembler_wire
+
+    calls = []
+    real = assembler_wire.msgpack.unpackb
+
+    def counting(*args, **kwargs):
+        calls.append(args[0])
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(assembler_wire.msgpack, "unpackb", counting)
+    data = msgpack.packb({"v": 3, "kind": "refused", "why": "too old"})
+    assert assembler_wire.decode_answer(data) == {"kind": "refused", "why": "too old"}
+    assert calls == [data]
+    calls.clear()
+    other = msgpack.packb({"v": 3, "kind": "welcome", "group": "0"})
+    with pytest.raises(assembler_wire.OtherVersion):
+        assembler_wire.decode_answer(other)
+    assert calls == [other]
+
+
 # ---------------------------------------------------------------------------- the fuser
 
 def _service(scene, port, **kwargs):

@@ -113,11 +113,13 @@ class BadMessage(Exception):
 
 
 class OtherVersion(BadMessage):
-    """A msgpack map of another protocol version (its peer is answered ``refused``)."""
+    """A msgpack map of another protocol version (its peer is answered ``refused``); ``message``:
+    the map as read (a ``refused`` of any version is read from it: :func:`decode_answer`)."""
 
-    def __init__(self, version):
+    def __init__(self, version, message: dict | None = None):
         super().__init__(f"protocol version {version!r}: this side speaks {PROTOCOL}")
         self.version = version
+        self.message = message
 
 
 # ---------------------------------------------------------------------------- maps
@@ -138,7 +140,7 @@ def _unpack(data: bytes, kinds: dict) -> dict:
     if type(version) is not int:
         raise BadMessage(f"no int protocol version 'v' (got {type(version).__name__})")
     if version != PROTOCOL:
-        raise OtherVersion(version)
+        raise OtherVersion(version, m)
     kind = m.get("kind")
     if kind not in kinds:
         raise BadMessage(f"kind {str(kind)[:40]!r}: expected {' / '.join(kinds)}")
@@ -219,8 +221,8 @@ def decode_answer(data: bytes, kinds: Sequence[str] = ("welcome", "refused", "by
     """A fuser's message (``kind`` and its field), checked; a ``refused`` of any version is read."""
     try:
         m = _unpack(data, {k: ANSWER_KEYS[k] for k in kinds})
-    except OtherVersion:
-        m = msgpack.unpackb(data, raw=False, strict_map_key=True, timestamp=0)
+    except OtherVersion as exc:
+        m = exc.message  # the map _unpack read: the bytes are unpacked once
         if "refused" in kinds and m.get("kind") == "refused" and type(m.get("why")) is str:
             return {"kind": "refused", "why": m["why"][:WHY_MAX]}
         raise
