@@ -34,14 +34,15 @@ def is_num(v) -> bool:
     return (isinstance(v, (int, float))) and not isinstance(v, bool)
 
 
-def table(w: Where, key: str, value, allowed: tuple[str, ...]) -> dict:
-    """A sub-table: must be a dict whose keys are all in ``allowed``."""
+def table(w: Where, key: str, value, allowed: tuple[str, ...], of: str = "") -> dict:
+    """A sub-table: must be a dict whose keys are all in ``allowed`` (``of``: whose keys these
+    are, when the table's kind decides them, e.g. "a 'hold' phase")."""
     if not isinstance(value, dict):
         w.fail(key, value, "must be a table")
     sub = Where(w.path, w.name(key) if key else w.prefix)
     for k in value:
         if k not in allowed:
-            sub.fail(k, value[k], f"unknown key (allowed: {', '.join(allowed)})")
+            sub.fail(k, value[k], f"unknown key{' for ' + of if of else ''} (allowed: {', '.join(allowed)})")
     return value
 
 
@@ -77,10 +78,10 @@ def boolean(w: Where, key: str, v) -> bool:
 
 
 def string(w: Where, key: str, v, choices: tuple[str, ...] | None = None) -> str:
+    if choices is not None and (not isinstance(v, str) or v not in choices):
+        w.fail(key, v, f"must be one of {', '.join(choices)}")  # a non-string too: what it may be
     if not isinstance(v, str):
         w.fail(key, v, "must be a string")
-    if choices is not None and v not in choices:
-        w.fail(key, v, f"must be one of {', '.join(choices)}")
     return v
 
 

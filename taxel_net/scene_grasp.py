@@ -20,7 +20,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, replace
 
-from taxel_net.errors import ParameterError, SceneError
+from taxel_net.errors import ParameterError
+from taxel_net.scene_fields import Where, integer, number, string, table
 
 # the task's phases, in the only order a task may list them (each at most once)
 PHASES = ("approach", "close", "lift", "hold", "place", "release")
@@ -209,72 +210,46 @@ def check_grasp(spec: GraspSpec) -> GraspSpec:
 
 # ---------------------------------------------------------------------------- the scene table
 
-def _is_num(v) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool)
-
-
 def load_grasp(path: str, raw) -> GraspSpec:
     """``[grasp]`` of the scene file ``path`` (its parsed TOML table ``raw``) -> GraspSpec.
 
-    Every bad value raises :class:`SceneError` (file, ``grasp.<field>``, value, what is allowed)."""
-
-    def fail(key, value, problem):
-        raise SceneError(path, f"grasp.{key}", value, problem)
-
-    if not isinstance(raw, dict):
-        raise SceneError(path, "grasp", raw, "must be a table")
-    for k in raw:
-        if k not in _GRASP_KEYS:
-            fail(k, raw[k], f"unknown key (allowed: {', '.join(_GRASP_KEYS)})")
+    Every bad value raises :class:`SceneError` (file, ``grasp.<field>``, value, what is allowed):
+    the types here (:mod:`taxel_net.scene_fields`, as every table of a scene), the rest in
+    :func:`check_grasp`."""
+    g = table(Where(path), "grasp", raw, _GRASP_KEYS)
+    w = Where(path, "grasp")
     for req in ("mass_kg", "mu_s", "mu_k", "size_mm"):
-        if req not in raw:
-            fail(req, None, "missing required field")
-    vals: dict = {}
-    for k in _GRASP_KEYS:
-        if k == "phase" or k not in raw:
-            continue
-        if not _is_num(raw[k]):
-            fail(k, raw[k], "must be a number")
-        vals[k] = float(raw[k])
-    phases_raw = raw.get("phase")
+        if req not in g:
+            w.fail(req, None, "missing required field")
+    vals = {k: number(w, k, g[k]) for k in _GRASP_KEYS if k != "phase" and k in g}
+    phases_raw = g.get("phase")
     if phases_raw is None:
-        fail("phase", None, "missing: the task's [[grasp.phase]] entries (approach, close, ...)")
+        w.fail("phase", None, "missing: the task's [[grasp.phase]] entries (approach, close, ...)")
     if not isinstance(phases_raw, list):
-        fail("phase", phases_raw, "must be an array of tables ([[grasp.phase]])")
-    phases = []
-    for i, pr in enumerate(phases_raw):
-        f = f"phase[{i}]"
-        if not isinstance(pr, dict):
-            fail(f, pr, "must be a table")
-        name = pr.get("name")
-        if name is None:
-            fail(f"{f}.name", None, "missing required field")
-        if not isinstance(name, str) or name not in PHASES:
-            fail(f"{f}.name", name, f"must be one of {', '.join(PHASES)}")
-        allowed = _PHASE_KEYS[name]
-        for k in pr:
-            if k not in allowed:
-                fail(f"{f}.{k}", pr[k], f"unknown key for a {name!r} phase (allowed: {', '.join(allowed)})")
-        if "duration_s" not in pr:
-            fail(f"{f}.duration_s", None, "missing required field")
-        pv: dict = {"name": name}
-        for k, v in pr.items():
-            if k == "name":
-                continue
-            if k == "shake_cycles":
-                if not isinstance(v, int) or isinstance(v, bool):
-                    fail(f"{f}.{k}", v, "must be an integer")
-                pv[k] = v
-            elif not _is_num(v):
-                fail(f"{f}.{k}", v, "must be a number")
-            else:
-                pv[k] = float(v)
-        phases.append(PhaseSpec(**pv))
-    spec = GraspSpec(phases=tuple(phases), **vals)
+        w.fail("phase", phases_raw, "must be an array of tables ([[grasp.phase]])")
+    spec = GraspSpec(phases=tuple(_load_phase(w, f"phase[{i}]", pr) for i, pr in enumerate(phases_raw)), **vals)
     try:
         return check_grasp(spec)
     except ParameterError as exc:
-        raise SceneError(path, f"grasp.{exc.name}", exc.value, exc.allowed) from None
+        bad = exc.name, exc.value, exc.allowed
+    w.fail(*bad)  # outside the except: the one-line SceneError chains no ParameterError
+
+
+def _load_phase(w: Where, key: str, raw) -> PhaseSpec:
+    """One ``[[grasp.phase]]`` entry, ``grasp.phase[i]`` in messages: its name first (the keys
+    a phase allows depend on it), then its numbers."""
+    if not isinstance(raw, dict):
+        w.fail(key, raw, "must be a table")
+    pw = Where(w.path, w.name(key))
+    if "name" not in raw:
+        pw.fail("name", None, "missing required field")
+    name = string(pw, "name", raw["name"], PHASES)
+    table(w, key, raw, _PHASE_KEYS[name], of=f"a {name!r} phase")
+    if "duration_s" not in raw:
+        pw.fail("duration_s", None, "missing required field")
+    values = {k: integer(pw, k, v) if k == "shake_cycles" else number(pw, k, v)
+              for k, v in raw.items() if k != "name"}
+    return PhaseSpec(name=name, **values)
 
 
 __all__ = ["PHASES", "APPROACH_MIN_S", "STANDARD_GRAVITY", "PhaseSpec", "GraspSpec", "check_grasp",

@@ -226,6 +226,19 @@ def test_each_error_names_file_field_value(tmp_path, edit, field, value):
     assert err.problem
 
 
+@pytest.mark.parametrize("old, new, field", [
+    ('kind = "C"', 'kind = 5', "taxels[2].kind"),
+    ('model = "small"', 'model = true', "object.model"),
+])
+def test_a_choice_of_the_wrong_type_says_what_it_may_be(tmp_path, old, new, field):
+    """A field that takes one of a few names, given a number: the message lists the names (it
+    said only "must be a string")."""
+    path = write(tmp_path, BASE.replace(old, new, 1))
+    with pytest.raises(SceneError) as e:
+        load_scene(path)
+    assert e.value.field == field and e.value.problem.startswith("must be one of ")
+
+
 def test_fault_errors(tmp_path):
     for body, field in [
         ('node_id = 9\nfault = "stuck"\nfrom_cycle = 0', "faults[0].node_id"),       # no such taxel

@@ -118,6 +118,12 @@ BAD = [
     (None, phases_with(3, "shake_cycles", "2.5"), "grasp.phase[3].shake_cycles", "must be an integer"),
     (None, phases_with(3, "load_at_s", "3.0"), "grasp.phase[3].load_at_s", "must lie in the phase"),
     (None, phases_with(2, "accel_m_s2", "0"), "grasp.phase[2].accel_m_s2", "> 0"),
+    (None, phases_with(1, "name", "5"), "grasp.phase[1].name", "must be one of approach, close"),
+    (None, phases_with(1, "name", None), "grasp.phase[1].name", "missing required field"),
+    (None, phases_with(1, "duration_s", None), "grasp.phase[1].duration_s", "missing required field"),
+    (None, phases_with(3, "shake_cycles", "true"), "grasp.phase[3].shake_cycles", "must be an integer"),
+    (with_("mass_kg", "inf"), None, "grasp.mass_kg", "finite"),
+    (None, phases_with(2, "height_mm", "nan"), "grasp.phase[2].height_mm", "finite"),
 ]
 
 
@@ -127,6 +133,20 @@ def test_bad_values_name_the_field(tmp_path, grasp, phases, field, words):
     with pytest.raises(SceneError) as exc:
         load_scene(path)
     assert exc.value.field == field and words in exc.value.problem
+    assert "\n" not in str(exc.value) and str(path) in str(exc.value)
+
+
+@pytest.mark.parametrize("key", ["shake_hz", "shake_at_s"])
+@pytest.mark.parametrize("value", ["nan", "inf"])
+def test_a_number_a_hold_without_shaking_ignores_must_still_be_finite(tmp_path, key, value):
+    """shake_hz / shake_at_s count only with shake_m_s2 > 0; a nan or inf there was loaded without a
+    word (every other number of a scene must be finite)."""
+    ph = phases_with(3, "shake_m_s2", "0.0")
+    ph[3][key] = value
+    path = write(tmp_path, None, ph)
+    with pytest.raises(SceneError) as exc:
+        load_scene(path)
+    assert exc.value.field == f"grasp.phase[3].{key}" and exc.value.problem == "must be finite"
     assert "\n" not in str(exc.value) and str(path) in str(exc.value)
 
 
