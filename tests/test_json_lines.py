@@ -97,3 +97,48 @@ def test_a_file_that_cannot_be_read(tmp_path):
     assert text.endswith(": cannot be read: No such file or directory")
     _, text = error_of(str(tmp_path))
     assert ": cannot be read: " in text
+
+
+# ---------------------------------------------------------------------------- fc.read_records on it
+
+def test_read_records_reads_what_the_writer_wrote(tmp_path):
+    from fusion_center import read_records
+    from fusion_center.service.records import RecordWriter
+
+    records = [{"cycle": 0, "decision": "H0", "t": 0.25, "area": None}, {"cycle": 1, "decision": "H1", "x": [1, 2]}]
+    path = tmp_path / "log.jsonl"
+    with RecordWriter(path) as writer:
+        for record in records:
+            writer.write(record)
+    with open(path, "a", encoding="utf-8") as f:
+        f.write("\n  \n")  # blank lines are no records
+    assert read_records(path) == records
+
+
+@pytest.mark.parametrize("content, words", [
+    ('{"cycle": 0}\n{"cycle": 1,, "t": 0}\n', ", line 2: not JSON (Expecting property name"),
+    ('{"cycle": 0}\n[1, 2]\n', ", line 2: not a JSON object"),
+    ('{"cycle": 0}\n3\n', ", line 2: not a JSON object"),
+    ('{"cycle": 0}\n{"cycle": 1, "t"', ", line 2: not JSON"),
+    (b'{"cycle": 0}\n{"s": "caf\xe9"}\n', "(byte 0xE9 in line 2, column 11)"),
+])
+def test_read_records_bad_input_is_one_line_value_error_naming_file_and_line(tmp_path, content, words):
+    """fc.read_records raises ValueError on a bad log (its contract), now one line naming the file
+    and the line; a line that is a JSON value but no object was returned as a record before."""
+    from fusion_center import read_records
+
+    path = write(tmp_path, content)
+    with pytest.raises(ValueError) as err:
+        read_records(path)
+    text = str(err.value)
+    assert not isinstance(err.value, UsageError)
+    assert "\n" not in text and repr(path) in text and words in text, text
+
+
+def test_read_records_of_a_file_that_cannot_be_read_raises_the_os_error(tmp_path):
+    from fusion_center import read_records
+
+    with pytest.raises(FileNotFoundError):
+        read_records(tmp_path / "nope.jsonl")
+    with pytest.raises(IsADirectoryError):
+        read_records(tmp_path)

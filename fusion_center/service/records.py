@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from taxel_net.errors import UsageError
+from taxel_net.json_lines import iter_log
 
 
 def jsonable(value):
@@ -81,6 +82,13 @@ class RecordWriter:
 
 
 def read_records(path) -> list[dict]:
-    """Parse a decision log (every line must be one JSON object)."""
-    with open(path, encoding="utf-8") as f:
-        return [json.loads(line) for line in f if line.strip()]
+    """Parse a decision log: every non-blank line one JSON object (``taxel_net.json_lines.iter_log``,
+    the one reader of such files). A line that is not one (not UTF-8, not JSON, cut short, not an
+    object) raises ValueError, one line naming the file, the line and what is wrong; a file that
+    cannot be opened or read raises the OSError that ``open`` or the read raised."""
+    try:
+        return [record for _, record in iter_log(path)]
+    except UsageError as exc:  # iter_log's error (exit 2 in the CLIs): a ValueError in this API
+        if isinstance(exc.__context__, OSError):  # raised while handling it (from None)
+            raise exc.__context__ from None
+        raise ValueError(str(exc)) from None
