@@ -7,7 +7,9 @@ wait, so no process outlives its test, also when the test fails or node-sim neve
     assert sim.returncode == 0, sim.stderr.read()
 
 A test that must listen before node-sim's boot-ups uses ``node_sim(..., ready=False)`` and calls
-``wait_ready(sim)`` itself. Loopback only: :func:`udp_loopback` gives hop limit 0.
+``wait_ready(sim)`` itself; another program's ready line (``fusion-center assemble``) is waited for
+with ``wait_ready(proc, name=...)``, any other line with :func:`wait_line`. Loopback only:
+:func:`udp_loopback` gives hop limit 0.
 """
 
 from __future__ import annotations
@@ -46,19 +48,45 @@ def start_node_sim(*args: str) -> subprocess.Popen:
                             text=True)
 
 
-def wait_ready(proc: subprocess.Popen, timeout: float = READY_S) -> str:
+def read_lines(stream, needle: str, timeout: float, limit: int = 200) -> list[str]:
+    """Lines of ``stream`` (a text pipe) up to the first holding ``needle``, its end (``""`` last)
+    or ``limit`` lines, read within ``timeout`` s; after ``timeout`` s, those read so far (the
+    reading thread is left waiting on the pipe: stop its process)."""
+    lines: list[str] = []
+    done = threading.Event()
+
+    def read() -> None:
+        for _ in range(limit):
+            line = stream.readline()
+            lines.append(line)
+            if not line or needle in line:
+                break
+        done.set()
+
+    threading.Thread(target=read, daemon=True).start()
+    done.wait(timeout)
+    return list(lines)
+
+
+def wait_line(proc: subprocess.Popen, stream, needle: str, timeout: float, what: str, limit: int = 200) -> list[str]:
+    """The lines of ``stream`` (``proc.stdout`` or ``proc.stderr``) up to one holding ``needle``
+    (at most ``limit`` lines), within ``timeout`` s; otherwise ``proc`` is stopped and the
+    AssertionError says ``what`` went wrong and holds what the process printed on both pipes."""
+    lines = read_lines(stream, needle, timeout, limit)
+    if not lines or needle not in lines[-1]:
+        stop(proc)
+        other = proc.stderr if stream is proc.stdout else proc.stdout
+        raise AssertionError(f"{what} within {timeout:.0f} s (exit code {proc.returncode}): "
+                             f"read {lines}, "
+                             f"the other pipe {other.read() if other is not None else ''!r}")
+    return lines
+
+
+def wait_ready(proc: subprocess.Popen, timeout: float = READY_S, name: str = "node-sim") -> str:
     """The process's first line on stdout, which must say "ready", within ``timeout`` s. If it does
     not come (or says something else) the process is stopped and the AssertionError holds what it
-    printed on stdout and stderr."""
-    out: list[str] = []
-    reader = threading.Thread(target=lambda: out.append(proc.stdout.readline()), daemon=True)
-    reader.start()
-    reader.join(timeout)
-    if not out or "ready" not in out[0]:
-        stop(proc)
-        raise AssertionError(f"node-sim did not start within {timeout:.0f} s (exit code {proc.returncode}): "
-                             f"stdout {out[:1]}, stderr {proc.stderr.read()!r}")
-    return out[0]
+    printed on stdout and stderr (``name``: the program, in the message)."""
+    return wait_line(proc, proc.stdout, "ready", timeout, f"{name} did not start", limit=1)[0]
 
 
 def stop(proc: subprocess.Popen, timeout: float = STOP_S) -> int:

@@ -28,8 +28,11 @@ from taxel_net.scene import load_scene
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "tests"))
 from test_node_shards import _scene_file  # noqa: E402 - the two-channel patch scene (2 x 40 taxels)
+from process_helpers import wait_line, wait_ready  # noqa: E402 - bounded waits for a process's lines
 
 GROUPS = ["239.74.163.21", "239.74.163.22"]
+ASSEMBLE = "fusion-center assemble"  # the program whose ready line the tests wait for (a bounded wait)
+RECONNECT_S = 120.0  # an assembler's reconnect after its fuser broke the link: seconds on a loaded host
 
 
 def _parts(scene, k, counter, *, decisions=(1, -1)):
@@ -203,23 +206,15 @@ def test_two_assembler_processes_and_a_fuser_on_udp_multicast(tmp_path):
                  "--fuser", f"127.0.0.1:{fuser_port}"],
                 cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True))
         for proc, group in zip(procs, GROUPS):
-            line = proc.stdout.readline()
-            assert "ready" in line and group in line and "40 taxels" in line, (
-                line, proc.stderr.read() if proc.poll() is not None else "")
+            line = wait_ready(proc, name=ASSEMBLE)
+            assert group in line and "40 taxels" in line, line
         service.boot(5.0)
         assert not service.summary().missing_at_boot
         service.run(60)
     finally:
         service.close()
         rig.stop()
-    outs = []
-    for proc in procs:  # the fuser's close says bye: the assemblers end by themselves
-        try:
-            out, err = proc.communicate(timeout=10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            out, err = proc.communicate()
-        outs.append((proc.returncode, out, err))
+        outs = [_finish(proc, timeout=10) for proc in procs]  # the fuser's bye ends them (else killed)
     elapsed = time.monotonic() - t0
     records = service.records
     figures = check_records(scene, records)
@@ -389,17 +384,6 @@ class StandInFuser:
         self.session.close()
 
 
-def _wait_for_line(stream, needle: str, limit: int = 200) -> list[str]:
-    """Lines of ``stream`` up to one holding ``needle`` (or its end)."""
-    lines = []
-    for _ in range(limit):
-        line = stream.readline()
-        lines.append(line)
-        if not line or needle in line:
-            break
-    return lines
-
-
 def test_assembler_reconnects_retries_a_refusal_and_gives_up_after_reconnect_timeout(tmp_path):
     """A stand-in fuser: it goes away without bye, refuses the first try to come back, takes the
     second; then it is gone for good: exit 1, one line."""
@@ -415,13 +399,12 @@ def test_assembler_reconnects_retries_a_refusal_and_gives_up_after_reconnect_tim
     proc = _assemble(path, "1", port, None, "--reconnect-timeout", "1", interface="virtual",
                      channels=["rc-a", "rc-b"])
     try:
-        line = proc.stdout.readline()
-        assert "ready" in line, (line, proc.stderr.read() if proc.poll() is not None else "")
+        wait_ready(proc, name=ASSEMBLE)
         fuser.answers.put(encode_refused("scene channel(s) [1] are already served by another assembler"))
         fuser.answers.put(("new run", encode_welcome("1")))
         fuser.crash()  # no bye: the link broke
-        lines = _wait_for_line(proc.stderr, "reconnected to the fuser")
-        assert "reconnected to the fuser" in lines[-1], lines
+        lines = wait_line(proc, proc.stderr, "reconnected to the fuser", RECONNECT_S,
+                          f"{ASSEMBLE} did not say it reconnected")
         hellos = [decode_hello(payload) for _, payload in fuser.hellos]
         assert [h["channels"] for h in hellos] == [[1], [1], [1]]
         assert len({h["pid"] for h in hellos}) == 1  # the same process came back
@@ -489,14 +472,13 @@ def test_assemblers_come_back_during_a_run_and_a_second_claim_is_refused(tmp_pat
         for serve in ("0", "1"):
             procs[serve] = _assemble(path, serve, fuser_port, port)
         for serve in ("0", "1"):
-            line = procs[serve].stdout.readline()
-            assert "ready" in line, (line, procs[serve].stderr.read() if procs[serve].poll() is not None else "")
+            wait_ready(procs[serve], name=ASSEMBLE)
         service.boot(5.0)
         service.run(cycles, before_sync=hook, timeout_s=600)
     finally:
         service.close()
         rig.stop()
-    outs = {name: _finish(proc) for name, proc in procs.items()}
+        outs = {name: _finish(proc) for name, proc in procs.items()}
     records = service.records
     stats = service.merger.stats
     figures = check_records(scene, records)
@@ -536,7 +518,7 @@ def test_a_fuser_killed_and_started_again_gets_its_assemblers_back(tmp_path):
     from skin_scale import check_records
     jsonl = tmp_path / "first.jsonl"
     procs = []
-    service = None
+    service = first = None
     try:
         rig.start()
         first = subprocess.Popen(
@@ -547,8 +529,7 @@ def test_a_fuser_killed_and_started_again_gets_its_assemblers_back(tmp_path):
             cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         procs = [_assemble(path, serve, fuser_port, port) for serve in ("0", "1")]
         for proc in procs:
-            line = proc.stdout.readline()
-            assert "ready" in line, (line, proc.stderr.read() if proc.poll() is not None else "")
+            wait_ready(proc, name=ASSEMBLE)
         end = time.monotonic() + 120  # a safety limit: the first fuser writes records
         while time.monotonic() < end and first.poll() is None and \
                 (not jsonl.exists() or jsonl.read_text().count("\n") < 10):
@@ -564,7 +545,10 @@ def test_a_fuser_killed_and_started_again_gets_its_assemblers_back(tmp_path):
         if service is not None:
             service.close()
         rig.stop()
-    outs = [_finish(proc) for proc in procs]
+        if first is not None and first.poll() is None:  # the test failed before killing it
+            first.kill()
+            first.communicate()
+        outs = [_finish(proc) for proc in procs]
     records = service.records
     figures = check_records(scene, records)
     print(figures, service.merger.stats.as_dict(), [(rc, out.strip().splitlines()[-1:]) for rc, out, _ in outs])

@@ -1,4 +1,5 @@
-"""Node twins (the node-sim CLI) and the fusion centre in two processes on udp_multicast."""
+"""Node twins (the node-sim CLI) and the fusion centre in two processes on udp_multicast, on
+loopback only (hop limit 0, as every test: process_helpers.udp_loopback)."""
 
 import random
 import sys
@@ -13,19 +14,21 @@ from fusion_center.service import FusionService
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "tests"))
-from process_helpers import node_sim  # noqa: E402
+from process_helpers import node_sim, udp_loopback  # noqa: E402
 
 pytestmark = pytest.mark.multiprocess
 
 MATRIX = ROOT / "scenes" / "matrix57.toml"
 GROUP = "239.74.163.2"  # python-can's UdpMulticastBus.DEFAULT_GROUP_IPv4
+LOOPBACK = {"hop_limit": 0}  # multicast datagrams never leave the host
 
 
 def multicast_works(port: int) -> str | None:
-    """None if two udp_multicast buses of this process see each other's frames, else why not."""
+    """None if two udp_multicast buses of this process see each other's frames on loopback (hop
+    limit 0, as the tests use them), else why not."""
     try:
-        a = can.Bus(interface="udp_multicast", channel=GROUP, port=port)
-        b = can.Bus(interface="udp_multicast", channel=GROUP, port=port)
+        a = can.Bus(interface="udp_multicast", channel=GROUP, port=port, **LOOPBACK)
+        b = can.Bus(interface="udp_multicast", channel=GROUP, port=port, **LOOPBACK)
     except Exception as exc:  # noqa: BLE001
         return f"cannot open udp_multicast: {exc}"
     try:
@@ -53,10 +56,9 @@ def multicast_port() -> int:
 def test_node_sim_process_and_fusion_centre_on_udp_multicast(tmp_path):
     port = multicast_port()
     scene = load_scene(MATRIX)
-    with node_sim("--scene", str(MATRIX), "--interface", "udp_multicast", "--channel", GROUP,
-                  "--bus-option", f"port={port}"):
+    with node_sim("--scene", str(MATRIX), *udp_loopback(GROUP, port)):
         cycles = 60
-        with FusionService(scene, interface="udp_multicast", channels=[GROUP], bus_kwargs={"port": port},
+        with FusionService(scene, interface="udp_multicast", channels=[GROUP], bus_kwargs={"port": port, **LOOPBACK},
                            json_lines=tmp_path / "mp.jsonl") as service:
             missing = service.boot(5.0)
             summary = service.run(cycles)
