@@ -275,6 +275,35 @@ def test_the_cached_json_is_the_plain_encoding_of_every_message(matrix57_run):
                     assert json.loads(text) == value
 
 
+def test_cached_bus_and_map_follow_the_nodes_by_state(matrix57_run):
+    """The /bus text and the taxel map are cached per nodes-by-state pattern (one key for both):
+    records alike in every cached field but which nodes are named (or in which state) each get
+    their own message - equal to the plain encoding and to the map recomputed from the record."""
+    from fusion_center.robotics.mcap_out import encode
+    from fusion_center.robotics.topics import TopicMap
+
+    _, scene, records, _ = matrix57_run
+    label_of = {t.node_id: i for i, t in enumerate(scene.taxels)}
+    where, width, height = site_grid(scene, range(scene.n))
+    base = dict(records[10], present_nodes=[], emcy=[], duplicate_nodes=[], error=None)
+    patterns = [{}, {"silent": [5]}, {"silent": [9]}, {"missing": [5]}, {"silent": [5, 9]}, {"silent": [9, 5]},
+                {"silent": [5], "missing": [9]}, {"missing": [9], "silent": [5]}, {}]
+    topics = TopicMap(scene)
+    for _ in range(2):  # the second pass from the caches
+        for states in patterns:
+            record = dict(base, nodes_by_state=states)
+            _, messages = encode(topics, record)
+            by_topic = {topic: payload for topic, _, payload in messages}
+            assert json.loads(by_topic["/bus"]) == dict(topics.values(record))["/bus"]
+            assert list(json.loads(by_topic["/bus"])["nodes_by_state"].items()) == list(states.items())
+            not_heard = {label_of[label] for labels in states.values() for label in labels}
+            expected = np.zeros((height, width), dtype=np.uint8)
+            for i in range(scene.n):
+                r, c = where[i]
+                expected[r, c] = max(expected[r, c], 85 if i in not_heard else 170)
+            assert np.array_equal(image_array(decode_raw_image(by_topic["/taxel/sensor/map"])), expected), states
+
+
 def test_a_patch_scene_map_is_its_64_by_64_grid(tmp_path):
     """skin4096: patch nodes' taxel labels ("ID/k", "C:ID/k") land on their own pixels; a patch
     node named in nodes_by_state greys all its taxels."""

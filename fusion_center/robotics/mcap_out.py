@@ -22,7 +22,7 @@ from pathlib import Path
 
 from taxel_net.errors import UsageError, one_line
 from taxel_net.outputs import OutputPath
-from .topics import JSON_TOPICS, SCHEMAS, TopicMap, log_time_ns
+from .topics import JSON_TOPICS, SCHEMAS, TopicMap, _states_key, log_time_ns
 
 PROFILE = ""            # MCAP header profile: none of the registry's (the messages are protobuf + JSON)
 CHUNK_BYTES = 256 * 1024  # uncompressed chunk size: bounds the work of one chunk's compression
@@ -35,14 +35,15 @@ def encode(topics: TopicMap, record: dict, readings=None) -> tuple[int, list[tup
     maps, the readings (raw mode, with ``readings``), then the JSON topics."""
     t = log_time_ns(record)
     stamp = _stamp(t)
+    states_key = _states_key(record.get("nodes_by_state"))  # the map's and the bus's cache keys share it
     out: list[tuple[str, int, bytes]] = []
-    for pad, data in zip(topics.pads, topics.map_images(record)):
+    for pad, data in zip(topics.pads, topics.map_images(record, states_key)):
         out.append((pad.map_topic, IMAGE, raw_image(stamp, pad.name, pad.width, pad.height, "mono8", pad.width, data)))
     if readings is not None:
         for pad, data in zip(topics.pads, topics.readings_images(readings)):
             out.append((pad.readings_topic, IMAGE,
                         raw_image(stamp, pad.name, pad.width, pad.height, "32FC1", 4 * pad.width, data)))
-    for topic, payload in topics.json_messages(record):
+    for topic, payload in topics.json_messages(record, states_key):
         out.append((topic, JSON_MSG, payload))
     return t, out
 
@@ -53,6 +54,8 @@ def encode(topics: TopicMap, record: dict, readings=None) -> tuple[int, list[tup
 # (google.protobuf.Timestamp: seconds 1, nanos 2), width 2, height 3 (fixed32), encoding 4,
 # step 5 (fixed32), data 6, frame_id 7; proto3 leaves out zero numbers and empty strings.
 def _varint(n: int) -> bytes:
+    if n < 128:
+        return _SMALL[n]
     out = bytearray()
     while True:
         low, n = n & 0x7F, n >> 7
@@ -61,6 +64,9 @@ def _varint(n: int) -> bytes:
         else:
             out.append(low)
             return bytes(out)
+
+
+_SMALL = [bytes((n,)) for n in range(128)]
 
 
 def _stamp(t: int) -> bytes:

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import json
 import math
+from operator import itemgetter
 from dataclasses import dataclass
 
 import numpy as np
@@ -172,11 +173,13 @@ class TopicMap:
         codes[present] = MAP_PRESENT
         return codes
 
-    def map_images(self, record: dict) -> list[bytes]:
-        """The ``mono8`` map of every pad (row-major, ``width`` bytes a row), cached per pattern."""
-        states = record.get("nodes_by_state") or {}
-        key = (tuple(record.get("present_nodes") or ()),
-               tuple((k, tuple(v)) for k, v in states.items()) if states else ())
+    def map_images(self, record: dict, states_key=None) -> list[bytes]:
+        """The ``mono8`` map of every pad (row-major, ``width`` bytes a row), cached per pattern
+        (``states_key``: :func:`_states_key` of the record's ``nodes_by_state``, when the caller has it)."""
+        if states_key is None:
+            states_key = _states_key(record.get("nodes_by_state"))
+        present = record.get("present_nodes")
+        key = (tuple(present) if present else (), states_key)
         images = self._maps.get(key)
         if images is None:
             if len(self._maps) > 1024:
@@ -217,7 +220,7 @@ class TopicMap:
         return out
 
     # ------------------------------------------------------------------ per-cycle values
-    def json_messages(self, record: dict) -> list[tuple[str, bytes]]:
+    def json_messages(self, record: dict, states_key=None) -> list[tuple[str, bytes]]:
         """:meth:`values` as JSON (UTF-8 bytes): the same values, made cheaply. What repeats from
         cycle to cycle is encoded once per distinct content and kept (at most 1024 entries each):
         ``/fusion/decision`` but its ``cycle`` (a function of the decision vector, the truth and
@@ -227,9 +230,12 @@ class TopicMap:
         keeps its type from cycle to cycle, and the JSON values are equal anyway."""
         get = record.get
         cycle = _scalar(get("cycle"))
-        out = [(T_DECISION, self._decision_json(record, cycle)), (T_BUS, self._bus_json(record, cycle))]
+        out = [(T_DECISION, self._decision_json(record, cycle)), (T_BUS, self._bus_json(record, cycle, states_key))]
         if "area" in record or "contact_type" in record:
-            key = tuple([get(k) for k in _CONTACT_KEYS])
+            try:
+                key = _contact_key(record)
+            except KeyError:
+                key = tuple([get(k) for k in _CONTACT_KEYS])
             text = self._contact_cache.get(key)
             if text is None:
                 text = _remember(self._contact_cache, key, _json(contact_message(record)).encode())
@@ -238,23 +244,23 @@ class TopicMap:
             value = get(key)
             if isinstance(value, dict):
                 out.append((topic, _json(value).encode()))
-        truth = truth_message(record)
-        if truth is not None:
-            out.append((T_TRUTH, _json(truth).encode()))
+        if isinstance(get("grasp_truth"), dict):
+            out.append((T_TRUTH, _json(truth_message(record)).encode()))
         return out
 
     def _decision_json(self, record: dict, cycle: str) -> bytes:
-        get = record.get
-        rules = get("rules") or {}
+        rules = record.get("rules") or {}
         try:
-            key = (tuple([get(k) for k in _DECISION_KEYS]), tuple(rules),
-                   tuple([tuple(r.values()) for r in rules.values()]))
+            flat = _decision_key(record)
+        except KeyError:  # a hand-made record without some field
+            flat = tuple([record.get(k) for k in _DECISION_KEYS])
+        try:
+            key = (flat, tuple(rules), tuple([tuple(r.values()) for r in rules.values()]))
             hash(key)
         except TypeError:  # a list inside (preferential's band): as tuples
             try:
-                key = (tuple([get(k) for k in _DECISION_KEYS]), tuple(rules),
-                       tuple([tuple([tuple(v) if v.__class__ is list else v for v in r.values()])
-                              for r in rules.values()]))
+                key = (flat, tuple(rules), tuple([tuple([tuple(v) if v.__class__ is list else v for v in r.values()])
+                                                  for r in rules.values()]))
                 hash(key)
             except TypeError:
                 key = None
@@ -267,18 +273,27 @@ class TopicMap:
                 _remember(self._decision_cache, key, body)
         return b'{"cycle":' + cycle.encode() + b"," + body
 
-    def _bus_json(self, record: dict, cycle: str) -> bytes:
+    def _bus_json(self, record: dict, cycle: str, states_key=None) -> bytes:
         get = record.get
-        if get("emcy") or get("nodes_by_state") or get("duplicate_nodes") or get("error") is not None \
-                or get("emcy_dropped"):
+        if get("emcy") or get("duplicate_nodes") or get("error") is not None or get("emcy_dropped"):
             return _json(bus_message(record)).encode()
-        key = (get("closed_by"), get("n_expected"), get("n_live"), get("n_received"))
-        stable = self._bus_cache.get(key)
+        states = get("nodes_by_state")
+        if states and states_key is None:
+            states_key = _states_key(states)
+        try:
+            key = _bus_key(record) + (states_key if states else (),)
+        except KeyError:
+            key = (get("closed_by"), get("n_expected"), get("n_live"), get("n_received"), states_key if states else ())
+        try:
+            stable = self._bus_cache.get(key)
+        except TypeError:  # a label that is no scalar (a hand-made record)
+            return _json(bus_message(record)).encode()
         if stable is None:
             stable = _remember(self._bus_cache, key, (
                 f',"closed_by":{_json(key[0])},"n_expected":{_scalar(key[1])},"n_live":{_scalar(key[2])},'
-                f'"n_received":{_scalar(key[3])},"emcy_count":0,"emcy":[],"not_taking_part":0,'
-                f'"nodes_by_state":{{}},"duplicate_nodes":[],"error":null}}'))
+                f'"n_received":{_scalar(key[3])},"emcy_count":0,"emcy":[],'
+                f'"not_taking_part":{sum(len(v) for v in states.values()) if states else 0},'
+                f'"nodes_by_state":{_json(states) if states else "{}"},"duplicate_nodes":[],"error":null}}'))
         return (f'{{"cycle":{cycle},"sync_counter":{_scalar(get("sync_counter"))},'
                 f'"closed_after_ms":{_scalar(get("closed_after_ms"))},"late_frames":{_scalar(get("late_frames"))},'
                 f'"bad_frames":{_scalar(get("bad_frames"))}' + stable).encode()
@@ -386,6 +401,16 @@ def truth_message(record: dict) -> dict | None:
 _DECISION_KEYS = ("decide_with", "decision", "U_G", "threshold", "p_h1", "present_count", "n_received",
                   "n_expected", "degraded", "truth")
 _CONTACT_KEYS = ("area", "t_c", "contact_type", "fp_c", "contact_type_fp", "present_count")
+# the cache keys of a record with every field (one C call; a record without some field: KeyError,
+# then the same tuple made with get)
+_decision_key = itemgetter(*_DECISION_KEYS)
+_contact_key = itemgetter(*_CONTACT_KEYS)
+_bus_key = itemgetter("closed_by", "n_expected", "n_live", "n_received")
+
+
+def _states_key(states) -> tuple:
+    """A record's ``nodes_by_state`` as a hashable key (labels in order), () when empty."""
+    return tuple([(k, tuple(v)) for k, v in states.items()]) if states else ()
 
 
 def _scalar(value) -> str:
