@@ -304,6 +304,30 @@ def test_cached_bus_and_map_follow_the_nodes_by_state(matrix57_run):
             assert np.array_equal(image_array(decode_raw_image(by_topic["/taxel/sensor/map"])), expected), states
 
 
+def test_the_publisher_thread_writes_what_the_cycle_thread_would(matrix57_run, tmp_path):
+    """The publisher thread encodes a whole backlog before handing it to the outputs (in batches
+    of DRAIN_BATCH cycles): the file is byte for byte the one written cycle by cycle, and a cycle
+    that cannot be encoded (NaN in its slip, which JSON cannot hold) is counted and leaves out
+    only itself - the cycles before and after it in the same batch are written."""
+    from fusion_center.robotics import outputs as outputs_module
+
+    _, scene, records, _ = matrix57_run
+    bad = dict(records[70], slip={"speed": float("nan")})
+    recs = records[:70] + [bad] + records[71:150]
+    assert len(recs) > 2 * outputs_module.DRAIN_BATCH
+    stats = {}
+    for name, threaded in (("cycle.mcap", False), ("thread.mcap", True)):
+        outputs = RoboticsOutputs(scene, mcap=tmp_path / name, threaded=threaded)
+        for record in recs:  # far faster than the publisher's period: one backlog
+            outputs.on_cycle(record)
+        stats[name] = outputs.close()
+    assert (tmp_path / "thread.mcap").read_bytes() == (tmp_path / "cycle.mcap").read_bytes()
+    assert stats["thread.mcap"]["errors"] == 1 and stats["thread.mcap"]["mcap"]["cycles"] == 149
+    _, by_topic = read_mcap(tmp_path / "thread.mcap")
+    cycles = [json.loads(payload)["cycle"] for _, _, payload in by_topic["/fusion/decision"]]
+    assert cycles == [r["cycle"] for r in recs if r is not bad]
+
+
 def test_a_patch_scene_map_is_its_64_by_64_grid(tmp_path):
     """skin4096: patch nodes' taxel labels ("ID/k", "C:ID/k") land on their own pixels; a patch
     node named in nodes_by_state greys all its taxels."""

@@ -6,7 +6,9 @@
 record (and its readings in raw mode) to a queue - no encoding, no I/O, no lock the cycle could
 wait on - and a publisher thread, woken every :data:`POLL_S` (10 times a second: a wake-up per
 cycle would cost more than the publishing on a loaded host), encodes each cycle once and logs it
-to every output in cycle order; the MCAP file and the bag get every cycle, the live server
+to every output in cycle order - the cycles that wait (up to :data:`DRAIN_BATCH`) all encoded
+first, then their messages handed to the outputs back to back, so that the SDK's threads take
+them in one wake-up and each output's code runs hot (docs/robotics.md, *Cost*); the MCAP file and the bag get every cycle, the live server
 skips the oldest when more than ``LIVE_BACKLOG`` cycles wait (counted). With only the live server
 and no viewer subscribed, the callback queues nothing (the cycle is counted ``unwatched``) and
 the publisher waits for a subscription. ``threaded=False`` (``replay``, ``export``) does the same
@@ -25,6 +27,7 @@ from .topics import TopicMap
 
 logger = logging.getLogger("fusion_center.robotics")
 POLL_S = 0.1
+DRAIN_BATCH = 64  # cycles encoded before their messages go to the outputs (bounds the memory of a backlog)
 
 
 class RoboticsOutputs:
@@ -78,32 +81,52 @@ class RoboticsOutputs:
             self._publish(record, readings, live=True)
 
     def _publish(self, record: dict, readings, *, live: bool) -> None:
-        if live and self.live is not None and not self.live.watched:
-            live = False  # no viewer subscribed: nothing to send (the SDK would drop it)
-            self.live.unwatched += 1
-        try:
-            if self.mcap is not None or (live and self.live is not None):
-                from .mcap_out import encode
+        self._publish_all([(record, readings, live)])
 
-                t, messages = encode(self.topics, record, readings)
+    def _publish_all(self, items) -> None:
+        """Publish ``[(record, readings, live), ...]`` in order: every cycle's messages are made
+        first, then handed to the outputs back to back - the SDK's threads (the server's sender,
+        woken by a message) then take a burst's messages in one wake-up instead of one a cycle,
+        and each output's code runs hot. The files get the same messages in the same order."""
+        from .mcap_out import encode
+
+        made = []
+        for record, readings, live in items:
+            if live and self.live is not None and not self.live.watched:
+                live = False  # no viewer subscribed: nothing to send (the SDK would drop it)
+                self.live.unwatched += 1
+            try:
+                t, messages = encode(self.topics, record, readings) \
+                    if self.mcap is not None or (live and self.live is not None) else (None, None)
+            except Exception as exc:  # noqa: BLE001 - an output never stops the run
+                self._failed(record, exc)
+                continue
+            made.append((record, readings, live, t, messages))
+        for record, readings, live, t, messages in made:
+            try:
                 if self.mcap is not None:
                     self.mcap.log(t, messages)
                 if live and self.live is not None:
                     self.live.log(t, messages)
-            if self.bag is not None:
-                self.bag.write(record, readings)
-            self.cycles += 1
-        except Exception as exc:  # noqa: BLE001 - an output never stops the run; counted, logged (3 lines at most)
-            self.errors += 1
-            if self.errors <= 3:
-                logger.error("cycle %s: publishing failed: %s%s", record.get("cycle"), one_line(exc),
-                             " (further failures only counted)" if self.errors == 3 else "")
+                if self.bag is not None:
+                    self.bag.write(record, readings)
+                self.cycles += 1
+            except Exception as exc:  # noqa: BLE001 - an output never stops the run
+                self._failed(record, exc)
+
+    def _failed(self, record: dict, exc: Exception) -> None:
+        """Counted, logged (3 lines at most)."""
+        self.errors += 1
+        if self.errors <= 3:
+            logger.error("cycle %s: publishing failed: %s%s", record.get("cycle"), one_line(exc),
+                         " (further failures only counted)" if self.errors == 3 else "")
 
     def _drain(self) -> None:
         from .foxglove_live import LIVE_BACKLOG
 
         queue = self._queue
         lossless = self.mcap is not None or self.bag is not None
+        batch = []
         while queue:
             record, readings = queue.popleft()
             live = True
@@ -111,7 +134,12 @@ class RoboticsOutputs:
                 live = False
                 self.live.dropped += 1
             if live or lossless:
-                self._publish(record, readings, live=live)
+                batch.append((record, readings, live))
+            if len(batch) >= DRAIN_BATCH:
+                self._publish_all(batch)
+                batch = []
+        if batch:
+            self._publish_all(batch)
 
     def _worker(self) -> None:
         while True:

@@ -135,6 +135,7 @@ class TopicMap:
         self._decision_cache: dict = {}
         self._contact_cache: dict = {}
         self._bus_cache: dict = {}
+        self._flat_cache: dict = {}
         self.known_topics = self._known_topics()
 
     def _known_topics(self) -> list[tuple[str, bool]]:
@@ -225,7 +226,9 @@ class TopicMap:
         cycle to cycle is encoded once per distinct content and kept (at most 1024 entries each):
         ``/fusion/decision`` but its ``cycle`` (a function of the decision vector, the truth and
         the rules' results, which the pipeline itself caches per vector), ``/fusion/contact``,
-        and ``/bus`` but its per-cycle numbers when no node is named in it. Keys are the values
+        ``/bus`` but its per-cycle numbers (per nodes-by-state pattern: ``states_key``, the
+        record's :func:`_states_key`, when the caller has made it for the map too), and the
+        ``slip`` / ``grip`` / ``forces`` objects whose values are scalars. Keys are the values
         themselves: numbers equal in Python (1 and 1.0, 0.0 and -0.0) share a text - a field
         keeps its type from cycle to cycle, and the JSON values are equal anyway."""
         get = record.get
@@ -243,10 +246,22 @@ class TopicMap:
         for topic, key in ((T_SLIP, "slip"), (T_FORCES, "forces"), (T_GRIP, "grip")):
             value = get(key)
             if isinstance(value, dict):
-                out.append((topic, _json(value).encode()))
+                out.append((topic, self._flat_json(value)))
         if isinstance(get("grasp_truth"), dict):
             out.append((T_TRUTH, _json(truth_message(record)).encode()))
         return out
+
+    def _flat_json(self, value: dict) -> bytes:
+        """A record's ``slip`` / ``grip`` / ``forces`` as JSON, cached per content when its values
+        are scalars (a slip stage's result repeats while nothing slides); nested ones encoded."""
+        try:
+            key = tuple(value.items())
+            text = self._flat_cache.get(key)
+        except TypeError:  # a list or dict inside (forces' per-taxel values)
+            return _json(value).encode()
+        if text is None:
+            text = _remember(self._flat_cache, key, _json(value).encode())
+        return text
 
     def _decision_json(self, record: dict, cycle: str) -> bytes:
         rules = record.get("rules") or {}
