@@ -2,7 +2,7 @@
 run: a before / after comparison of the robotics outputs' cost on a shared host.
 
     .venv/bin/python bench/robotics_trees.py --tree before=/tmp/base --tree after=. [--rounds 3]
-        [--scenes matrix57 skin4096] [--variants "live, 1 viewer" mcap]
+        [--scenes matrix57 skin4096] [--variants "live, 1 viewer" mcap] [--bus]
 
 Each round runs, for every tree in turn, ``TREE/bench/robotics_outputs.py --rounds 1`` (its own
 code: the script puts its tree first on ``sys.path``; this interpreter) with ``bare`` and the
@@ -22,8 +22,8 @@ import subprocess
 import sys
 from pathlib import Path
 
-LINE = re.compile(r"\s+(.+?)\s+process\s+([\d.]+) us(?: x([\d.]+) of bare.*other threads \+\s*([-\d.]+) us = "
-                  r"\+?([-\d.]+) %)?")
+LINE = re.compile(r"\s+(.+?)\s+process\s+([\d.]+) us(?: x([\d.]+) of bare.*(?:other threads \+|publisher \+ SDK "
+                  r"threads)\s*([-\d.]+) us = \+?([-\d.]+) %)?")
 
 
 def main() -> int:
@@ -33,6 +33,7 @@ def main() -> int:
     ap.add_argument("--cycles", type=int, default=300)
     ap.add_argument("--scenes", nargs="+", default=["matrix57", "skin4096"])
     ap.add_argument("--variants", nargs="+", default=["live, 1 viewer", "mcap"])
+    ap.add_argument("--bus", action="store_true", help="matrix57 live on udp_multicast (robotics_outputs.py --bus)")
     args = ap.parse_args()
     trees = [(label, Path(path).resolve()) for label, path in (t.split("=", 1) for t in args.tree)]
     runs: dict[tuple, list] = {}
@@ -41,11 +42,12 @@ def main() -> int:
         for label, root in trees:
             out = subprocess.run([sys.executable, str(root / "bench" / "robotics_outputs.py"), "--cycles",
                                   str(args.cycles), "--rounds", "1", "--scenes", *args.scenes, "--variants", "bare",
-                                  *args.variants], capture_output=True, text=True, cwd=root).stdout
+                                  *args.variants, *(["--bus"] if args.bus else [])], capture_output=True, text=True,
+                                 cwd=root).stdout
             scene = None
             for line in out.splitlines():
                 if not line.startswith(" "):
-                    scene = line.split(":")[0]
+                    scene = "matrix57-bus" if args.bus else line.split(":")[0]
                     continue
                 m = LINE.match(line)
                 if m and m.group(3):
