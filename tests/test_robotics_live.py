@@ -126,6 +126,42 @@ def test_advertise_subscribe_and_the_messages_are_the_records(records):
     assert stats["foxglove"]["clients"] == 1
 
 
+def test_the_viewer_gets_the_mcap_files_messages_byte_for_byte(records, tmp_path):
+    """With --mcap and --foxglove both on, each cycle is encoded once and the same bytes go to
+    both sinks: every message a subscribed viewer receives equals the file's, topic by topic, in
+    order, with the same log time."""
+    scene, recs = records
+    outputs = RoboticsOutputs(scene, foxglove=("127.0.0.1", 0), mcap=tmp_path / "both.mcap", threaded=True)
+    live = outputs.live
+
+    async def viewer():
+        ws = await _connect(live.port)
+        try:
+            subs = await _subscribe(ws, await _advertised(ws))
+            await asyncio.to_thread(_wait, lambda: len(live.listener.active) == len(subs))
+            for record in recs:
+                outputs.on_cycle(record)
+            got: dict[str, list] = {}
+            while sum(map(len, got.values())) < len(recs) * len(subs):
+                frame = await asyncio.wait_for(ws.recv(), TIMEOUT)
+                if isinstance(frame, bytes):
+                    sid, log_time, payload = _message_data(frame)
+                    got.setdefault(subs[sid]["topic"], []).append((log_time, payload))
+            return got
+        finally:
+            await ws.close()
+
+    try:
+        got = asyncio.run(viewer())
+    finally:
+        outputs.close()
+    _, in_file = read_mcap(tmp_path / "both.mcap")
+    assert set(got) == set(in_file)
+    for topic, messages in got.items():
+        assert len(messages) == len(recs), topic
+        assert messages == [(log_time, payload) for log_time, _, payload in in_file[topic]], topic
+
+
 def test_a_stalled_viewer_loses_messages_not_cycles(records, tmp_path, monkeypatch):
     """The viewer subscribes and stops reading: every cycle still reaches the MCAP file and the
     SDK (none skipped in front of it); the viewer, reading again, has lost messages."""
