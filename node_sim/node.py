@@ -212,6 +212,10 @@ class TaxelNode:
 
     def _after_boot(self) -> None:
         self.heartbeat.restart()
+        # the TPDOs' configuration read now, in PRE-OPERATIONAL after the boot-up frame: an NMT
+        # start then reads only what SDO downloads changed, and the SYNC right after it finds
+        # the node OPERATIONAL with its TPDOs ready (TpdoEngine.config)
+        self.pdo.read_configuration()
 
     def _enter_operational(self) -> None:
         self.pdo.enter_operational()

@@ -101,16 +101,29 @@ class TpdoEngine:
         self._cfg: list[_TpdoConfig | None] = [None] * n
         self._rt = [_TpdoRuntime() for _ in range(n)]
         self._active: tuple[tuple[int, _TpdoConfig, _TpdoRuntime], ...] | None = None
+        self._dirty: set[int] = set()    # TPDOs written by SDO since the last reconfigure
         self.frames_sent = 0
 
     # ------------------------------------------------------------------ configuration
     def config(self, pdo: int) -> _TpdoConfig:
-        """TPDO ``pdo`` (0-based) as the OD configures it now (cached until it changes)."""
+        """TPDO ``pdo`` (0-based) as the OD configures it now (cached until it changes).
+
+        A TPDO that is not valid (0x180x:1 bit 31) is read no further than its COB-ID: nothing
+        sends it and nothing of it is used until it becomes valid, which is a write to 0x180x:1
+        that invalidates this entry (:meth:`written`). A patch node has 85 TPDOs, most of them not
+        valid: reading every object of each through canopen's data store took ~0.1-0.2 ms a TPDO,
+        ~12-34 ms for the two patches of scenes/grasp_lift_patch.toml at their NMT start - the
+        centre's first SYNC, sent right after it, was handled past its synchronous window and
+        answered by no patch."""
         cfg = self._cfg[pdo]
         if cfg is None:
             read = self._objects.read
             comm, mapping = self.comm[pdo], self.mapping[pdo]
             cob = read(comm, 1)
+            if cob & COB_INVALID:
+                cfg = self._cfg[pdo] = _TpdoConfig(valid=False, can_id=cob & 0x7FF, transmission_type=0,
+                                                   inhibit_s=0.0, event_timer_s=0.0, sync_start=0, mapping=[])
+                return cfg
             entries = []
             for sub in range(1, read(mapping, 0) + 1):
                 e = read(mapping, sub)
@@ -125,10 +138,19 @@ class TpdoEngine:
             self._cfg[pdo] = cfg
         return cfg
 
-    def invalidate(self) -> None:
-        """The OD may have changed (start-up values, SDO download): re-read the configuration."""
-        self._cfg = [None] * self.n_tpdos
+    def invalidate(self, pdo: int | None = None) -> None:
+        """The OD may have changed (start-up values, SDO download): re-read the configuration
+        (of TPDO ``pdo`` only when given)."""
+        if pdo is None:
+            self._cfg = [None] * self.n_tpdos
+        else:
+            self._cfg[pdo] = None
         self._active = None
+
+    def read_configuration(self) -> None:
+        """Read every TPDO's configuration now (after a boot: the NMT start then finds it)."""
+        for pdo in range(self.n_tpdos):
+            self.config(pdo)
 
     def _compile(self, cfg: _TpdoConfig) -> object:
         """What the payload of ``cfg`` is made from (None: the data store, :meth:`_payload`)."""
@@ -149,6 +171,7 @@ class TpdoEngine:
         self.leave_operational()
         self.invalidate()
         self._rt = [_TpdoRuntime() for _ in range(self.n_tpdos)]
+        self._dirty: set[int] = set()
 
     def enter_operational(self) -> None:
         self._rt = [_TpdoRuntime() for _ in range(self.n_tpdos)]
@@ -274,13 +297,18 @@ class TpdoEngine:
     # ------------------------------------------------------------------ SDO
     def written(self, index: int, subindex: int) -> None:
         """0x180x / 0x1A0x downloaded: configuration stale now, event machinery restarted with
-        the new values once they are stored (just after this call)."""
-        self.invalidate()
+        the new values once they are stored (just after this call). Only the written TPDO's
+        configuration is read again (the others are unchanged)."""
+        pdo = self.comm.index(index) if index in self.comm else self.mapping.index(index)
+        self.invalidate(pdo)
+        self._dirty.add(pdo)
         self._link.scheduler.call_at(0.0, self.reconfigure)
 
     def reconfigure(self) -> None:
         """After an SDO write to 0x180x/0x1A0x: restart the event machinery with the new values."""
-        self.invalidate()
+        dirty, self._dirty = self._dirty, set()
+        for pdo in dirty:
+            self.invalidate(pdo)
         if self._nmt.state != OPERATIONAL:
             return
         for pdo in range(self.n_tpdos):

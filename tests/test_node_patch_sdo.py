@@ -109,3 +109,42 @@ def test_mapping_read_and_remapped_by_the_master(patch_net):
     counts, _ = P.readings_to_counts(P.Tpdo(0, 0, 0, 3, P.ENC_INT16, False, 0, False),
                                      node.image.readings[:3], node.image.lsb_mv)
     assert frames[0] == bytes([5]) + counts.tobytes()
+
+
+def test_nmt_start_reads_only_the_tpdos_the_master_changed(patch_net):
+    """A patch node has 85 TPDOs; its NMT start used to read every one's configuration from the
+    data store (~1,000 canopen reads for two patches, 12-34 ms on a loaded host: the centre's
+    first SYNC, sent right after the NMT start, was handled past its synchronous window and got
+    no patch frame - scenes/grasp_lift_patch.toml's cycle 0). Read at boot now, and after an SDO
+    download only the written TPDO again."""
+    rig, net, nodes = patch_net
+    big = nodes[2]
+    big.sdo[0x1801][1].raw = 0xC0000183                   # TPDO2 not valid: the master disables it
+    node = rig.node(2)
+    reads = []
+    original = node.objects.read
+
+    def counting(index, subindex=0):
+        reads.append((index, subindex))
+        return original(index, subindex)
+
+    node.objects.read = counting
+    try:
+        frames = []
+        net.subscribe(0x182, lambda can_id, data, ts: frames.append(bytes(data)))
+        net.subscribe(0x183, lambda can_id, data, ts: frames.append(("tpdo2", bytes(data))))
+        net.nmt.send_command(0x01)
+        deadline = time.monotonic() + 3
+        while node.state != 0x05 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        nmt_reads = list(reads)
+        net.sync.transmit(5)
+        while not frames and time.monotonic() < deadline:
+            time.sleep(0.01)
+        time.sleep(0.05)
+    finally:
+        node.objects.read = original
+    tpdo_reads = [r for r in nmt_reads if 0x1800 <= r[0] <= 0x1BFF]
+    assert node.state == 0x05
+    assert len(tpdo_reads) <= 1, tpdo_reads               # 0x1801:1 only (not valid: nothing more)
+    assert len(frames) == 1 and frames[0][0] == 5         # TPDO1 sent on the SYNC, the disabled one not
