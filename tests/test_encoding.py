@@ -75,3 +75,59 @@ def test_numpy_scalars_and_integral_floats_are_accepted():
     assert poisson_binomial.log_sf([0.5, 0.5], np.float64(1.0)) == pytest.approx(np.log(0.75), rel=1e-15)
     base = thresholds.additive_threshold(57, 0.003, 0.03)
     assert thresholds.additive_threshold(np.int64(57), np.float64(0.003), np.float64(0.03)) == base
+
+
+# --------------------------------------------------------------------------- LocalDetectors
+from fractions import Fraction  # noqa: E402
+
+from hypothesis import given, settings, strategies as st  # noqa: E402
+
+from fusion_center.core.encoding import LocalDetectors  # noqa: E402
+
+
+def _exact_decision(x: float, n: float, z: float) -> int:
+    """Eqs 2-4 in exact arithmetic on the IEEE result of Y = X - N (the node computes Y in
+    float64): present iff Y >= zeta; NaN readings are not on the wire (0)."""
+    if x != x:
+        return 0
+    y = x - n
+    if y != y:
+        return -1
+    if y in (float("inf"), float("-inf")):
+        return 1 if y > 0 else -1
+    return 1 if Fraction(y) >= Fraction(z) else -1
+
+
+def test_local_detectors_at_the_cut_off_and_without_a_reading():
+    det = LocalDetectors(noise=[1.0, 1.0, 0.5, 0.0, 0.25], zeta=[1.0, 1.0, 0.0, 3.0, 2.0])
+    x = np.array([2.0, np.nextafter(2.0, 0.0), 0.5, np.nan, np.inf])
+    u, available = det.wire(x)
+    assert u.dtype == np.int8
+    assert u.tolist() == [1, -1, 1, 0, 1]                 # Y = zeta is present (eq 3: >=)
+    assert available.tolist() == [True, True, True, False, True]
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.tuples(st.one_of(st.floats(-1e3, 1e3), st.just(float("nan")), st.just(float("inf"))),
+                          st.floats(0, 50), st.floats(0, 50)), min_size=1, max_size=64))
+def test_local_detectors_equal_local_decision_and_the_exact_test(rows):
+    x = np.array([r[0] for r in rows])
+    noise = np.array([r[1] for r in rows])
+    zeta = np.array([r[2] for r in rows])
+    u, available = LocalDetectors(noise, zeta).wire(x)
+    ok = ~np.isnan(x)
+    old = np.zeros(len(x), dtype=np.int8)              # the pipeline's former code
+    if ok.any():
+        old[ok] = local_decision(x[ok], noise[ok], zeta[ok], "pm1")
+    assert u.tolist() == old.tolist()
+    assert available.tolist() == ok.tolist()
+    assert u.tolist() == [_exact_decision(*r) for r in rows]
+
+
+def test_local_detectors_refuse_bad_cut_offs_and_shapes():
+    with pytest.raises(ParameterError, match="zeta"):
+        LocalDetectors([0.0, 0.0], [1.0, -0.5])
+    with pytest.raises(ParameterError, match="zeta"):
+        LocalDetectors([0.0, 0.0], [1.0])
+    with pytest.raises(ParameterError, match="readings"):
+        LocalDetectors([0.0], [1.0]).wire(np.zeros(2))

@@ -121,6 +121,42 @@ def local_decision(observation, noise, zeta, encoding: Encoding = "pm1") -> np.n
     return np.where(present, np.int8(PRESENT), np.int8(ABSENT[encoding])).astype(np.int8)
 
 
+class LocalDetectors:
+    """The local detectors of a fixed set of taxels (eqs 1-4), their ``noise`` N_i and cut-offs
+    ``zeta`` checked once (as :func:`local_decision` checks them), for the centre's raw mode: each
+    cycle's readings X_i -> the decision vector the nodes would have sent.
+
+    :meth:`wire` equals ``local_decision(x[ok], noise[ok], zeta[ok], "pm1")`` on the readings
+    that are not NaN (``ok``) and 0 on the others, bit for bit (the same subtraction and
+    comparison per element), in a handful of array operations: ``local_decision``'s checks and
+    fancy indexing of the received subset took 0.04-0.2 ms of every raw cycle, on the grip
+    command's path."""
+
+    def __init__(self, noise, zeta):
+        self.noise = as_float_array("noise", noise).reshape(-1)
+        z = as_float_array("zeta", zeta).reshape(-1)
+        if np.any(~np.isfinite(z)) or np.any(z < 0):
+            bad = z[~np.isfinite(z) | (z < 0)].flat[0]
+            raise ParameterError("zeta", float(bad), "cut-off must be finite and >= 0 mV")
+        if z.shape != self.noise.shape:
+            raise ParameterError("zeta", z.shape, f"needs one cut-off per taxel ({self.noise.shape[0]})")
+        self.zeta = z
+        self.n = z.shape[0]
+
+    def wire(self, readings: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(u, available)`` of one cycle's readings X_i (float64, one per taxel, NaN = none):
+        ``u`` int8, +1 where ``X_i - N_i >= zeta_i`` (eqs 2-4), -1 where not, 0 where X_i is NaN;
+        ``available`` the readings that are not NaN."""
+        if readings.shape != (self.n,):
+            raise ParameterError("readings", readings.shape, f"must be {self.n} readings")
+        available = ~np.isnan(readings)
+        y = readings - self.noise                      # eq 4
+        present = y >= self.zeta                       # NaN compares False
+        u = present.view(np.int8) * np.int8(2)         # +2 / 0 ...
+        u -= available.view(np.int8)                   # ... -> +1 / -1, and 0 where NaN
+        return u, available
+
+
 def validate_decisions(u, encoding: Encoding = "pm1", name: str = "u") -> np.ndarray:
     """Return ``u`` as an int8 array after checking every entry belongs to ``encoding``.
 

@@ -51,13 +51,25 @@ _EMCY = struct.Struct("<HB5s")
 
 
 def state_name(statusword: int | None) -> str | None:
-    """The CiA 402 state of a statusword as canopen names it (``State402.SW_MASK``), None if none."""
-    if statusword is None:
-        return None
-    for name, (mask, value) in State402.SW_MASK.items():
-        if statusword & mask == value:
-            return name
-    return None
+    """The CiA 402 state of a statusword as canopen names it (``State402.SW_MASK``), None if none
+    (remembered per statusword: a drive shows a handful, and the grip stage asks every cycle on
+    the command's path)."""
+    try:
+        return _STATE_NAMES[statusword]
+    except KeyError:
+        pass
+    name = None
+    if statusword is not None:
+        for candidate, (mask, value) in State402.SW_MASK.items():
+            if statusword & mask == value:
+                name = candidate
+                break
+        if 0 <= statusword <= 0xFFFF:  # an UNSIGNED16 (anything else is not kept)
+            _STATE_NAMES[statusword] = name
+    return name
+
+
+_STATE_NAMES: dict[int | None, str | None] = {None: None}
 
 
 def grip_state_name(code: int | None) -> str | None:

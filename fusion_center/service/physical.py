@@ -155,13 +155,15 @@ class PhysicalEvaluation:
         return tuple(contact_fields)
 
     def slip_record(self, t_seconds: float, present_mask: np.ndarray, total_tangential: float | None,
-                    grip_force: float | None, cycle: int) -> dict | None:
+                    grip_force: float | None, cycle: int, centroid: np.ndarray | None = None) -> dict | None:
         """The cycle's slip state (``slip`` set), or None for a cycle not later than the last
-        one fed (the tracker needs increasing times)."""
+        one fed (the tracker needs increasing times). ``centroid``: ``locations.centroid`` of
+        ``present_mask`` when the caller has it (the pipeline keeps it per decision vector)."""
         if self._last_slip_t is not None and t_seconds <= self._last_slip_t:
             return None
         self._last_slip_t = t_seconds
-        centroid = self.locations.centroid(present_mask)
+        if centroid is None:
+            centroid = self.locations.centroid(present_mask)
         if total_tangential is not None and grip_force is not None:
             state = self.slip.update_centroid(t_seconds, centroid, total_tangential, grip_force)
         else:

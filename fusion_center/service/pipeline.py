@@ -10,8 +10,8 @@ replays produce identical records.
   supports over the decisions *received* in the cycle, thresholds and rule results cached
   (see there). The record's ``decision`` is the verdict of ``[fusion] decide_with``.
 * raw mode (issue 6): the nodes send X_i (TPDO2, REAL32 mV) instead of u_i; the centre
-  decides per taxel with the nodes' own test (eqs 1-4, ``encoding.local_decision``, here) and
-  fuses those decisions with every rule as in decision mode; :mod:`.centralised_tests` runs the
+  decides per taxel with the nodes' own test (eqs 1-4, ``encoding.LocalDetectors``, here:
+  ``local_decision`` bit for bit) and fuses those decisions with every rule as in decision mode; :mod:`.centralised_tests` runs the
   centralised raw-data tests on the readings.
 * forces (sec. 4.1-4.2, 7; raw mode only), area (eq 35), contact type (eqs 34a/34b) and slip
   (sec. 4), :mod:`.physical`.
@@ -35,7 +35,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..core.encoding import local_decision
+from ..core.encoding import LocalDetectors
 from taxel_net.patches import node_label
 from taxel_net.scene import Scene
 from ..stages import plan_stages
@@ -87,6 +87,7 @@ class _Pattern(NamedTuple):
     rules: dict                 # fusion rule -> JSON-able result (copied into each record)
     area: float | None          # eq 35 (None: stage not run)
     contact: tuple              # (key, value) pairs: t_c, contact_type, fp_c, contact_type_fp
+    centroid: np.ndarray | None  # the slip stage's centroid of the present taxels' locations (None: no slip stage)
 
 
 class PendingRecord:
@@ -121,6 +122,7 @@ class CyclePipeline:
         self.zeta = np.array([t.zeta_mv for t in taxels], dtype=float)
         self.noise = np.array([t.noise_mv for t in taxels], dtype=float)
         self.raw_mode = scene.bus.mode == "raw"
+        self.detectors = LocalDetectors(self.noise, self.zeta)  # raw mode: the nodes' decisions, centrally
         self.mode = scene.bus.mode
         self.stages_skipped = dict(self.plan.skipped)
         self.rules_skipped = self.plan.all_rules_skipped
@@ -184,11 +186,7 @@ class CyclePipeline:
             readings = closed.readings
             if self.hold:
                 readings = np.where(np.isnan(readings) & ~closed.missing, closed.held_readings, readings)
-            available = ~np.isnan(readings)
-            wire = np.zeros(self.n, dtype=np.int8)
-            if available.any():
-                wire[available] = local_decision(readings[available], self.noise[available],
-                                                 self.zeta[available], "pm1")
+            wire, available = self.detectors.wire(readings)  # eqs 1-4 on the received X_i, 0 elsewhere
         else:
             wire = closed.decisions
             if self.hold:
@@ -207,7 +205,7 @@ class CyclePipeline:
             total_tangential, grip_force = cycle_forces.total, cycle_forces.grip
         if self.want_slip:
             pending.slip = self.physical.slip_record(t_seconds, pattern.present_mask, total_tangential, grip_force,
-                                                     closed.cycle)
+                                                     closed.cycle, centroid=pattern.centroid)
         if self.grip is not None:
             main = (pending.central or pattern.rules).get(self.decide_with)
             device = closed.devices
@@ -362,6 +360,8 @@ class CyclePipeline:
         if self.want_contact and n_received > 0:
             contact_fields = self.physical.contact_fields(present, n_received, area)
         labels = self.labels
+        # a function of the present set alone, like the area: once per vector, not per cycle
+        centroid = self.physical.locations.centroid(present_mask) if self.want_slip else None
         return _Pattern(received, present_mask, n_received, present,
                         tuple(labels[i] for i in np.flatnonzero(present_mask)), rule_results, area,
-                        contact_fields)
+                        contact_fields, centroid)
