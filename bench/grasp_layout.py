@@ -19,6 +19,11 @@ jaws (node-IDs 1.. on the left, then the right):
 
 Every distinct location is at least one pitch from every other (pitch <= 7 mm), so the slip
 stage's noise band (half the smallest distance between locations) is half the pitch.
+
+``patch=True`` (``scenes/data/grasp_pads_2mm_patch.csv``, the ``*_patch`` grasp scenes with
+``[bus] patch_nodes = true``): the same taxels in the same order, each pad one patch node (node-ID
+1 on the left jaw, 2 on the right) sending its 26 taxels' decisions or readings packed
+(``taxel_net.patches``) instead of 26 one-taxel nodes.
 """
 
 from __future__ import annotations
@@ -37,8 +42,9 @@ def row_ys(pitch_mm: float) -> list[float]:
     return [round(CENTRE[1] + i * pitch_mm, 6) for i in range(-k, k + 1)]
 
 
-def pad_rows(pitch_mm: float) -> list[dict]:
-    """The taxels of both pads as CSV-like rows (node_id, kind, x, y, jaw, axis)."""
+def pad_rows(pitch_mm: float, patch: bool = False) -> list[dict]:
+    """The taxels of both pads as CSV-like rows (node_id, kind, x, y, jaw, axis); ``patch``: one
+    node-ID per pad (module docstring)."""
     one = [("LC", *CENTRE, None)]
     one += [("TBS", x, y, "y") for x, y in TBS_XY]
     one += [("IR", x, y, None) for x, y in IR_XY]
@@ -46,20 +52,21 @@ def pad_rows(pitch_mm: float) -> list[dict]:
     rows = []
     for jaw in ("left", "right"):
         for kind, x, y, axis in one:
-            rows.append({"node_id": len(rows) + 1, "kind": kind, "x": x, "y": y, "jaw": jaw, "axis": axis})
+            node_id = (1 if jaw == "left" else 2) if patch else len(rows) + 1
+            rows.append({"node_id": node_id, "kind": kind, "x": x, "y": y, "jaw": jaw, "axis": axis})
     return rows
 
 
-def write_csv(path, pitch_mm: float) -> None:
+def write_csv(path, pitch_mm: float, patch: bool = False) -> None:
     cols = ("node_id", "kind", "x", "y", "jaw", "axis")
     with open(path, "w", encoding="utf-8", newline="\n") as f:
         f.write(",".join(cols) + "\n")
-        for r in pad_rows(pitch_mm):
+        for r in pad_rows(pitch_mm, patch):
             f.write(",".join("" if r[c] is None else f"{r[c]:g}" if isinstance(r[c], float) else str(r[c])
                              for c in cols) + "\n")
 
 
-if __name__ == "__main__":  # python bench/grasp_layout.py scenes/data/grasp_pads_2mm.csv 2.0
+if __name__ == "__main__":  # python bench/grasp_layout.py scenes/data/grasp_pads_2mm.csv 2.0 [patch]
     import sys
 
-    write_csv(sys.argv[1], float(sys.argv[2]))
+    write_csv(sys.argv[1], float(sys.argv[2]), patch=sys.argv[3:] == ["patch"])
