@@ -390,18 +390,14 @@ def wire_floor_ms(name: str) -> tuple[float, float, int]:
 
 def wire_floor(name: str) -> str:
     """The cycle's frames on a real bus at the scene's bit rate (module docstring), as a line."""
+    from taxel_net.patches import devices
+
     scene = scene_for(name)
     answers, total, frames = wire_floor_ms(name)
     rates = f"{scene.bus.bitrate / 1e6:g}" + (f"/{scene.bus.data_bitrate / 1e6:g} (FD)" if scene.bus.fd else "")
-    layout = f"{len(scene_devices(scene))} patch nodes, " if scene.bus.patch_nodes else ""
+    layout = f"{len(devices(scene))} patch nodes, " if scene.bus.patch_nodes else ""
     return (f"wire floor at {rates} Mbit/s: SYNC + {frames} answers ({layout}{scene.n} taxels) "
             f"{answers:.2f} ms, + the command {total:.2f} ms")
-
-
-def scene_devices(scene):
-    from taxel_net import patches as P
-
-    return P.devices(scene)
 
 
 # --------------------------------------------------------------------------- the echo floor
@@ -502,10 +498,7 @@ def print_breakdown(runs: list[dict]) -> None:
 
 
 def _loadavg() -> list[float]:
-    try:
-        return [round(v, 2) for v in os.getloadavg()]
-    except OSError:
-        return [float("nan")] * 3
+    return [round(v, 2) for v in os.getloadavg()]
 
 
 def print_summary(results) -> None:

@@ -47,7 +47,7 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(
                 "bus_timing", "layouts", "mean_deficit", "preferential_band", "preferential_rates", "chain_dp",
                 "tilted_dp", "tilted_bridge", "counts_dp", "dp_scaling", "kind_laws", "rate_sampling"],
     submod_attrs={
-        "encoding": ["local_decision", "present_count", "to_pm1", "to_01"],
+        "encoding": ["local_decision", "LocalDetectors", "present_count", "to_pm1", "to_01"],
         "rules": ["additive", "multiplicative", "preferential", "preferential_sister", "k_of_n", "g_of_n"],
         "curves": [
             "p_additive_01", "p_additive_pm1", "p_multiplicative", "p_preferential", "p_linear",

@@ -11,8 +11,8 @@ replays produce identical records.
   (see there). The record's ``decision`` is the verdict of ``[fusion] decide_with``.
 * raw mode (issue 6): the nodes send X_i (TPDO2, REAL32 mV) instead of u_i; the centre
   decides per taxel with the nodes' own test (eqs 1-4, ``encoding.LocalDetectors``, here:
-  ``local_decision`` bit for bit) and fuses those decisions with every rule as in decision mode; :mod:`.centralised_tests` runs the
-  centralised raw-data tests on the readings.
+  ``local_decision`` bit for bit) and fuses those decisions with every rule as in decision
+  mode; :mod:`.centralised_tests` runs the centralised raw-data tests on the readings.
 * forces (sec. 4.1-4.2, 7; raw mode only), area (eq 35), contact type (eqs 34a/34b) and slip
   (sec. 4), :mod:`.physical`.
 * ground truth (``truth``): :mod:`node_sim.physics`, precomputed for the scene's cycles.
