@@ -237,7 +237,7 @@ def sample_readings_batch(scene: Scene, cycles, rng: np.random.Generator | None 
     return _apply_faults(scene, c, x)
 
 
-def observe(scene: Scene, cycle: int, signal, held: dict | None = None) -> np.ndarray:
+def observe(scene: Scene, cycle: int, signal, held: dict | None = None, eps: np.ndarray | None = None) -> np.ndarray:
     """Readings X_i = S_i + N_i + sigma_i * eps of one SYNC ``cycle`` from a signal ``S`` computed
     elsewhere (the grasp world's, :mod:`node_sim.world.taxels`), with the canonical ``eps`` of the
     cycle and the scene's faults: ``open_circuit`` reads NaN; ``stuck`` repeats the reading the
@@ -245,13 +245,16 @@ def observe(scene: Scene, cycle: int, signal, held: dict | None = None) -> np.nd
     caller keeps across cycles; without it, the reading of the cycle itself).
 
     Unlike ``sample_readings`` the signal is not a function of the cycle alone, so a stuck taxel
-    cannot be recomputed for its ``from_cycle``: it is remembered."""
+    cannot be recomputed for its ``from_cycle``: it is remembered. ``eps``: the cycle's
+    ``canonical_eps``, when the caller computed it ahead (the grasp world does, off the SYNC)."""
     c = _check_cycle(cycle)
     s = np.asarray(signal, dtype=float)
     if s.shape != (scene.n,):
         raise ParameterError("signal", s.shape, f"must hold {scene.n} values (scene order)")
     a = taxel_arrays(scene)
-    x = s + a["noise_mv"] + a["noise_sigma_mv"] * canonical_eps(scene, c)
+    if eps is None:
+        eps = canonical_eps(scene, c)
+    x = s + a["noise_mv"] + a["noise_sigma_mv"] * eps
     for f in scene.faults:
         if f.fault == "silent" or not f.active(c):
             continue

@@ -13,8 +13,11 @@ rig (:mod:`node_sim.rig`) runs one :class:`~node_sim.world.GraspWorld` coupled t
 * **The task** starts when the drive is first seen in OPERATION ENABLED (``JawCoupling``).
 * **Readings**: at each SYNC the taxel nodes sample ``X_i`` of the world's latest step
   (:func:`node_sim.world.taxels.truth_readings`: the footprint, pressure and tangential cells, the
-  cycle's canonical noise and the scene's faults). Before the first step: no object between the
-  jaws (noise only).
+  cycle's canonical noise and the scene's faults). The step's signal ``S_i`` (footprint, pressure,
+  tangential and load cells) is computed in the world's thread when it steps, and so is the next
+  SYNC's canonical noise ``eps`` (a function of the scene's seed and the cycle); the SYNC adds the
+  noise and the faults only (the same floats: ``truth_readings`` of the step's truth). Before the
+  first step: no object between the jaws (noise only).
 * **Truth out**: every step gives one record, :meth:`Truth.as_dict` plus ``sync_counter`` (the
   counter byte of the last SYNC the drive's channel heard, None without one) and ``cycle`` (the
   twins' cycle number of that SYNC, None before the first): :attr:`latest` and the ``on_truth``
@@ -39,7 +42,7 @@ from taxel_net.errors import ParameterError
 
 from . import physics
 from .world import GraspWorld, JawCoupling
-from .world.taxels import truth_readings
+from .world.taxels import truth_signal
 
 logger = logging.getLogger(__name__)
 
@@ -75,6 +78,8 @@ class WorldRunner:
             self.callbacks = list(on_truth)
         self._clock = clock
         self._truth = None                     # the latest Truth
+        self._latest: tuple | None = None      # (the latest Truth, its signal S_i), replaced as one
+        self._eps: tuple | None = None         # (cycle, its canonical eps), computed ahead by step()
         self.latest: dict | None = None        # its record
         self._held: dict = {}                  # stuck faults' readings (physics.observe)
         self._read_lock = threading.Lock()
@@ -87,10 +92,20 @@ class WorldRunner:
     def step(self) -> dict:
         """One world step (the drive read, the world advanced); returns its record."""
         truth = self.coupling.step()
+        # S_i of this step here, off the SYNC: a SYNC's readings were ~60 % of the rig's SYNC
+        # handling for scenes/grasp_lift_patch.toml (0.9 ms p50 at load 4.5), on the
+        # SYNC -> command path of bench/grip_latency.py
+        signal = truth_signal(self.scene, truth)
         counter, cycle = self._sync_state()
         record = {"t_s": truth.t_s, "sync_counter": counter, "cycle": cycle}
         record.update(truth.as_dict())
+        self._latest = (truth, signal)
         self._truth = truth
+        # the next SYNC's noise, ahead (physics.canonical_eps: a function of the seed and the cycle)
+        upcoming = 0 if cycle is None else cycle + 1
+        ahead = self._eps
+        if ahead is None or ahead[0] != upcoming:
+            self._eps = (upcoming, physics.canonical_eps(self.scene, upcoming))
         self.latest = record
         for cb in list(self.callbacks):
             try:
@@ -101,11 +116,12 @@ class WorldRunner:
 
     def readings(self, cycle: int) -> np.ndarray:
         """``X_i`` of SYNC ``cycle`` (scene order) from the latest world step (module docstring)."""
-        truth = self._truth
+        latest, ahead = self._latest, self._eps
+        eps = ahead[1] if ahead is not None and ahead[0] == cycle else None   # else computed now
         with self._read_lock:
-            if truth is None:
-                return physics.observe(self.scene, cycle, np.zeros(self.scene.n), self._held)
-            return truth_readings(self.scene, truth, cycle, self._held)
+            if latest is None:
+                return physics.observe(self.scene, cycle, np.zeros(self.scene.n), self._held, eps)
+            return physics.observe(self.scene, cycle, latest[1], self._held, eps)  # truth_readings(latest[0])
 
     # ------------------------------------------------------------------ the clock
     def start(self) -> "WorldRunner":

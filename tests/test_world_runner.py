@@ -89,6 +89,36 @@ def test_readings_come_from_the_latest_step():
     np.testing.assert_array_equal(fresh.readings(3), physics.observe(SCENE, 3, np.zeros(SCENE.n)))
 
 
+def test_a_sync_adds_only_the_noise_to_the_steps_signal(monkeypatch):
+    """The world's signal S_i is computed when it steps (its thread), not at every SYNC's
+    readings: at a SYNC the rig's readings were ~60 % of its SYNC handling for
+    scenes/grasp_lift_patch.toml, on the SYNC -> command path. The readings stay the step's
+    truth_readings (the same floats)."""
+    import node_sim.world.taxels as taxels_module
+
+    recs, _, runner = run(300)
+    truth = runner._truth
+    calls = []
+    original = taxels_module.taxel_signal              # what truth_signal / truth_readings compute S_i with
+    monkeypatch.setattr(taxels_module, "taxel_signal", lambda *a, **k: calls.append(a) or original(*a, **k))
+    got = [runner.readings(c) for c in (42, 43, 44)]
+    assert calls == []                                  # three SYNCs, no signal computed again
+    runner.step()
+    assert len(calls) == 1                              # once a step
+    for c, x in zip((42, 43, 44), got):
+        np.testing.assert_array_equal(x, truth_readings(SCENE, truth, c))
+    # and the noise of the SYNC after the step's (its sync_state's cycle + 1) is drawn by the step
+    eps_calls = []
+    original_eps = physics.canonical_eps
+    monkeypatch.setattr(physics, "canonical_eps", lambda *a: eps_calls.append(a[1]) or original_eps(*a))
+    cycle = runner.latest["cycle"]
+    runner.step()                                       # its record's cycle: cycle + 1
+    assert eps_calls == [cycle + 2]
+    x = runner.readings(cycle + 2)
+    assert eps_calls == [cycle + 2]                     # not drawn again at the SYNC
+    np.testing.assert_array_equal(x, truth_readings(SCENE, runner._truth, cycle + 2))
+
+
 def test_a_callback_that_fails_does_not_stop_the_world():
     seen = []
 
