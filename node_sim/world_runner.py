@@ -92,26 +92,32 @@ class WorldRunner:
     def step(self) -> dict:
         """One world step (the drive read, the world advanced); returns its record."""
         truth = self.coupling.step()
-        # S_i of this step here, off the SYNC: a SYNC's readings were ~60 % of the rig's SYNC
-        # handling for scenes/grasp_lift_patch.toml (0.9 ms p50 at load 4.5), on the
-        # SYNC -> command path of bench/grip_latency.py
-        signal = truth_signal(self.scene, truth)
         counter, cycle = self._sync_state()
         record = {"t_s": truth.t_s, "sync_counter": counter, "cycle": cycle}
         record.update(truth.as_dict())
-        self._latest = (truth, signal)
+        self._latest = (truth, None)           # readable at once (a SYNC now computes S_i itself)
         self._truth = truth
-        # the next SYNC's noise, ahead (physics.canonical_eps: a function of the seed and the cycle)
-        upcoming = 0 if cycle is None else cycle + 1
-        ahead = self._eps
-        if ahead is None or ahead[0] != upcoming:
-            self._eps = (upcoming, physics.canonical_eps(self.scene, upcoming))
         self.latest = record
         for cb in list(self.callbacks):
             try:
                 cb(record)
             except Exception:  # noqa: BLE001 - a caller's callback must not stop the world
                 logger.exception("grasp world: a truth callback failed")
+        # then, after the step is visible and its record out as before: S_i of this step and the
+        # next SYNC's noise (physics.canonical_eps: a function of the seed and the cycle), off the
+        # SYNC - a SYNC's readings were most of the rig's SYNC handling for
+        # scenes/grasp_lift_patch.toml (0.75-1.0 ms p50 at load 5), on the SYNC -> command path of
+        # bench/grip_latency.py. After the callbacks: the step's truth record leaves as promptly
+        # as before (a live record takes the truth the table holds when it is made; a later
+        # record of the step moves which step a cycle gets - tests/test_grip_stage.py's replay
+        # compares them)
+        signal = truth_signal(self.scene, truth)
+        if self._latest[0] is truth:
+            self._latest = (truth, signal)
+        upcoming = 0 if cycle is None else cycle + 1
+        ahead = self._eps
+        if ahead is None or ahead[0] != upcoming:
+            self._eps = (upcoming, physics.canonical_eps(self.scene, upcoming))
         return record
 
     def readings(self, cycle: int) -> np.ndarray:
@@ -121,7 +127,10 @@ class WorldRunner:
         with self._read_lock:
             if latest is None:
                 return physics.observe(self.scene, cycle, np.zeros(self.scene.n), self._held, eps)
-            return physics.observe(self.scene, cycle, latest[1], self._held, eps)  # truth_readings(latest[0])
+            truth, signal = latest
+            if signal is None:                 # the step has just been made: its S_i now
+                signal = truth_signal(self.scene, truth)
+            return physics.observe(self.scene, cycle, signal, self._held, eps)  # truth_readings(truth)
 
     # ------------------------------------------------------------------ the clock
     def start(self) -> "WorldRunner":
