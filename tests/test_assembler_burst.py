@@ -85,3 +85,60 @@ def test_parts_merge_while_a_cycle_is_evaluated_and_none_is_lost_in_a_burst(tmp_
         for process in processes:
             process.close()
         service.close()
+
+
+def test_an_assemblers_buses_are_read_by_one_thread_a_receive_turn_at_a_time(tmp_path, monkeypatch):
+    """The assembler process reads its group's buses as the centre and node-sim read theirs
+    (taxel_net.receiver): one receive thread for every bus, the frames a bus holds handed on in
+    one call. On main each bus had a python-can Notifier thread handing on one frame per call:
+    the threads took turns on the interpreter lock frame by frame, and with Zenoh's threads in
+    the process (a part's put releases the lock, another bus's thread takes it) skin4096's
+    assemblers read their buses tens of ms behind. Every frame still reaches the assembler
+    once, in its bus's order."""
+    import can
+
+    from fusion_center.service.assembler_process import AssemblerProcess
+
+    monkeypatch.setenv("FUSION_CENTER_AUTHKEY", "turn-test-key")
+    scene = load_scene(_scene_file(tmp_path))
+    port = random.randint(40000, 60000)
+    names = [f"turn-{port}-a", f"turn-{port}-b"]
+    process = AssemblerProcess(scene, [0, 1], fuser=("127.0.0.1", port), interface="virtual", channel_names=names)
+    calls: list[tuple[int, int, list[bytes]]] = []  # (thread, channel, the frames' payloads)
+    held, go = threading.Event(), threading.Event()
+    receive_all = process.receive_all
+
+    def recording(msgs, channel):
+        msgs = list(msgs)
+        calls.append((threading.get_ident(), channel, [bytes(m.data) for m in msgs]))
+        if not held.is_set():  # the first call waits while the rest of the frames are queued
+            held.set()
+            go.wait(30)  # a safety limit: the test releases it
+        receive_all(msgs, channel)
+
+    monkeypatch.setattr(process, "receive_all", recording)
+    senders = [can.Bus(interface="virtual", channel=name) for name in names]
+    frames = 40
+    try:
+        process.open()
+        # heartbeats of a node the group does not have: fed, counted, they close no cycle
+        senders[0].send(can.Message(arbitration_id=0x77F, data=[0x7F, 0], is_extended_id=False))
+        assert held.wait(30), "the first frame was not handed on"
+        for k in range(frames):
+            for channel, bus in enumerate(senders):
+                bus.send(can.Message(arbitration_id=0x77F, data=[0x7F, 1 + k + 100 * channel], is_extended_id=False))
+        go.set()
+        _wait(lambda: sum(len(c[2]) for c in calls) == 1 + 2 * frames, "every frame handed on")
+        got = {0: [], 1: []}
+        for _, channel, payloads in calls:
+            got[channel].extend(p[1] for p in payloads)
+        assert got == {0: [0] + [1 + k for k in range(frames)], 1: [101 + k for k in range(frames)]}
+        assert len({thread for thread, _, _ in calls}) == 1  # one receive thread for both buses
+        # the frames queued meanwhile came a turn of a bus in one call (main: one frame a call)
+        assert max(len(payloads) for _, _, payloads in calls[1:]) == frames
+        assert process.events == 1 + 2 * frames
+    finally:
+        go.set()
+        process.close()
+        for bus in senders:
+            bus.shutdown()
