@@ -106,6 +106,11 @@ def test_a_killed_centre_leaves_the_part_held_and_a_new_one_takes_it_over(tmp_pa
     records = [json.loads(line) for line in second.read_text().splitlines()]
     seen = [r for r in records if r["grip"]["drive_state"] is not None]
     assert seen and "takeover" in seen[0]["grip_flags"], seen[:1]
-    assert seen[0]["grip"]["command_n"] > 0 and abs(seen[0]["grip"]["command_n"] - seen[0]["grip"]["actual_n"]) <= 0.2
+    # the drive's statusword (TPDO1) and its force (TPDO2) are separate frames: on a loaded host the
+    # first record that knows the state may not know the force yet (actual_n null) - the command
+    # taken over is compared with the first force the new centre heard
+    assert seen[0]["grip"]["command_n"] > 0
+    with_force = [r for r in seen if r["grip"]["actual_n"] is not None]
+    assert with_force and abs(with_force[0]["grip"]["command_n"] - with_force[0]["grip"]["actual_n"]) <= 0.2, with_force[:1]
     assert all(r["grip_detail"]["target_permille"] > 0 for r in seen)  # it commands the hold, never opens
     assert "takeovers 1" in centre.stdout
