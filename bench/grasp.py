@@ -45,6 +45,7 @@ sys.path.insert(0, str(HERE))
 from grasp_layout import pad_rows  # noqa: E402
 from grasp_sim import run_grasp  # noqa: E402
 
+from taxel_net.errors import ParameterError  # noqa: E402
 from taxel_net.scene import TaxelSpec, load_scene  # noqa: E402
 from taxel_net.grip_params import FLOAT_FIELDS, INT_FIELDS  # noqa: E402
 from taxel_net.scene_grasp import PhaseSpec  # noqa: E402
@@ -530,7 +531,11 @@ def main(argv=None) -> int:
         key, _, value = item.partition("=")
         if key not in GRIP_FIELDS or not value:
             ap.error(f"--set {item!r}: FIELD=VALUE with FIELD one of {', '.join(GRIP_FIELDS)}")
-        overrides[key] = int(value) if key == "presence_cycles" else float(value)
+        try:
+            overrides[key] = int(value) if key in INT_FIELDS else float(value)
+            dataclasses.replace(_base().grip, **overrides)   # GripParams' own checks, before any grasp
+        except (ValueError, ParameterError) as exc:
+            ap.error(f"--set {item!r}: {exc}")
     if args.from_json:
         saved = json.loads(args.from_json.read_text())
         results, table = saved["grasps"], summarise(saved["grasps"])

@@ -41,14 +41,17 @@ class GripParams:
     mu: float = 0.5                 # the friction coefficient of eq 26a ([forces] mu by default)
     open_n: float = 10.0            # release: opening force
     presence_cycles: int = 2        # H1 this many cycles in a row before the squeeze
+    edge_fraction: float = 0.4      # the slip cue's edge: before a contact's first slip flag, a displacement
+    edge_cycles: int = 2            # beyond edge_fraction x the noise band for edge_cycles cycles in a row is slip
 
     def __post_init__(self):
         check_params(self)
 
 
 FLOAT_FIELDS = ("grasp_n", "min_n", "max_n", "raise_fraction", "raise_n", "settle_s", "margin", "relax_delay_s",
-                "return_delay_s", "relax_per_s", "probe_headroom", "return_per_s", "safety_factor", "mu", "open_n")
-INT_FIELDS = ("presence_cycles",)
+                "return_delay_s", "relax_per_s", "probe_headroom", "return_per_s", "safety_factor", "mu", "open_n",
+                "edge_fraction")
+INT_FIELDS = ("presence_cycles", "edge_cycles")
 
 
 def check_params(p: GripParams) -> None:
@@ -75,8 +78,13 @@ def check_params(p: GripParams) -> None:
         raise ParameterError("safety_factor", p.safety_factor, "must be >= 1 (eq 26a's bound is the least)")
     if not p.min_n <= p.grasp_n <= p.max_n:
         raise ParameterError("grasp_n", p.grasp_n, f"must lie in [min_n, max_n] = [{p.min_n:g}, {p.max_n:g}]")
-    if isinstance(p.presence_cycles, bool) or not isinstance(p.presence_cycles, int) or p.presence_cycles < 1:
-        raise ParameterError("presence_cycles", p.presence_cycles, "must be an integer >= 1")
+    if not 0 < p.edge_fraction <= 1:
+        raise ParameterError("edge_fraction", p.edge_fraction, "must lie in (0, 1]: a fraction of the slip stage's noise "
+                                                               "band (1: no cue below the band)")
+    for name in INT_FIELDS:
+        value = getattr(p, name)
+        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+            raise ParameterError(name, value, "must be an integer >= 1")
 
 
 __all__ = ["GripParams", "check_params", "FLOAT_FIELDS", "INT_FIELDS"]

@@ -321,13 +321,14 @@ def _slip_flags(stage, displacements):
 
 def test_slip_now_edge_cue_flags_the_contacts_first_edge_before_a_full_pitch():
     """The sub-pitch edge cue (docs/grip-control.md, "Why these rules"): before the first slip flag
-    of a contact, a displacement beyond EDGE_FRACTION x the noise band for EDGE_CYCLES cycles in a
-    row is slip - the first location at the footprint's edge switching moves the centroid of the
-    2 mm pads by 0.625 mm, less than the band (1 mm, half a pitch), which a full pitch of slide
-    (1.875 mm) crosses only 2 mm later. A one-cycle flicker is no slip; the full pitch flags again."""
-    from fusion_center.service.grip_stage import EDGE_CYCLES, EDGE_FRACTION
+    of a contact, a displacement beyond [grip] edge_fraction x the noise band for edge_cycles cycles
+    in a row is slip - the first location at the footprint's edge switching moves the centroid of
+    the 2 mm pads by 0.625 mm, less than the band (1 mm, half a pitch), which a full pitch of slide
+    (1.875 mm) crosses only 2 mm later. A one-cycle flicker is no slip; the full pitch flags again.
+    (The defaults, 0.4 and 2; the cue under other values: the next test.)"""
+    from fusion_center.core.grip_law import GripParams
 
-    assert EDGE_CYCLES == 2 and 0.4 * 1.0 <= EDGE_FRACTION * 1.0 < 0.625
+    assert GripParams().edge_cycles == 2 and 0.4 * 1.0 <= GripParams().edge_fraction * 1.0 < 0.625
     scene = load_scene("grasp_scripted")
     stage = GripStage(scene, noise_band=1.0, slip_hold=3)
     # at rest, then the first edge location leaves the footprint (0.625 mm) and stays: flagged the 2nd cycle
@@ -340,12 +341,49 @@ def test_slip_now_edge_cue_flags_the_contacts_first_edge_before_a_full_pitch():
     # a flicker of one cycle at a time (the edge location on, off, on ...) is no slip
     flicker = GripStage(scene, noise_band=1.0)
     assert not any(_slip_flags(flicker, [0.0, 0.625, 0.0, 0.625, 0.0, 0.625, 0.0]))
-    # a displacement below EDGE_FRACTION x the band, however long, is no slip
+    # a displacement below edge_fraction x the band, however long, is no slip
     small = GripStage(scene, noise_band=1.0)
     assert not any(_slip_flags(small, [0.0] + [0.39] * 20))
-    # losing the contact forgets the run: the edge cue needs EDGE_CYCLES cycles of the new contact
+    # losing the contact forgets the run: the edge cue needs edge_cycles cycles of the new contact
     lost = GripStage(scene, noise_band=1.0)
     _slip_flags(lost, [0.0, 0.625])
     assert lost.slip_now({"cycle": 2, "slip": {"contact": False}}) is False
     assert [lost.slip_now({"cycle": 3 + k, "slip": {"contact": True, "displacement": d}})
             for k, d in enumerate([0.625, 0.625])] == [False, True]
+
+
+def _edge_stage(**fields):
+    """grasp_scripted's stage (no [grip]: the defaults) with the scene's [grip] edge fields set."""
+    from dataclasses import replace
+
+    from fusion_center.service.grip_stage import default_params
+
+    scene = load_scene("grasp_scripted")
+    scene = replace(scene, grip=replace(default_params(scene), **fields))
+    return GripStage(scene, noise_band=1.0, slip_hold=3)
+
+
+@pytest.mark.parametrize("fraction, cycles, step, first", [
+    (0.4, 1, 0.625, 3),     # one cycle beyond 0.4 mm: flagged at once
+    (0.4, 3, 0.625, 5),     # three cycles in a row
+    (0.4, 5, 0.625, 7),
+    (0.6, 2, 0.625, 4),     # 0.625 > 0.6 mm
+    (0.65, 2, 0.625, None),  # 0.625 < 0.65 mm: no cue; only a full band crossing flags
+    (1.0, 1, 0.625, None),   # 1: no cue below the band
+    (0.2, 2, 0.25, 4),      # a finer first event (0.25 mm) caught by a lower fraction
+    (0.4, 2, 0.25, None),   # ... not by the default
+])
+def test_slip_now_edge_cue_follows_the_grip_fields(fraction, cycles, step, first):
+    """The edge cue's threshold and confirming run are the scene's [grip] edge_fraction and
+    edge_cycles (GripStage reads them from Scene.grip, as bench/grasp.py's grasps do): a displacement
+    of ``step`` mm from cycle 3 on (the band 1 mm) is flagged first at cycle 3 + edge_cycles - 1 if
+    ``step > edge_fraction x band``, never below the band otherwise."""
+    stage = _edge_stage(edge_fraction=fraction, edge_cycles=cycles)
+    flags = _slip_flags(stage, [0.0, 0.0, 0.0] + [step] * 10)
+    expect = None if step <= fraction * 1.0 else 3 + cycles - 1
+    assert expect == first  # the table above is the rule's
+    assert (flags.index(True) if any(flags) else None) == first, flags
+    # a whole band of slide flags whatever the edge fields
+    more = [stage.slip_now({"cycle": 13 + k, "slip": {"contact": True, "displacement": d}})
+            for k, d in enumerate([1.5, 1.5])]
+    assert more[0] is True

@@ -58,14 +58,14 @@ def test_empty_table_defaults(tmp_path):
     d = grip_law.GripParams()
     for name in ("grasp_n", "min_n", "raise_fraction", "raise_n", "settle_s", "margin", "relax_delay_s",
                  "return_delay_s", "relax_per_s", "probe_headroom", "return_per_s", "safety_factor", "open_n",
-                 "presence_cycles"):
+                 "presence_cycles", "edge_fraction", "edge_cycles"):
         assert getattr(g, name) == getattr(d, name), name
 
 
 # every field, with a value that is not its default, read as given
 ALL = {"grasp_n": 7.5, "min_n": 1.25, "max_n": 60.0, "raise_fraction": 0.4, "raise_n": 0.75, "settle_s": 0.03,
        "margin": 0.3, "relax_delay_s": 0.8, "return_delay_s": 0.1, "relax_per_s": 0.25, "probe_headroom": 2.0, "return_per_s": 2.5,
-       "safety_factor": 1.5, "mu": 0.6, "open_n": 20.0, "presence_cycles": 3}
+       "safety_factor": 1.5, "mu": 0.6, "open_n": 20.0, "presence_cycles": 3, "edge_fraction": 0.55, "edge_cycles": 3}
 
 
 def test_every_field_is_read(tmp_path):
@@ -113,6 +113,17 @@ ERRORS = [  # (the [grip] body, field, value, words in the problem)
     ("presence_cycles = 0\n", "grip.presence_cycles", 0, ">= 1"),
     ("presence_cycles = 2.5\n", "grip.presence_cycles", 2.5, "integer"),
     ("presence_cycles = false\n", "grip.presence_cycles", False, "integer"),
+    ("edge_fraction = 0\n", "grip.edge_fraction", 0.0, "(0, 1]"),
+    ("edge_fraction = -0.2\n", "grip.edge_fraction", -0.2, "(0, 1]"),
+    ("edge_fraction = 1.5\n", "grip.edge_fraction", 1.5, "(0, 1]"),
+    ("edge_fraction = nan\n", "grip.edge_fraction", "nan", "finite"),
+    ("edge_fraction = \"0.4\"\n", "grip.edge_fraction", "0.4", "number"),
+    ("edge_fraction = true\n", "grip.edge_fraction", True, "number"),
+    ("edge_cycles = 0\n", "grip.edge_cycles", 0, ">= 1"),
+    ("edge_cycles = -2\n", "grip.edge_cycles", -2, ">= 1"),
+    ("edge_cycles = 1.5\n", "grip.edge_cycles", 1.5, "integer"),
+    ("edge_cycles = true\n", "grip.edge_cycles", True, "integer"),
+    ("edge_cycles = \"2\"\n", "grip.edge_cycles", "2", "integer"),
     ("gain = 3\n", "grip.gain", 3, "unknown key"),
 ]
 
@@ -158,11 +169,17 @@ def test_defaults_that_do_not_fit_the_drive_name_their_origin(tmp_path):
     assert info.value.field == "grip.grasp_n" and "max_n" in info.value.problem and "4" in info.value.problem
 
 
-@pytest.mark.parametrize("cli", ["node_sim.cli", "fusion_center.cli"])
-def test_clis_exit_2_with_the_one_line(tmp_path, cli):
-    path = write(tmp_path, "max_n = 500.0\n")
+@pytest.mark.parametrize("cli, body, field", [
+    ("node_sim.cli", "max_n = 500.0\n", "grip.max_n"),
+    ("fusion_center.cli", "max_n = 500.0\n", "grip.max_n"),
+    ("fusion_center.cli", "edge_fraction = 1.5\n", "grip.edge_fraction"),
+    ("fusion_center.cli", "edge_cycles = 0\n", "grip.edge_cycles"),
+    ("node_sim.cli", "edge_cycles = 2.5\n", "grip.edge_cycles"),
+])
+def test_clis_exit_2_with_the_one_line(tmp_path, cli, body, field):
+    path = write(tmp_path, body)
     args = ["--scene", str(path), "-i", "virtual"] if cli == "node_sim.cli" else ["demo", "--scene", str(path)]
     done = subprocess.run([sys.executable, "-m", cli, *args], cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert done.returncode == 2, done.stderr
     lines = [line for line in done.stderr.splitlines() if line.strip()]
-    assert len(lines) == 1 and "grip.max_n" in lines[0] and str(path) in lines[0], lines
+    assert len(lines) == 1 and field in lines[0] and str(path) in lines[0], lines

@@ -16,8 +16,8 @@ Per cycle (``docs/service.md``, "The grip stage"; the law: ``docs/grip-control.m
   taxel pitch - in this cycle or the ``slip_hold`` - 1 before it (default 3, the slip stage's
   ``motion_consecutive``: one-bit decisions see the position only in taxel pitches, so a sliding
   contact moves the centroid once per pitch, not every cycle); before the contact's first such
-  event also the **edge cue**: a displacement beyond :data:`EDGE_FRACTION` of the band for
-  :data:`EDGE_CYCLES` cycles in a row - the first location at the footprint's edge switching
+  event also the **edge cue**: a displacement beyond ``[grip] edge_fraction`` of the band for
+  ``edge_cycles`` cycles in a row (0.4, 2) - the first location at the footprint's edge switching
   moves the centroid by less than the band, below a pitch of slide (``docs/grip-control.md``); or,
   in raw mode, ``TotF_t > mu F_g`` this cycle, eq 26a); ``actual_n`` the drive's force (0x2101:
   when the law's last raise has arrived); ``degraded`` a cycle with a
@@ -58,8 +58,6 @@ from .records import jsonable
 
 RECOVER_EVERY_S = 1.0   # at most one fault reset / re-enable attempt per this many seconds
 WALK_CYCLES = 10        # cycles a re-enable walk may take (SWITCH ON DISABLED -> OPERATION ENABLED: 2-4)
-EDGE_FRACTION = 0.4     # slip_now's edge cue: beyond this fraction of the noise band ...
-EDGE_CYCLES = 2         # ... this many cycles in a row (a one-cycle flicker is no slip)
 PROFILE_TORQUE = 4      # 0x6060 / 0x6061
 
 OE = "OPERATION ENABLED"
@@ -129,7 +127,8 @@ class GripStage:
         self.peak: float | None = None       # slip_now: farthest displacement reached in this contact
         self.peak_cycle: int | None = None   # the cycle it was reached
         self.slip_hold = slip_hold
-        self.edge_band = self.band * EDGE_FRACTION  # slip_now's edge cue (sub-pitch), before the first slip flag
+        self.edge_band = self.band * self.params.edge_fraction  # slip_now's edge cue (sub-pitch), before the first slip flag
+        self.edge_cycles = self.params.edge_cycles              # ... that many cycles in a row (a flicker is no slip)
         self.edge_run = 0                           # cycles in a row beyond edge_band
         self.counts = {"drive_faults": 0, "quick_stops": 0, "drive_disabled": 0, "drive_lost": 0,
                        "fault_resets": 0, "enable_walks": 0, "takeovers": 0, "degraded_holds": 0}
@@ -153,9 +152,9 @@ class GripStage:
                 self.peak = self.band
             if self.peak_cycle is None:
                 # the edge cue: the contact's first edge location switching (sub-pitch) moves the
-                # centroid by less than the band; beyond edge_band for EDGE_CYCLES cycles in a row
+                # centroid by less than the band; beyond edge_band for edge_cycles cycles in a row
                 self.edge_run = self.edge_run + 1 if displacement > self.edge_band + 1e-9 else 0
-                if self.edge_run >= EDGE_CYCLES:
+                if self.edge_run >= self.edge_cycles:
                     self.peak_cycle = record["cycle"]   # the peak stays at the band: the full pitch flags again
             now = self.peak_cycle is not None and record["cycle"] - self.peak_cycle < self.slip_hold
         ratio = slip.get("force_ratio")
