@@ -1,8 +1,9 @@
 """Randomised grasps through the centre's control code: decision mode, raw mode and two fixed forces.
 
 The benchmark of issue 23: at least 1,000 randomised grasps (mass, mu_s / mu_k, lift acceleration,
-a hold-phase disturbance - an added load or a shake -, pad pitch; a quarter of them fragile) each
-run four ways on the same world, drive and task:
+a hold-phase disturbance - an added load or a shake -, pad pitch, the contact's position along the
+slip axis within one pitch; a quarter of them fragile) each run four ways on the same world, drive
+and task:
 
 * ``decision`` - the centre in decision mode (one bit per taxel: presence and the footprint's
   motion), the grip law of ``fusion_center.core.grip_law`` with the scene's ``[grip]``;
@@ -22,7 +23,7 @@ holding force over the least holding force, crushing events on the fragile objec
 cycle. ``--json FILE`` writes every grasp's numbers; ``docs/grip-control.md`` shows a run.
 
 Usage: python bench/grasp.py [--grasps 1000] [--seed 23] [--jobs N] [--json out.json] [--plot out.png]
-       [--set FIELD=VALUE ...] (a [grip] parameter for every grasp)
+       [--set FIELD=VALUE ...] (a [grip] parameter for every grasp) [--contact random|centred]
 """
 
 from __future__ import annotations
@@ -80,6 +81,7 @@ class Case:
     fragile: bool
     max_force_n: float | None
     grasp_n: float
+    contact_offset_mm: float = 0.0   # the contact's centre above the pad's middle (the pressure row's middle cell)
 
     @property
     def static_least_n(self) -> float:
@@ -123,13 +125,28 @@ def make_case(rng: np.random.Generator, index: int) -> Case:
     return Case(index, mass, mu_s, mu_k, accel, disturbance, at, load, shake, hz, pitch, fragile, max_force, grasp)
 
 
+def place_contacts(cases: list[Case], seed: int, how: str) -> list[Case]:
+    """The contact's position along the slip axis: ``centred`` on the pad's middle (a pressure cell
+    there: on the 2 and 2.5 mm pads the 20 mm footprint's edges then lie on cells), or ``random``:
+    its centre uniform over one pitch about the middle, ``[-p/2, p/2)``, so the footprint's edges fall
+    anywhere between the cells. Drawn from a generator of its own (``(seed, 1)``): the cases' other
+    draws are the same either way, so ``--contact centred`` and ``random`` compare the same grasps."""
+    if how == "centred":
+        return [dataclasses.replace(c, contact_offset_mm=0.0) for c in cases]
+    rng = np.random.default_rng((seed, 1))
+    u = rng.uniform(-0.5, 0.5, size=len(cases))
+    return [dataclasses.replace(c, contact_offset_mm=float(x * c.pitch_mm)) for c, x in zip(cases, u)]
+
+
 def drive_max_n() -> float:
     g = _base().gripper
     return g.rated_force_n * DRIVE_MAX_TORQUE / 1000.0
 
 
-def case_scene(base, case: Case, mode: str):
-    """The base scene with the case's object, task, pad layout and law (raw: the bus in raw mode)."""
+def case_scene(base, case: Case, mode: str, drive: tuple[float, float] | None = None):
+    """The base scene with the case's object, contact position, task, pad layout and law (raw: the bus
+    in raw mode); ``drive`` ``(torque slope N/s per jaw, jaws' force lag ms)`` replaces the base
+    scene's (0x6087 and ``[grasp] force_lag_ms``; ``bench/grasp_drive.py``)."""
     kinds = {t.kind: t for t in base.taxels}
     taxels = []
     for r in pad_rows(case.pitch_mm):
@@ -148,8 +165,14 @@ def case_scene(base, case: Case, mode: str):
         phases.append(PhaseSpec("hold", HOLD_S))
     phases += [PhaseSpec("place", 0.6, height_mm=lift_h, accel_m_s2=2.0, speed_m_s=0.3), PhaseSpec("release", 0.3)]
     grasp = dataclasses.replace(base.grasp, mass_kg=case.mass_kg, mu_s=case.mu_s, mu_k=case.mu_k,
-                                max_force_n=case.max_force_n, phases=tuple(phases))
+                                max_force_n=case.max_force_n, phases=tuple(phases),
+                                grip_at_mm=base.grasp.grip_at + case.contact_offset_mm)
     gripper = dataclasses.replace(base.gripper, max_torque_permille=DRIVE_MAX_TORQUE)
+    if drive is not None:
+        slope_n_s, lag_ms = drive
+        gripper = dataclasses.replace(gripper, torque_slope_permille_s=int(round(slope_n_s * 1000.0
+                                                                                  / gripper.rated_force_n)))
+        grasp = dataclasses.replace(grasp, force_lag_ms=float(lag_ms))
     top = drive_max_n()
     max_n = min(top, 0.9 * case.max_force_n) if case.fragile else top
     grip = dataclasses.replace(base.grip, grasp_n=case.grasp_n, max_n=max_n, min_n=min(base.grip.min_n, case.grasp_n),
@@ -272,18 +295,23 @@ def run_case(args) -> dict:
 
 
 def _run_case(args) -> dict:
-    case, want_bits, overrides = args
+    """``(case, want_bits, overrides[, modes[, drive]])``: the case in each of ``modes`` (default
+    all four), with the law's ``overrides`` and the drive ``(slope N/s, lag ms)`` (default the
+    base scene's)."""
+    case, want_bits, overrides = args[:3]
+    modes = args[3] if len(args) > 3 and args[3] else MODES
+    drive = args[4] if len(args) > 4 else None
     base = _base()
     if overrides:
         base = dataclasses.replace(base, grip=dataclasses.replace(base.grip, **overrides))
     out = {"case": dataclasses.asdict(case)}
     dt = base.bus.sync_period_ms / 1000.0
-    for mode in MODES:
+    for mode in modes:
         if mode in ("decision", "raw"):
-            scene = case_scene(base, case, mode)
+            scene = case_scene(base, case, mode, drive)
             res = run_grasp(scene, mode, count_bits=want_bits, pipeline=_pipeline(scene, case.pitch_mm, mode))
         else:
-            scene = case_scene(base, case, "decision")
+            scene = case_scene(base, case, "decision", drive)
             force = (2.0 if mode == "fixed 2x" else 1.0) * case.static_least_n
             res = run_grasp(scene, "fixed", fixed_n=force)
         m = grasp_metrics(res["rows"], case, dt)
@@ -523,6 +551,9 @@ def main(argv=None) -> int:
     ap.add_argument("--from-json", type=Path, help="no run: the table (and --plot) of a --json file written before")
     ap.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
                     help="override a [grip] parameter of the law for every grasp (repeatable)")
+    ap.add_argument("--contact", choices=("random", "centred"), default="random",
+                    help="the contact's position along the slip axis: uniform over one pitch about the pad's middle "
+                         "(default), or centred on it (the bench before: footprint edges on cells at 2 and 2.5 mm)")
     args = ap.parse_args(argv)
     if args.grasps < 1 or args.jobs < 1 or args.bits_every < 1:
         ap.error("--grasps, --jobs and --bits-every must be >= 1")
@@ -547,7 +578,7 @@ def main(argv=None) -> int:
                                              f"({a.get('date', '')})")
         return 0
     rng = np.random.default_rng(args.seed)
-    cases = [make_case(rng, i) for i in range(args.grasps)]
+    cases = place_contacts([make_case(rng, i) for i in range(args.grasps)], args.seed, args.contact)
     jobs = [(c, c.index % args.bits_every == 0, overrides) for c in cases]
     t0 = time.perf_counter()
     results = []
@@ -570,14 +601,15 @@ def main(argv=None) -> int:
     results = [r for r in results if "error" not in r]
     table = summarise(results)
     dt_ms = _base().bus.sync_period_ms
-    print(f"bench/grasp.py --grasps {args.grasps} --seed {args.seed}: {args.grasps} grasps x {len(MODES)} modes "
-          f"in {elapsed:.0f} s ({args.jobs} job(s)); SYNC {dt_ms:g} ms")
+    print(f"bench/grasp.py --grasps {args.grasps} --seed {args.seed} --contact {args.contact}: {args.grasps} grasps "
+          f"x {len(MODES)} modes in {elapsed:.0f} s ({args.jobs} job(s)); SYNC {dt_ms:g} ms")
     print(render(table, dt_ms))
     if args.plot:
         plot(results, table, args.plot, f"bench/grasp.py --grasps {args.grasps} --seed {args.seed} "
                                          f"({time.strftime('%Y-%m-%d', time.gmtime())})")
     if args.json:
         args.json.write_text(json.dumps({"args": {"grasps": args.grasps, "seed": args.seed, "overrides": overrides,
+                                                  "contact": args.contact,
                                                   "date": time.strftime("%Y-%m-%d", time.gmtime()),
                                                   "elapsed_s": round(elapsed, 1), "jobs": args.jobs},
                                          "table": table,

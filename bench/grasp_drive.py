@@ -1,0 +1,180 @@
+"""Onset -> stuck again against the drive: bench/grasp.py's randomised grasps under other torque slopes and force lags.
+
+Issue 23's goal "stuck again at most 50 ms after slip onset" is not met with the bundled drive
+(``grasp_lift``'s 0x6087: 500 N/s per jaw, 5 N a 10 ms cycle; the jaws' force lag
+``[grasp] force_lag_ms`` 20 ms); ``docs/grip-control.md`` ("Bounds") argues the drive and the pad
+pitch bound it. This bench measures it: the same cases as ``bench/grasp.py`` (the same ``--seed``
+draws the same objects, tasks, pitches and contact positions), each run through the live centre's
+control code (``bench/grasp_sim.py``) once per drive ``(torque slope, force lag)`` - only the drive
+changes, not the law's ``[grip]`` - and prints side by side, per pad pitch and over all: onset ->
+stuck again (median / p95 ms), the share of slip episodes stuck again within 50 ms, onset ->
+detection and the parts after it (``bench/grasp.py``'s "stuck in parts"), the slide, objects lost
+and the holding force within 1.3x.
+
+Usage: python bench/grasp_drive.py [--grasps 300] [--seed 23] [--slopes 500,1000,2000] [--lags 20]
+       [--modes decision] [--contact random|centred] [--jobs N] [--json out.json]
+
+The bundled scenes' drive is not changed: this is what a faster drive or a finer pitch would buy.
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+import multiprocessing
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+
+from grasp import PARTS, PITCHES, make_case, place_contacts, run_case  # noqa: E402
+
+GOAL_MS = 50.0
+
+
+def _floats(text: str, what: str) -> list[float]:
+    try:
+        values = [float(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{what} {text!r}: comma-separated numbers") from None
+    if not values or any(not np.isfinite(v) or v < 0 for v in values):
+        raise argparse.ArgumentTypeError(f"{what} {text!r}: comma-separated finite numbers >= 0")
+    return values
+
+
+def cell_stats(grasps: list[dict], mode: str, dt_ms: float) -> dict:
+    """One variant's numbers over ``grasps`` (``bench/grasp.py``'s per-grasp results)."""
+    eps = [e for g in grasps for e in g[mode]["episodes"]]
+    stuck = [e["stuck_ms"] for e in eps if e["stuck_ms"] is not None]
+    det = [e["detect_cycles"] * dt_ms for e in eps if e["detect_cycles"] is not None]
+    parts = [e["parts"] for e in eps if e.get("parts")]
+    ratios = [g[mode]["ratio"] for g in grasps if g[mode]["ratio"] is not None]
+    out = {"grasps": len(grasps), "episodes": len(eps),
+           "stuck_med": _pct(stuck, 50), "stuck_p95": _pct(stuck, 95),
+           "stuck_le_goal": (sum(1 for s in stuck if s <= GOAL_MS + 1e-9) / len(stuck)) if stuck else float("nan"),
+           "detect_med": _pct(det, 50),
+           "slid_med": _pct([g[mode]["slid_mm"] for g in grasps], 50),
+           "slid_p95": _pct([g[mode]["slid_mm"] for g in grasps], 95),
+           "dropped": sum(1 for g in grasps if g[mode]["dropped"]),
+           "crushed": sum(1 for g in grasps if g[mode]["crushed"]),
+           "ratio_le_1_3": (sum(1 for r in ratios if r <= 1.3) / len(ratios)) if ratios else float("nan")}
+    for n, part in enumerate(PARTS):
+        out[f"part_{part}"] = _pct([p[n] * dt_ms for p in parts], 50)
+    return out
+
+
+def _pct(values, q):
+    return float(np.percentile(values, q)) if values else float("nan")
+
+
+def _f(v, fmt="{:.0f}"):
+    return "-" if v is None or (isinstance(v, float) and np.isnan(v)) else fmt.format(v)
+
+
+def render(stats: dict, variants: list[tuple[float, float]], mode: str) -> str:
+    """``stats[(variant, pitch or "all")]`` -> the side-by-side table."""
+    heads = [f"{s:g} N/s, {lag:g} ms" for s, lag in variants]
+    width = max(18, max(len(h) for h in heads) + 2)
+    lines = [f"{mode}: onset -> stuck again, ms median/p95 [share of episodes <= {GOAL_MS:g} ms] (episodes)",
+             f"{'pitch':28s}" + "".join(f"{h:>{width}s}" for h in heads)]
+    for pitch in (*PITCHES, "all"):
+        label = f"{pitch:g} mm" if pitch != "all" else "all pitches"
+        cells = []
+        for v in variants:
+            st = stats[(v, pitch)]
+            cells.append(f"{_f(st['stuck_med'])}/{_f(st['stuck_p95'])} [{_f(100 * st['stuck_le_goal'])}%] "
+                         f"({st['episodes']})")
+        lines.append(f"{label:28s}" + "".join(f"{c:>{width}s}" for c in cells))
+    lines.append("all pitches, medians:")
+    rows = [("onset->detect ms", lambda st: _f(st["detect_med"])),
+            ("  parts: detect ms", lambda st: _f(st["part_detect"])),
+            ("  detect->raise ms", lambda st: _f(st["part_raise"])),
+            ("  raise->force holds ms", lambda st: _f(st["part_force"])),
+            ("  force->stuck ms", lambda st: _f(st["part_stop"])),
+            ("slid mm med/p95", lambda st: f"{_f(st['slid_med'], '{:.1f}')}/{_f(st['slid_p95'], '{:.1f}')}"),
+            ("dropped / crushed", lambda st: f"{st['dropped']} / {st['crushed']}"),
+            ("hold force/least <= 1.3", lambda st: f"{_f(100 * st['ratio_le_1_3'])} %")]
+    for label, fn in rows:
+        lines.append(f"{label:28s}" + "".join(f"{fn(stats[(v, 'all')]):>{width}s}" for v in variants))
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--grasps", type=int, default=300, help="randomised grasps per drive (default 300)")
+    ap.add_argument("--seed", type=int, default=23)
+    ap.add_argument("--slopes", type=lambda t: _floats(t, "--slopes"), default=[500.0, 1000.0, 2000.0],
+                    help="torque slopes, N/s per jaw (0x6087 x rated force; default 500,1000,2000)")
+    ap.add_argument("--lags", type=lambda t: _floats(t, "--lags"), default=[20.0],
+                    help="the jaws' force lags, ms ([grasp] force_lag_ms; default 20)")
+    ap.add_argument("--modes", default="decision", help="centre modes, comma-separated: decision, raw (default decision)")
+    ap.add_argument("--contact", choices=("random", "centred"), default="random")
+    ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
+    ap.add_argument("--json", type=Path, help="write the per-variant tables here")
+    args = ap.parse_args(argv)
+    modes = tuple(m.strip() for m in args.modes.split(",") if m.strip())
+    if not modes or any(m not in ("decision", "raw") for m in modes):
+        ap.error(f"--modes {args.modes!r}: decision and/or raw")
+    if args.grasps < 1 or args.jobs < 1:
+        ap.error("--grasps and --jobs must be >= 1")
+    if any(s <= 0 for s in args.slopes):
+        ap.error("--slopes: every slope must be > 0 N/s")
+    from grasp import _base
+
+    rated = _base().gripper.rated_force_n
+    for s in args.slopes:   # 0x6087 is an integer ‰/s
+        if abs(s * 1000.0 / rated - round(s * 1000.0 / rated)) > 1e-9:
+            ap.error(f"--slopes {s:g}: must be a whole number of ‰/s of the rated force ({rated:g} N: "
+                     f"steps of {rated / 1000.0:g} N/s)")
+    variants = list(itertools.product(args.slopes, args.lags))
+    rng = np.random.default_rng(args.seed)
+    cases = place_contacts([make_case(rng, i) for i in range(args.grasps)], args.seed, args.contact)
+    jobs = [(c, False, {}, modes, v) for v in variants for c in cases]
+    t0 = time.perf_counter()
+    results: list[dict] = []
+    pool = multiprocessing.get_context("spawn").Pool(args.jobs) if args.jobs > 1 else None
+    try:
+        it = pool.imap(run_case, jobs, chunksize=2) if pool else map(run_case, jobs)
+        for n, res in enumerate(it, 1):
+            results.append(res)
+            if n % 100 == 0 or n == len(jobs):
+                print(f"  {n}/{len(jobs)} runs, {time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True)
+    finally:
+        if pool:
+            pool.terminate()
+    elapsed = time.perf_counter() - t0
+    errors = [r for r in results if "error" in r]
+    for r in errors:
+        print(f"grasp {r['case']['index']}: {r['error']}\n{r['traceback']}", file=sys.stderr)
+    dt_ms = _base().bus.sync_period_ms
+    by_variant = {v: results[i * len(cases):(i + 1) * len(cases)] for i, v in enumerate(variants)}
+    print(f"bench/grasp_drive.py --grasps {args.grasps} --seed {args.seed} --contact {args.contact}: "
+          f"{len(variants)} drive(s) x {len(modes)} mode(s) in {elapsed:.0f} s ({args.jobs} job(s)); SYNC {dt_ms:g} ms"
+          + (f"; {len(errors)} grasp(s) failed (above), left out" if errors else ""))
+    out = {}
+    for mode in modes:
+        stats = {}
+        for v, res in by_variant.items():
+            ok = [r for r in res if "error" not in r]
+            for pitch in (*PITCHES, "all"):
+                sel = ok if pitch == "all" else [r for r in ok if r["case"]["pitch_mm"] == pitch]
+                stats[(v, pitch)] = cell_stats(sel, mode, dt_ms)
+        print(render(stats, variants, mode))
+        out[mode] = {f"{v[0]:g} N/s, {v[1]:g} ms|{p}": st for (v, p), st in stats.items()}
+    if args.json:
+        args.json.write_text(json.dumps({"args": {"grasps": args.grasps, "seed": args.seed, "contact": args.contact,
+                                                  "slopes": args.slopes, "lags": args.lags, "modes": modes,
+                                                  "elapsed_s": round(elapsed, 1),
+                                                  "date": time.strftime("%Y-%m-%d", time.gmtime())},
+                                         "tables": out}, default=float))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
