@@ -67,6 +67,32 @@ def test_lift_slips_under_the_first_squeeze_and_is_caught(name):
         assert 1.2 * 4.903 - 0.05 <= end < 7.2
 
 
+@pytest.mark.parametrize("name", ["grasp_lift", "grasp_lift_raw"])
+@pytest.mark.parametrize("grip_at", [20.95, 19.3])
+def test_a_contact_off_the_pads_middle_is_no_slip_as_the_jaws_press(name, grip_at):
+    """The contact 0.95 mm above / 0.7 mm below the pads' middle (bench/grasp.py's contacts lie
+    anywhere within a pitch of it): at 20.95 mm the 20 mm footprint covers the 2 mm row's cells at
+    12 .. 30 mm, whose mean (21 mm) is not the presence and thin-beam cells' (20 mm), so the
+    centroid of the 16 present locations moves by (10 x 21 + 6 x 20) / 16 - 20 = 0.625 mm as the
+    jaws press - 0.625 of the band, beyond the edge cue's 0.4, and no slip. The centre flags nothing
+    before the world's first slip (the lift's), and its first raise is that slip's: 3 x 6 N."""
+    import dataclasses
+
+    base = load_scene(name)
+    scene = dataclasses.replace(base, grasp=dataclasses.replace(base.grasp, grip_at_mm=grip_at))
+    rows = run_grasp(scene, scene.bus.mode)["rows"]
+    assert (10 * 21 + 6 * 20) / 16 - 20 == pytest.approx(0.625)
+    slips = [r for r in rows if r[SLIPPING] and r[PHASE] in ("close", "lift", "hold")]
+    assert slips and slips[0][PHASE] == "lift"
+    onset = slips[0][K]
+    first_flag = next(r[K] for r in rows if r[CENTRE_SLIP])
+    assert first_flag > onset
+    assert not any("slip_raise" in r[FLAGS] for r in rows if r[K] < onset)
+    raises = [r for r in rows if "slip_raise" in r[FLAGS]]
+    assert raises and raises[0][COMMAND] == pytest.approx(18.0)
+    assert not rows[-1][DROPPED] and rows[-1][MODE] != "left"
+
+
 def test_fragile_is_held_below_its_crushing_force_which_the_vendors_grip_exceeds():
     """0.2 kg, mu_s 0.6, crushed above 3 N: the vendors' 2 x 1.634 N = 3.27 N crushes it. The law
     squeezes 2.4 N (the 2 m/s² lift needs 0.2 (g + 2) / 1.2 = 1.968 N) and does not probe: 1.7 x

@@ -387,3 +387,42 @@ def test_slip_now_edge_cue_follows_the_grip_fields(fraction, cycles, step, first
     more = [stage.slip_now({"cycle": 13 + k, "slip": {"contact": True, "displacement": d}})
             for k, d in enumerate([1.5, 1.5])]
     assert more[0] is True
+
+
+def _pressed_flags(stage, steps, t0=0):
+    """``steps``: (displacement or None, pressing) per 10 ms cycle of one contact."""
+    return [stage.slip_now({"cycle": t0 + k, "t": 0.01 * (t0 + k), "slip": {"contact": True, "displacement": d}},
+                           pressing=p) for k, (d, p) in enumerate(steps)]
+
+
+def test_the_footprint_forming_as_the_jaws_press_is_no_slip_and_the_reference_is_taken_again():
+    """The presence cells see the object before the jaws touch it, so the slip tracker's reference is
+    their centroid; as the jaws press, the pressure cells of a footprint that is not symmetric about
+    it switch on and move the centroid by up to the band (a contact off the pad's middle): no slip.
+    From the drive's first force on the part (0x2101 > 0) the cue waits settle_s (60 ms), then the
+    stage has the tracker take its reference again (``rebase``) - once per contact; a slide after
+    that flags as before. Once the jaws let go (a force of 0) the footprint dissolves: no cue."""
+    resets = []
+    scene = load_scene("grasp_scripted")
+    stage = GripStage(scene, noise_band=1.0, slip_hold=3, rebase=lambda: resets.append(1))
+    assert stage.params.settle_s == pytest.approx(0.06)
+    before = [(0.0, False)] * 3                     # presence cells only: the reference, nothing moves
+    press = [(0.0, True)] + [(0.83, True)] * 6      # the jaws press (cycle 3); the footprint forms (cycle 4 on)
+    flags = _pressed_flags(stage, before + press)
+    assert not any(flags) and len(resets) == 1      # reset 60 ms after the first press: cycle 9
+    tracker_ref = [(None, True)] * 3                # the tracker's new reference cycles (no displacement)
+    rest = [(0.0, True)] * 3
+    slide = [(0.625, True)] * 3                     # the first edge event of a slide: flagged the 2nd cycle
+    flags = _pressed_flags(stage, tracker_ref + rest + slide, t0=10)
+    assert flags == [False] * 6 + [False, True, True] and len(resets) == 1
+    # the jaws open (force 0): the footprint shrinks back to the presence cells - no cue
+    flags = _pressed_flags(stage, [(0.625, True)] * 3 + [(1.9, False)] * 5, t0=19)
+    assert not any(flags[3:])
+    # contact lost, a new contact: a new press, a new reset
+    assert stage.slip_now({"cycle": 27, "t": 0.27, "slip": {"contact": False}}, pressing=False) is False
+    _pressed_flags(stage, [(0.0, False)] * 3 + [(0.9, True)] * 7, t0=28)
+    assert len(resets) == 2
+    # the drive's force not known (None): the cue as without the rule (never held back)
+    unknown = GripStage(scene, noise_band=1.0, slip_hold=3, rebase=lambda: resets.append(1))
+    assert _pressed_flags(unknown, [(0.0, None)] * 3 + [(0.625, None)] * 2) == [False] * 4 + [True]
+    assert len(resets) == 2

@@ -102,7 +102,7 @@ class GripStage:
     ``(controlword, target torque ‰)`` for this cycle, or None (nothing to send: the drive's state
     is not known yet)."""
 
-    def __init__(self, scene, *, noise_band: float | None = None, slip_hold: int = 3):
+    def __init__(self, scene, *, noise_band: float | None = None, slip_hold: int = 3, rebase=None):
         g = scene.gripper
         self.params = default_params(scene)
         self.rated_n = g.rated_force_n
@@ -130,19 +130,40 @@ class GripStage:
         self.edge_band = self.band * self.params.edge_fraction  # slip_now's edge cue (sub-pitch), before the first slip flag
         self.edge_cycles = self.params.edge_cycles              # ... that many cycles in a row (a flicker is no slip)
         self.edge_run = 0                           # cycles in a row beyond edge_band
+        self.rebase = rebase                        # the slip tracker's reset: its reference taken again
+        self.pressed_t: float | None = None         # SYNC time the jaws first pressed on this contact
+        self.rebased = False                        # ... and its reference was taken again settle_s later
         self.counts = {"drive_faults": 0, "quick_stops": 0, "drive_disabled": 0, "drive_lost": 0,
                        "fault_resets": 0, "enable_walks": 0, "takeovers": 0, "degraded_holds": 0}
 
     # ------------------------------------------------------------------ findings
-    def slip_now(self, record: dict) -> bool:
-        """The centre's slip this cycle (module docstring) from the slip stage's record."""
+    def slip_now(self, record: dict, pressing: bool | None = None) -> bool:
+        """The centre's slip this cycle (module docstring) from the slip stage's record; ``pressing``:
+        the drive reports a force on the part (0x2101 > 0: its jaws press on it), False a force of
+        0, None not known."""
         slip = record.get("slip")
         if not slip or not slip.get("contact"):
             self.peak = self.peak_cycle = None
             self.edge_run = 0
+            self.pressed_t, self.rebased = None, False
             return False
         now = False
         displacement = slip.get("displacement")
+        if self.rebased and pressing is False:
+            displacement = None     # the jaws let go (release, a lost part): the footprint dissolves
+        elif self.rebase is not None and not self.rebased:
+            # the footprint forms as the jaws press (the contact was seen before, by presence cells
+            # alone): no motion cue from the first press until settle_s later, then the slip
+            # tracker's reference is taken again (docs/grip-control.md, "the footprint forms")
+            if pressing and self.pressed_t is None:
+                self.pressed_t = record["t"]
+            if self.pressed_t is not None:
+                if record["t"] - self.pressed_t >= self.params.settle_s - 1e-9:
+                    self.rebase()
+                    self.rebased = True
+                self.peak = self.peak_cycle = None
+                self.edge_run = 0
+                displacement = None
         if displacement is not None:
             peak = self.band if self.peak is None else self.peak
             if displacement > peak + 1e-9:
@@ -193,7 +214,8 @@ class GripStage:
     def evaluate(self, record: dict, drive: DriveCycle | None) -> None:
         cycle = record["cycle"]
         flags: list[str] = []
-        slip = self.slip_now(record)
+        force = drive.force_n if drive is not None else None
+        slip = self.slip_now(record, pressing=None if force is None else force > 0)
         state = drive.state if drive is not None else None
         if drive is not None and drive.lost:
             flags.append("drive_lost")

@@ -163,7 +163,8 @@ class CyclePipeline:
 
             slip = self.physical.slip
             self.grip = GripStage(scene, noise_band=slip.noise_band if slip is not None else None,
-                                  slip_hold=slip.motion_consecutive if slip is not None else 3)
+                                  slip_hold=slip.motion_consecutive if slip is not None else 3,
+                                  rebase=slip.reset if slip is not None else None)
 
     # ------------------------------------------------------------------ the record
     def evaluate(self, closed: ClosedCycle) -> dict:
