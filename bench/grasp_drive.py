@@ -80,7 +80,7 @@ def _f(v, fmt="{:.0f}"):
 def render(stats: dict, variants: list[tuple[float, float]], mode: str) -> str:
     """``stats[(variant, pitch or "all")]`` -> the side-by-side table."""
     heads = [f"{s:g} N/s, {lag:g} ms" for s, lag in variants]
-    width = max(18, max(len(h) for h in heads) + 2)
+    width = max(22, max(len(h) for h in heads) + 2)
     lines = [f"{mode}: onset -> stuck again, ms median/p95 [share of episodes <= {GOAL_MS:g} ms] (episodes)",
              f"{'pitch':28s}" + "".join(f"{h:>{width}s}" for h in heads)]
     for pitch in (*PITCHES, "all"):

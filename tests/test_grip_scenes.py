@@ -161,3 +161,32 @@ def test_stuck_parts_on_hand_made_rows():
     assert stuck_parts(quiet, 1, 3, 3, case, 0.01) == {"parts": None, "self_stopped": True, "raises": 0,
                                                        "slid_at_detect_mm": pytest.approx(0.2),
                                                        "onset_accel_m_s2": pytest.approx(2.0)}
+
+
+def test_bench_contacts_lie_within_one_pitch_and_leave_the_other_draws_alone():
+    """bench/grasp.py --contact random: each grasp's contact centre uniform over one pitch about
+    the pads' middle, [-p/2, p/2), drawn from its own generator - the grasps are otherwise those of
+    --contact centred (offset 0); the case's scene carries it as [grasp] grip_at_mm, and
+    bench/grasp_drive.py's drive as 0x6087 (N/s -> ‰/s of the rated force) and force_lag_ms."""
+    import dataclasses
+
+    import numpy as np
+
+    from grasp import _base, case_scene, make_case, place_contacts
+
+    def cases(how):
+        rng = np.random.default_rng(23)
+        return place_contacts([make_case(rng, i) for i in range(200)], 23, how)
+
+    centred, moved = cases("centred"), cases("random")
+    assert all(c.contact_offset_mm == 0.0 for c in centred)
+    offsets = np.array([c.contact_offset_mm / c.pitch_mm for c in moved])
+    assert ((-0.5 <= offsets) & (offsets < 0.5)).all()
+    assert offsets.min() < -0.4 and offsets.max() > 0.4 and abs(np.mean(offsets)) < 0.1   # spread over the pitch
+    assert [dataclasses.replace(c, contact_offset_mm=0.0) for c in moved] == centred
+    base = _base()
+    scene = case_scene(base, moved[0], "decision", drive=(2000.0, 5.0))
+    assert scene.grasp.grip_at == pytest.approx(base.grasp.grip_at + moved[0].contact_offset_mm)
+    assert scene.gripper.torque_slope_permille_s == 2000 * 1000 / base.gripper.rated_force_n == 20000
+    assert scene.grasp.force_lag_ms == 5.0
+    assert case_scene(base, centred[0], "decision").grasp.grip_at == base.grasp.grip_at == 20.0

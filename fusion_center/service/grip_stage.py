@@ -19,7 +19,13 @@ Per cycle (``docs/service.md``, "The grip stage"; the law: ``docs/grip-control.m
   event also the **edge cue**: a displacement beyond ``[grip] edge_fraction`` of the band for
   ``edge_cycles`` cycles in a row (0.4, 2) - the first location at the footprint's edge switching
   moves the centroid by less than the band, below a pitch of slide (``docs/grip-control.md``); or,
-  in raw mode, ``TotF_t > mu F_g`` this cycle, eq 26a); ``actual_n`` the drive's force (0x2101:
+  in raw mode, ``TotF_t > mu F_g`` this cycle, eq 26a). The **footprint forming** is no slip: the
+  presence cells see the object before the jaws touch it, so the slip tracker's reference is their
+  centroid, which the pressure cells switching on as the jaws press move by up to the band (a
+  contact off the pads' middle); from the drive's first force on the part (0x2101 > 0) the motion
+  cue waits ``settle_s``, then the stage has the tracker take its reference again (``rebase``, the
+  pipeline's ``SlipTracker.reset``), once per contact; once the jaws let go (a force of 0) there is
+  no motion cue. ``actual_n`` the drive's force (0x2101:
   when the law's last raise has arrived); ``degraded`` a cycle with a
   taxel missing, silent or late; ``least_hold_n`` in raw mode eq 26a per jaw, ``T / mu`` with T the
   forces stage's tangential load per jaw (sec 7.2: the mean over the jaws) and mu the law's.
