@@ -23,6 +23,14 @@ rig (:mod:`node_sim.rig`) runs one :class:`~node_sim.world.GraspWorld` coupled t
   twins' cycle number of that SYNC, None before the first): :attr:`latest` and the ``on_truth``
   callbacks (``node-sim --truth-log FILE`` writes them as JSON lines; a caller running the rig in
   its own process passes ``Rig(on_truth=...)`` or reads ``Rig.world_truth``).
+* **Which step a SYNC samples**, exactly: the drive channel's SYNC handling sets its SYNC state
+  (``cycle`` k) and samples the readings holding :attr:`WorldRunner.tag_lock`, which a step holds
+  from reading that state until its truth callbacks have returned. So SYNC k samples the last step
+  tagged ``k - 1``, whose record is out before the taxels answer - the step the centre's record of
+  cycle k is matched with (``fusion_center.service.grasp_truth``), live and in a replay of the
+  truth log alike. (Before: a step that read the state just before a SYNC and published just after
+  it was tagged ``k - 1`` without being sampled, its record sometimes after the centre's record of
+  cycle k: the live record and the replay's differed.)
 
 Deterministic: the world's steps are a function of the scene and of the drive's state at each
 world step (its command sequence), tested with :meth:`step` called by hand; which world step a SYNC
@@ -83,6 +91,9 @@ class WorldRunner:
         self.latest: dict | None = None        # its record
         self._held: dict = {}                  # stuck faults' readings (physics.observe)
         self._read_lock = threading.Lock()
+        # held by a step from reading the SYNC state to its truth callbacks' return, and by the drive
+        # channel's SYNC handling while it sets that state and samples the readings (module docstring)
+        self.tag_lock = threading.Lock()
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
         self.error: BaseException | None = None
@@ -92,17 +103,18 @@ class WorldRunner:
     def step(self) -> dict:
         """One world step (the drive read, the world advanced); returns its record."""
         truth = self.coupling.step()
-        counter, cycle = self._sync_state()
-        record = {"t_s": truth.t_s, "sync_counter": counter, "cycle": cycle}
-        record.update(truth.as_dict())
-        self._latest = (truth, None)           # readable at once (a SYNC now computes S_i itself)
-        self._truth = truth
-        self.latest = record
-        for cb in list(self.callbacks):
-            try:
-                cb(record)
-            except Exception:  # noqa: BLE001 - a caller's callback must not stop the world
-                logger.exception("grasp world: a truth callback failed")
+        with self.tag_lock:  # tagged, visible and its record out as one, between two SYNCs' samples
+            counter, cycle = self._sync_state()
+            record = {"t_s": truth.t_s, "sync_counter": counter, "cycle": cycle}
+            record.update(truth.as_dict())
+            self._latest = (truth, None)           # readable at once (a SYNC now computes S_i itself)
+            self._truth = truth
+            self.latest = record
+            for cb in list(self.callbacks):
+                try:
+                    cb(record)
+                except Exception:  # noqa: BLE001 - a caller's callback must not stop the world
+                    logger.exception("grasp world: a truth callback failed")
         # then, after the step is visible and its record out as before: S_i of this step and the
         # next SYNC's noise (physics.canonical_eps: a function of the seed and the cycle), off the
         # SYNC - a SYNC's readings were most of the rig's SYNC handling for

@@ -237,3 +237,49 @@ def test_truth_log_to_a_fifo_stays_a_fifo(tmp_path):
     assert len(lines) >= 5 and json.loads(lines[0])["phase"] == "idle"
     assert stat.S_ISFIFO(os.stat(fifo).st_mode)
     assert rc == 0
+
+
+def test_a_sync_samples_the_last_step_tagged_before_it():
+    """The step a SYNC samples is the last one tagged with an earlier cycle, and that step's record
+    is out before the SYNC's sample (fusion_center.service.grasp_truth matches record k with the
+    last step tagged k - 1, live and in a replay alike). A step that has read the SYNC state is
+    held here for 2 ms before it publishes - the moment a SYNC arriving then used to sample the
+    step before, while this one, tagged with the earlier cycle too, came out after it."""
+    import can
+
+    channel = f"g22t-{uuid.uuid4().hex[:8]}"
+    scene = dataclasses.replace(SCENE, bus=dataclasses.replace(SCENE.bus, channels=(channel,)))
+    records: list[dict] = []      # every step's record, in the order the callbacks got them
+    sampled: list[tuple] = []     # (cycle, t_s of the step sampled, records out by then)
+    with Rig(scene, interface="virtual", on_truth=records.append) as rig:
+        world = rig.world
+        read_state, read = world._sync_state, world.readings
+
+        def slow_state():
+            state = read_state()
+            time.sleep(0.002)
+            return state
+
+        def reading(cycle):
+            latest = world._latest
+            sampled.append((cycle, None if latest is None else latest[0].t_s, len(records)))
+            return read(cycle)
+
+        world._sync_state, world.readings = slow_state, reading
+        with can.Bus(interface="virtual", channel=channel) as master:
+            master.send(can.Message(arbitration_id=0x000, data=[0x01, 0], is_extended_id=False))
+            time.sleep(0.2)
+            for k in range(120):   # SYNCs at 3-7 ms: every phase against the world's 10 ms steps
+                master.send(can.Message(arbitration_id=0x080, data=[], is_extended_id=False))
+                time.sleep(0.003 + 0.004 * ((k * 7) % 5) / 4)
+            time.sleep(0.05)
+    checked = 0
+    for cycle, t_s, out in sampled:
+        before = [r for r in records[:out] if r["cycle"] is not None and r["cycle"] < cycle]
+        tagged = [r for r in records if r["cycle"] is not None and r["cycle"] < cycle]
+        if t_s is None or not tagged:
+            continue
+        assert tagged[-1]["t_s"] == t_s, (cycle, t_s, tagged[-1])   # the last step tagged before it
+        assert before and before[-1]["t_s"] == t_s, (cycle, t_s)     # ... and its record already out
+        checked += 1
+    assert checked >= 60, (checked, len(sampled))

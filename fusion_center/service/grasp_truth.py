@@ -3,7 +3,9 @@
 The world (``node_sim.world_runner``, docs/grasp-world.md) steps on its own clock and tags every
 step's record with ``cycle``, the twins' number of the last SYNC they had handled when the step
 was taken. The taxels answer SYNC ``k`` with the world's latest step at that SYNC, one tagged
-``k - 1``; so the record of the centre's cycle ``k`` gets the truth of the steps tagged ``k - 1``:
+``k - 1`` - exactly the last step tagged ``k - 1``, whose record is out before the SYNC's sample
+(``node_sim.world_runner.WorldRunner.tag_lock``); so the record of the centre's cycle ``k`` gets
+the truth of the steps tagged ``k - 1``:
 the last such step's fields, ``slipping`` true when any of them slipped. A SYNC period without a
 step (the two clocks drift) takes the latest earlier one, at most :data:`LOOK_BACK` cycles back.
 Steps taken before the first SYNC (``cycle`` null) are not used.

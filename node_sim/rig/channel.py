@@ -264,7 +264,13 @@ class Channel(can.Listener):
         cycle = self.sync_count + step - 1
         self.lost_syncs += step - 1
         self.sync_count = cycle + 1
-        x = self.rig._readings(cycle)
+        world = self.rig.world if self.rig.runs_world else None
+        if world is None:
+            x = self.rig._readings(cycle)
+        else:  # the cycle's tag and the sample as one against the world's steps (node_sim.world_runner)
+            with world.tag_lock:
+                self.sync_state = (counter, cycle)
+                x = self.rig._readings(cycle)
         readings = x if self.patch else x.tolist()  # an array (patch nodes take a view) / Python floats
         rig = self.rig
         apply_silence = rig._apply_silence if rig._dropped or rig._silent_faults else None
