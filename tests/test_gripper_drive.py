@@ -54,12 +54,19 @@ class Bench:
         deadline = time.monotonic() + WAIT_S
         while not condition():
             assert time.monotonic() < deadline, f"{what} not reached (statusword 0x{self.node.statusword:04X})"
-            self.node.check_statusword()
+            self.next_tpdo(deadline)
 
     def syncs(self, n: int) -> None:
         """Let ``n`` TPDO1s (SYNCs) pass."""
+        deadline = time.monotonic() + WAIT_S
         for _ in range(n):
-            self.node.check_statusword()
+            self.next_tpdo(deadline)
+
+    def next_tpdo(self, deadline: float) -> None:
+        """The next TPDO1 (canopen's ``check_statusword``), waited for until ``deadline``: its own
+        default (``TIMEOUT_CHECK_TPDO``, 0.2 s) raised on a host that held this process for longer
+        between two SYNCs (CI, load ~2 a core)."""
+        self.node.check_statusword(timeout=max(0.01, deadline - time.monotonic()))
 
     def emcy(self, code: int) -> None:
         """Wait for an EMCY with ``code`` in the master's log (canopen's ``EmcyConsumer``)."""

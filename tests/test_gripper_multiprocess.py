@@ -56,7 +56,8 @@ class Master:
         while not condition():
             assert time.monotonic() < deadline, f"{what} not reached (statusword 0x{self.node.statusword:04X}, " \
                                                 f"{self.node.tpdo_values})"
-            self.node.check_statusword()
+            # canopen's own TPDO wait (0.2 s) raised on a host that held the process longer
+            self.node.check_statusword(timeout=max(0.01, deadline - time.monotonic()))
 
     @property
     def values(self) -> dict[int, int]:
@@ -135,7 +136,7 @@ def test_base_node_402_drives_the_drive_of_node_sim_over_udp_multicast():
         master.wait(lambda: any(e.code == 0x8130 for e in node.emcy.log), "EMCY 0x8130")
         master.wait(lambda: node.statusword & 0x0080, "warning bit 7")
         for _ in range(30):                      # 0.3 s later
-            node.check_statusword()
+            node.check_statusword(timeout=WAIT_S)
         assert node.state == "OPERATION ENABLED" and values[0x6077] == 400 and values[0x603F] == 0x8130
         master.heartbeat = master.net.send_periodic(0x700 + MASTER, b"\x05", 0.05)   # back
         master.wait(lambda: not node.statusword & 0x0080, "warning cleared")

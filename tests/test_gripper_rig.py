@@ -110,7 +110,7 @@ def test_base_node_402_grips_with_the_scene_parameters(rig_and_master):
         deadline = time.monotonic() + WAIT_S
         while not (node.tpdo_values.get(0x2100) == 4 and node.tpdo_values.get(0x6077) == 800):
             assert time.monotonic() < deadline, node.tpdo_values
-            node.check_statusword()
+            node.check_statusword(timeout=max(0.01, deadline - time.monotonic()))  # not canopen's 0.2 s
         assert node.tpdo_values[0x2101] == 1120                   # 800 ‰ x 140.0 N = 112.0 N per jaw
         assert node.statusword & 0x0800                           # internal limit: the clamp
         with rig.gripper.lock:
