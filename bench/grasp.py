@@ -294,6 +294,29 @@ def run_case(args) -> dict:
                 "traceback": traceback.format_exc()}
 
 
+def run_jobs(jobs: list, processes: int, *, every: int, unit: str) -> tuple[list[dict], float, list[dict]]:
+    """:func:`run_case` of every job, in ``processes`` spawned processes (1: here), progress on
+    stderr every ``every`` jobs; returns the results in job order, the seconds taken and the
+    results that failed (each printed with its traceback)."""
+    t0 = time.perf_counter()
+    results = []
+    pool = multiprocessing.get_context("spawn").Pool(processes) if processes > 1 else None
+    try:
+        it = pool.imap(run_case, jobs, chunksize=2) if pool else map(run_case, jobs)
+        for n, res in enumerate(it, 1):
+            results.append(res)
+            if n % every == 0 or n == len(jobs):
+                print(f"  {n}/{len(jobs)} {unit}, {time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True)
+    finally:
+        if pool:
+            pool.terminate()
+    elapsed = time.perf_counter() - t0
+    errors = [r for r in results if "error" in r]
+    for r in errors:
+        print(f"grasp {r['case']['index']}: {r['error']}\n{r['traceback']}", file=sys.stderr)
+    return results, elapsed, errors
+
+
 def _run_case(args) -> dict:
     """``(case, want_bits, overrides[, modes[, drive]])``: the case in each of ``modes`` (default
     all four), with the law's ``overrides`` and the drive ``(slope N/s, lag ms)`` (default the
@@ -580,22 +603,7 @@ def main(argv=None) -> int:
     rng = np.random.default_rng(args.seed)
     cases = place_contacts([make_case(rng, i) for i in range(args.grasps)], args.seed, args.contact)
     jobs = [(c, c.index % args.bits_every == 0, overrides) for c in cases]
-    t0 = time.perf_counter()
-    results = []
-    pool = multiprocessing.get_context("spawn").Pool(args.jobs) if args.jobs > 1 else None
-    try:
-        it = pool.imap(run_case, jobs, chunksize=2) if pool else map(run_case, jobs)
-        for n, res in enumerate(it, 1):
-            results.append(res)
-            if n % 50 == 0 or n == len(jobs):
-                print(f"  {n}/{len(jobs)} grasps, {time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True)
-    finally:
-        if pool:
-            pool.terminate()
-    elapsed = time.perf_counter() - t0
-    errors = [r for r in results if "error" in r]
-    for r in errors:
-        print(f"grasp {r['case']['index']}: {r['error']}\n{r['traceback']}", file=sys.stderr)
+    results, elapsed, errors = run_jobs(jobs, args.jobs, every=50, unit="grasps")
     if errors:
         print(f"{len(errors)} grasp(s) failed (above); the table is of the others", file=sys.stderr)
     results = [r for r in results if "error" not in r]

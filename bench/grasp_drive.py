@@ -22,7 +22,6 @@ from __future__ import annotations
 import argparse
 import itertools
 import json
-import multiprocessing
 import os
 import sys
 import time
@@ -33,7 +32,7 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
-from grasp import PARTS, PITCHES, make_case, place_contacts, run_case  # noqa: E402
+from grasp import PARTS, PITCHES, make_case, place_contacts, run_jobs  # noqa: E402
 
 GOAL_MS = 50.0
 
@@ -136,22 +135,7 @@ def main(argv=None) -> int:
     rng = np.random.default_rng(args.seed)
     cases = place_contacts([make_case(rng, i) for i in range(args.grasps)], args.seed, args.contact)
     jobs = [(c, False, {}, modes, v) for v in variants for c in cases]
-    t0 = time.perf_counter()
-    results: list[dict] = []
-    pool = multiprocessing.get_context("spawn").Pool(args.jobs) if args.jobs > 1 else None
-    try:
-        it = pool.imap(run_case, jobs, chunksize=2) if pool else map(run_case, jobs)
-        for n, res in enumerate(it, 1):
-            results.append(res)
-            if n % 100 == 0 or n == len(jobs):
-                print(f"  {n}/{len(jobs)} runs, {time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True)
-    finally:
-        if pool:
-            pool.terminate()
-    elapsed = time.perf_counter() - t0
-    errors = [r for r in results if "error" in r]
-    for r in errors:
-        print(f"grasp {r['case']['index']}: {r['error']}\n{r['traceback']}", file=sys.stderr)
+    results, elapsed, errors = run_jobs(jobs, args.jobs, every=100, unit="runs")
     dt_ms = _base().bus.sync_period_ms
     by_variant = {v: results[i * len(cases):(i + 1) * len(cases)] for i, v in enumerate(variants)}
     print(f"bench/grasp_drive.py --grasps {args.grasps} --seed {args.seed} --contact {args.contact}: "

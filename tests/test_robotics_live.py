@@ -74,6 +74,22 @@ def _message_data(frame: bytes) -> tuple[int, int, bytes]:
     return sid, log_time, frame[13:]
 
 
+async def _publish_and_receive(ws, channels: dict, outputs, recs) -> dict[str, list]:
+    """Subscribe to every channel, wait until the server has the subscriptions, publish ``recs``
+    and read back every message: topic -> [(log time, payload)] in the order received."""
+    subs = await _subscribe(ws, channels)
+    await asyncio.to_thread(_wait, lambda: len(outputs.live.listener.active) == len(subs))
+    for record in recs:
+        outputs.on_cycle(record)
+    got: dict[str, list] = {}
+    while sum(map(len, got.values())) < len(recs) * len(subs):
+        frame = await asyncio.wait_for(ws.recv(), TIMEOUT)
+        if isinstance(frame, bytes):
+            sid, log_time, payload = _message_data(frame)
+            got.setdefault(subs[sid]["topic"], []).append((log_time, payload))
+    return got
+
+
 def test_advertise_subscribe_and_the_messages_are_the_records(records):
     scene, recs = records
     outputs = RoboticsOutputs(scene, foxglove=("127.0.0.1", 0), threaded=True)
@@ -91,17 +107,7 @@ def test_advertise_subscribe_and_the_messages_are_the_records(records):
             assert channels["/fusion/decision"]["encoding"] == "json"
             assert channels["/fusion/decision"]["schemaEncoding"] == "jsonschema"
             assert json.loads(channels["/fusion/decision"]["schema"])["title"] == "taxel_can.Decision"
-            subs = await _subscribe(ws, channels)
-            await asyncio.to_thread(_wait, lambda: len(live.listener.active) == len(subs))
-            for record in recs:
-                outputs.on_cycle(record)
-            got: dict[str, list] = {}
-            while sum(map(len, got.values())) < len(recs) * len(subs):
-                frame = await asyncio.wait_for(ws.recv(), TIMEOUT)
-                if isinstance(frame, bytes):
-                    sid, log_time, payload = _message_data(frame)
-                    got.setdefault(subs[sid]["topic"], []).append((log_time, payload))
-            return got
+            return await _publish_and_receive(ws, channels, outputs, recs)
         finally:
             await ws.close()
 
@@ -137,17 +143,7 @@ def test_the_viewer_gets_the_mcap_files_messages_byte_for_byte(records, tmp_path
     async def viewer():
         ws = await _connect(live.port)
         try:
-            subs = await _subscribe(ws, await _advertised(ws))
-            await asyncio.to_thread(_wait, lambda: len(live.listener.active) == len(subs))
-            for record in recs:
-                outputs.on_cycle(record)
-            got: dict[str, list] = {}
-            while sum(map(len, got.values())) < len(recs) * len(subs):
-                frame = await asyncio.wait_for(ws.recv(), TIMEOUT)
-                if isinstance(frame, bytes):
-                    sid, log_time, payload = _message_data(frame)
-                    got.setdefault(subs[sid]["topic"], []).append((log_time, payload))
-            return got
+            return await _publish_and_receive(ws, await _advertised(ws), outputs, recs)
         finally:
             await ws.close()
 
