@@ -18,7 +18,6 @@ import numpy as np
 from taxel_net import gcfreeze
 from taxel_net.errors import UsageError
 from taxel_net.patches import devices as scene_devices, node_label
-from taxel_net.receiver import notifiers_for
 from taxel_net.scene import Scene
 from . import assembler_link as link_keys
 from .assembler_parts import (AUTHKEY_ENV, LOG_INTERVAL_S, NMT_RESETS, CyclePart, RateLimitedLog, authkey_for,
@@ -199,10 +198,8 @@ class AssemblerProcess:
                 tune_udp_multicast(bus)
                 self.buses.append(bus)
             self.session = open_session(config, f"--fuser {self.fuser}")
-            # one receive thread for the group's buses, a receive turn of a bus at a time
-            # (taxel_net.receiver; python-can's Notifier for buses it cannot serve)
-            pairs = [(bus, [_PartListener(self, index)]) for index, bus in enumerate(self.buses)]
-            self.notifiers = notifiers_for(pairs, timeout=0.05, name="assembler-receive")
+            for index, bus in enumerate(self.buses):
+                self.notifiers.append(can.Notifier(bus, [_PartListener(self, index)], timeout=0.05))
         except BaseException:
             self.close()
             raise
