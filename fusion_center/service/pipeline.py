@@ -229,7 +229,7 @@ class CyclePipeline:
         """The record of :meth:`evaluate_command`'s cycle (its fields in their documented order)."""
         closed, pattern = pending.closed, pending.pattern
         labels = self.labels
-        present_mask, n_received = pattern.present_mask, pattern.n_received
+        n_received = pattern.n_received
         missing = closed.missing
         silent = closed.expected & ~closed.received
 
