@@ -107,4 +107,6 @@ def test_a_second_sync_producer_opens_no_cycle_live_or_in_replay(matrix, tmp_pat
     replayed = tmp_path / "replay.jsonl"
     again, replay_counters = replay_trace(matrix, trace, json_lines=replayed)
     assert replayed.read_bytes() == live.read_bytes()
-    assert replay_counters["foreign_sync"] == len(sent)
+    # the replay counts the foreign SYNCs the trace holds: those the producer sent after the
+    # centre stopped receiving (a loaded host lets it run on) are in neither
+    assert replay_counters["foreign_sync"] == len(received)
