@@ -65,24 +65,29 @@ def ref_multiplicative(n, xi, beta):
         m = E * mp.log(1 / X) / (e2n - 1)  # eq 11a
         a = mp.e ** (-(e2n * mp.log(1 / X) / (e2n - 1)))  # eq 11b
         F = lambda x: a / m * mp.e ** (m * x)  # antiderivative of eq 10
+        F_end, level = F(E), 1 - B
 
         def H(w):  # w = (e^n - lambda)/e^n
             lam = E - E * w
-            return (F(E) - F(lam)) / (E - lam) - (1 - B)
+            return (F_end - F(lam)) / (E - lam) - level
 
         return [float(1 - w) for w in _roots(H, 2)]
 
 
 def _pm1_parts(n, X):
+    # (the constants of the curve evaluated once, at the working precision: the same numbers)
+    half = mp.mpf(1) / 2
     r = (X + 1) + mp.sqrt(X * (X + 2))
-    f = lambda U: mp.mpf("0.5") * r ** (U / n) + (1 - mp.mpf("0.5") * r) / n * U  # eq 13
-    F = lambda U: mp.mpf("0.5") * n * r ** (U / n) / mp.log(r) + (1 - mp.mpf("0.5") * r) * U**2 / (2 * n)
+    ln_r, slope = mp.log(r), (1 - half * r)
+    f = lambda U: half * r ** (U / n) + slope / n * U  # eq 13
+    F = lambda U: half * n * mp.e ** (ln_r * U / n) / ln_r + slope * U**2 / (2 * n)
     return f, F
 
 
 def _01_parts(n, X):
-    f = lambda U: X * mp.e ** (mp.log(1 / X) / n * U)  # eq 12
-    F = lambda U: X * n / mp.log(1 / X) * mp.e ** (mp.log(1 / X) / n * U)
+    rate = mp.log(1 / X) / n
+    f = lambda U: X * mp.e ** (rate * U)  # eq 12
+    F = lambda U: X / rate * mp.e ** (rate * U)
     return f, F
 
 
@@ -91,7 +96,8 @@ def ref_additive(n, xi, alpha, encoding):
     with mp.workdps(_dps(xi)):
         N, X, A = mp.mpf(n), mp.mpf(xi), mp.mpf(alpha)
         _, F = _pm1_parts(N, X) if encoding == "pm1" else _01_parts(N, X)
-        H = lambda d: (F(N) - F(N - d)) / d - (1 - A)
+        F_end, level = F(N), 1 - A
+        H = lambda d: (F_end - F(N - d)) / d - level
         return sorted(float(N - d) for d in _roots(H, 2 * N if encoding == "pm1" else N))
 
 
