@@ -46,10 +46,12 @@ def test_the_records_truth_on_a_grasp_scene_is_the_worlds_in_grip():
 
 
 def test_a_grasp_demo_agrees_with_the_worlds_truth():
-    from fusion_center.commands.demo import run_demo
+    from fusion_center.commands.demo import run_demo, slowed_down
     from taxel_net.scene import load_scene
 
-    _, summary = run_demo(load_scene("grasp_lift"), 300, keep_records=False)
+    # at twice the bus times (--slow-down 2: per-cycle results unchanged) - a suite on 2 busy
+    # cores starved the world's thread at 10 ms: 147 of 300 cycles with a truth to compare
+    _, summary = run_demo(slowed_down(load_scene("grasp_lift"), 2), 300, keep_records=False)
     agree, total = map(int, summary["agree_with_truth"].split("/"))
     # (cycles without a world step yet, or undecided, have no truth to compare: fewer on a loaded host)
     assert total >= 200 and agree >= 0.95 * total, summary["agree_with_truth"]
