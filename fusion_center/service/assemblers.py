@@ -70,6 +70,7 @@ import logging
 import threading
 import time
 from collections import OrderedDict, deque
+from dataclasses import replace
 
 from taxel_net.errors import UsageError
 from taxel_net.scene import Scene
@@ -135,6 +136,9 @@ class _Link:
         self.pid = pid
 
 
+OWN_DRIVE_KEPT = 64  # the fuser's own drive snapshots kept for merged cycles (cycles)
+
+
 class AssembledFusionService(FusionService):
     """The fuser: the CANopen master of :class:`FusionService` on every channel, its cycles
     assembled by ``fusion-center assemble`` processes (module docstring).
@@ -175,6 +179,11 @@ class AssembledFusionService(FusionService):
         self.assembler_wait_s = assembler_wait_s
         self.merger = CycleMerger(scene, part_deadline_s=self.part_deadline_s)
         self.own_closed = 0
+        # the gripper drive as the fuser's own assembler knew it at each cycle's close (its
+        # frames are heard by the master on its bus; the assemblers' parts carry taxels only):
+        # cycle -> (SYNC counter, DriveCycle), the latest few
+        self._own_drive: OrderedDict[int, tuple] = OrderedDict()
+        self._own_drive_lock = threading.Lock()
         echoes = self.stream.echoes
         self.stream = _FuserStream(self.assembler, on_closed=self._own_cycle, after_closed=self._process_pending)
         self.stream.echoes = echoes
@@ -289,6 +298,29 @@ class AssembledFusionService(FusionService):
     # -- merge
     def _own_cycle(self, closed: ClosedCycle) -> None:
         self.own_closed += 1  # the master's own view of the cycle: not evaluated (the parts are)
+        if closed.drive is not None:
+            with self._own_drive_lock:
+                self._own_drive[closed.cycle] = (closed.sync_counter, closed.drive)
+                while len(self._own_drive) > OWN_DRIVE_KEPT:
+                    self._own_drive.popitem(last=False)
+
+    def _drive_of(self, closed: ClosedCycle):
+        """The drive of a merged cycle: the fuser's own snapshot at the close of the same SYNC
+        (the same counter where both have one), else the latest before it - a cycle whose parts
+        came before the master's own close of it sees the drive as of the cycle before (never a
+        later one's, and never a snapshot taken here, which would take that cycle's EMCYs)."""
+        with self._own_drive_lock:
+            own = self._own_drive.get(closed.cycle)
+            if own is not None and (own[0] is None or closed.sync_counter is None or own[0] == closed.sync_counter):
+                del self._own_drive[closed.cycle]
+                return own[1]
+            earlier = [c for c in self._own_drive if c < closed.cycle]
+            return self._own_drive[earlier[-1]][1] if earlier else None
+
+    def evaluate_command(self, closed: ClosedCycle):
+        if self.drive is not None and closed.drive is None:
+            closed = replace(closed, drive=self._drive_of(closed))
+        return super().evaluate_command(closed)
 
     def _on_sync(self, payload: bytes) -> None:
         t0 = self.assembler.t0_us
