@@ -53,6 +53,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 
 from taxel_net.errors import ParameterError
 
@@ -283,24 +284,41 @@ def layout_cycle_bits(layout: SkinLayout, *, p_one: float = 0.5, p_change: float
                                                            f"counter {SYNC_COUNTER_RANGE[0]}..{SYNC_COUNTER_RANGE[1]}")
     tags = tuple(range(1, sync_counter + 1)) if layout.tag_bytes else ()
     sync_mean, sync_worst = sync_frame_bits(sync_counter)
+    # channels with the same nodes and frames (every full channel of a large skin: the COB-IDs
+    # restart at 0x181 on each) have the same bits: priced once, in the same order of sums
+    priced: dict[tuple, tuple] = {}
     out = []
     for ch in layout.channels:
-        mean_nom = mean_dat = 0.0
-        worst_nom = worst_dat = 0
-        expected = 0.0
-        for f in ch.frames:
-            st = pdo_frame_stats(f.cob_id, f.n_bytes, f.free_mask, p_one, fd=layout.fd, brs=layout.brs,
-                                 tag_values=tags)
-            sent = 1.0 if p_change is None else 1.0 - (1.0 - p_change) ** f.taxels
-            expected += sent
-            mean_nom += sent * st.mean_nominal
-            mean_dat += sent * st.mean_data
-            worst_nom += st.worst_nominal
-            worst_dat += st.worst_data
-        hb = sum(frame_bits(HEARTBEAT_BASE + node, bytes([NMT_OPERATIONAL])) for node in ch.node_ids)
+        key = (ch.node_ids, ch.frames)
+        if key not in priced:
+            priced[key] = _channel_bits(ch, layout, p_one, p_change, tags)
+        expected, mean_nom, mean_dat, worst_nom, worst_dat, hb = priced[key]
         out.append(ChannelBits(ch.index, len(ch.node_ids), ch.taxels, len(ch.frames), expected, sync_mean,
                                mean_nom + sync_mean, mean_dat, worst_nom + sync_worst, worst_dat, hb, sync_worst))
     return tuple(out)
+
+
+def _channel_bits(ch: Channel, layout: SkinLayout, p_one: float, p_change: float | None, tags: tuple) -> tuple:
+    """(expected frames, mean nominal / data bits, worst nominal / data bits of the PDOs,
+    heartbeat bits) of one channel of ``layout_cycle_bits``."""
+    mean_nom = mean_dat = 0.0
+    worst_nom = worst_dat = 0
+    expected = 0.0
+    for f in ch.frames:
+        st = pdo_frame_stats(f.cob_id, f.n_bytes, f.free_mask, p_one, fd=layout.fd, brs=layout.brs, tag_values=tags)
+        sent = 1.0 if p_change is None else 1.0 - (1.0 - p_change) ** f.taxels
+        expected += sent
+        mean_nom += sent * st.mean_nominal
+        mean_dat += sent * st.mean_data
+        worst_nom += st.worst_nominal
+        worst_dat += st.worst_data
+    return expected, mean_nom, mean_dat, worst_nom, worst_dat, _heartbeat_bits(ch.node_ids)
+
+
+@lru_cache(maxsize=1024)
+def _heartbeat_bits(node_ids: tuple[int, ...]) -> int:
+    """Bits of one heartbeat (0x700 + node-ID, state 0x05) of every node in ``node_ids``."""
+    return sum(frame_bits(HEARTBEAT_BASE + node, bytes([NMT_OPERATIONAL])) for node in node_ids)
 
 
 def _check_rate(name: str, value) -> float:
