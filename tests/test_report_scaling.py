@@ -103,3 +103,29 @@ def test_layout_curves_by_hand():
     assert p["nominal_bit_times"] == pytest.approx(times)
     assert p["nominal_bit_times_worst"] == pytest.approx(worst)
     assert (p["channels"], p["frames"]) == (1, 2)
+
+
+def test_both_h1_models_share_what_depends_on_h0_alone(monkeypatch):
+    """scale_figures' two H1 models have the same H0: with one ``h0_cache`` the second call
+    computes no H0 count law, LLR P_F or N-P rule again, and every value (brute-force checked
+    above) is the same as without the cache (main computed each twice)."""
+    fusion = FusionSpec(rules=scaling.RULES, alpha=0.3, beta=0.5, k=2, np_false_alarm=0.01, xi=0.003)
+    args = dict(pf=PF, pm=PM, sizes=[9, 11])
+    alone = [scaling.rule_error_vs_taxels(fusion, contact=3, **args),
+             scaling.rule_error_vs_taxels(fusion, fraction=0.5, **args)]
+    calls = []
+    real = baselines.neyman_pearson_fusion
+    monkeypatch.setattr(baselines, "neyman_pearson_fusion", lambda *a, **k: calls.append(a) or real(*a, **k))
+    cache: dict = {}
+    shared = [scaling.rule_error_vs_taxels(fusion, contact=3, h0_cache=cache, **args)]
+    assert len(calls) == 2 and {key[0] for key in cache} == {"law", "llr f0", "np rule"}
+    shared.append(scaling.rule_error_vs_taxels(fusion, fraction=0.5, h0_cache=cache, **args))
+    assert len(calls) == 2
+    for a, b in zip(alone, shared):
+        for rule in scaling.RULES:
+            for key in ("taxels", "p_false_alarm", "p_miss", "error", "notes"):
+                assert a["rules"][rule][key] == b["rules"][rule][key], (rule, key)
+    # another P_F target is another N-P rule: not taken from the cache
+    other = FusionSpec(rules=scaling.RULES, alpha=0.3, beta=0.5, k=2, np_false_alarm=0.2, xi=0.003)
+    scaling.rule_error_vs_taxels(other, contact=3, h0_cache=cache, **args)
+    assert len(calls) == 4

@@ -97,12 +97,14 @@ def _bayes(pf: float | None, pm: float | None) -> float | None:
 
 
 def rule_error_vs_taxels(fusion, *, pf: float, pm: float, contact: int | None = None, fraction: float | None = None,
-                         sizes=None, rules=RULES, time_budget_s: float = 60.0) -> dict:
+                         sizes=None, rules=RULES, time_budget_s: float = 60.0, h0_cache: dict | None = None) -> dict:
     """Exact P_F, P_M and Bayes error (prior 0.5) of every rule for identical taxels, per n
     (module docstring). ``fusion``: a scene's ``FusionSpec`` (thresholds, k, prior, costs, P_F
     target). A rule whose rates for one n take longer than ``time_budget_s`` in total stops
     there (``stopped_at``); a rule without a threshold at some n (no root of its equation) gets
-    ``None`` there, with the reason in ``notes``."""
+    ``None`` there, with the reason in ``notes``. ``h0_cache``: a dict shared by several calls
+    (``scale_figures``: both H1 models) keeps what depends on H0 alone - the count law, the
+    LLR's P_F, the N-P rule - keyed by n and every other input, so each is computed once."""
     from ..core import baselines, exact_rates, montecarlo, poisson_binomial
     from .. import evaluation
 
@@ -113,6 +115,14 @@ def rule_error_vs_taxels(fusion, *, pf: float, pm: float, contact: int | None = 
         raise ParameterError("contact/fraction", (contact, fraction), "give exactly one of them")
     sizes = rule_sizes() if sizes is None else list(sizes)
     pd = 1.0 - pm
+    h0_cache = {} if h0_cache is None else h0_cache
+
+    def h0_only(key: tuple, compute):
+        """compute(), once per key: every input of the H0-only value (``h0_cache``)."""
+        if key not in h0_cache:
+            h0_cache[key] = compute()
+        return h0_cache[key]
+
     out = {r: {"taxels": [], "p_false_alarm": [], "p_miss": [], "error": [], "seconds": 0.0, "notes": {}}
            for r in rules}
     for n in sizes:
@@ -134,7 +144,8 @@ def rule_error_vs_taxels(fusion, *, pf: float, pm: float, contact: int | None = 
                         raise ParameterError("k", fusion.k, f"exceeds n={n}")
                     m, _ = evaluation.count_threshold_for(rule, view)
                     if laws is None:
-                        laws = poisson_binomial.log_pmf(h0), poisson_binomial.log_pmf(h1)
+                        laws = (h0_only(("law", n, pf), lambda: poisson_binomial.log_pmf(h0)),
+                                poisson_binomial.log_pmf(h1))
                     pf_n, pm_n = tail(laws[0][m:]), tail(laws[1][:m])
                 elif rule == "preferential":
                     tm = evaluation.preferential_threshold_mean(view)
@@ -147,11 +158,13 @@ def rule_error_vs_taxels(fusion, *, pf: float, pm: float, contact: int | None = 
                     a = np.log(declared_pd) - np.log(h0)
                     b = np.log1p(-declared_pd) - np.log1p(-h0)
                     d1 = exact_rates.linear_statistic_tail(a, b, h1, ln_l0 - shift, tol=0.0)
-                    f0 = exact_rates.linear_statistic_tail(a, b, h0, ln_l0 - shift, tol=0.0)
+                    f0 = h0_only(("llr f0", n, pf, pd, ln_l0 - shift),
+                                 lambda: exact_rates.linear_statistic_tail(a, b, h0, ln_l0 - shift, tol=0.0))
                     if d1 is not None and f0 is not None:
                         pf_n, pm_n = f0, 1.0 - d1
                 else:
-                    np_rule = baselines.neyman_pearson_fusion(declared_pd, h0, fusion.np_false_alarm)
+                    np_rule = h0_only(("np rule", n, pf, pd, fusion.np_false_alarm),
+                                      lambda: baselines.neyman_pearson_fusion(declared_pd, h0, fusion.np_false_alarm))
                     d1, f0 = montecarlo._exact_randomised_count(np_rule, h0, h1[None, :], np.array([1.0]))
                     pf_n, pm_n = f0, 1.0 - d1
             except ParameterError as exc:
@@ -178,8 +191,11 @@ def scale_figures(scene, bitrates, data_bitrate: int = 5_000_000, patch: int = 1
     contact = rates["contact"] or DEFAULT_CONTACT
     share = min(1.0, contact / scene.n)
     sizes = rule_sizes(scene.n)
-    fixed = rule_error_vs_taxels(scene.fusion, pf=rates["pf"], pm=rates["pm"], contact=contact, sizes=sizes)
-    growing = rule_error_vs_taxels(scene.fusion, pf=rates["pf"], pm=rates["pm"], fraction=share, sizes=sizes)
+    h0_cache: dict = {}     # H0 is the same for both H1 models
+    fixed = rule_error_vs_taxels(scene.fusion, pf=rates["pf"], pm=rates["pm"], contact=contact, sizes=sizes,
+                                 h0_cache=h0_cache)
+    growing = rule_error_vs_taxels(scene.fusion, pf=rates["pf"], pm=rates["pm"], fraction=share, sizes=sizes,
+                                   h0_cache=h0_cache)
     f = scene.fusion
     stopped = [f"{r} (up to n = {v['stopped_at']})" for p in (fixed, growing) for r, v in p["rules"].items()
                if v.get("stopped_at") is not None]
