@@ -458,14 +458,29 @@ def mann_whitney_auc(stat_h0, stat_h1) -> float:
     """Area under the empirical ROC of "H1 iff statistic >= t" over every threshold:
     P(S1 > S0) + P(S1 = S0)/2 over all pairs of the two samples (the Mann-Whitney statistic),
     from the ranks of the pooled sample -- exact for the samples, unlike a trapezoid over a
-    grid of thresholds."""
-    from scipy.stats import rankdata
-
+    grid of thresholds. A NaN statistic gives NaN."""
     s0 = np.asarray(stat_h0, float)
     s1 = np.asarray(stat_h1, float)
-    ranks = rankdata(np.concatenate([s0, s1]))  # ties get their mean rank
+    ranks = mean_ranks(np.concatenate([s0, s1]))  # ties get their mean rank
     r1 = float(ranks[s0.size:].sum())
     return (r1 - s1.size * (s1.size + 1) / 2.0) / (s0.size * s1.size)
+
+
+def mean_ranks(x) -> np.ndarray:
+    """Ranks 1..n of the values ``x``, tied values sharing their mean rank (half-integers, exact
+    in float); all NaN if any value is NaN. ``scipy.stats.rankdata(x)`` - the same numbers -
+    without importing scipy.stats (~0.7 s of CPU, a quarter of ``fusion-center report``'s
+    start-up, for one function)."""
+    x = np.asarray(x, float)
+    if np.isnan(x).any():
+        return np.full(x.shape, np.nan)
+    order = np.argsort(x, kind="stable")
+    y = x[order]
+    first = np.flatnonzero(np.r_[True, y[1:] != y[:-1]])     # first index of each run of ties
+    counts = np.diff(np.r_[first, y.size])
+    ranks = np.empty(y.size)
+    ranks[order] = np.repeat(first + 1 + (counts - 1) / 2.0, counts)
+    return ranks
 
 
 def exact_count_roc(taxel_pf, pd_patterns, weights) -> dict:
