@@ -27,27 +27,19 @@ One module per job:
   hosts, linked to the fuser over Zenoh (:mod:`.assembler_link`).
 """
 
-from .fusion_service import FusionService, RunSummary
-from .cycle_records import COUNTER_NAMES, ClosedCycle, quantise_timestamp
-from .cycles import CycleAssembler
-from .pipeline import CyclePipeline
-from .records import RecordWriter, read_records
-from .stream import EventStream
-from .traces import open_trace_writer, replay_trace
-from .zenoh_publisher import ZenohPublisher
+import lazy_loader
 
-__all__ = [
-    "COUNTER_NAMES",
-    "ClosedCycle",
-    "CycleAssembler",
-    "CyclePipeline",
-    "EventStream",
-    "FusionService",
-    "RecordWriter",
-    "RunSummary",
-    "ZenohPublisher",
-    "open_trace_writer",
-    "quantise_timestamp",
-    "read_records",
-    "replay_trace",
-]
+# the names are imported on first use (PEP 562), as in fusion_center/__init__.py: a command that
+# needs one module of the service (``fusion-center dcf``: master, lss; ``run``'s parser:
+# zenoh_config) does not import all of them (the pipeline's scipy.special / scipy.spatial alone
+# took ~0.5 s of CPU at every start-up)
+__getattr__, __dir__, __all__ = lazy_loader.attach(__name__, submod_attrs={
+    "fusion_service": ["FusionService", "RunSummary"],
+    "cycle_records": ["COUNTER_NAMES", "ClosedCycle", "quantise_timestamp"],
+    "cycles": ["CycleAssembler"],
+    "pipeline": ["CyclePipeline"],
+    "records": ["RecordWriter", "read_records"],
+    "stream": ["EventStream"],
+    "traces": ["open_trace_writer", "replay_trace"],
+    "zenoh_publisher": ["ZenohPublisher"],
+})
