@@ -237,3 +237,33 @@ def test_fd_estimate_total_agrees_with_linux_can_length_h():
     assert fd_frame_time_s(64, 500_000) == pytest.approx((nominal + data) / 5e5)
     with pytest.raises(ParameterError):
         fd_frame_bits_estimate(9)
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.booleans(), st.booleans(), st.integers(0, 0x1FFFFFFF), st.integers(0, 8),
+       st.lists(st.sampled_from([0x00, 0xFF, 0x0F, 0xF0, 0x01, 0x80, 0x7C, 0x3E]) | st.integers(0, 255), max_size=8),
+       st.booleans())
+def test_frame_bits_equal_the_bit_level_frame(extended, remote, can_id, dlc, data, intermission):
+    """frame_bits counts on integers (a CRC byte table, stuff bits run by run); the same frame
+    bit by bit: the fields, their CRC by polynomial division, the encoder's stuffing checked by
+    the independent receiver (destuff), the fixed 10 (+3) bits - run-heavy payloads included."""
+    if not extended:
+        can_id &= 0x7FF
+    data = b"" if remote else bytes(data)
+    kwargs = dict(extended=extended, remote=remote, dlc=dlc if remote else None)
+    fields = bits_str(frame_fields(can_id, data, **kwargs))
+    unstuffed = fields + format(crc_by_division(fields), "015b")
+    stuffed = bits_str(stuff([int(b) for b in unstuffed]))
+    assert destuff(stuffed) == unstuffed and not re.search("000000|111111", stuffed)
+    assert frame_bits(can_id, data, intermission=intermission, **kwargs) == len(stuffed) + 10 + 3 * intermission
+
+
+def test_stuff_count_by_runs_equals_the_encoder_on_every_short_sequence():
+    from itertools import product
+
+    from fusion_center.core.bus_timing import _stuff_count_of_runs
+
+    for n in range(15):
+        for bits in product("01", repeat=n):
+            text = "".join(bits)
+            assert _stuff_count_of_runs(text) == len(stuff([int(b) for b in text])) - n, text
