@@ -141,23 +141,23 @@ def test_mann_whitney_auc_counts_pairs():
     assert math.isclose(montecarlo.empirical_roc(s0, s1)["auc"], pairs / (300 * 200), rel_tol=1e-14)
 
 
-def test_mean_ranks_equal_scipy_rankdata_without_importing_scipy_stats(monkeypatch):
-    """The AUC's ranks: scipy.stats.rankdata's mean ranks exactly (ties, infinities, one value,
-    none; NaN -> all NaN), computed without scipy.stats (its import took ~0.7 s of the
-    report's CPU time; main imported it here)."""
-    from scipy.stats import rankdata
-
+def test_mean_ranks_by_counting_without_importing_scipy_stats(monkeypatch):
+    """The AUC's ranks (scipy.stats.rankdata's mean ranks): each value's rank counted pairwise,
+    #{x_j < x_i} + (#{x_j == x_i} + 1) / 2 - ties, infinities, -0.0, one value, none; NaN ->
+    all NaN - computed without scipy.stats (its import took ~0.7 s of the report's CPU time;
+    main imported it here)."""
     rng = np.random.default_rng(4)
     cases = [rng.integers(0, 7, 500).astype(float), rng.normal(size=301), np.array([2.0]), np.array([]),
-             np.array([np.inf, -np.inf, 0.0, -0.0, np.inf, 1e-300, 0.0]), np.array([1.0, np.nan, 1.0])]
-    expected = [rankdata(x) for x in cases]
-    s0, s1 = cases[0][:300], cases[0][300:]
-    auc = montecarlo.mann_whitney_auc(s0, s1)
+             np.array([np.inf, -np.inf, 0.0, -0.0, np.inf, 1e-300, 0.0])]
     monkeypatch.setitem(sys.modules, "scipy.stats", None)   # importing it now raises ImportError
-    for x, want in zip(cases, expected):
+    for x in cases:
+        counted = (x[None, :] < x[:, None]).sum(axis=1) + ((x[None, :] == x[:, None]).sum(axis=1) + 1) / 2
         got = montecarlo.mean_ranks(x)
-        assert got.dtype == want.dtype and np.array_equal(got, want, equal_nan=True), x
-    assert montecarlo.mann_whitney_auc(s0, s1) == auc
+        assert got.dtype == np.float64 and np.array_equal(got, counted), x
+    assert np.isnan(montecarlo.mean_ranks([1.0, np.nan, 1.0])).all()
+    s0, s1 = cases[0][:300], cases[0][300:]
+    pairs = (s1[:, None] > s0[None, :]).sum() + 0.5 * (s1[:, None] == s0[None, :]).sum()
+    assert math.isclose(montecarlo.mann_whitney_auc(s0, s1), pairs / (300 * 200), rel_tol=1e-14)
 
 
 # ------------------------------------------------------------------ the report
