@@ -27,13 +27,17 @@ One module per job:
   hosts, linked to the fuser over Zenoh (:mod:`.assembler_link`).
 """
 
+import pkgutil
+
 import lazy_loader
 
 # the names are imported on first use (PEP 562), as in fusion_center/__init__.py: a command that
 # needs one module of the service (``fusion-center dcf``: master, lss; ``run``'s parser:
 # zenoh_config) does not import all of them (the pipeline's scipy.special / scipy.spatial alone
-# took ~0.5 s of CPU at every start-up)
-__getattr__, __dir__, __all__ = lazy_loader.attach(__name__, submod_attrs={
+# took ~0.5 s of CPU at every start-up); a module is also imported when read as an attribute
+# (``fusion_center.service.traces``), as it was there after the eager imports
+_SUBMODULES = sorted(m.name for m in pkgutil.iter_modules(__path__))
+__getattr__, _dir, _names = lazy_loader.attach(__name__, submodules=_SUBMODULES, submod_attrs={
     "fusion_service": ["FusionService", "RunSummary"],
     "cycle_records": ["COUNTER_NAMES", "ClosedCycle", "quantise_timestamp"],
     "cycles": ["CycleAssembler"],
@@ -43,3 +47,8 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(__name__, submod_attrs={
     "traces": ["open_trace_writer", "replay_trace"],
     "zenoh_publisher": ["ZenohPublisher"],
 })
+__all__ = sorted(set(_names) - set(_SUBMODULES))
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_names))
