@@ -28,6 +28,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from mpmath.libmp import fzero, mpf_add, mpf_mul
 
 from fusion_center.cli import main
 from fusion_center.core.exact_rates import preferential_error_rates
@@ -79,8 +80,9 @@ def _canonical(c, p: float, q: float) -> tuple:
     return (a, b, cq, d)
 
 
-def _value(coeffs, p: float, q: float):
-    big_p, big_q = mp.mpf(2) ** mp.mpf(p), mp.mpf(2) ** mp.mpf(q)
+def _value(coeffs, p: float, q: float, powers=None):
+    """U_G from its coefficients; ``powers``: (2^p, 2^q) in mpmath if already formed."""
+    big_p, big_q = powers if powers is not None else (mp.mpf(2) ** mp.mpf(p), mp.mpf(2) ** mp.mpf(q))
     a, b, c, d = coeffs
     return a + b * big_p + c * big_q + d * big_p * big_q
 
@@ -89,48 +91,81 @@ def _regions(final: dict, p, q, low, high) -> list:
     """[P(U >= high), P(low <= U < high), P(U < low)] from {coefficients: probability}."""
     out = [mp.mpf(0)] * 3
     lo, hi = mp.mpf(low), mp.mpf(high)
+    powers = mp.mpf(2) ** mp.mpf(p), mp.mpf(2) ** mp.mpf(q)  # (once, not per value: the same numbers)
     for coeffs, w in final.items():
-        v = _value(coeffs, p, q)
+        v = _value(coeffs, p, q, powers)
         out[0 if v >= hi else (2 if v < lo else 1)] += w
     return out
 
 
+_B = 1 << 24  # a packed key's base: a + b B + c B^2 + d B^3, every coefficient |x| < B / 2
+
+
+def _pack(c) -> int:
+    return c[0] + _B * (c[1] + _B * (c[2] + _B * c[3]))
+
+
+def _unpack(key: int) -> tuple:
+    out = []
+    for _ in range(3):
+        x = (key + _B // 2) % _B - _B // 2  # the balanced digit: coefficients may be negative
+        out.append(x)
+        key = (key - x) // _B
+    return (*out, key)
+
+
 def mp_band_rates(pi, p: float, q: float, encoding: str, low: float, high: float) -> list:
-    """The three region probabilities (mpf) for taxels present with probabilities ``pi``."""
+    """The three region probabilities (mpf) for taxels present with probabilities ``pi``.
+
+    (How, not what: the coefficient tuples are packed into one int, ``_pack``, a linear map, so
+    adding two keys is one int addition and a sum's key is the key of the summed coefficients;
+    the eight terms are formed once; the inner loop runs mpmath's own mpf_add / mpf_mul on the
+    raw (sign, man, exp, bc) tuples at the context's precision and rounding, what ``v * w`` and
+    ``x + y`` of mpf numbers compute, without an mpf object per step. The same keys in the same
+    order and the same mp numbers as the plain loop over tuples of mpf, ~4x faster.)"""
     absent = -1 if encoding == "pm1" else 0
     dec = {0: absent, 1: 1}
     with mp.workdps(DPS):
+        prec, rnd = mp.mp._prec_rounding
         probs = [(1 - mp.mpf(float(x)), mp.mpf(float(x))) for x in pi]
         n = len(pi)
+        assert n < _B // 2
         if n == 1:
             final: dict = {}
             for b in (0, 1):
                 key = _term(None, dec[b], None, p, q, encoding)
                 final[key] = final.get(key, mp.mpf(0)) + probs[0][b]
             return _regions(final, p, q, low, high)
-        add = lambda x, y: (x[0] + y[0], x[1] + y[1], x[2] + y[2], x[3] + y[3])  # noqa: E731
+        raw = [(x._mpf_, y._mpf_) for x, y in probs]
+        coeffs = {(a, b, c): _term(dec[a], dec[b], dec[c], p, q, encoding)
+                  for a in (0, 1) for b in (0, 1) for c in (0, 1)}
+        assert n * max(abs(x) for t in coeffs.values() for x in t) < _B // 2  # no digit of a sum overflows
+        terms = {abc: _pack(t) for abc, t in coeffs.items()}
         # state (u_(i-1), u_i) as bits; the first taxel's term is closed when the second is known
         states = {}
         for a in (0, 1):
             for b in (0, 1):
-                states[(a, b)] = {_term(None, dec[a], dec[b], p, q, encoding): probs[0][a] * probs[1][b]}
+                states[(a, b)] = {_pack(_term(None, dec[a], dec[b], p, q, encoding)):
+                                  mpf_mul(raw[0][a], raw[1][b], prec, rnd)}
         for i in range(2, n):
             new: dict = {}
             for (a, b), dist in states.items():
                 for c in (0, 1):
-                    t = _term(dec[a], dec[b], dec[c], p, q, encoding)
+                    t = terms[a, b, c]
                     target = new.setdefault((b, c), {})
-                    w = probs[i][c]
+                    get = target.get
+                    w = raw[i][c]
                     for k, v in dist.items():
-                        key = add(k, t)
-                        target[key] = target.get(key, mp.mpf(0)) + v * w
+                        key = k + t
+                        target[key] = mpf_add(get(key, fzero), mpf_mul(v, w, prec, rnd), prec, rnd)
             states = new
         final = {}
         for (a, b), dist in states.items():
-            t = _term(dec[a], dec[b], None, p, q, encoding)
+            t = _pack(_term(dec[a], dec[b], None, p, q, encoding))
             for k, v in dist.items():
-                key = add(k, t)
-                final[key] = final.get(key, mp.mpf(0)) + v
+                key = k + t
+                final[key] = mpf_add(final.get(key, fzero), v, prec, rnd)
+        final = {_unpack(k): mp.mp.make_mpf(v) for k, v in final.items()}
         return _regions(final, p, q, low, high)
 
 
