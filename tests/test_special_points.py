@@ -15,6 +15,7 @@ References:
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 from fractions import Fraction
@@ -42,10 +43,30 @@ def ulps(x: float, k: int) -> float:
 
 
 # ----------------------------------------------------------------------- references (mpmath)
+def per_precision(make):
+    """``make()`` evaluated once per working precision: a constant formed where it is used, at
+    the precision it is used with (mp.diff raises the precision inside H), so the same number as
+    forming it at every use."""
+    cache = {}
+
+    def get():
+        prec = mp.mp.prec
+        if prec not in cache:
+            cache[prec] = make()
+        return cache[prec]
+    return get
+
+
 def eq13_parts(n, xi):
     N, X = mp.mpf(n), mp.mpf(xi)
     r = (X + 1) + mp.sqrt(X * (X + 2))
-    F = lambda U: mp.mpf("0.5") * N * r ** (U / N) / mp.log(r) + (1 - r / 2) * U**2 / (2 * N)
+    # F(U) = 0.5 N r^(U/N) / ln r + (1 - r/2) U^2 / (2 N), the antiderivative of eq 13; 0.5 N,
+    # ln r and 1 - r/2 formed once per precision (not parsed and recomputed at every call)
+    consts = per_precision(lambda: (mp.mpf("0.5") * N, mp.log(r), 1 - r / 2))
+
+    def F(U):
+        half_n, ln_r, slope = consts()
+        return half_n * r ** (U / N) / ln_r + slope * U**2 / (2 * N)
     return N, F
 
 
@@ -58,7 +79,8 @@ def ref_eq17_pm1(n, xi, alpha):
     with mp.workdps(dps_for(xi)):
         N, F = eq13_parts(n, xi)
         A = mp.mpf(alpha)
-        H = lambda lam: (F(N) - F(lam)) / (N - lam) - (1 - A)  # decreasing-then-increasing in lam
+        ends = per_precision(lambda: (F(N), 1 - A))  # F(n) and the level, once per precision
+        H = lambda lam: (ends()[0] - F(lam)) / (N - lam) - ends()[1]  # decreasing-then-increasing in lam
         dH = lambda lam: mp.diff(H, lam)
         lo, hi = -N, N - N / 10**6
         # H is convex-like in lambda here: its minimum (the tangency of Q) by bisection on H'
@@ -315,13 +337,21 @@ def test_preferential_value_never_exceeds_g():
 
 
 # ------------------------------------------------------------------------------------- N-P
+@functools.lru_cache(maxsize=2)
+def binomial_pmf_60(n, pf):
+    """[C(n, k) pf^k (1 - pf)^(n - k) for k = 0..n] in mpmath at 60 digits (a tuple)."""
+    with mp.workdps(60):
+        PF = mp.mpf(pf)
+        return tuple(mp.binomial(n, k) * PF**k * (1 - PF) ** (n - k) for k in range(n + 1))
+
+
 @pytest.mark.parametrize("alpha", [0.999999999, 1 - 1e-13, 0.7, 1e-12, 0.3])
 def test_np_gamma_exact_near_0_and_1(alpha):
     n, pd, pf = 1000, 0.02, 0.3
     rule = baselines.neyman_pearson_fusion(np.full(n, pd), np.full(n, pf), alpha)
     with mp.workdps(60):
-        A, PF = mp.mpf(alpha), mp.mpf(pf)
-        p0 = [mp.binomial(n, k) * PF**k * (1 - PF) ** (n - k) for k in range(n + 1)]
+        A = mp.mpf(alpha)
+        p0 = binomial_pmf_60(n, pf)  # the same for every alpha: formed once
         # pd < pf: Lambda decreases with K, atoms in decreasing order are K = 0, 1, ...
         c = mp.mpf(0)
         for k in range(n + 1):
