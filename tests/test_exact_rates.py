@@ -5,6 +5,7 @@ N-P (eq 32) rates on kinds against brute force and against the identical-taxel N
 
 from __future__ import annotations
 
+import bisect
 import functools
 import itertools
 import math
@@ -384,7 +385,11 @@ def log_chain_reference(pi, p, q, low, high):
     out = [[], [], []]
     P, Q = mp.mpf(2) ** mp.mpf(p), mp.mpf(2) ** mp.mpf(q)
     # (P Q, P e_1, Q e_n and the edges formed once, not per value: U_G = (P Q (j - mid) + P e_1)
-    # + Q e_n is the same mp number; the edges' conversions are exact)
+    # + Q e_n is the same mp number; the edges' conversions are exact. Along a row U_G(j) is
+    # non-decreasing in j -- P Q > 0 and each rounding to nearest is monotone -- so the j with
+    # U_G >= high form a suffix and those with U_G < low a prefix of the row's finite entries:
+    # both boundaries found by bisection, U_G evaluated at O(log n) of them instead of all, and
+    # each value lands in the region (and each list in the order) the value-by-value test gave.)
     PQ, lo, hi = P * Q, mp.mpf(low), mp.mpf(high)
     for a in (0, 1):
         for b in (0, 1):
@@ -392,9 +397,13 @@ def log_chain_reference(pi, p, q, low, high):
             Qen = Q * en
             for e1 in (-1, 0, 1):
                 row, Pe1 = L[a, b, e1 + 1], P * e1
-                for j in np.flatnonzero(np.isfinite(row)):
-                    u = PQ * (j - mid) + Pe1 + Qen
-                    out[0 if u >= hi else (2 if u < lo else 1)].append(row[j])
+                js = np.flatnonzero(np.isfinite(row))
+                u = lambda j: PQ * (j - mid) + Pe1 + Qen  # noqa: E731 (Pe1, Qen of this row)
+                first_high = bisect.bisect_left(js, True, key=lambda j: u(j) >= hi)
+                first_mid = min(bisect.bisect_left(js, True, key=lambda j: not u(j) < lo), first_high)
+                out[2].extend(row[js[:first_mid]])
+                out[1].extend(row[js[first_mid:first_high]])
+                out[0].extend(row[js[first_high:]])
     from scipy.special import logsumexp
     return [float(logsumexp(v)) if v else None for v in out]
 
