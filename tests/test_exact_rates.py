@@ -590,15 +590,17 @@ def test_monte_carlo_band_rates_match_the_rule():
 def brute_numpy(pi, p, q, encoding, low, high):
     """All 2^n vectors in numpy (n <= 16): eq 7 term by term, each vector's probability as a
     product; values within 1e-9 of an edge re-evaluated in mpmath. [P(>= high), P(mid), P(< low)]."""
-    bits, above, below = _vector_regions(len(pi), p, q, encoding, low, high)
+    bits, above, below = _vector_regions(len(pi), p, q, encoding, low, high, mp.mp.prec)
     prob = np.prod(np.where(bits, pi, 1.0 - np.asarray(pi)), axis=1)
     return [math.fsum(prob[above]), math.fsum(prob[~above & ~below]), math.fsum(prob[below])]
 
 
-@functools.lru_cache(maxsize=8)
-def _vector_regions(n, p, q, encoding, low, high):
-    """(bits, U_G >= high, U_G < low) of all 2^n vectors: the same for H1's and H0's
-    probabilities, so classified once per band (read-only arrays)."""
+@functools.lru_cache(maxsize=2)
+def _vector_values(n, p, q, encoding, prec):
+    """(bits, U_G in doubles, {vector index: U_G in mpmath}) of all 2^n vectors: the same for
+    every band and both hypotheses, so formed once (read-only arrays); the mpmath values are
+    filled in where a band needs them (near an edge) and kept for the next band (``prec``: the
+    working precision they are formed at, part of the key)."""
     bits = ((np.arange(2**n)[:, None] >> np.arange(n)) & 1).astype(bool)
     absent = -1.0 if encoding == "pm1" else 0.0
     u = np.where(bits, 1.0, absent)
@@ -607,19 +609,36 @@ def _vector_regions(n, p, q, encoding, low, high):
     terms_p = fac(padded[:, 2:], p)  # (1 + u_(i+1))^p
     terms_q = fac(padded[:, :-2], q)
     ug = (u * terms_p * terms_q).sum(axis=1)
+    for arr in (bits, ug):
+        arr.flags.writeable = False
+    return bits, ug, {}
+
+
+@functools.lru_cache(maxsize=8)
+def _vector_regions(n, p, q, encoding, low, high, prec):
+    """(bits, U_G >= high, U_G < low) of all 2^n vectors: the same for H1's and H0's
+    probabilities, so classified once per band (read-only arrays)."""
+    bits, ug, exact = _vector_values(n, p, q, encoding, prec)
+    absent = -1.0 if encoding == "pm1" else 0.0
     near = np.flatnonzero(np.minimum(np.abs(ug - low), np.abs(ug - high)) <= 1e-9 * np.maximum(1.0, np.abs(ug)))
     above, below = ug >= high, ug < low
     P, Q = mp.mpf(2) ** mp.mpf(p), mp.mpf(2) ** mp.mpf(q)
     lo, hi = mp.mpf(low), mp.mpf(high)  # (exact conversions of the float edges, once)
     fac_p = {1: P, 0: 1, -1: 1 if (absent == 0 or p == 0) else 0}  # (1 + u)^p by u (0: the boundary)
     fac_q = {1: Q, 0: 1, -1: 1 if (absent == 0 or q == 0) else 0}
+    # u_i (1 + u_(i+1))^p (1 + u_(i-1))^q by (u_(i-1), u_i, u_(i+1)): formed once, the same numbers
+    terms = {(prv, mid, nxt): mid * fac_p[nxt] * fac_q[prv] for prv in (-1, 0, 1) for mid in (-1, 0, 1)
+             for nxt in (-1, 0, 1)}
     for j in near:
-        val = mp.mpf(0)
-        row = [0] + [1 if b else int(absent) for b in bits[j]] + [0]
-        for i in range(1, n + 1):
-            val += row[i] * fac_p[row[i + 1]] * fac_q[row[i - 1]]
+        val = exact.get(j)
+        if val is None:
+            val = mp.mpf(0)
+            row = [0] + [1 if b else int(absent) for b in bits[j]] + [0]
+            for i in range(1, n + 1):
+                val += terms[row[i - 1], row[i], row[i + 1]]
+            exact[j] = val
         above[j], below[j] = val >= hi, val < lo
-    for arr in (bits, above, below):
+    for arr in (above, below):
         arr.flags.writeable = False
     return bits, above, below
 
