@@ -36,7 +36,7 @@ IO_MODULES = {"os", "io", "pathlib", "socket", "time", "datetime", "logging", "s
 IO_BUILTINS = {"open", "print", "input"}
 CORE_ALLOWED_TOP = {"__future__", "math", "cmath", "numbers", "dataclasses", "typing", "collections",
                     "functools", "itertools", "enum", "fractions", "decimal", "operator", "bisect",
-                    "heapq", "numpy", "scipy", "mpmath", "fusion_center", "taxel_net"}
+                    "heapq", "re", "numpy", "scipy", "mpmath", "fusion_center", "taxel_net"}
 
 
 def _module_name(path: Path) -> str:
