@@ -267,7 +267,7 @@ def observer_main(group: str, port: int, out: str) -> int:
 
     from taxel_net.udp_wire import udp_multicast_drain
 
-    bus = can.Bus(interface="udp_multicast", channel=group, port=port, receive_own_messages=False)
+    bus = can.Bus(interface="udp_multicast", channel=group, port=port, hop_limit=0, receive_own_messages=False)
     sock = getattr(bus, "_multicast", None)
     raw = getattr(sock, "_socket", None)
     if raw is not None:

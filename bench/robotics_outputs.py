@@ -184,7 +184,7 @@ def bus_pass(variant: str, cycles: int, tmp: Path) -> tuple[float, float, int]:
     outputs = viewer = None
     try:
         assert "ready" in sim.stdout.readline()
-        with FusionService(scene, interface="udp_multicast", channels=[group], bus_kwargs={"port": port},
+        with FusionService(scene, interface="udp_multicast", channels=[group], bus_kwargs={"port": port, "hop_limit": 0},
                            keep_records=False) as service:
             if variant != "bare":
                 outputs = RoboticsOutputs(scene, mcap=tmp / "bus.mcap" if "mcap" in variant else None,

@@ -47,14 +47,15 @@ def run_once(period_ms: float, cycles: int) -> dict:
         path = Path(tmp) / "scene.toml"
         path.write_text(text)
         sim = subprocess.Popen([sys.executable, "-m", "node_sim.cli", "--scene", str(path), "--interface",
-                                "udp_multicast", "--channel", GROUP, "--bus-option", f"port={port}"],
+                                "udp_multicast", "--channel", GROUP, "--bus-option", f"port={port}",
+                                "--bus-option", "hop_limit=0"],
                                cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         try:
             ready = sim.stdout.readline()
             if "ready" not in ready:
                 raise SystemExit(f"node-sim did not start: {sim.stderr.read() if sim.poll() is not None else ready}")
             with FusionService(scene, interface="udp_multicast", channels=[GROUP],
-                               bus_kwargs={"port": port}) as service:
+                               bus_kwargs={"port": port, "hop_limit": 0}) as service:
                 service.boot(5.0)
                 summary = service.run(cycles)
         finally:
