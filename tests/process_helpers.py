@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import os
 import random
+import signal
 import subprocess
 import sys
 import threading
@@ -43,9 +44,22 @@ def udp_loopback(group: str, port: int) -> list[str]:
 
 
 def start_node_sim(*args: str) -> subprocess.Popen:
-    """``node-sim ARGS`` in another process, stdout and stderr piped (text)."""
+    """``node-sim ARGS`` in another process, stdout and stderr piped (text); Python's fault
+    handler on, so that :func:`stop` can have a hung process print every thread's stack."""
     return subprocess.Popen([*NODE_SIM, *args], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True)
+                            text=True, env={**os.environ, "PYTHONFAULTHANDLER": "1"})
+
+
+def abort_with_stacks(proc: subprocess.Popen, timeout: float = 5.0) -> int:
+    """A process that would not end: SIGABRT (with the fault handler on, it prints the stack of
+    every thread on its stderr: what it hung in), SIGKILL if that does not end it either."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGABRT)
+        try:
+            return proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+    return proc.wait(timeout)
 
 
 def read_lines(stream, needle: str, timeout: float, limit: int = 200) -> list[str]:
@@ -90,14 +104,15 @@ def wait_ready(proc: subprocess.Popen, timeout: float = READY_S, name: str = "no
 
 
 def stop(proc: subprocess.Popen, timeout: float = STOP_S) -> int:
-    """SIGTERM, and SIGKILL if the process has not ended ``timeout`` s later; its exit code (the
-    caller asserts a clean exit where it wants one: a killed process has -9)."""
+    """SIGTERM, and SIGABRT then SIGKILL (:func:`abort_with_stacks`) if the process has not ended
+    ``timeout`` s later; its exit code (the caller asserts a clean exit where it wants one: an
+    aborted process has -6, a killed one -9)."""
     if proc.poll() is None:
         proc.terminate()
         try:
             return proc.wait(timeout)
         except subprocess.TimeoutExpired:
-            proc.kill()
+            return abort_with_stacks(proc)
     return proc.wait(timeout)
 
 

@@ -39,15 +39,22 @@ def test_the_block_ends_with_node_sim_stopped_also_on_failure():
     assert proc.returncode == 0  # SIGTERM: node-sim ends cleanly
 
 
-def test_a_process_that_ignores_sigterm_is_killed_after_the_wait():
-    deaf = ("import signal, time; signal.signal(signal.SIGTERM, signal.SIG_IGN); print('ready', flush=True); "
-            "time.sleep(120)")
-    proc = subprocess.Popen([sys.executable, "-c", deaf], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+@pytest.mark.parametrize("ignored, ends_by", [
+    ("SIGTERM", signal.SIGABRT),                 # aborted: with the fault handler on, it tells where it hung
+    ("SIGTERM, SIGABRT", signal.SIGKILL),        # and killed if it ignores that too
+])
+def test_a_process_that_ignores_sigterm_is_aborted_then_killed_after_the_wait(ignored, ends_by):
+    deaf = (f"import signal, time; [signal.signal(getattr(signal, s.strip()), signal.SIG_IGN) for s in {ignored!r}.split(',')]; "
+            "print('ready', flush=True); time.sleep(120)")
+    proc = subprocess.Popen([sys.executable, "-X", "faulthandler", "-c", deaf], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
     try:
         wait_ready(proc, 60)
     finally:
         rc = stop(proc, 0.5)
-    assert rc == -signal.SIGKILL
+    assert rc == -ends_by
+    if ends_by == signal.SIGABRT:
+        assert "most recent call first" in proc.stderr.read()  # the fault handler's stacks
 
 
 def _talker(lines: str) -> subprocess.Popen:
