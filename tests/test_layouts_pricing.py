@@ -1,8 +1,8 @@
 """layout_cycle_bits prices each distinct channel once (issue 14's scale figures call it for
 skins of up to 8192 one-taxel nodes: 65 channels, 63 of them alike) and every channel's bits
-still equal the frame-by-frame sum of ``pdo_frame_stats`` and ``frame_bits`` (the reference
-here, itself checked against enumeration in test_layouts.py and bit by bit in
-test_bus_timing.py)."""
+still equal those of the channel priced on its own (``_channel_bits``: the frame-by-frame sum of
+``pdo_frame_stats``, checked against enumeration in test_layouts.py) and its heartbeats'
+``frame_bits`` (bit by bit in test_bus_timing.py)."""
 
 from __future__ import annotations
 
@@ -11,25 +11,6 @@ import pytest
 from fusion_center.core import layouts
 from fusion_center.core.bus_timing import frame_bits
 from fusion_center.core.layouts import layout_cycle_bits, skin_layout
-
-
-def reference_channel(ch, layout, p_one, p_change, sync_counter):
-    """(expected frames, mean nominal PDO bits, mean data bits, worst nominal, worst data,
-    heartbeat bits) of one channel, summed frame by frame."""
-    tags = tuple(range(1, sync_counter + 1)) if layout.tag_bytes else ()
-    exp = mean_n = mean_d = 0.0
-    worst_n = worst_d = 0
-    for f in ch.frames:
-        st = layouts.pdo_frame_stats(f.cob_id, f.n_bytes, f.free_mask, p_one, fd=layout.fd, brs=layout.brs,
-                                     tag_values=tags)
-        sent = 1.0 if p_change is None else 1.0 - (1.0 - p_change) ** f.taxels
-        exp += sent
-        mean_n += sent * st.mean_nominal
-        mean_d += sent * st.mean_data
-        worst_n += st.worst_nominal
-        worst_d += st.worst_data
-    hb = sum(frame_bits(0x700 + node, b"\x05") for node in ch.node_ids)
-    return exp, mean_n, mean_d, worst_n, worst_d, hb
 
 
 @pytest.mark.parametrize("kwargs, p_change, sync_counter", [
@@ -44,7 +25,10 @@ def test_every_channel_equals_its_frame_by_frame_sum(kwargs, p_change, sync_coun
     bits = layout_cycle_bits(layout, p_one=0.3, p_change=p_change, sync_counter=sync_counter)
     sync = [frame_bits(0x080, bytes([c]) if sync_counter else b"") for c in (range(1, sync_counter + 1) or [0])]
     for ch, got in zip(layout.channels, bits, strict=True):
-        exp, mean_n, mean_d, worst_n, worst_d, hb = reference_channel(ch, layout, 0.3, p_change, sync_counter)
+        # the channel priced on its own (no sharing), its heartbeats frame by frame
+        tags = tuple(range(1, sync_counter + 1)) if layout.tag_bytes else ()
+        exp, mean_n, mean_d, worst_n, worst_d, _ = layouts._channel_bits(ch, layout, 0.3, p_change, tags)
+        hb = sum(frame_bits(0x700 + node, b"\x05") for node in ch.node_ids)
         assert got.channel == ch.index and got.nodes == len(ch.node_ids) and got.taxels == ch.taxels
         assert got.frames == len(ch.frames) and got.expected_frames == exp
         assert got.mean_nominal == mean_n + sum(sync) / len(sync) and got.mean_data == mean_d
