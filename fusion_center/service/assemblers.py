@@ -314,8 +314,9 @@ class AssembledFusionService(FusionService):
             if own is not None and (own[0] is None or closed.sync_counter is None or own[0] == closed.sync_counter):
                 del self._own_drive[closed.cycle]
                 return own[1]
-            earlier = [c for c in self._own_drive if c < closed.cycle]
-            return self._own_drive[earlier[-1]][1] if earlier else None
+            # (kept in the order the cycles closed: the first from the end before this one)
+            return next((drive for cycle, (_, drive) in reversed(self._own_drive.items()) if cycle < closed.cycle),
+                        None)
 
     def evaluate_command(self, closed: ClosedCycle):
         if self.drive is not None and closed.drive is None:
