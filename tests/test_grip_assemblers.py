@@ -21,12 +21,13 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "tests"))
 from process_helpers import multicast_group_port, node_sim, udp_loopback, wait_ready  # noqa: E402
+from test_assemblers import _assemble, _finish  # noqa: E402 - an assemble process, and its bounded end
 
 pytestmark = pytest.mark.multiprocess
 
 CYCLES = 300  # 3 s: approach 1 s, close 0.8 s, lift 1 s, then the hold
 SCENE = str(ROOT / "tests" / "data" / "grasp_light.toml")
-CLI = [sys.executable, "-c", "import sys; from fusion_center.cli import main; sys.exit(main())"]
+CLI = [sys.executable, "-c", "import sys; from fusion_center.cli import main; sys.exit(main())"]  # as _assemble
 
 
 def test_a_fuser_fed_by_an_assembler_drives_the_gripper(tmp_path):
@@ -35,10 +36,7 @@ def test_a_fuser_fed_by_an_assembler_drives_the_gripper(tmp_path):
     fuser_port = random.randint(40000, 60000)
     truth, live = tmp_path / "truth.jsonl", tmp_path / "run.jsonl"
     with node_sim("--scene", SCENE, *bus, "--truth-log", str(truth)):
-        assembler = subprocess.Popen(
-            [*CLI, "assemble", "--scene", SCENE, "-i", "udp_multicast", "-c", group,
-             "--bus-kwargs", f"port={port}", "hop_limit=0", "--serve", "0", "--fuser", f"127.0.0.1:{fuser_port}"],
-            cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        assembler = _assemble(SCENE, "0", fuser_port, port, channels=[group])
         try:
             centre = subprocess.run(
                 [*CLI, "run", "--scene", SCENE, *bus, "--cycles", str(CYCLES), "--assemblers",
@@ -46,11 +44,7 @@ def test_a_fuser_fed_by_an_assembler_drives_the_gripper(tmp_path):
                 cwd=ROOT, capture_output=True, text=True, timeout=300)
             wait_ready(assembler, name="fusion-center assemble")
         finally:
-            try:
-                out, err = assembler.communicate(timeout=30)  # the fuser's bye ends it
-            except subprocess.TimeoutExpired:
-                assembler.kill()
-                out, err = assembler.communicate()
+            _finish(assembler)  # the fuser's bye ends it (else killed after 30 s)
     assert centre.returncode == 0, centre.stderr
     print(centre.stdout)
     records = [json.loads(line) for line in live.read_text().splitlines()]
