@@ -113,6 +113,11 @@ class HeartbeatConsumer:
         """Producers whose heartbeat is lost now."""
         return frozenset(self._lost)
 
+    @property
+    def monitored(self) -> frozenset[int]:
+        """Producers whose heartbeat is being timed now (seen since 0x1016 was configured, not lost)."""
+        return frozenset(self._timers)
+
     def reset(self) -> None:
         """Boot / 0x1016 written: stop monitoring, forget lost heartbeats, re-read 0x1016."""
         for timer in self._timers.values():

@@ -50,7 +50,7 @@ def test_a_patch_grasp_demo_catches_the_slip_and_holds(name):
     assert len(truths) >= 250 and all(set(t) == TRUTH_KEYS for t in truths)
     grasp = summary["grip"]["grasp"]
     truth = grasp["truth"]
-    assert grasp["held"] and not truth["dropped"] and not truth["crushed"]
+    assert grasp["held"] and not truth["dropped"] and not truth["crushed"], summary["grip"]
     last = truths[-1]
     assert last["phase"] == "hold" and not last["slipping"] and last["normal_n"] > last["min_hold_n"]
     # the lift made it slip (a host that stalls the demo's one process through the lift's first
