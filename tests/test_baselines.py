@@ -20,7 +20,12 @@ from scipy import stats
 from fusion_center.core import baselines as bl
 from taxel_net.errors import ParameterError
 
-mpmath.mp.dps = 50
+@pytest.fixture(autouse=True, scope="module")
+def _references_at_50_digits():
+    """The mpmath references of this module at 50 digits, restored after it (not set at import:
+    that leaked into whichever module ran next in the worker)."""
+    with mpmath.workdps(50):
+        yield
 
 
 # ----------------------------------------------------------------- references (mpmath)

@@ -34,6 +34,7 @@ def test_taxel_llr_is_gaussian_log_ratio():
     assert np.allclose(centralised.taxel_llr(y, sd, s), want, rtol=1e-12, atol=1e-12)
 
 
+@mp.workdps(50)
 def test_known_statistic_single_and_mixture():
     rng = np.random.default_rng(4)
     noise = np.array([0.1, 0.2, 0.0, 0.3])
@@ -45,7 +46,6 @@ def test_known_statistic_single_and_mixture():
     want1 = np.sum(norm.logpdf(y, pats[0], sigma) - norm.logpdf(y, 0, sigma))
     assert centralised.centralised_llr(x, one) == pytest.approx(want1, rel=1e-12)
     both = centralised.make_params(noise, sigma, pats, method="known")
-    mp.mp.dps = 50
     terms = [mp.fsum(mp.log(mp.npdf(yi, si, sdi)) - mp.log(mp.npdf(yi, 0, sdi)) for yi, si, sdi in zip(y, p, sigma))
              for p in pats]
     want2 = mp.log((mp.exp(terms[0]) + mp.exp(terms[1])) / 2)

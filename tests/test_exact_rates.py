@@ -18,7 +18,12 @@ from mpmath.libmp import fzero, mpf_add, mpf_ge, mpf_lt, mpf_mul
 from fusion_center.core import baselines
 from fusion_center.core.exact_rates import llr_error_rates, np_kinds_fusion, preferential_error_rates
 
-mp.mp.dps = 40
+@pytest.fixture(autouse=True, scope="module")
+def _references_at_40_digits():
+    """The mpmath references of this module at 40 digits, restored after it (not set at import:
+    that leaked into whichever module ran next in the worker)."""
+    with mp.workdps(40):
+        yield
 
 
 def all_vectors(pd, pf, p, q, encoding):

@@ -55,8 +55,8 @@ def test_eq30_rejects_nan_reading_and_length_mismatch():
         tangential_force(["a"], 1.0, 0.0)
 
 
+@mpmath.workdps(50)
 def test_eq25_law_of_cosines_against_mpmath():
-    mpmath.mp.dps = 50
     for a, b, alpha in [(1.5, 2.25, 0.3), (3.0, 4.0, math.pi / 2), (2.0, 2.0, math.pi), (0.7, 0.1, 2.0)]:
         ref = mpmath.sqrt(mpmath.mpf(a) ** 2 + mpmath.mpf(b) ** 2
                           + 2 * mpmath.mpf(a) * mpmath.mpf(b) * mpmath.cos(mpmath.mpf(alpha)))

@@ -70,8 +70,8 @@ def test_np_decide_batch_matches_rule_off_the_boundary(n):
             assert g == (d == "H1")
 
 
+@mp.workdps(50)
 def test_taxel_rates_against_mpmath():
-    mp.mp.dps = 50
     s = np.array([0.0, 2.0, 5.6, 10.0])
     zeta, sigma = 3.0, 0.7
     got = montecarlo.taxel_rates(s, zeta, sigma)

@@ -292,23 +292,23 @@ def test_displacement_is_the_correctly_rounded_distance_to_the_reference(referen
     bit the former numpy expression, ``np.hypot(*(c - np.mean(refs, axis=0)))``."""
     import mpmath
 
-    mpmath.mp.dps = 60
-    rng = np.random.default_rng(23 + reference_cycles)
-    tracker = SlipTracker(0.5, 0.7, reference_cycles=reference_cycles, period=PERIOD)
-    track = rng.normal(20.0, 3.0, size=(200, 2)) * rng.choice([1e-3, 1.0, 1e3], size=(200, 1))
-    refs = track[:reference_cycles]
-    ref_np = np.mean(refs, axis=0)
-    ref_mp = [mpmath.fsum(mpmath.mpf(float(v)) for v in refs[:, k]) / reference_cycles for k in (0, 1)]
-    checked = 0
-    for k, c in enumerate(track):
-        state = tracker.update_centroid(PERIOD * (k + 1), c)
-        if k < reference_cycles:
-            assert state.displacement is None
-            continue
-        assert state.displacement == float(np.hypot(*(c - ref_np)))           # the former code, bit for bit
-        exact = mpmath.sqrt((mpmath.mpf(float(c[0])) - ref_mp[0]) ** 2 + (mpmath.mpf(float(c[1])) - ref_mp[1]) ** 2)
-        # the reference itself is rounded (a mean of floats) before the distance: a few ulps of it
-        tol = 4 * np.spacing(max(abs(ref_np).max(), abs(c).max())) + 2 * np.spacing(state.displacement)
-        assert abs(state.displacement - float(exact)) <= tol
-        checked += 1
-    assert checked == 200 - reference_cycles
+    with mpmath.workdps(60):
+        rng = np.random.default_rng(23 + reference_cycles)
+        tracker = SlipTracker(0.5, 0.7, reference_cycles=reference_cycles, period=PERIOD)
+        track = rng.normal(20.0, 3.0, size=(200, 2)) * rng.choice([1e-3, 1.0, 1e3], size=(200, 1))
+        refs = track[:reference_cycles]
+        ref_np = np.mean(refs, axis=0)
+        ref_mp = [mpmath.fsum(mpmath.mpf(float(v)) for v in refs[:, k]) / reference_cycles for k in (0, 1)]
+        checked = 0
+        for k, c in enumerate(track):
+            state = tracker.update_centroid(PERIOD * (k + 1), c)
+            if k < reference_cycles:
+                assert state.displacement is None
+                continue
+            assert state.displacement == float(np.hypot(*(c - ref_np)))           # the former code, bit for bit
+            exact = mpmath.sqrt((mpmath.mpf(float(c[0])) - ref_mp[0]) ** 2 + (mpmath.mpf(float(c[1])) - ref_mp[1]) ** 2)
+            # the reference itself is rounded (a mean of floats) before the distance: a few ulps of it
+            tol = 4 * np.spacing(max(abs(ref_np).max(), abs(c).max())) + 2 * np.spacing(state.displacement)
+            assert abs(state.displacement - float(exact)) <= tol
+            checked += 1
+        assert checked == 200 - reference_cycles
