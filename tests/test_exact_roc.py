@@ -18,7 +18,7 @@ import pytest
 from fusion_center.core import exact_rates, montecarlo
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from test_exact_rates import log_chain_states  # noqa: E402 - the shared log-domain reference DP
+from exact_rate_references import log_chain_states  # noqa: E402 - the shared log-domain reference DP
 
 
 def brute_law(pi, p, q, encoding):
