@@ -35,19 +35,26 @@ def test_a_patch_grasp_scene_is_two_patch_nodes(name, mode, frames):
 
 @pytest.mark.parametrize("name", ["grasp_lift_patch", "grasp_lift_raw_patch", "grasp_lift_raw_patch_fd"])
 def test_a_patch_grasp_demo_catches_the_slip_and_holds(name):
-    """300 cycles: approach 1 s, close 0.5 s, the lift's 0.8 s in which 6 N slips (the least
+    """3 s of the task: approach 1 s, close 0.5 s, the lift's 0.8 s in which 6 N slips (the least
     holding force is 6.903 N while it accelerates), into the hold: the world says the object
     slipped, was not dropped and is held (not slipping) at the end; every record carries ``grip``
-    and ``grasp_truth`` with their documented fields."""
-    from fusion_center.commands.demo import run_demo
+    and ``grasp_truth`` with their documented fields.
 
-    scene = load_scene(name)
-    service, summary = run_demo(scene, 300, keep_records=True)
+    At a 50 Hz SYNC (``--slow-down 2``, test_grasp_truth's way; the world steps with the SYNC): the
+    demo's one process runs the twins, the world and the centre, and on a loaded host a stall of
+    the centre at 100 Hz (commands 80-150 ms late, reproduced with three spinning processes)
+    let the lift carry the object off the pads - a controller that stalls drops the object, true
+    of any loop, not what this test is about. The 100 Hz loop's figures are bench/grasp.py's and
+    bench/grip_latency.py's."""
+    from fusion_center.commands.demo import run_demo, slowed_down
+
+    scene = slowed_down(load_scene(name), 2)
+    service, summary = run_demo(scene, 150, keep_records=True)
     records = list(service.records)
-    assert len(records) == 300
+    assert len(records) == 150
     assert all(set(r["grip"]) == GRIP_KEYS for r in records)
     truths = [r["grasp_truth"] for r in records if r.get("grasp_truth")]
-    assert len(truths) >= 250 and all(set(t) == TRUTH_KEYS for t in truths)
+    assert len(truths) >= 125 and all(set(t) == TRUTH_KEYS for t in truths)
     grasp = summary["grip"]["grasp"]
     truth = grasp["truth"]
     assert grasp["held"] and not truth["dropped"] and not truth["crushed"], summary["grip"]
@@ -61,4 +68,4 @@ def test_a_patch_grasp_demo_catches_the_slip_and_holds(name):
         assert any(r["grip"]["slip"] for r in records)
         assert grasp["max_command_n"] > scene.grip.grasp_n
     # the patches answered (not a run of cycles closed without them)
-    assert sum(r["n_received"] == scene.n for r in records) >= 250
+    assert sum(r["n_received"] == scene.n for r in records) >= 125
