@@ -18,10 +18,11 @@ TRUTH_KEYS = {"phase", "normal_n", "min_hold_n", "slipping", "slid_mm", "dropped
     ("grasp_lift_patch", "decision", 2),          # 26 decision bits a pad: one 4-byte TPDO each
     ("grasp_lift_raw_patch", "raw", 14),          # 26 INTEGER16 readings a pad: 7 classic TPDOs each
     ("grasp_lift_raw_patch_fd", "raw", 2),        # ... one 64-byte CAN FD TPDO each
+    ("grasp_fragile_patch", "decision", 2),       # grasp_fragile's task on grasp_lift_patch's nodes
 ])
 def test_a_patch_grasp_scene_is_two_patch_nodes(name, mode, frames):
     scene = load_scene(name)
-    one_taxel = load_scene("grasp_lift" if mode == "decision" else "grasp_lift_raw")
+    one_taxel = load_scene(name.removesuffix("_fd").removesuffix("_patch"))
     devices = P.devices(scene)
     assert scene.bus.patch_nodes and scene.bus.mode == mode
     assert [(d.node_id, len(d.taxels)) for d in devices] == [(1, 26), (2, 26)]
@@ -69,3 +70,22 @@ def test_a_patch_grasp_demo_catches_the_slip_and_holds(name):
         assert grasp["max_command_n"] > scene.grip.grasp_n
     # the patches answered (not a run of cycles closed without them)
     assert sum(r["n_received"] == scene.n for r in records) >= 125
+
+
+def test_the_fragile_task_on_patch_nodes_is_held_and_never_crushed():
+    """scenes/grasp_fragile_patch.toml, through the lift into the hold (3.5 s of the task, at
+    ``--slow-down 2`` as above): held, never slipped, not crushed, the command never above the
+    law's ``max_n`` (10 % below the crushing force) and the most normal force the world saw too."""
+    from fusion_center.commands.demo import run_demo, slowed_down
+
+    scene = slowed_down(load_scene("grasp_fragile_patch"), 2)
+    service, summary = run_demo(scene, 175, keep_records=True)
+    records = list(service.records)
+    grasp = summary["grip"]["grasp"]
+    truth = grasp["truth"]
+    assert grasp["held"] and not truth["dropped"] and not truth["crushed"], summary["grip"]
+    assert truth["max_normal_n"] <= scene.grip.max_n < scene.grasp.max_force_n
+    commands = [r["grip"]["command_n"] for r in records if r["grip"]["command_n"] is not None]
+    assert commands and max(commands) <= scene.grip.max_n
+    phases = {r["grasp_truth"]["phase"] for r in records if r.get("grasp_truth")}
+    assert {"lift", "hold"} <= phases
