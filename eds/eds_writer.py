@@ -79,12 +79,14 @@ class Writer:
 
 
 def communication_profile(w: Writer, *, device_type: int, device_name: str, product_code: int,
-                          cycle_period_us: int | None = None, communication_error: int = 0) -> list[int]:
+                          cycle_period_us: int | None = None, communication_error: int = 0,
+                          emcy_inhibit: bool = False) -> list[int]:
     """Write the CiA 301 objects 0x1000-0x1200 every generated node has; return the optional ones written.
 
     What differs between the nodes: the device type 0x1000, the device name 0x1008, the product
     code 0x1018:2, the communication cycle period 0x1006 in µs (not written when None) and the
-    error behaviour 0x1029:1 on a communication error (0: to PRE-OPERATIONAL, 1: no state change).
+    error behaviour 0x1029:1 on a communication error (0: to PRE-OPERATIONAL, 1: no state change),
+    whether the node has the EMCY inhibit time 0x1015 (``emcy_inhibit``; default 0: none).
     """
     w.var("1000", "Device type", UNSIGNED32, "ro", f"0x{device_type:08X}")
     w.var("1001", "Error register", UNSIGNED8, "ro", 0, mappable=True)
@@ -98,6 +100,8 @@ def communication_profile(w: Writer, *, device_type: int, device_name: str, prod
     w.var("1007", "Synchronous window length", UNSIGNED32, "rw", 0)
     w.var("1008", "Manufacturer device name", VISIBLE_STRING, "const", device_name)
     w.var("1014", "COB-ID EMCY", UNSIGNED32, "rw", "$NODEID+0x80")
+    if emcy_inhibit:
+        w.var("1015", "Inhibit time EMCY", UNSIGNED16, "rw", 0)
     w.compound(0x1016, "Consumer heartbeat time", 0x8, 2)
     w.var("1016sub0", "Highest sub-index supported", UNSIGNED8, "ro", 2)
     for sub in (1, 2):
@@ -117,8 +121,9 @@ def communication_profile(w: Writer, *, device_type: int, device_name: str, prod
     w.var("1200sub0", "Highest sub-index supported", UNSIGNED8, "ro", 2)
     w.var("1200sub1", "COB-ID client to server", UNSIGNED32, "ro", "$NODEID+0x600")
     w.var("1200sub2", "COB-ID server to client", UNSIGNED32, "ro", "$NODEID+0x580")
-    optional = [0x1003, 0x1005, 0x1006, 0x1007, 0x1008, 0x1014, 0x1016, 0x1017, 0x1019, 0x1029, 0x1200]
-    return [index for index in optional if index != 0x1006 or cycle_period_us is not None]
+    optional = [0x1003, 0x1005, 0x1006, 0x1007, 0x1008, 0x1014, 0x1015, 0x1016, 0x1017, 0x1019, 0x1029, 0x1200]
+    return [index for index in optional
+            if (index != 0x1006 or cycle_period_us is not None) and (index != 0x1015 or emcy_inhibit)]
 
 
 def render(body: Writer, *, optional: list[int], manufacturer: list[int], comments: list[str], file_name: str,

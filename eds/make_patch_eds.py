@@ -44,6 +44,10 @@ COMMENTS = [
     "Sub 0 of each array gives its number of entries (the node sets it to the taxels it hosts).",
     "Array 2020h sub j: decisions of taxels 8(j-1) to 8j-1, bit k for taxel 8(j-1)+k (1 present, 0 absent).",
     "Array 2022h: sensor-fault bits in the same layout (open circuit or stuck; a faulted taxel decides absent).",
+    "Array 2033h: AI status per taxel with respect to the readings array its TPDOs map (CiA 404 AI status bits:",
+    "1 not valid, 2 positive overload, 4 negative overload: a reading beyond the INTEGER8 / INTEGER16 range is",
+    "sent as the limit code); the node sends EMCY 3000h on the first overload, 0000h when all are back in range.",
+    "Inhibit time EMCY 1015h in 100 us (0: none).",
     "Record 2002h: full scale mV (above 0, checked by the node) and stuck-reading sample count M (0 means off).",
     "TPDO mappings 1A00h-1A0Fh take up to 64 entries and 512 bits on CAN FD (8 bytes on classic CAN), 1A10h-1A54h",
     "up to 8 entries; see docs/node-twins.md.",
@@ -53,9 +57,9 @@ COMMENTS = [
 def objects() -> tuple[list[int], list[int], Writer]:
     w = Writer()
     optional = communication_profile(w, device_type=0, device_name="taxel patch node twin",
-                                     product_code=PRODUCT_CODE)
+                                     product_code=PRODUCT_CODE, emcy_inhibit=True)
     optional += [0x1800 + k for k in range(N_TPDOS)] + [0x1A00 + k for k in range(N_TPDOS)]
-    manufacturer = [0x2002, 0x2010, 0x2011, 0x2012, 0x2013, 0x2014, 0x2020, 0x2021, 0x2022, 0x2030, 0x2031, 0x2032]
+    manufacturer = [0x2002, 0x2010, 0x2011, 0x2012, 0x2013, 0x2014, 0x2020, 0x2021, 0x2022, 0x2030, 0x2031, 0x2032, 0x2033]
 
     for k in range(N_TPDOS):
         # TPDO 1-4: the predefined connection set's COB-IDs; TPDO 1 valid (tag and 56 decisions),
@@ -86,6 +90,7 @@ def objects() -> tuple[list[int], list[int], Writer]:
     w.array(0x2030, "Readings INTEGER8", "Counts of taxel", TAXELS, INTEGER8, "ro", 0, mappable=True)
     w.array(0x2031, "Readings INTEGER16", "Counts of taxel", TAXELS, INTEGER16, "ro", 0, mappable=True)
     w.var("2032", "Raw reading LSB mV", REAL32, "rw", "0.01")
+    w.array(0x2033, "AI status", "AI status of taxel", TAXELS, UNSIGNED8, "ro", 0, mappable=True)
     return optional, manufacturer, w
 
 

@@ -87,7 +87,7 @@ class TaxelNode:
                             leave_operational=self._leave_operational,
                             reset_node=self._reset_node, reset_communication=self._reset_communication)
         self.heartbeat = HeartbeatProducer(node_id, self.nmt, objects, self._send, link.scheduler)
-        self.emcy = EmcyProducer(self.nmt, objects, self._send)
+        self.emcy = EmcyProducer(self.nmt, objects, self._send, link.scheduler)
         self.heartbeat_consumer = HeartbeatConsumer(self.nmt, objects, link.scheduler, self._heartbeat_event)
         self.detector = self._new_detector()
         self.pdo = self._new_pdo(fd)

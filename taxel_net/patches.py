@@ -17,8 +17,12 @@ are packed:
 * **raw mode**: the process value X_i of each taxel as INTEGER8 or INTEGER16
   (``[bus] raw_format``), little-endian, in counts of ``[bus] raw_lsb_mv`` mV
   (:data:`PATCH_RAW_LSB`); the most negative code means "not valid" (an open input, NaN),
-  readings beyond the range saturate at the next codes (CiA 404 keeps the status apart; a packed
-  PDO has no room for it).
+  readings beyond the range saturate at the next codes. A limit code on the bus cannot be told
+  from a genuine reading, so the node keeps the status apart, as CiA 404 does (its AI status
+  0x6150: bit 0 not valid, bit 1 positive overload, bit 2 negative overload): the per-taxel
+  :data:`PATCH_AI_STATUS` (:func:`counts_and_status`) and the over-range EMCY
+  (:data:`EMCY_INPUT_OVER_RANGE`, sent on the rising edge, its error reset 0x0000 when every
+  mapped reading is back in range; docs/node-twins.md).
 * **cycle tag**: with a SYNC counter (``[bus] sync_counter`` > 0) every frame of a patch starts
   with one UNSIGNED8 byte, :data:`PATCH_CYCLE_TAG`: the counter of the SYNC its values were
   sampled at (CiA 301 SYNC counter, 1..overflow), so the centre counts every frame in its own
@@ -59,6 +63,21 @@ PATCH_CYCLE_TAG = 0x2021         # UNSIGNED8: counter of the sampling SYNC
 PATCH_READINGS_I8 = 0x2030       # ARRAY INTEGER8: X_i in counts
 PATCH_READINGS_I16 = 0x2031      # ARRAY INTEGER16: X_i in counts
 PATCH_RAW_LSB = 0x2032           # REAL32: mV per count
+PATCH_AI_STATUS = 0x2033         # ARRAY UNSIGNED8: AI status of taxel i-1 (CiA 404 0x6150's bits)
+
+# AI status bits (CiA 404 AI status 0x6150, as the one-taxel node's 0x6150:1)
+AI_NOT_VALID = 0x01              # no reading (NaN: the most negative code on the bus)
+AI_POSITIVE_OVERLOAD = 0x02      # above the representable range: sent as the largest code
+AI_NEGATIVE_OVERLOAD = 0x04      # below it: sent as the most negative code + 1
+AI_OVERLOAD = AI_POSITIVE_OVERLOAD | AI_NEGATIVE_OVERLOAD
+
+# The EMCY of a patch node whose mapped INTEGER8/16 readings saturate (CiA 301 EMCY, error code
+# class 0x30xx "voltage": X_i is a bridge voltage in mV; error register bits 0 and 2), and its
+# manufacturer-specific field (5 bytes): over-range id, taxel k (0-based, the node's own order),
+# its TPDO (1 = 0x1800/0x1A00), its AI status bits, taxels over range (at most 254)
+EMCY_INPUT_OVER_RANGE = 0x3000
+EMCY_OVER_RANGE_ID = 3           # byte 3 of the field (the sensor faults use 1 stuck, 2 open circuit)
+ERR_REG_VOLTAGE = 0x04           # error register 0x1001 bit 2
 
 # how a TPDO's data encode its taxels
 ENC_INTEGER8 = "integer8"        # per-taxel TPDO1: u_i as INTEGER8 +1 / -1 (0x2000)
@@ -217,18 +236,31 @@ def pack(tpdo: Tpdo, values, tag: int | None = None) -> bytes:
     return data + bytes(tpdo.length - len(data))
 
 
-def readings_to_counts(tpdo: Tpdo, readings_mv, lsb_mv: float) -> tuple[np.ndarray, int]:
-    """Readings (mV, NaN = not valid) to the INTEGER8/16 counts of a raw patch TPDO: rounded to
-    the nearest count, saturated at min + 1 .. max; NaN to the minimum ("not valid"). Returns
-    the counts and how many readings saturated."""
-    lo, hi, dtype = _raw_limits(tpdo.encoding)
+def counts_and_status(encoding: str, readings_mv, lsb_mv: float) -> tuple[np.ndarray, np.ndarray]:
+    """Readings (mV, NaN = not valid) to the INTEGER8/16 counts of a raw patch encoding
+    (:data:`ENC_INT8` / :data:`ENC_INT16`) and each reading's AI status (uint8, CiA 404 0x6150's
+    bits): rounded to the nearest count; a reading whose count lies above the largest code
+    is sent as that code and flagged :data:`AI_POSITIVE_OVERLOAD`, one below the most negative
+    code + 1 as that code and flagged :data:`AI_NEGATIVE_OVERLOAD`; NaN is sent as the most
+    negative code ("not valid", :data:`AI_NOT_VALID`); infinities overload."""
+    lo, hi, dtype = _raw_limits(encoding)
     r = np.asarray(readings_mv, dtype=np.float64)
     bad = np.isnan(r)
     scaled = np.where(bad, 0.0, r) / lsb_mv
+    above, below = scaled > hi, scaled < lo + 1
     counts = np.rint(np.clip(scaled, lo + 1, hi))
-    saturated = int(np.count_nonzero(~bad & ((scaled < lo + 1) | (scaled > hi))))
     counts[bad] = lo
-    return counts.astype(dtype), saturated
+    status = (above * np.uint8(AI_POSITIVE_OVERLOAD)) | (below * np.uint8(AI_NEGATIVE_OVERLOAD)) \
+        | (bad * np.uint8(AI_NOT_VALID))
+    return counts.astype(dtype), status.astype(np.uint8)
+
+
+def readings_to_counts(tpdo: Tpdo, readings_mv, lsb_mv: float) -> tuple[np.ndarray, int]:
+    """Readings (mV, NaN = not valid) to the INTEGER8/16 counts of a raw patch TPDO: rounded to
+    the nearest count, saturated at min + 1 .. max; NaN to the minimum ("not valid"). Returns
+    the counts and how many readings saturated (:func:`counts_and_status` has which, and how)."""
+    counts, status = counts_and_status(tpdo.encoding, readings_mv, lsb_mv)
+    return counts, int(np.count_nonzero(status & AI_OVERLOAD))
 
 
 def unpack(tpdo: Tpdo, data: bytes, lsb_mv: float = 1.0) -> tuple[int | None, np.ndarray]:

@@ -144,13 +144,23 @@ def reference_sample(self, readings, counter=None):
                        np.packbits(faulted, bitorder="little").tobytes(), counter or 0)
 
 
+def reference_tpdos(self, counter):
+    """The general TPDO engine loop (``TpdoEngine.on_sync``) after the patch node's over-range
+    check of the mapped readings (its EMCY before the frames of the SYNC)."""
+    if self._active is None:
+        self._activate()
+    if self._watch is not None:
+        self._node.check_over_range(*self._watch)
+    TpdoEngine.on_sync(self, counter)
+
+
 def make_reference(rig):
     for ch in rig._channels:
         ch.batch_patch_sync = False
         ch._sync_map = None
         for node in ch.nodes.values():
             node.sync._sample = types.MethodType(reference_sample, node.detector)
-            node.sync._tpdos_on_sync = types.MethodType(TpdoEngine.on_sync, node.pdo)
+            node.sync._tpdos_on_sync = types.MethodType(reference_tpdos, node.pdo)
 
 
 def per_node(rig):
@@ -287,6 +297,8 @@ def test_same_frames_emcys_and_images_as_the_reference(tmp_path, rigs, mode, tt,
     codes = emcy_codes(wanted)
     for ok in (b"\x00\x50", b"\x00\x73", b"\x00\x00"):    # open circuit, stuck, error reset
         assert any(d == ok for _, _, d in codes), ok
+    if mode == "raw":     # INTEGER8 counts of 0.05 mV: readings beyond +-6.35 mV over range
+        assert any(d == b"\x00\x30" for _, _, d in codes)
     pdos = [f for _, _, frames in wanted for f in frames if 0x181 <= f[1] <= 0x57F]
     assert len(pdos) > 50
     if fd:

@@ -13,6 +13,7 @@ from canopen.sdo import SdoAbortedError
 from taxel_net import patches as P
 
 from .. import od as odx
+from ..emcy import over_range_field
 from ..link import NodeLink
 from ..node import TaxelNode
 from ..pdo import TpdoEngine
@@ -54,7 +55,7 @@ class PatchNode(TaxelNode):
 
     def _read_image(self, index: int, subindex: int, od):
         """LocalNode read callback: the process image and the sub 0 counts of the patch arrays."""
-        if index < P.PATCH_ZETA or index > P.PATCH_READINGS_I16:
+        if index < P.PATCH_ZETA or index > P.PATCH_AI_STATUS:
             return None
         image = self.image
         if index in IMAGE_ARRAYS or index in PARAMETER_ARRAYS:
@@ -70,6 +71,25 @@ class PatchNode(TaxelNode):
         if index == P.PATCH_CYCLE_TAG:
             return image.tag
         return None
+
+    def check_over_range(self, index: int, tpdo_of: np.ndarray, overload: np.ndarray) -> None:
+        """A SYNC in OPERATIONAL with readings array ``index`` mapped (``tpdo_of``: the TPDO of
+        each taxel, 0 if none; ``overload``: the AI status bits that count per taxel;
+        :class:`PatchTpdoEngine`): the over-range EMCY on the rising edge of "a mapped reading
+        saturates" (its AI status 0x2033 has an overload bit), its error reset when none does
+        (:meth:`node_sim.emcy.EmcyProducer.over_range`)."""
+        status = self.image.status(index)
+        over = status & overload
+        count = int(np.count_nonzero(over))
+        emcy = self.emcy
+        if not count:
+            if emcy.over_range_active:
+                emcy.over_range(None)
+            return
+        if emcy.over_range_active:
+            return
+        k = int(np.flatnonzero(over)[0])
+        emcy.over_range(over_range_field(k, int(tpdo_of[k]), int(status[k]), count))
 
     # ------------------------------------------------------------------ introspection
     @property

@@ -6,19 +6,29 @@ It compiles each mapping once (on a change) into a function of byte ranges of th
 of a few slices per TPDO (the tag and the packed decisions: one concatenation); on CAN FD the data
 are padded with 0 to the next valid FD length. TPDOs all sent on every SYNC (transmission type 1)
 leave in one call to the link.
+
+Raw mode's over-range signal (docs/node-twins.md): on activation the engine notes which readings
+array its TPDOs map (the narrowest when both are; :attr:`PatchImage.raw_index`, what the AI
+status 0x2033 refers to) and which TPDO carries each taxel; at every SYNC, before the TPDOs
+leave, the node compares the AI status of the mapped readings with the last one
+(:meth:`~node_sim.patch.node.PatchNode.check_over_range`): the over-range EMCY
+(:data:`taxel_net.patches.EMCY_INPUT_OVER_RANGE`) on the rising edge, its error reset when every
+mapped reading is back in range - so the EMCY precedes the first frame that carries a limit code.
 """
 
 from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
+import numpy as np
 from canopen.sdo import SdoAbortedError
 
 from taxel_net import patches as P
 
 from ..pdo import TpdoEngine, _TpdoConfig
 from ..sdo import ABORT_NOT_MAPPABLE
-from .objects import CLASSIC_MAPPED, FD_MAPPED, FD_TPDOS, IMAGE_ARRAYS, N_TPDOS, TPDO_COMM, TPDO_MAP
+from .objects import (CLASSIC_MAPPED, FD_MAPPED, FD_TPDOS, IMAGE_ARRAYS, N_TPDOS, READINGS_ARRAYS, TPDO_COMM,
+                      TPDO_MAP)
 
 if TYPE_CHECKING:
     from .node import PatchNode
@@ -33,7 +43,9 @@ class PatchTpdoEngine(TpdoEngine):
                                           for k in range(N_TPDOS)),
                          max_bits=8 * (P.FD_DATA_MAX if fd else P.CLASSIC_DATA_MAX), fd=fd)
         self._image = node.image
+        self._check_over_range = node.check_over_range
         self._every_sync = self._tagged_decisions = None   # what _activate finds
+        self._watch = None   # what the over-range check watches (_mapped_readings)
         self._every_sync_runtimes: tuple = ()
 
     def _activate(self):
@@ -53,7 +65,28 @@ class PatchTpdoEngine(TpdoEngine):
             for rt in self._every_sync_runtimes:
                 rt.started = True
                 rt.sync_count = 0
+        self._watch = self._mapped_readings(active)
         return active
+
+    def _mapped_readings(self, active):
+        """``(index, tpdo_of, overload)`` of the readings array the active TPDOs map (INTEGER8 when both
+        are: the narrower range), ``tpdo_of[k]`` the number (1-based, 1 = 0x1800) of the first
+        TPDO carrying taxel k, 0 where none does; ``overload`` the AI status bits that count per
+        taxel (the overload bits where mapped, else 0); None when no readings are mapped."""
+        image = self._image
+        mapped: dict[int, np.ndarray] = {}
+        for pdo, cfg, _ in active:
+            for index, subindex, _ in cfg.mapping:
+                if index in READINGS_ARRAYS and 1 <= subindex <= image.n:
+                    tpdo_of = mapped.setdefault(index, np.zeros(image.n, dtype=np.uint8))
+                    if not tpdo_of[subindex - 1]:
+                        tpdo_of[subindex - 1] = pdo + 1
+        index = next((i for i in READINGS_ARRAYS if i in mapped), None)
+        image.raw_index = P.PATCH_READINGS_I16 if index is None else index
+        if index is None:
+            return None
+        tpdo_of = mapped[index]
+        return index, tpdo_of, np.where(tpdo_of > 0, P.AI_OVERLOAD, 0).astype(np.uint8)
 
     def on_sync(self, counter: int | None) -> None:
         """A SYNC in OPERATIONAL for a live node: :meth:`TpdoEngine.on_sync`, or when every
@@ -61,6 +94,8 @@ class PatchTpdoEngine(TpdoEngine):
         (the same frames and run-time state)."""
         if self._active is None:
             self._activate()
+        if self._watch is not None:
+            self._check_over_range(*self._watch)   # its EMCY before the frames of this SYNC
         every_sync = self._every_sync
         if every_sync is None:
             super().on_sync(counter)
