@@ -182,6 +182,9 @@ def summarise(service, summary, *, bus: str | None = None) -> dict:
         out["bus"] = bus
     if getattr(service, "drive", None) is not None:  # the grip stage (issue 23)
         out["grip"] = service.drive.summary()
+    over_range = getattr(service.pipeline, "over_range", None)
+    if over_range is not None and (over_range.emcy or stats.over_range):  # raw patch scenes (docs/service.md)
+        out["over_range"] = {"cycles": stats.over_range, "emcy": {str(k): v for k, v in over_range.emcy.items()}}
     if service.assembler.duplicates:
         out["duplicate_nodes"] = sorted((service.labels[i] for i in service.assembler.duplicates), key=str)
     return out
@@ -223,6 +226,11 @@ def format_summary(summary: dict) -> list[str]:
     if "nmt_restarts" in summary:
         lines.append(("nmt_restarts", f"{summary['nmt_restarts']} (nodes found stopped or pre-operational, "
                                       "started again: [master] restart)"))
+    if "over_range" in summary:
+        o = summary["over_range"]
+        lines.append(("over_range", f"{o['cycles']} cycles flagged, EMCY 0x3000 "
+                                    f"{', '.join(f'node {k} {v}' for k, v in o['emcy'].items()) or 'none'} "
+                                    "(raw readings clipped at the INTEGER8/16 limit)"))
     if "duplicate_nodes" in summary:
         lines.append(("duplicate_nodes", ", ".join(map(str, summary["duplicate_nodes"]))
                       + " (two devices answer for one node-ID)"))

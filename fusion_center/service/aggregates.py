@@ -5,7 +5,7 @@ number of cycles (issue 10: a long-running centre kept every record and latency 
   bin width, 930 bins) with exact count, min, max and sum; a percentile is the upper edge of
   its bin clamped to [min, max], so it is within 2 % of the exact order statistic.
 * :class:`RunAggregates`: counters over the records (decisions, agreement of the decision and
-  of every rule with the truth, degraded cycles, the stages run in any cycle (``stages_run``,
+  of every rule with the truth, degraded cycles, cycles with clipped readings, the stages run in any cycle (``stages_run``,
   in pipeline order),
   ``nodes_by_state`` totals), fed one record at a time.
 """
@@ -92,6 +92,7 @@ class RunAggregates:
         self.rule_decided: Counter = Counter()
         self.rule_agree: Counter = Counter()
         self.degraded = 0
+        self.over_range = 0   # cycles with readings clipped at a packed limit code (over_range_nodes)
         self.stages_run: list[str] = []
         self._stages_seen: set[str] = set()
         self.undecided_by_integrity = 0
@@ -119,6 +120,8 @@ class RunAggregates:
                     self.rule_agree[name] += verdict == truth
         if record.get("degraded"):
             self.degraded += 1
+        if record.get("over_range_nodes"):
+            self.over_range += 1
         for stage in record.get("stages_run") or ():
             if stage not in self._stages_seen:
                 self._stages_seen.add(stage)

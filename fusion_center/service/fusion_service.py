@@ -396,6 +396,10 @@ class FusionService:
             self.stats.add(record)
         except Exception:  # noqa: BLE001 - the aggregates never stop the records
             logger.exception("cycle %d: aggregating the record failed", item.cycle)
+        if record.get("over_range_nodes"):
+            self._rate_log.warning("over_range", "cycle %d: readings of node(s) %s over range, clipped at the "
+                                   "INTEGER8/16 limit (EMCY 0x3000): the record's raw-mode results are flagged "
+                                   "(over_range_nodes)", item.cycle, record["over_range_nodes"])
         if record.get("duplicate_nodes"):
             self._rate_log.warning("duplicate", "cycle %d: duplicate node-ID evidence for node(s) %s "
                                    "(two devices answer for one node-ID)", item.cycle, record["duplicate_nodes"])

@@ -43,6 +43,7 @@ from .centralised_tests import CentralisedTests
 from .cycle_records import STATE_RESETTING, ClosedCycle
 from .decoder import STATE_NAMES as _DECODER_STATE_NAMES
 from .decision_fusion import DecisionFusion
+from .over_range import OverRangeTracker
 from .physical import PhysicalEvaluation
 from .records import jsonable
 
@@ -131,7 +132,9 @@ class CyclePipeline:
         self.central = self.centralised.params  # test name -> parameters of the full set
         self.hold = scene.bus.transmission_type != 1
         self.grip = None  # the grip stage ([gripper] scenes, .grip_stage): a command for the drive per cycle
-        self.new_run()   # the slip tracker (self.physical) and the grip stage
+        # raw patch scenes: nodes whose packed readings are clipped (their over-range EMCYs, .over_range)
+        self.over_range = OverRangeTracker(self.node_labels) if scene.bus.patch_nodes and self.raw_mode else None
+        self.new_run()   # the slip tracker (self.physical), the grip stage, the over-range tracker
         self.xy = self.physical.xy
         self.want_forces = "forces" in self.plan.run and self.raw_mode
         self.want_area = "area" in self.plan.run and self.xy is not None
@@ -157,6 +160,8 @@ class CyclePipeline:
         read - ``[forces] mu``, ``[grip]``, ``[grasp]``, ``[gripper]`` - not in its taxels or mode
         (the bench's randomised grasps: one pipeline per layout and mode)."""
         scene = self.scene if scene is None else scene
+        if self.over_range is not None:
+            self.over_range.reset()
         self.physical = PhysicalEvaluation(scene, self.labels, self.noise, slip="slip" in self.plan.run)
         if "grip" in self.plan.run:
             from .grip_stage import GripStage
@@ -281,6 +286,8 @@ class CyclePipeline:
         record["emcy"] = [e.as_record() for e in closed.emcy]
         if closed.emcy_dropped:
             record["emcy_dropped"] = closed.emcy_dropped
+        if self.over_range is not None:  # raw patch scenes: results from clipped readings flagged
+            record["over_range_nodes"] = self.over_range.update(closed)
         record["rules"] = rule_results
 
         if pending.forces is not None:

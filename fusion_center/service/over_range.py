@@ -1,0 +1,68 @@
+"""Readings clipped at the limit code of a packed raw patch TPDO, as the nodes report them.
+
+A patch node in raw mode sends X_i as INTEGER8 / INTEGER16 counts (:mod:`taxel_net.patches`); a
+reading beyond that range is sent as the limit code, which the centre cannot tell from a
+genuine reading. The node reports it as CiA 301 / CiA 404 devices report an analog input over
+range: EMCY ``0x3000`` (:data:`taxel_net.patches.EMCY_INPUT_OVER_RANGE`, error register bits 0
+and 2, the manufacturer field naming the first taxel over range and its TPDO) on the rising
+edge, before the TPDOs of that SYNC, and the error reset ``0x0000`` (bit 2 clear) when every
+mapped reading is back in range; its AI status array 0x2033 says which taxels, by SDO
+(docs/node-twins.md).
+
+:class:`OverRangeTracker` follows those EMCYs cycle by cycle (a closed cycle's ``emcy``: every
+EMCY since the previous one, in bus order): a node is over range from its EMCY 0x3000 until an
+EMCY of its own says otherwise (the error register of every EMCY is the node's 0x1001: bit 2
+clear, e.g. the error reset), or until it is reset or lost (NMT reset, boot-up, heartbeat
+consumer time expired: its error state starts afresh). A record of a cycle in which some node
+is over range lists those nodes in ``over_range_nodes``: its raw-mode results (the nodes'
+decisions computed centrally, the centralised tests, the forces) came from clipped readings.
+The EMCYs are counted per node (the run summary's ``over_range``). Pure: a function of the
+closed cycles, so a replay gives the same records.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+
+from taxel_net.patches import EMCY_INPUT_OVER_RANGE, ERR_REG_VOLTAGE
+
+from .cycle_records import STATE_RESETTING, ClosedCycle
+from .decoder import STATE_BOOTUP
+
+_RESTARTED = (STATE_RESETTING, STATE_BOOTUP)
+
+
+class OverRangeTracker:
+    """Which patch nodes report readings over range (module docstring). ``labels``: the node
+    label of every device (``pipeline.node_labels`` order)."""
+
+    def __init__(self, labels: list):
+        self.labels = list(labels)
+        self.index = {label: i for i, label in enumerate(self.labels)}
+        self.active: set = set()          # node labels over range now
+        self.emcy: Counter = Counter()    # node label -> over-range EMCYs (rising edges) heard
+
+    def reset(self) -> None:
+        self.active.clear()
+        self.emcy.clear()
+
+    def update(self, closed: ClosedCycle) -> list:
+        """The cycle's EMCYs applied, restarted or lost nodes forgotten: the labels of the nodes
+        over range in this cycle (device order)."""
+        active = self.active
+        for e in closed.emcy:
+            if e.code == EMCY_INPUT_OVER_RANGE:
+                active.add(e.node)
+                self.emcy[e.node] += 1
+            elif not e.register & ERR_REG_VOLTAGE:
+                active.discard(e.node)
+        if not active:
+            return []
+        devices = closed.devices
+        if devices is not None:
+            for label in list(active):
+                i = self.index.get(label)
+                if i is not None and (devices.missing[i] or int(devices.states[i]) in _RESTARTED):
+                    active.discard(label)
+        index = self.index
+        return sorted(active, key=lambda label: index.get(label, len(index)))

@@ -1,0 +1,209 @@
+"""Raw readings beyond the range of a patch node's packed INTEGER8 / INTEGER16 counts: the node
+sends the limit code, which the centre cannot tell from a genuine reading, so the node signals it
+as CiA 301 / CiA 404 devices do (AI status 0x2033, EMCY 0x3000 on the rising edge and its error
+reset 0x0000, inhibit time 0x1015) and the centre counts it and flags the records.
+
+The twins' side is checked with canopen's master (its EMCY consumer and SDO client on the patch
+EDS), the centre's with a FusionService running the twins; the expected TPDO of a taxel comes
+from the scene's layout (taxel_net.patches.devices), the limits from the INTEGER ranges.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import time
+import uuid
+
+import canopen
+import numpy as np
+import pytest
+
+from node_sim.patch import load_patch_od
+from node_sim.rig import Rig
+from taxel_net import patches as P
+
+from test_node_patch import write_scene
+
+WAIT = 5.0
+_names = itertools.count()
+LSB = {"int8": 0.05, "int16": 0.01}   # mV a count: both ranges (6.35 / 327.67 mV) below full scale (1000 mV)
+TOP = {"int8": 127, "int16": 32767}
+
+
+def wait_until(pred, timeout=WAIT) -> bool:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if pred():
+            return True
+        time.sleep(0.005)
+    return False
+
+
+def raw_scene(tmp_path, raw_format: str, n: int = 10, channel: str | None = None):
+    scene = write_scene(tmp_path, sizes=((0, 1, n),), mode="raw", raw_format=raw_format, sync_counter=0)
+    name = channel or f"overrange{next(_names)}-{uuid.uuid4().hex[:6]}"
+    return dataclasses.replace(scene, bus=dataclasses.replace(scene.bus, channels=(name,), sync_window_us=0,
+                                                              raw_lsb_mv=LSB[raw_format]))
+
+
+class Twin:
+    """One raw patch node twin (node-ID 1) with readings set by the test, canopen's master."""
+
+    def __init__(self, scene):
+        self.scene = scene
+        self.x = np.zeros(scene.n)
+        self.rig = Rig(scene, channel=scene.bus.channels[0], reading_source=lambda cycle: self.x.copy()).start()
+        self.net = canopen.Network()
+        self.net.connect(interface="virtual", channel=scene.bus.channels[0])
+        self.node = self.net.add_node(canopen.RemoteNode(1, load_patch_od(1)))
+        self.node.sdo.RESPONSE_TIMEOUT = 2.0
+        self.cycle = 0
+        self.net.send_message(0x000, bytes((0x01, 0)))          # NMT start
+        assert wait_until(lambda: self.rig.node(1).state == 0x05)
+
+    def sync(self) -> None:
+        self.net.send_message(0x080, b"")
+        assert self.rig.wait_cycle(self.cycle, timeout=WAIT)
+        self.cycle += 1
+
+    def emcys(self):
+        return list(self.node.emcy.log)
+
+    def close(self):
+        self.net.disconnect()
+        self.rig.stop()
+
+
+@pytest.fixture
+def twin(tmp_path):
+    made = []
+
+    def make(raw_format):
+        t = Twin(raw_scene(tmp_path, raw_format))
+        made.append(t)
+        return t
+
+    yield make
+    for t in made:
+        t.close()
+
+
+def tpdo_of(scene, k: int) -> int:
+    """The TPDO (1 = 0x1800) carrying taxel k of node 1, from the scene's layout."""
+    (device,) = P.devices(scene)
+    return next(t.number + 1 for t in device.tpdos if t.first <= k < t.first + t.count)
+
+
+@pytest.mark.parametrize("raw_format", ["int8", "int16"])
+def test_the_over_range_emcy_on_the_rising_edge_and_its_error_reset(twin, raw_format):
+    t = twin(raw_format)
+    limit = TOP[raw_format] * LSB[raw_format]              # the largest reading the counts carry, mV
+    t.x[:] = 0.5 * limit
+    t.x[2] = -0.9 * limit
+    t.sync()
+    t.sync()
+    assert wait_until(lambda: t.rig.node(1).last_cycle == 1)
+    assert t.emcys() == []                                  # in range: silence
+
+    t.x[7] = 1.5 * limit                                    # sent as the largest code
+    t.x[9] = -2.0 * limit                                   # sent as the most negative code + 1
+    t.sync()
+    assert wait_until(lambda: len(t.emcys()) == 1), "no EMCY for readings over range"
+    (e,) = t.emcys()
+    assert e.code == 0x3000 and e.register == 0x05         # voltage; error register bits 0 and 2
+    # manufacturer field: over-range id 3, first taxel over range, its TPDO, its AI status, count
+    assert bytes(e.data) == bytes((3, 7, tpdo_of(t.scene, 7), 0x02, 2))
+    status = [t.node.sdo[P.PATCH_AI_STATUS][k + 1].raw for k in range(t.scene.n)]
+    assert status == [0x02 if k == 7 else 0x04 if k == 9 else 0 for k in range(t.scene.n)]
+    assert t.node.sdo[0x1001].raw == 0x05
+    assert t.node.sdo[0x1003][1].raw == 0x3000 | 3 << 16
+    # the limit codes on the bus, as before: only the signal above tells them from readings
+    index = P.PATCH_READINGS_I8 if raw_format == "int8" else P.PATCH_READINGS_I16
+    assert t.node.sdo[index][8].raw == TOP[raw_format]
+    assert t.node.sdo[index][10].raw == -TOP[raw_format]
+
+    t.x[7] = 3.0 * limit                                    # still over range: no new EMCY
+    t.sync()
+    t.sync()
+    assert wait_until(lambda: t.rig.node(1).last_cycle == 4)
+    time.sleep(0.05)
+    assert len(t.emcys()) == 1
+
+    t.x[7] = t.x[9] = 0.0                                   # back in range: the error reset
+    t.sync()
+    assert wait_until(lambda: len(t.emcys()) == 2)
+    reset = t.emcys()[1]
+    assert reset.code == 0x0000 and reset.register == 0x00 and bytes(reset.data) == bytes((3, 0, 0, 0, 0))
+    assert [e.code for e in t.node.emcy.active] == []
+    assert t.node.sdo[0x1001].raw == 0
+    assert [t.node.sdo[P.PATCH_AI_STATUS][k + 1].raw for k in range(t.scene.n)] == [0] * t.scene.n
+
+
+def test_the_emcy_inhibit_time_spaces_the_error_reset(twin):
+    t = twin("int8")
+    assert 0x1015 in t.node.object_dictionary, "the patch EDS has no EMCY inhibit time"
+    assert t.node.sdo[0x1015].raw == 0                      # EDS default: no inhibit time
+    t.node.sdo[0x1015].raw = 3000                           # 300 ms in 100 us units
+    t.x[4] = 10.0                                           # > 127 * 0.05 mV
+    t.sync()
+    assert wait_until(lambda: len(t.emcys()) == 1)
+    t.x[4] = 0.0
+    t.sync()                                                # the reset is due now, inhibited
+    assert wait_until(lambda: len(t.emcys()) == 2, timeout=WAIT + 0.3)
+    first, second = t.emcys()
+    assert (first.code, second.code) == (0x3000, 0x0000)
+    assert second.timestamp - first.timestamp >= 0.3 - 0.005   # not before the inhibit time (a lower bound)
+
+
+# ------------------------------------------------------------------------------ the centre
+OVER = range(6, 10)     # cycles whose readings are over range (taxel 3: sent as the largest code)
+EXACT = range(12, 14)   # cycles whose taxel 3 reads exactly the largest code's value: the same counts
+
+
+def readings(n: int, cycle: int) -> np.ndarray:
+    x = np.full(n, 1.0)                                     # below zeta (2.5 mV): absent
+    if cycle in OVER:
+        x[3] = 50.0                                         # clipped to 127 counts = 6.35 mV
+    elif cycle in EXACT:
+        x[3] = 127 * LSB["int8"]                            # a genuine 6.35 mV: 127 counts too
+    return x
+
+
+def test_the_centre_counts_the_over_range_emcys_and_flags_the_clipped_cycles(tmp_path):
+    from fusion_center.commands.run import execute, format_summary
+    from fusion_center.service import FusionService
+
+    # 30 taxels: the scene's object covers some (its centralised tests need a footprint)
+    scene = raw_scene(tmp_path, "int8", n=30, channel=f"centre-or-{uuid.uuid4().hex[:8]}")
+    scene = dataclasses.replace(scene, cycles=20)
+    channels = list(scene.bus.channels)
+    service = FusionService(scene, interface="virtual", channels=channels, truth=False)
+    rig = Rig(scene, interface="virtual", channel=channels, reading_source=lambda c: readings(scene.n, c))
+    with service:
+        try:
+            summary = execute(service, 18, live=False, boot_timeout=5.0, on_start=rig.start)
+        finally:
+            rig.stop()
+    records = {r["cycle"]: r for r in service.records}
+    assert sorted(records) == list(range(18))
+    flagged = {c for c, r in records.items() if r["over_range_nodes"]}
+    assert flagged == set(OVER), {c: (r["over_range_nodes"], r["emcy"]) for c, r in records.items()}
+    assert all(records[c]["over_range_nodes"] == [1] for c in OVER)
+    assert [e["code"] for c in OVER for e in records[c]["emcy"]] == ["0x3000"]       # one rising edge
+    assert [e["code"] for e in records[OVER.stop]["emcy"]] == ["0x0000"]
+    # a clipped cycle's readings on the wire equal a genuine limit reading's: only the flag differs
+    clipped, exact = records[OVER[1]], records[EXACT[0]]
+    assert clipped["present_nodes"] == exact["present_nodes"] == ["1/3"]
+    assert clipped["rules"] == exact["rules"]
+    assert clipped["over_range_nodes"] == [1] and exact["over_range_nodes"] == []
+    assert summary["over_range"] == {"cycles": len(OVER), "emcy": {"1": 1}}
+    assert any(line.startswith("over_range:") and f"{len(OVER)} cycles flagged" in line and "node 1 1" in line
+               for line in format_summary(summary))
+
+
+def test_a_decision_scene_has_no_over_range_field(tmp_path):
+    from fusion_center.service.pipeline import CyclePipeline
+
+    scene = write_scene(tmp_path, sizes=((0, 1, 10),), mode="decision", sync_counter=0)
+    assert CyclePipeline(scene, truth=False).over_range is None
