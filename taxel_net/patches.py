@@ -239,16 +239,17 @@ def pack(tpdo: Tpdo, values, tag: int | None = None) -> bytes:
 def counts_and_status(encoding: str, readings_mv, lsb_mv: float) -> tuple[np.ndarray, np.ndarray]:
     """Readings (mV, NaN = not valid) to the INTEGER8/16 counts of a raw patch encoding
     (:data:`ENC_INT8` / :data:`ENC_INT16`) and each reading's AI status (uint8, CiA 404 0x6150's
-    bits): rounded to the nearest count; a reading whose count lies above the largest code
-    is sent as that code and flagged :data:`AI_POSITIVE_OVERLOAD`, one below the most negative
-    code + 1 as that code and flagged :data:`AI_NEGATIVE_OVERLOAD`; NaN is sent as the most
-    negative code ("not valid", :data:`AI_NOT_VALID`); infinities overload."""
+    bits): rounded to the nearest count; a reading whose nearest count lies above the largest
+    code (more than half a count beyond it) is sent as that code and flagged
+    :data:`AI_POSITIVE_OVERLOAD`, one below the most negative code + 1 as that code and flagged
+    :data:`AI_NEGATIVE_OVERLOAD`; NaN is sent as the most negative code ("not valid",
+    :data:`AI_NOT_VALID`); infinities overload."""
     lo, hi, dtype = _raw_limits(encoding)
     r = np.asarray(readings_mv, dtype=np.float64)
     bad = np.isnan(r)
-    scaled = np.where(bad, 0.0, r) / lsb_mv
-    above, below = scaled > hi, scaled < lo + 1
-    counts = np.rint(np.clip(scaled, lo + 1, hi))
+    nearest = np.rint(np.where(bad, 0.0, r) / lsb_mv)
+    above, below = nearest > hi, nearest < lo + 1
+    counts = np.clip(nearest, lo + 1, hi)
     counts[bad] = lo
     status = (above * np.uint8(AI_POSITIVE_OVERLOAD)) | (below * np.uint8(AI_NEGATIVE_OVERLOAD)) \
         | (bad * np.uint8(AI_NOT_VALID))
@@ -258,7 +259,8 @@ def counts_and_status(encoding: str, readings_mv, lsb_mv: float) -> tuple[np.nda
 def readings_to_counts(tpdo: Tpdo, readings_mv, lsb_mv: float) -> tuple[np.ndarray, int]:
     """Readings (mV, NaN = not valid) to the INTEGER8/16 counts of a raw patch TPDO: rounded to
     the nearest count, saturated at min + 1 .. max; NaN to the minimum ("not valid"). Returns
-    the counts and how many readings saturated (:func:`counts_and_status` has which, and how)."""
+    the counts and how many readings saturated, i.e. their nearest count lies beyond the range
+    (:func:`counts_and_status` has which, and how)."""
     counts, status = counts_and_status(tpdo.encoding, readings_mv, lsb_mv)
     return counts, int(np.count_nonzero(status & AI_OVERLOAD))
 
