@@ -58,6 +58,8 @@ from typing import Callable
 
 from canopen.sdo import SdoAbortedError
 
+from taxel_net.patches import EMCY_INPUT_OVER_RANGE, EMCY_OVER_RANGE_ID, ERR_REG_VOLTAGE  # noqa: F401 - re-exported
+
 from .nmt import OPERATIONAL, PRE_OPERATIONAL, NmtSlave
 from .od import COB_29BIT, COB_ID_EMCY, COB_INVALID, ERROR_FIELD, ERROR_REGISTER, NodeObjects
 from .sdo import ABORT_VALUE_RANGE
@@ -66,7 +68,6 @@ EMCY_NO_ERROR = 0x0000
 EMCY_OPEN_CIRCUIT = 0x5000
 EMCY_STUCK = 0x7300
 EMCY_HEARTBEAT = 0x8130       # life guard / heartbeat error (a consumed heartbeat lost)
-EMCY_INPUT_OVER_RANGE = 0x3000  # voltage: a mapped packed reading over range (taxel_net.patches)
 INHIBIT_TIME_EMCY = 0x1015    # UNSIGNED16, 100 µs units (CiA 301)
 
 REAL32_MAX = 3.4028234663852886e38  # the largest finite IEEE 754 single
@@ -74,13 +75,12 @@ REAL32_MAX = 3.4028234663852886e38  # the largest finite IEEE 754 single
 FAULT_NONE = 0
 FAULT_STUCK = 1
 FAULT_OPEN_CIRCUIT = 2
-FAULT_OVER_RANGE = 3        # the over-range EMCY's id (taxel_net.patches.EMCY_OVER_RANGE_ID)
+FAULT_OVER_RANGE = EMCY_OVER_RANGE_ID   # 3: the over-range EMCY's id (byte 3 of its field)
 FAULT_NAMES = {FAULT_NONE: "none", FAULT_STUCK: "stuck", FAULT_OPEN_CIRCUIT: "open_circuit",
                FAULT_OVER_RANGE: "over_range"}
 FAULT_EMCY_CODE = {FAULT_STUCK: EMCY_STUCK, FAULT_OPEN_CIRCUIT: EMCY_OPEN_CIRCUIT}
 
 ERR_REG_GENERIC = 0x01
-ERR_REG_VOLTAGE = 0x04
 ERR_REG_COMMUNICATION = 0x10
 ERR_REG_PROFILE = 0x20
 ERR_REG_SENSOR_FAULT = ERR_REG_GENERIC | ERR_REG_PROFILE

@@ -41,8 +41,8 @@ def wait_until(pred, timeout=WAIT) -> bool:
     return False
 
 
-def raw_scene(tmp_path, raw_format: str, n: int = 10, channel: str | None = None):
-    scene = write_scene(tmp_path, sizes=((0, 1, n),), mode="raw", raw_format=raw_format, sync_counter=0)
+def raw_scene(tmp_path, raw_format: str, n: int = 10, channel: str | None = None, sync_counter: int = 0):
+    scene = write_scene(tmp_path, sizes=((0, 1, n),), mode="raw", raw_format=raw_format, sync_counter=sync_counter)
     name = channel or f"overrange{next(_names)}-{uuid.uuid4().hex[:6]}"
     return dataclasses.replace(scene, bus=dataclasses.replace(scene.bus, channels=(name,), sync_window_us=0,
                                                               raw_lsb_mv=LSB[raw_format]))
@@ -175,8 +175,10 @@ def test_the_centre_counts_the_over_range_emcys_and_flags_the_clipped_cycles(tmp
     from fusion_center.commands.run import execute, format_summary
     from fusion_center.service import FusionService
 
-    # 30 taxels: the scene's object covers some (its centralised tests need a footprint)
-    scene = raw_scene(tmp_path, "int8", n=30, channel=f"centre-or-{uuid.uuid4().hex[:8]}")
+    # 30 taxels: the scene's object covers some (its centralised tests need a footprint); a SYNC
+    # counter: every frame tagged with its SYNC, so a loaded host cannot count one cycle's
+    # readings in the next (untagged, a frame stamped after the next SYNC would be)
+    scene = raw_scene(tmp_path, "int8", n=30, channel=f"centre-or-{uuid.uuid4().hex[:8]}", sync_counter=16)
     scene = dataclasses.replace(scene, cycles=20)
     channels = list(scene.bus.channels)
     service = FusionService(scene, interface="virtual", channels=channels, truth=False)
@@ -188,12 +190,15 @@ def test_the_centre_counts_the_over_range_emcys_and_flags_the_clipped_cycles(tmp
             rig.stop()
     records = {r["cycle"]: r for r in service.records}
     assert sorted(records) == list(range(18))
-    # the EMCY leaves before the frames of its SYNC: every cycle whose readings all arrived is
-    # flagged exactly when they were clipped (a cycle a loaded host closed before its frames
-    # came has no readings to flag, and its EMCY lands in the next window with the next frames)
+    # the EMCY leaves before the frames of its SYNC, after the centre opened that SYNC's cycle:
+    # every cycle whose readings all arrived is flagged exactly when they were clipped (a cycle
+    # a loaded host closed before its frames came has no readings to flag - they are late - and
+    # the EMCY counts in the next window)
     whole = [c for c, r in records.items() if r["n_received"] == scene.n]
     flags = {c: records[c]["over_range_nodes"] for c in whole}
-    assert flags == {c: [1] if c in OVER else [] for c in whole}, {c: records[c]["emcy"] for c in records}
+    trail = {c: (r["closed_by"], r["n_received"], r["late_frames"], [(e["code"], e["t"]) for e in r["emcy"]], r["t"])
+             for c, r in records.items()}
+    assert flags == {c: [1] if c in OVER else [] for c in whole}, trail
     assert [e["code"] for r in records.values() for e in r["emcy"]] == ["0x3000", "0x0000"]   # one edge each way
     # a clipped cycle's readings on the wire equal a genuine limit reading's: only the flag differs
     clipped = records[next(c for c in OVER if c in whole)]
