@@ -12,10 +12,12 @@ has a module each (issue 22), as canopen parts its ``sdo`` / ``pdo`` packages:
 
 * :mod:`.objects` - the patch EDS loaded per node-ID (:func:`load_patch_od`) and its indices;
 * :mod:`.image` - :class:`PatchImage`, the process image the TPDOs and SDO uploads read (packed
-  decisions 0x2020, cycle tag 0x2021, fault bits 0x2022, readings as counts 0x2030 / 0x2031);
+  decisions 0x2020, cycle tag 0x2021, fault bits 0x2022, readings as counts 0x2030 / 0x2031, their
+  AI status 0x2033);
 * :mod:`.detector` - :class:`PatchDetector` and :func:`detect`: the local detector of the chapter
   (eqs 1-4) and the sensor-fault checks over every taxel at once, EMCY on a fault change;
-* :mod:`.tpdo` - :class:`PatchTpdoEngine`: mappings compiled to slices of the process image;
+* :mod:`.tpdo` - :class:`PatchTpdoEngine`: mappings compiled to slices of the process image, and
+  raw mode's over-range check of the mapped readings before each SYNC's frames (EMCY 0x3000);
 * :mod:`.node` - :class:`PatchNode`, composing them;
 * :mod:`.startup` - :func:`patch_startup_values` (what :meth:`PatchNode.configure` gets: the node
   then sends exactly the frames :func:`taxel_net.patches.devices` describes for the device) and
