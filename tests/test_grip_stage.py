@@ -115,7 +115,9 @@ def _drive(state_sw, torque=0, force=0, grip=0, lost=False):
     return DriveCycle(True, lost, 5, state_sw, torque, 40000, 4, grip, force, 400, 0, 0, None)
 
 
-def test_a_degraded_cycle_never_lowers_the_command():
+@pytest.mark.parametrize("bad", [{"degraded": True}, {"late_frames": 2}, {"missing_nodes": [3]},
+                                 {"over_range_nodes": [1]}])  # readings clipped at a packed limit code
+def test_a_degraded_cycle_never_lowers_the_command(bad):
     from fusion_center.core.grip_law import GripState
 
     stage = GripStage(load_scene("grasp_scripted"))
@@ -125,7 +127,7 @@ def test_a_degraded_cycle_never_lowers_the_command():
     assert stage.law.learned_n == 14.0  # and does not relax below what held the part
     stage.law = GripState(phase="hold", command_n=14.0, quiet_s=100.0)  # a hold of this centre's own, long quiet: it may relax
     for k in range(1, 50):  # degraded cycles: the law may not relax
-        r = dict(record, cycle=k, t=k * 0.01, degraded=True)
+        r = dict(record, cycle=k, t=k * 0.01, **bad)
         stage.evaluate(r, _drive(0x8027 | 0x0400, torque=100, force=140, grip=4))
         assert r["grip"]["command_n"] == 14.0 and "held_degraded" in r["grip_flags"]
     r = dict(record, cycle=50, t=0.5)

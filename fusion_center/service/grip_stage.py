@@ -27,7 +27,9 @@ Per cycle (``docs/service.md``, "The grip stage"; the law: ``docs/grip-control.m
   pipeline's ``SlipTracker.reset``), once per contact; once the jaws let go (a force of 0) there is
   no motion cue. ``actual_n`` the drive's force (0x2101:
   when the law's last raise has arrived); ``degraded`` a cycle with a
-  taxel missing, silent or late; ``least_hold_n`` in raw mode eq 26a per jaw, ``T / mu`` with T the
+  taxel missing, silent or late, or (raw patch scenes) a node's readings clipped at a packed
+  limit code (``over_range_nodes``: the load they carry is at least what they say, so the law
+  may raise on them, never relax); ``least_hold_n`` in raw mode eq 26a per jaw, ``T / mu`` with T the
   forces stage's tangential load per jaw (sec 7.2: the mean over the jaws) and mu the law's.
 * **task** from the scene's ``[grasp]`` phases and the SYNC time (the record's ``t``) since the
   cycle the drive was first seen OPERATION ENABLED (the world starts its task clock there,
@@ -252,7 +254,9 @@ class GripStage:
         task = self.task(record["t"])
         if state == OE:
             present = {"H1": True, "H0": False}.get(record.get("decision"))
-            degraded = bool(record.get("degraded") or record.get("late_frames") or record.get("missing_nodes"))
+            # readings clipped at a packed limit code (over_range_nodes) under-state the load: degraded too
+            degraded = bool(record.get("degraded") or record.get("late_frames") or record.get("missing_nodes")
+                            or record.get("over_range_nodes"))
             findings = GripFindings(task=task, present=present, slip=slip, degraded=degraded,
                                     least_hold_n=self.least_hold_n(record) if self.raw else None,
                                     dt_s=self.period_s, actual_n=actual)

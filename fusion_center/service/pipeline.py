@@ -95,7 +95,7 @@ class PendingRecord:
     """One cycle between :meth:`CyclePipeline.evaluate_command` and :meth:`CyclePipeline.finish`."""
 
     __slots__ = ("closed", "readings", "available", "pattern", "central", "t_seconds", "forces", "slip",
-                 "grip_view")
+                 "grip_view", "over_range_nodes")
 
     def __init__(self, closed: ClosedCycle):
         self.closed = closed
@@ -105,6 +105,7 @@ class PendingRecord:
         self.forces = None                     # raw mode: .core.forces.CycleForces
         self.slip: dict | None = None          # the slip stage's record
         self.grip_view: dict | None = None     # what the grip stage read and wrote (grip, grip_flags, grip_detail)
+        self.over_range_nodes: list | None = None  # raw patch scenes: nodes whose readings are clipped (.over_range)
 
 
 class CyclePipeline:
@@ -200,6 +201,10 @@ class CyclePipeline:
             available = None  # wire != 0, computed on a pattern-cache miss
             readings = None
         pending.readings, pending.available = readings, available
+        if self.over_range is not None:  # before the command: clipped readings never lower it (.grip_stage)
+            pending.over_range_nodes = over_range = self.over_range.update(closed)
+        else:
+            over_range = None
         pending.pattern = pattern = self._pattern(wire, available)
         n_received = pattern.n_received
         if n_received > 0 and self.central and self.decide_with in self.central:
@@ -223,6 +228,8 @@ class CyclePipeline:
                 "degraded": n_received < self.n, "late_frames": closed.late_frames,
                 "missing_nodes": bool(missing.any()),
             }
+            if over_range:
+                view["over_range_nodes"] = over_range
             if pending.forces is not None:
                 view["forces"] = {"total_tangential": jsonable(total_tangential)}
             if pending.slip is not None:
@@ -287,7 +294,7 @@ class CyclePipeline:
         if closed.emcy_dropped:
             record["emcy_dropped"] = closed.emcy_dropped
         if self.over_range is not None:  # raw patch scenes: results from clipped readings flagged
-            record["over_range_nodes"] = self.over_range.update(closed)
+            record["over_range_nodes"] = pending.over_range_nodes
         record["rules"] = rule_results
 
         if pending.forces is not None:
