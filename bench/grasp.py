@@ -43,11 +43,12 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
+import grasp_plot  # noqa: E402 - its figure
 from grasp_layout import pad_rows  # noqa: E402
 from grasp_sim import run_grasp  # noqa: E402
 
 from taxel_net.errors import ParameterError  # noqa: E402
-from taxel_net.scene import TaxelSpec, load_scene  # noqa: E402
+from taxel_net.scene import load_scene  # noqa: E402
 from taxel_net.grip_params import FLOAT_FIELDS, INT_FIELDS  # noqa: E402
 from taxel_net.scene_grasp import PhaseSpec  # noqa: E402
 
@@ -492,77 +493,6 @@ def render(table: dict, dt_ms: float) -> str:
     return "\n".join(lines)
 
 
-def plot(results: list[dict], table: dict, path: Path, title: str) -> None:
-    """The table as a figure: holding force / least, slid distance, onset -> detection and
-    onset -> stuck again, drops and crushes per mode."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    colours = {"decision": "tab:blue", "raw": "tab:orange", "fixed 2x": "tab:green", "fixed 26b": "tab:red"}
-    fig, ax = plt.subplots(2, 2, figsize=(11, 7.5))
-    # (a) steady holding force over the least holding force
-    a = ax[0, 0]
-    data = [[m["ratio"] for m in (r[mode] for r in results) if m["ratio"] is not None] for mode in MODES]
-    keep = [i for i, d in enumerate(data) if d]
-    a.boxplot([data[i] for i in keep], whis=(5, 95), showfliers=False)
-    a.set_xticks(range(1, len(keep) + 1), [MODES[i] for i in keep])
-    a.axhline(1.0, color="k", lw=0.8)
-    a.axhline(1.3, color="tab:purple", ls="--", lw=1, label="goal 1.3x")
-    a.axhline(2.0, color="tab:green", ls=":", lw=1, label="vendors' 2x")
-    a.set_ylabel("holding force / least holding force")
-    a.set_title("steady hold (end of the hold; box 25-75 %, whiskers 5-95 %)", fontsize=9)
-    a.legend(fontsize=8)
-    # (b) slid distance per grasp
-    b = ax[0, 1]
-    slid = [[r[mode]["slid_mm"] for r in results] for mode in MODES]
-    b.boxplot(slid, whis=(5, 95), showfliers=True, flierprops={"markersize": 2})
-    b.set_xticks(range(1, len(MODES) + 1), MODES)
-    b.set_ylabel("largest slide before the place, mm")
-    base = _base().grasp
-    b.axhline(base.slide_down_mm, color="k", ls=":", lw=1, label=f"the contact leaves the pads ({base.slide_down_mm:g} mm)")
-    b.set_title("slid distance per grasp", fontsize=9)
-    b.legend(fontsize=8)
-    # (c) onset -> detection and onset -> stuck, ms, centre modes
-    c = ax[1, 0]
-    dt = _base().bus.sync_period_ms
-    for mode in ("decision", "raw"):
-        eps = [e for r in results for e in r[mode]["episodes"]]
-        det = [e["detect_cycles"] * dt for e in eps if e["detect_cycles"] is not None]
-        stk = [e["stuck_ms"] for e in eps if e["stuck_ms"] is not None]
-        bins = np.arange(0, 260, 10)
-        c.hist(det, bins=bins, histtype="step", color=colours[mode], lw=1.5, label=f"{mode}: onset -> detected")
-        c.hist(stk, bins=bins, histtype="step", color=colours[mode], ls="--", lw=1.5,
-               label=f"{mode}: onset -> stuck again")
-    c.axvline(20.4, color="k", lw=0.8)
-    c.axvspan(20.4 - 6, 20.4 + 6, color="k", alpha=0.08, label="Ayral et al. 20.4 +- 6 ms")
-    c.axvline(50, color="tab:purple", ls="--", lw=1, label="goal: stuck <= 50 ms")
-    c.set_xlabel("ms after the world's slip onset")
-    c.set_ylabel("slip episodes")
-    c.legend(fontsize=7)
-    # (d) drops and crushes
-    d = ax[1, 1]
-    x = np.arange(len(MODES))
-    drops = [table[m]["dropped"] for m in MODES]
-    crush = [table[m]["crushed_fragile"] for m in MODES]
-    d.bar(x - 0.2, drops, 0.4, label="objects lost", color=[colours[m] for m in MODES])
-    d.bar(x + 0.2, crush, 0.4, label="fragile objects crushed", color=[colours[m] for m in MODES], hatch="//",
-          alpha=0.6)
-    for i, (u, v) in enumerate(zip(drops, crush)):
-        d.text(i - 0.2, u, str(u), ha="center", va="bottom", fontsize=8)
-        d.text(i + 0.2, v, str(v), ha="center", va="bottom", fontsize=8)
-    d.set_xticks(x, MODES)
-    n = len(results)
-    n_frag = table[MODES[0]]["fragile"]
-    d.set_title(f"of {n} grasps ({n_frag} fragile)", fontsize=9)
-    d.legend(fontsize=8)
-    fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-
-
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--grasps", type=int, default=1000, help="randomised grasps (default 1000)")
@@ -597,8 +527,8 @@ def main(argv=None) -> int:
         print(render(table, dt_ms))
         if args.plot:
             a = saved["args"]
-            plot(results, table, args.plot, f"bench/grasp.py --grasps {a['grasps']} --seed {a['seed']} "
-                                             f"({a.get('date', '')})")
+            grasp_plot.plot(results, table, args.plot, f"bench/grasp.py --grasps {a['grasps']} --seed {a['seed']} "
+                                                       f"({a.get('date', '')})", MODES, _base())
         return 0
     rng = np.random.default_rng(args.seed)
     cases = place_contacts([make_case(rng, i) for i in range(args.grasps)], args.seed, args.contact)
@@ -613,8 +543,8 @@ def main(argv=None) -> int:
           f"x {len(MODES)} modes in {elapsed:.0f} s ({args.jobs} job(s)); SYNC {dt_ms:g} ms")
     print(render(table, dt_ms))
     if args.plot:
-        plot(results, table, args.plot, f"bench/grasp.py --grasps {args.grasps} --seed {args.seed} "
-                                         f"({time.strftime('%Y-%m-%d', time.gmtime())})")
+        grasp_plot.plot(results, table, args.plot, f"bench/grasp.py --grasps {args.grasps} --seed {args.seed} "
+                                                   f"({time.strftime('%Y-%m-%d', time.gmtime())})", MODES, _base())
     if args.json:
         args.json.write_text(json.dumps({"args": {"grasps": args.grasps, "seed": args.seed, "overrides": overrides,
                                                   "contact": args.contact,
