@@ -295,13 +295,13 @@ def test_a_logged_record_is_published_as_the_logs_line_serialised_once(tmp_path,
     from fusion_center.service.zenoh_publisher import ZenohPublisher
 
     made = []
-    dumps = records_mod.dumps
+    dumpb = records_mod.dumpb
 
     def counting(record):
         made.append(record.get("cycle"))
-        return dumps(record)
+        return dumpb(record)
 
-    monkeypatch.setattr(records_mod, "dumps", counting)
+    monkeypatch.setattr(records_mod, "dumpb", counting)
     port, = _ports(1)
     log = tmp_path / "run.jsonl"
     with ZenohPublisher("logged", listen=[f"tcp/127.0.0.1:{port}"]) as pub:

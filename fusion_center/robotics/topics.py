@@ -28,7 +28,6 @@ image (raw mode, ``32FC1``): X_i in mV, the mean of a site's readings, NaN where
 
 from __future__ import annotations
 
-import json
 import math
 from operator import itemgetter
 from dataclasses import dataclass
@@ -36,6 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from taxel_net.scene import Scene
+from ..service.records import dumpb, dumps
 
 MAP_NONE, MAP_NOT_HEARD, MAP_ABSENT, MAP_PRESENT = 0, 85, 170, 255
 DECISION_CODE = {"H1": 1, "H0": 0, "undecided": -1}
@@ -241,14 +241,14 @@ class TopicMap:
                 key = tuple([get(k) for k in _CONTACT_KEYS])
             text = self._contact_cache.get(key)
             if text is None:
-                text = _remember(self._contact_cache, key, _json(contact_message(record)).encode())
+                text = _remember(self._contact_cache, key, _dumpb(contact_message(record)))
             out.append((T_CONTACT, text))
         for topic, key in ((T_SLIP, "slip"), (T_FORCES, "forces"), (T_GRIP, "grip")):
             value = get(key)
             if isinstance(value, dict):
                 out.append((topic, self._flat_json(value)))
         if isinstance(get("grasp_truth"), dict):
-            out.append((T_TRUTH, _json(truth_message(record)).encode()))
+            out.append((T_TRUTH, _dumpb(truth_message(record))))
         return out
 
     def _flat_json(self, value: dict) -> bytes:
@@ -258,9 +258,9 @@ class TopicMap:
             key = tuple(value.items())
             text = self._flat_cache.get(key)
         except TypeError:  # a list or dict inside (forces' per-taxel values)
-            return _json(value).encode()
+            return _dumpb(value)
         if text is None:
-            text = _remember(self._flat_cache, key, _json(value).encode())
+            text = _remember(self._flat_cache, key, _dumpb(value))
         return text
 
     def _decision_json(self, record: dict, cycle: str) -> bytes:
@@ -283,7 +283,7 @@ class TopicMap:
         if body is None:
             value = decision_message(record)
             del value["cycle"]
-            body = _json(value)[1:].encode()  # '"decide_with":...}'
+            body = _dumpb(value)[1:]  # b'"decide_with":...}'
             if key is not None:
                 _remember(self._decision_cache, key, body)
         return b'{"cycle":' + cycle.encode() + b"," + body
@@ -291,7 +291,7 @@ class TopicMap:
     def _bus_json(self, record: dict, cycle: str, states_key=None) -> bytes:
         get = record.get
         if get("emcy") or get("duplicate_nodes") or get("error") is not None or get("emcy_dropped"):
-            return _json(bus_message(record)).encode()
+            return _dumpb(bus_message(record))
         states = get("nodes_by_state")
         if states and states_key is None:
             states_key = _states_key(states)
@@ -302,7 +302,7 @@ class TopicMap:
         try:
             stable = self._bus_cache.get(key)
         except TypeError:  # a label that is no scalar (a hand-made record)
-            return _json(bus_message(record)).encode()
+            return _dumpb(bus_message(record))
         if stable is None:
             stable = _remember(self._bus_cache, key, (
                 f',"closed_by":{_json(key[0])},"n_expected":{_scalar(key[1])},"n_live":{_scalar(key[2])},'
@@ -367,8 +367,10 @@ def _rules_parts(rules: dict) -> tuple[dict, dict]:
 
 
 _RULE_KEYS: dict[str, str] = {}
-# one encoder for every message: C-accelerated, compact, no NaN (records have none), no cycle check
-_json = json.JSONEncoder(separators=(",", ":"), allow_nan=False, check_circular=False).encode
+# every message's JSON is the decision log's encoder (orjson for plain values, json otherwise:
+# compact, ASCII, NaN refused): _dumpb for bytes, _json for text
+_dumpb = dumpb
+_json = dumps
 
 
 def bus_message(record: dict) -> dict:

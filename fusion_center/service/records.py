@@ -1,11 +1,24 @@
 """The decision log: one JSON object per SYNC cycle, one line each (JSON Lines).
 
 Every record is written and flushed as soon as its cycle is evaluated, so a killed process
-loses at most the cycle in flight (no ``os.fsync``: the OS keeps what was flushed). Floats are
-written with Python's shortest round-trip repr and NaN/inf are refused (``allow_nan=False``:
-the pipeline turns them into ``null``), so two runs that computed the same values write the
-same bytes. :func:`jsonable` is that conversion of one value, used by every part of the
-pipeline that puts a number into a record.
+loses at most the cycle in flight (no ``os.fsync``: the OS keeps what was flushed). Compact JSON,
+ASCII only (other characters as ``\\uXXXX``), floats written as their shortest round-trip
+decimal (read back bit for bit) and NaN/inf refused (ValueError, as ``json``'s
+``allow_nan=False``: the pipeline turns them into ``null``), so two runs that computed the same
+values write the same bytes. :func:`jsonable` is that conversion of one value, used by every
+part of the pipeline that puts a number into a record.
+
+**The encoder** (:func:`dumpb`): ``orjson`` where the value is plain JSON - dicts with ``str``
+keys, lists, tuples, ``str``, ``int``, ``bool``, ``None`` and finite ``float`` (exactly these
+classes), which a walk over the value checks first (orjson itself writes NaN and infinity as
+``null``: the walk keeps them refused) - else the standard library's ``json`` with the settings
+above, which writes what it always wrote or raises what it always raised (a NaN, a numpy scalar,
+an ``int`` key, a circular reference). The two write the same JSON values: the same text but
+for floats below 1e-4 in exponent form (``json``: ``1e-05``, ``1.5e-07``; ``orjson``:
+``0.00001``, ``1.5e-7``), the same digits (``tests/test_records_dumps.py``: every value of a
+generated record read back equal, floats bit for bit). A decision-log record (1.6 kB at
+matrix57) costs 5-8 us instead of ~30 us back to back, and about half after the 10 ms idle gap
+between cycles (docs/robotics.md, *What it costs*).
 """
 
 from __future__ import annotations
@@ -15,6 +28,7 @@ import math
 from pathlib import Path
 
 import numpy as np
+import orjson
 
 from taxel_net.errors import UsageError
 from taxel_net.json_lines import iter_log
@@ -32,30 +46,74 @@ def jsonable(value):
     return value if math.isfinite(value) else None
 
 
-# json.dumps(record, separators=(",", ":"), allow_nan=False) with the encoder made once: the same
-# text (json.dumps makes this very encoder per call), 5-10 % less CPU a record (measured with
-# the decision-log records of matrix57 and skin4096, hot and after a 10 ms sleep)
+# json.dumps(record, separators=(",", ":"), allow_nan=False) with the encoder made once (json.dumps
+# makes this very encoder per call): the fallback of dumpb, whose text or error is today's
 _encode = json.JSONEncoder(separators=(",", ":"), allow_nan=False).encode
+_orjson = orjson.dumps
+_isfinite = math.isfinite
+_SCALARS = frozenset((str, int, bool, type(None)))
 
 
-def dumps(record: dict) -> str:
-    """The decision-log text of ``record`` (one line; NaN and infinity refused: ValueError)."""
-    return _encode(record)
+def _plain(container) -> bool:
+    """Whether a dict / list / tuple holds only what :func:`dumpb` gives orjson: dicts (their
+    keys are orjson's to check: a key that is no ``str`` makes it raise), lists, tuples, ``str``,
+    ``int``, ``bool``, ``None`` and finite ``float`` - exactly these classes (a subclass, a numpy
+    scalar, NaN or infinity: False). A circular value raises RecursionError. (6-8 us a
+    decision-log record back to back: orjson's own time is 2-3 us.)"""
+    for x in (container.values() if type(container) is dict else container):
+        cls = type(x)
+        if cls in _SCALARS:
+            continue
+        if cls is float:
+            if x - x:  # NaN for NaN and +-inf, 0.0 for every finite float
+                return False
+        elif cls is dict or cls is list or cls is tuple:
+            if not _plain(x):
+                return False
+        else:
+            return False
+    return True
+
+
+def dumpb(value) -> bytes:
+    """The decision-log text of ``value`` (a record, or any part of one) as bytes: one line,
+    compact, ASCII; NaN and infinity refused (ValueError). orjson when :func:`_plain` says it
+    may and its text is ASCII, else ``json`` (module docstring)."""
+    cls = type(value)
+    try:
+        fast = _plain(value) if cls is dict or cls is list or cls is tuple else \
+            cls in _SCALARS or (cls is float and _isfinite(value))
+    except RecursionError:  # a circular value: json says so (ValueError)
+        fast = False
+    if fast:
+        try:
+            text = _orjson(value)
+        except TypeError:  # orjson.JSONEncodeError: a key that is no str, an int beyond 64 bits, a lone
+            pass           # surrogate, nesting deeper than orjson's 254 levels - json's to write or refuse
+        else:
+            if text.isascii():
+                return text
+    return _encode(value).encode()
+
+
+def dumps(value) -> str:
+    """:func:`dumpb` as a str: the decision-log line of ``value`` (no newline; NaN and infinity
+    refused: ValueError)."""
+    return dumpb(value).decode("ascii")
 
 
 # the record a RecordWriter wrote last (the dict itself, kept alive here) and its line: the Zenoh
 # publication of that record reuses the line instead of serialising it again (logged_line)
-_logged: tuple = (None, "")
+_logged: tuple = (None, b"")
 
 
-def logged_line(record: dict) -> str:
-    """The decision-log line of ``record`` (no newline) when a :class:`RecordWriter` has just
-    written this very dict, else :func:`dumps` of it now - the same text either way, computed
-    once per record where the run writes a decision log and publishes it (``--json-lines`` with
-    ``--zenoh``; the record's JSON was ~30 us of a cycle's CPU, 100-170 us after the idle gap
-    between cycles on a loaded host)."""
+def logged_line(record: dict) -> bytes:
+    """The decision-log line of ``record`` (bytes, no newline) when a :class:`RecordWriter` has
+    just written this very dict, else :func:`dumpb` of it now - the same bytes either way,
+    computed once per record where the run writes a decision log and publishes it
+    (``--json-lines`` with ``--zenoh``)."""
     last, text = _logged
-    return text if last is record else dumps(record)
+    return text if last is record else dumpb(record)
 
 
 class RecordWriter:
@@ -64,15 +122,15 @@ class RecordWriter:
     def __init__(self, path):
         self.path = Path(path)
         try:
-            self._file = open(self.path, "w", encoding="utf-8")
+            self._file = open(self.path, "wb")  # the lines are ASCII (dumpb)
         except OSError as exc:
             raise UsageError(f"cannot write the decision log {str(path)!r}: {exc.strerror or exc}") from None
         self.count = 0
 
     def write(self, record: dict) -> None:
         global _logged
-        text = dumps(record)
-        self._file.write(text + "\n")
+        text = dumpb(record)
+        self._file.write(text + b"\n")
         self._file.flush()
         self.count += 1
         _logged = (record, text)

@@ -6,7 +6,7 @@
 JSON payloads, encoding ``application/json``; docs/robotics.md, *Zenoh*):
 
 * ``taxel/<scene>/record`` - every record: the bytes of its decision-log line
-  (:func:`.records.dumps`, no newline), so a subscriber reads what ``--json-lines`` writes -
+  (:func:`.records.dumpb`, no newline), so a subscriber reads what ``--json-lines`` writes -
   the JSON stream a tactile user knows from XELA's uSkin server; with ``--json-lines`` on, the
   line the log just wrote (:func:`.records.logged_line`: one serialisation a record);
 * ``taxel/<scene>/grip`` - where a record has the grip stage's ``grip`` object (grasp scenes):
@@ -39,7 +39,7 @@ import json
 import logging
 
 from taxel_net.errors import UsageError
-from .records import dumps, logged_line
+from .records import dumpb, logged_line
 from .zenoh_config import key_segment, open_session, resolve
 
 logger = logging.getLogger("fusion_center.service.zenoh")
@@ -155,17 +155,17 @@ class ZenohPublisher:
     def _publish(self, record: dict) -> None:
         matching = self._matching
         if matching["record"]:
-            self.records += self._put("record", logged_line(record).encode())
+            self.records += self._put("record", logged_line(record))
         else:
             self.unmatched += 1
         grip = grip_message(record) if matching["grip"] else None
         if grip is not None:
-            self.grips += self._put("grip", dumps(grip).encode())
+            self.grips += self._put("grip", dumpb(grip))
         decision = record.get("decision")
         if self._first or decision != self._previous:
             if matching["contact"]:
-                self.contacts += self._put("contact", dumps(contact_event(record, None if self._first else
-                                                                           self._previous)).encode())
+                self.contacts += self._put("contact", dumpb(contact_event(record, None if self._first else
+                                                                          self._previous)))
             self._first = False
             self._previous = decision
 
