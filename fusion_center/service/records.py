@@ -13,10 +13,10 @@ keys, lists, tuples, ``str``, ``int``, ``bool``, ``None`` and finite ``float`` (
 classes), which a walk over the value checks first (orjson itself writes NaN and infinity as
 ``null``: the walk keeps them refused) - else the standard library's ``json`` with the settings
 above, which writes what it always wrote or raises what it always raised (NaN and infinity,
-numpy scalars, ``int`` keys, non-ASCII text, circular references go there). The two write the same JSON values: the same text but
-for floats below 1e-4 that json writes in exponent form (``1e-05``, ``1.5e-07``; orjson:
-``0.00001``, ``1.5e-7``) and, with orjson 3.10, from 1e16 up (``1e16`` for ``1e+16``) - the
-same digits (``tests/test_records_dumps.py``: every value of a generated record read back
+numpy scalars, ``int`` keys, non-ASCII text, circular references go there). The two write the
+same JSON values: the same text but for floats below 1e-4 that json writes in exponent form
+(``1e-05``, ``1.5e-07``; orjson: ``0.00001``, ``1.5e-7``) and, with orjson 3.10, from 1e16 up
+(``1e16`` for ``1e+16``) - the same digits (``tests/test_records_dumps.py``: every value of a generated record read back
 equal, floats bit for bit). A matrix57 record (1.7 kB) costs 10 us instead of 29 back to back,
 ~100 instead of ~230 us after the 10 ms idle gap between cycles (``bench/records_encode.py``;
 docs/robotics.md, *The JSON encoder*).
