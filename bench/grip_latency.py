@@ -2,7 +2,7 @@
 
     .venv/bin/python bench/grip_latency.py [--runs 3] [--cycles 600]
         [--scenes grasp_lift grasp_lift_raw grasp_fragile grasp_lift_patch grasp_lift_raw_patch
-                  grasp_lift_raw_patch_fd] [--transports embedded udp] [--echo 2000]
+                  grasp_lift_raw_patch_fd] [--transports embedded udp player] [--echo 2000]
 
 Issue 23's goal: SYNC -> command p99 at most 2 ms on the grasp scenes at a 100 Hz SYNC. The
 chapter's one-taxel grasp scenes (52 CANopen nodes a gripper) need 3.2 / 4.5 ms of wire a cycle
@@ -20,6 +20,13 @@ one of them runs, side by side. For each scene and transport, ``--runs`` times:
   udp_multicast on loopback (``fusion-center run``'s set-up); the observer is a third process
   on the group, which reads the kernel's receive stamps (``SO_TIMESTAMP``) in batches every
   0.2 s (so it adds no wake-up per frame).
+* ``player``: ``udp`` with the taxel nodes at hardware speed: bench/grip_player.py answers each
+  SYNC at once with that cycle's taxel TPDOs as an embedded run of the same scene recorded them
+  (the run of this invocation, else one more demo run first, uninstrumented), boot-ups,
+  heartbeats and SDO confirmations as the twins'; the gripper drive stays the twin
+  (``node_sim.gripper.host.DriveHost``, in a process of its own, without the grasp world). The
+  centre boots both and commands the drive as in ``udp``: what SYNC -> command would be against
+  CAN nodes that answer within their TPDO's transmission time (docs/grip-control.md).
 
 Latency of cycle k: the observer's stamp of the drive's RPDO1 (0x200 + node-ID) that carries
 cycle k's command minus its stamp of SYNC k (the k-th SYNC on the bus; the RPDO1s are matched
@@ -77,18 +84,18 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "bench"))
 
 import can  # noqa: E402
-import numpy as np  # noqa: E402
 
+from grip_latency_floors import COB_SYNC, echo_udp, echo_virtual, scene_for, wire_floor, wire_floor_ms  # noqa: E402
+from grip_latency_report import (HEADER, STAGES, _loadavg, _pct, compare, print_breakdown, print_row,  # noqa: E402
+                                 print_summary, uptime)
 from taxel_net.resources import resolve_scene  # noqa: E402
 
 SCENES = ("grasp_lift", "grasp_lift_raw", "grasp_fragile",
           "grasp_lift_patch", "grasp_lift_raw_patch", "grasp_lift_raw_patch_fd")
-GOAL_MS = 2.0  # issue 23: SYNC -> command p99 at most 2 ms
-TRANSPORTS = ("embedded", "udp")
-COB_SYNC = 0x080
-STAGES = ("answers", "wake", "assemble", "rules", "forces", "slip", "record", "grip", "send", "centre")
+TRANSPORTS = ("embedded", "udp", "player")
 
 
 # --------------------------------------------------------------------------- centre-side marks
@@ -213,13 +220,10 @@ def latencies(sync_at, cmd_at) -> list[float]:
 
 
 # --------------------------------------------------------------------------- one run
-def scene_for(name: str):
-    from taxel_net.scene import load_scene
-
-    return load_scene(resolve_scene(name))
+RECORDED: dict[tuple[str, int], list] = {}  # (scene, cycles) -> an embedded run's taxel answers per cycle
 
 
-def run_embedded(name: str, cycles: int) -> dict:
+def run_embedded(name: str, cycles: int, instrumented: bool = True) -> dict:
     from fusion_center.commands.demo import run_demo
     from fusion_center.service import fusion_service
 
@@ -231,7 +235,8 @@ def run_embedded(name: str, cycles: int) -> dict:
 
     def open_and_instrument(self):
         out = original(self)
-        instrument(self, marks)
+        if instrumented:
+            instrument(self, marks)
         return out
 
     fusion_service.FusionService.open = open_and_instrument
@@ -243,7 +248,10 @@ def run_embedded(name: str, cycles: int) -> dict:
     while (msg := observer.recv(0)) is not None:
         frames.append(msg)
     observer.shutdown()
-    return finish(scene, service, summary, frames, marks)
+    from grip_player import record_answers
+
+    RECORDED[name, cycles] = record_answers(scene, frames)
+    return finish(scene, service, summary, frames, marks) if instrumented else {}
 
 
 def finish(scene, service, summary, frames, marks) -> dict:
@@ -304,7 +312,16 @@ def _start(cmd: list[str], word: str) -> subprocess.Popen:
     return proc
 
 
-def run_udp(name: str, cycles: int) -> dict:
+def run_player(name: str, cycles: int, world: bool = False) -> dict:
+    """``player``: ``run_udp`` with bench/grip_player.py in node-sim's place (the taxel nodes'
+    answers recorded from an embedded run of the same scene, played at once on each SYNC; the
+    drive a twin)."""
+    if (name, cycles) not in RECORDED:
+        run_embedded(name, cycles, instrumented=False)
+    return run_udp(name, cycles, player=RECORDED[name, cycles], world=world)
+
+
+def run_udp(name: str, cycles: int, player: list | None = None, world: bool = False) -> dict:
     from fusion_center.commands.run import execute
     from fusion_center.service import FusionService
 
@@ -315,11 +332,21 @@ def run_udp(name: str, cycles: int) -> dict:
         seen_file = Path(tmp) / "observed.json"
         observer = _start([sys.executable, str(Path(__file__).resolve()), "--observe", group, str(port),
                            str(seen_file)], "observing")
-        sim = None
+        sim = drive = None
         try:
-            sim = _start([sys.executable, "-m", "node_sim.cli", "--scene", str(resolve_scene(name)), "--interface",
-                          "udp_multicast", "--channel", group, "--bus-option", f"port={port}",
-                          "--bus-option", "hop_limit=0"], "ready")
+            if player is None:
+                sim = _start([sys.executable, "-m", "node_sim.cli", "--scene", str(resolve_scene(name)),
+                              "--interface", "udp_multicast", "--channel", group, "--bus-option", f"port={port}",
+                              "--bus-option", "hop_limit=0"], "ready")
+            else:
+                frames_file = Path(tmp) / "answers.json"
+                frames_file.write_text(json.dumps(player))
+                base = [sys.executable, str(ROOT / "bench" / "grip_player.py"), "--scene", str(resolve_scene(name)),
+                        "--group", group, "--port", str(port)]
+                # the drive twin in a process of its own (a device of its own on a CAN bus): its
+                # SYNC handling never holds the interpreter lock the nodes' answers need
+                drive = _start(base + ["--part", "drive"] + (["--world"] if world else []), "ready")
+                sim = _start(base + ["--part", "nodes", "--frames", str(frames_file)], "ready")
             marks = Marks()
             service = FusionService(scene, interface="udp_multicast", channels=[group],
                                     bus_kwargs={"port": port, "hop_limit": 0}, keep_records=True)
@@ -327,9 +354,10 @@ def run_udp(name: str, cycles: int) -> dict:
                 instrument(service, marks)
                 summary = execute(service, cycles, live=False, boot_timeout=5.0)
         finally:
-            if sim is not None:
-                sim.terminate()
-                sim.wait(10)
+            for proc in (sim, drive):
+                if proc is not None:
+                    proc.terminate()
+                    proc.wait(10)
             time.sleep(0.3)
             observer.terminate()
             observer.wait(20)
@@ -338,213 +366,8 @@ def run_udp(name: str, cycles: int) -> dict:
     return finish(scene, service, summary, frames, marks)
 
 
-def _patch_free_mask(tpdo) -> int:
-    """The data bits of a patch TPDO that carry taxel values (``pdo_frames``' mask: bit 8n-1 =
-    byte 0's most significant bit); the tag byte and the padding are not free."""
-    from taxel_net import patches as P
 
-    n = tpdo.length
-    first = int(tpdo.tagged)
-    mask = 0
-    for j in range(first, first + tpdo.payload_bytes):
-        bits = 0xFF
-        if tpdo.encoding == P.ENC_BITS and j == first + tpdo.payload_bytes - 1 and tpdo.count % 8:
-            bits = (1 << (tpdo.count % 8)) - 1      # the last byte's low bits (bit k % 8 = taxel k)
-        mask |= bits << (8 * (n - 1 - j))
-    return mask
-
-
-def wire_floor_ms(name: str) -> tuple[float, float, int]:
-    """(SYNC + the answers, + the command) in ms on a real bus at the scene's bit rates, and the
-    number of answer frames (module docstring). One-taxel nodes: their TPDO1 of 1 byte (decision)
-    or TPDO2 of 4 (raw) with exact stuff bits for a representative value; patch nodes
-    (``[bus] patch_nodes``): each TPDO of ``taxel_net.patches.devices``, the mean over its
-    payloads with every value bit 1 with probability 1/2 (``fusion_center.core.pdo_frames``),
-    CAN FD frames with the data phase at ``[bus] data_bitrate``."""
-    from fusion_center.core.bus_timing import frame_bits
-    from fusion_center.core.pdo_frames import pdo_frame_stats
-    from taxel_net import patches as P
-
-    scene = scene_for(name)
-    bus = scene.bus
-    nominal = bus.bitrate / 1e3  # bits per ms
-    data_rate = (bus.data_bitrate if bus.fd else bus.bitrate) / 1e3
-    sync = frame_bits(COB_SYNC, b"" if not bus.sync_counter else b"\x01") / nominal
-    answers, frames = 0.0, 0
-    if bus.patch_nodes:
-        tags = tuple(range(1, bus.sync_counter + 1)) if bus.sync_counter else ()
-        for device in P.devices(scene):
-            for tpdo in device.tpdos:
-                stats = pdo_frame_stats(tpdo.cob_id, tpdo.length, _patch_free_mask(tpdo), 0.5, fd=tpdo.fd,
-                                        tag_values=tags if tpdo.tagged else ())
-                answers += stats.mean_nominal / nominal + stats.mean_data / data_rate
-                frames += 1
-    else:
-        raw = bus.mode == "raw"
-        answers = sum(frame_bits((0x280 if raw else 0x180) + t.node_id,
-                                 struct.pack("<f", 100.0) if raw else b"\x01") for t in scene.taxels) / nominal
-        frames = scene.n
-    command = frame_bits(0x200 + scene.gripper.node_id, struct.pack("<Hhi", 0x0F, 100, 0)) / nominal
-    return sync + answers, sync + answers + command, frames
-
-
-def wire_floor(name: str) -> str:
-    """The cycle's frames on a real bus at the scene's bit rate (module docstring), as a line."""
-    from taxel_net.patches import devices
-
-    scene = scene_for(name)
-    answers, total, frames = wire_floor_ms(name)
-    rates = f"{scene.bus.bitrate / 1e6:g}" + (f"/{scene.bus.data_bitrate / 1e6:g} (FD)" if scene.bus.fd else "")
-    layout = f"{len(devices(scene))} patch nodes, " if scene.bus.patch_nodes else ""
-    return (f"wire floor at {rates} Mbit/s: SYNC + {frames} answers ({layout}{scene.n} taxels) "
-            f"{answers:.2f} ms, + the command {total:.2f} ms")
-
-
-# --------------------------------------------------------------------------- the echo floor
-def echo_virtual(n: int) -> list[float]:
-    """send (the frame's stamp) -> a receive thread blocked in ``recv`` has it, ms."""
-    channel = f"echo-{uuid.uuid4().hex[:8]}"
-    tx = can.Bus(interface="virtual", channel=channel)
-    rx = can.Bus(interface="virtual", channel=channel)
-    out: list[float] = []
-    done = threading.Event()
-
-    def receive():
-        while len(out) < n:
-            msg = rx.recv(1.0)
-            if msg is None:
-                break
-            out.append((time.time() - msg.timestamp) * 1e3)
-        done.set()
-
-    thread = threading.Thread(target=receive, daemon=True)
-    thread.start()
-    for _ in range(n):
-        tx.send(can.Message(arbitration_id=0x80, data=b"", is_extended_id=False))
-        time.sleep(0.002)  # the receiver is asleep again before the next one, as in a 10 ms cycle
-    done.wait(10)
-    tx.shutdown()
-    rx.shutdown()
-    return out
-
-
-def echo_udp(n: int) -> list[float]:
-    """Another process sends a frame every 2 ms over udp_multicast; this one blocks in ``recv``:
-    the kernel's receive stamp -> this thread has it, and the sender's send -> the kernel stamp."""
-    group = f"239.74.{random.randint(164, 250)}.{random.randint(1, 250)}"
-    port = random.randint(40000, 60000)
-    rx = can.Bus(interface="udp_multicast", channel=group, port=port, hop_limit=0)
-    code = ("import can, time, sys\n"
-            f"b = can.Bus(interface='udp_multicast', channel='{group}', port={port}, hop_limit=0)\n"
-            "print('ready', flush=True); time.sleep(0.5)\n"
-            f"for i in range({n}):\n"
-            "    b.send(can.Message(arbitration_id=0x81, data=[1], is_extended_id=False)); time.sleep(0.002)\n"
-            "b.shutdown()\n")
-    proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
-    proc.stdout.readline()
-    out = []
-    try:
-        while len(out) < n:
-            msg = rx.recv(2.0)
-            if msg is None:
-                break
-            if msg.arbitration_id == 0x81:
-                out.append((time.time() - msg.timestamp) * 1e3)
-    finally:
-        proc.wait(30)
-        rx.shutdown()
-    return out
-
-
-# --------------------------------------------------------------------------- printing
-def _pct(values, q):
-    return float(np.percentile(values, q)) if len(values) else float("nan")
-
-
-def _spread(values) -> str:
-    values = [v for v in values if v == v]
-    if not values:
-        return "-"
-    if len(values) == 1:
-        return f"{values[0]:.2f}"
-    return f"{np.median(values):.2f} ({min(values):.2f}-{max(values):.2f})"
-
-
-def uptime() -> str:
-    try:
-        return subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip()
-    except OSError:
-        return "uptime: n/a"
-
-
-def print_row(name: str, transport: str, runs: list[dict], label: str = "") -> None:
-    stats = {q: [_pct(r["lat"], q) for r in runs] for q in (50, 90, 99, 100)}
-    other = [sum(v for k, v in r["closed_by"].items() if k != "complete") for r in runs]
-    print(f"{label}{name:16s} {transport:9s} {'/'.join(str(len(r['lat'])) for r in runs):>11s} "
-          f"{_spread(stats[50]):>17s} {_spread(stats[90]):>17s} {_spread(stats[99]):>18s} "
-          f"{_spread(stats[100]):>20s} {'/'.join(map(str, other)):>12s} "
-          f"{_spread([r['centre_p99'] for r in runs]):>18s}")
-
-
-def print_breakdown(runs: list[dict]) -> None:
-    parts = []
-    for stage in STAGES:
-        values = [v for r in runs for v in r["stages"].get(stage, [])]
-        if not values:
-            continue
-        parts.append(f"{stage} {_pct(values, 50):.3f}/{_pct(values, 99):.3f}")
-    n = sum(len(r["stages"]["send"]) for r in runs)
-    print(f"{'':10s}breakdown p50/p99 ms over {n} complete cycles: " + ", ".join(parts))
-
-
-def _loadavg() -> list[float]:
-    return [round(v, 2) for v in os.getloadavg()]
-
-
-def print_summary(results) -> None:
-    """Per scene x transport: the wire floor and the end-to-end p50/p99 over all runs' cycles
-    pooled, against the goal, with the host's load average (1, 5, 15 min) before -> after."""
-    print(f"\nsummary: SYNC -> command on the bus, all runs' cycles pooled; goal p99 <= {GOAL_MS:g} ms "
-          f"(issue 23); {os.cpu_count()} cpus")
-    print(f"{'scene':24s} {'transport':9s} {'wire floor':>10s} {'cycles':>7s} {'p50':>7s} {'p99':>7s} "
-          f"{'p99 <= 2 ms':>11s}  load average before -> after")
-    for name, transport, floor, runs, (before, after) in results:
-        lat = [v for r in runs for v in r["lat"]]
-        p99 = _pct(lat, 99)
-        verdict = "yes" if p99 <= GOAL_MS else "no"
-        if floor > GOAL_MS:
-            verdict += " (wire)"   # the bus alone takes longer than the goal
-        print(f"{name:24s} {transport:9s} {floor:8.2f} ms {len(lat):7d} {_pct(lat, 50):7.2f} {p99:7.2f} "
-              f"{verdict:>11s}  {' '.join(f'{v:.2f}' for v in before)} -> {' '.join(f'{v:.2f}' for v in after)}")
-
-
-HEADER = (f"{'scene':16s} {'transport':9s} {'cycles/run':>11s} {'p50':>17s} {'p90':>17s} {'p99':>18s} "
-          f"{'max':>20s} {'not complete':>12s} {'centre p99':>18s}")
-
-
-def compare(files: list[str]) -> int:
-    """``--compare A.jsonl B.jsonl ...``: the results of several ``--json`` files side by side."""
-    data = []
-    for f in files:
-        rows = [json.loads(line) for line in Path(f).read_text().splitlines() if line.strip()]
-        data.append((Path(f).stem, rows))
-    keys = []
-    for _, rows in data:
-        for row in rows:
-            if (row["scene"], row["transport"]) not in keys:
-                keys.append((row["scene"], row["transport"]))
-    print("label      " + HEADER)
-    for scene, transport in keys:
-        for label, rows in data:
-            runs = [run for row in rows if (row["scene"], row["transport"]) == (scene, transport) for run in row["runs"]]
-            if runs:
-                print_row(scene, transport, runs, f"{label[:10]:10s} ")
-        for label, rows in data:
-            runs = [run for row in rows if (row["scene"], row["transport"]) == (scene, transport) for run in row["runs"]]
-            if runs:
-                print(f"{label[:10]:10s}", end="")
-                print_breakdown(runs)
-    return 0
+RUNS = {"embedded": run_embedded, "udp": run_udp, "player": run_player}
 
 
 def main(argv=None) -> int:
@@ -577,7 +400,7 @@ def main(argv=None) -> int:
             runs = []
             load_before = _loadavg()
             for _ in range(args.runs):
-                runs.append((run_embedded if transport == "embedded" else run_udp)(name, args.cycles))
+                runs.append(RUNS[transport](name, args.cycles))
             load = (load_before, _loadavg())
             print_row(name, transport, runs)
             print_breakdown(runs)
