@@ -60,19 +60,25 @@ def _loadavg() -> list[float]:
 
 def print_summary(results) -> None:
     """Per scene x transport: the wire floor and the end-to-end p50/p99 over all runs' cycles
-    pooled, against the goal, with the host's load average (1, 5, 15 min) before -> after."""
+    pooled, against the goal; ``answers`` and ``centre`` p50/p99, ``wake`` and ``assemble`` p50
+    (the breakdown's, pooled); the host's load average (1, 5, 15 min) before -> after."""
     print(f"\nsummary: SYNC -> command on the bus, all runs' cycles pooled; goal p99 <= {GOAL_MS:g} ms "
-          f"(issue 23); {os.cpu_count()} cpus")
+          f"(issue 23); {os.cpu_count()} cpus; answers, centre: p50/p99 ms; wake, assemble: p50 ms")
     print(f"{'scene':24s} {'transport':9s} {'wire floor':>10s} {'cycles':>7s} {'p50':>7s} {'p99':>7s} "
-          f"{'p99 <= 2 ms':>11s}  load average before -> after")
+          f"{'p99 <= 2 ms':>11s} {'answers':>11s} {'centre':>11s} {'wake':>6s} {'assemble':>8s}"
+          "  load average before -> after")
     for name, transport, floor, runs, (before, after) in results:
         lat = [v for r in runs for v in r["lat"]]
         p99 = _pct(lat, 99)
         verdict = "yes" if p99 <= GOAL_MS else "no"
         if floor > GOAL_MS:
             verdict += " (wire)"   # the bus alone takes longer than the goal
+        stage = {s: [v for r in runs for v in r["stages"].get(s, [])] for s in ("answers", "centre", "wake", "assemble")}
+        both = {s: f"{_pct(stage[s], 50):.2f}/{_pct(stage[s], 99):.2f}" for s in ("answers", "centre")}
         print(f"{name:24s} {transport:9s} {floor:8.2f} ms {len(lat):7d} {_pct(lat, 50):7.2f} {p99:7.2f} "
-              f"{verdict:>11s}  {' '.join(f'{v:.2f}' for v in before)} -> {' '.join(f'{v:.2f}' for v in after)}")
+              f"{verdict:>11s} {both['answers']:>11s} {both['centre']:>11s} {_pct(stage['wake'], 50):6.2f} "
+              f"{_pct(stage['assemble'], 50):8.2f}  "
+              f"{' '.join(f'{v:.2f}' for v in before)} -> {' '.join(f'{v:.2f}' for v in after)}")
 
 
 HEADER = (f"{'scene':16s} {'transport':9s} {'cycles/run':>11s} {'p50':>17s} {'p90':>17s} {'p99':>18s} "

@@ -251,7 +251,7 @@ class CycleMerger:
             dropped += len(emcy) - EMCY_PER_CYCLE
             emcy = sorted(emcy, key=lambda e: e.t_us)[:EMCY_PER_CYCLE]
         if self.patch:
-            device = DeviceCycle(expected=d_exp, missing=d_miss, states=d_states, complete=d_complete)
+            device = DeviceCycle.make(expected=d_exp, missing=d_miss, states=d_states, complete=d_complete)
         if missing:
             closed_by = "part_missing"
             self.stats.degraded += 1
@@ -262,7 +262,7 @@ class CycleMerger:
         self.info[k] = {"parts_missing": missing}
         if len(self.info) > 4096:
             self.info.pop(next(iter(self.info)))
-        return ClosedCycle(
+        return ClosedCycle.make(
             cycle=k, sync_us=sync_us, close_us=sync_us + close_after, sync_counter=counter, closed_by=closed_by,
             decisions=decisions, readings=readings, received=received, expected=expected, missing=missing_t,
             held_decisions=self.held_decisions.copy(), held_readings=self.held_readings.copy(),

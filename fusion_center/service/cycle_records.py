@@ -90,6 +90,19 @@ class EmcyEvent:
         }
 
 
+def frozen_instance(cls, fields: dict):
+    """An instance of the frozen dataclass ``cls`` whose fields are ``fields`` (every field of
+    ``cls``, each once): equal to ``cls(**fields)``, its attributes put in its ``__dict__`` at
+    once instead of by the generated ``__init__``'s ``object.__setattr__`` per field - what a
+    frozen dataclass costs to make: 1.2 against 13.6 µs for 20 fields on the shared 2-core host.
+    A closed cycle makes three (:class:`ClosedCycle`, :class:`DeviceCycle`,
+    ``drive_frames.DriveCycle``) between the frame that closes it and the grip command. Callers
+    go through each class's ``make``, whose signature is the class's (tests/test_cycle_records_make.py)."""
+    obj = object.__new__(cls)
+    obj.__dict__.update(fields)
+    return obj
+
+
 @dataclass(frozen=True)
 class DeviceCycle:
     """Per device (CANopen node; ``taxel_net.patches.devices`` order) of a cycle of a patch scene."""
@@ -98,6 +111,11 @@ class DeviceCycle:
     missing: np.ndarray        # bool: heartbeat consumer time expired / never heard
     states: np.ndarray         # int16: NMT state at the SYNC
     complete: np.ndarray       # bool: every TPDO of the device arrived in the cycle
+
+    @classmethod
+    def make(cls, expected, missing, states, complete) -> "DeviceCycle":
+        """``DeviceCycle(...)``, made faster (:func:`frozen_instance`)."""
+        return frozen_instance(cls, {"expected": expected, "missing": missing, "states": states, "complete": complete})
 
 
 @dataclass(frozen=True)
@@ -124,3 +142,16 @@ class ClosedCycle:
     emcy_dropped: int = 0      # EMCY frames since the previous cycle beyond EMCY_PER_CYCLE (counted only)
     devices: DeviceCycle | None = None  # patch scenes: the nodes' view (one-taxel scenes: node = taxel)
     drive: object = None       # [gripper] scenes: the drive as known at the close (.drive_frames.DriveCycle)
+
+    @classmethod
+    def make(cls, cycle, sync_us, close_us, sync_counter, closed_by, decisions, readings, received, expected, missing,
+             held_decisions, held_readings, late_frames, bad_frames, emcy, states=None, duplicates=(), emcy_dropped=0,
+             devices=None, drive=None) -> "ClosedCycle":
+        """``ClosedCycle(...)``, made faster (:func:`frozen_instance`): the assembler's close."""
+        return frozen_instance(cls, {
+            "cycle": cycle, "sync_us": sync_us, "close_us": close_us, "sync_counter": sync_counter,
+            "closed_by": closed_by, "decisions": decisions, "readings": readings, "received": received,
+            "expected": expected, "missing": missing, "held_decisions": held_decisions,
+            "held_readings": held_readings, "late_frames": late_frames, "bad_frames": bad_frames, "emcy": emcy,
+            "states": states, "duplicates": duplicates, "emcy_dropped": emcy_dropped, "devices": devices,
+            "drive": drive})

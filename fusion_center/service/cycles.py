@@ -389,14 +389,14 @@ class CycleAssembler(CycleFrames):
         primary_got = self.got2 if self.primary == K_TPDO2 else self.got1
         expected, missing, states = self.expected, self.missing, self.sync_state
         if self.patch:  # per device -> per taxel; a device is complete with all its TPDOs
-            device = DeviceCycle(expected=expected, missing=missing, states=states,
+            device = DeviceCycle.make(expected=expected, missing=missing, states=states,
                                  complete=np.bincount(self.layout.slot_device, weights=self.slot_got,
                                                       minlength=self.n_devices) == self.layout.device_slots)
             td = self.layout.taxel_device
             expected, missing, states = expected[td], missing[td], states[td]
         else:
             device = None
-        closed = ClosedCycle(
+        closed = ClosedCycle.make(
             cycle=self.cycle,
             sync_us=self.sync_us,
             close_us=t,

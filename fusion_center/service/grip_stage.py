@@ -122,6 +122,8 @@ class GripStage:
         self.recover_cycles = max(1, math.ceil(RECOVER_EVERY_S / self.period_s))
         self.law = GripState()
         self.command: tuple[int, int] | None = None
+        self._defer = False              # evaluate's defer_record
+        self._deferred: tuple | None = None  # the record fields' arguments, until write_record
         self.enabled_at: int | None = None   # cycle the drive was first seen OPERATION ENABLED
         self.enabled_t = 0.0                 # its SYNC time (the record's t), s
         self.takeover = False
@@ -219,7 +221,12 @@ class GripStage:
         return task
 
     # ------------------------------------------------------------------ the cycle
-    def evaluate(self, record: dict, drive: DriveCycle | None) -> None:
+    def evaluate(self, record: dict, drive: DriveCycle | None, defer_record: bool = False) -> None:
+        """The cycle's command (:attr:`command`) and the record's ``grip``, ``grip_flags`` and
+        ``grip_detail``; with ``defer_record`` those three only at :meth:`write_record` (the
+        pipeline's ``finish``, after the command has left: the same fields, nothing between
+        changes what they read)."""
+        self._defer = defer_record
         cycle = record["cycle"]
         flags: list[str] = []
         force = drive.force_n if drive is not None else None
@@ -313,7 +320,19 @@ class GripStage:
                 return _STEP_CW[state]
         return _HOLD_CW.get(state, 0x00)
 
-    def _record(self, record, command_n, actual, state, drive, slip, flags, task, command) -> None:
+    def _record(self, *args) -> None:
+        if self._defer:
+            self._deferred = args
+        else:
+            self._write(*args)
+
+    def write_record(self) -> None:
+        """The record fields :meth:`evaluate` deferred (``defer_record``), if any."""
+        args, self._deferred = self._deferred, None
+        if args is not None:
+            self._write(*args)
+
+    def _write(self, record, command_n, actual, state, drive, slip, flags, task, command) -> None:
         record["grip"] = {
             "command_n": None if command_n is None else jsonable(round(command_n, 4)),
             "actual_n": actual,

@@ -234,7 +234,7 @@ class CyclePipeline:
                 view["forces"] = {"total_tangential": jsonable(total_tangential)}
             if pending.slip is not None:
                 view["slip"] = pending.slip
-            self.grip.evaluate(view, closed.drive)
+            self.grip.evaluate(view, closed.drive, defer_record=True)  # its record fields in finish
         return pending
 
     def finish(self, pending: "PendingRecord") -> dict:
@@ -311,6 +311,7 @@ class CyclePipeline:
             stages_run.append("slip")
         if pending.grip_view is not None:
             view = pending.grip_view
+            self.grip.write_record()
             record["grip"], record["grip_flags"], record["grip_detail"] = \
                 view["grip"], view["grip_flags"], view["grip_detail"]
             stages_run.append("grip")

@@ -345,23 +345,27 @@ class EventStream:
         with self.lock:
             sent = []
             for channel, can_id, data in frames:
-                msg = TxMessage(arbitration_id=can_id, data=data, is_extended_id=False,
-                                 is_remote_frame=remote, channel=channel)
+                data = bytearray(data) if data is not None else bytearray()  # as can.Message keeps it
                 sent_at = time.time()  # before the send: every answer to this frame is later
                 if self.echoes is not None:  # before the send: its echo can come back at once
                     self.echoes.sent(channel, can_id, data, remote)
+                direct = None if remote else self._direct_sender(channel)
+                msg = None
                 try:
-                    direct = None if remote else self._direct_sender(channel)
                     if direct is None:
+                        msg = TxMessage(arbitration_id=can_id, data=data, is_extended_id=False,
+                                        is_remote_frame=remote, channel=channel)
                         self.buses[channel].send(msg)
-                    else:
-                        direct([(can_id, msg.data)])
+                    else:  # the datagram first, the stream's Message of it after (the grip command)
+                        direct([(can_id, data)])
                 except can.CanError as exc:
                     if self.echoes is not None:
                         self.echoes.forget(channel, can_id, data, remote)
                     self.tx_errors += 1
                     self.rate_log.warning("tx_error", "transmit 0x%03X on channel %d failed: %s", can_id, channel, exc)
                     continue
+                if msg is None:
+                    msg = TxMessage(arbitration_id=can_id, data=data, is_extended_id=False, channel=channel)
                 msg.timestamp = sent_at
                 msg.is_rx = False  # sent by the centre: "Tx" in the trace (.asc, .blf, .trc); after
                 # the send, which has copied or serialised the frame (receivers see is_rx True)
