@@ -38,11 +38,12 @@ marks taken by wrappers put around the centre's methods (they add ~1 µs a mark)
 * ``answers``: SYNC -> the frame that closed the cycle (its stamp: the record's
   ``closed_after_ms``) - the nodes' answers, not the centre's work; ``closed_by`` other than
   ``complete`` (a late answer: the window or the next SYNC closes the cycle) is counted apart;
-* ``wake``: that frame's stamp -> the receive turn that handed it to the centre began (the
-  receive thread's wake-up; 0 when the turn had begun before the frame was sent - a burst
-  drained as it comes);
+* ``wake``: that frame's stamp -> the stream got the receive turn that brought it
+  (``EventStream.receive_all``): the receive thread's wake-up, then the turn's datagrams read
+  and unpacked (one ``recvmsg`` each, the centre's own echoes among them) and its echoes
+  dropped; 0 when that began before the frame was sent (a burst drained as it comes);
 * ``assemble``: -> the cycle's evaluation starts (the turn's frames fed to the assembler under
-  the stream lock, the cycle closed);
+  the stream lock, the cycle closed, its evaluation begun in the same thread);
 * ``rules``, ``forces``, ``slip``, ``grip``: the pipeline's stages (decision-vector part with the
   fusion rules; eqs 24-30 / 26a in raw mode; the slip tracker; the grip law and CiA 402);
 * ``record``: the rest of the evaluation before the command (record fields);
