@@ -91,6 +91,7 @@ class TaxelNodes(can.Listener):
     def __init__(self, scene, cycles: list[list[tuple[int, str]]], send_many):
         tpdos = _taxel_tpdos(scene)
         self.node_ids = sorted({d.node_id for d in patches.devices(scene)})
+        self.node_set = frozenset(self.node_ids)
         self.send_many = send_many
         self.state = {n: PRE_OPERATIONAL for n in self.node_ids}
         # per cycle: the burst as send_many takes it; a tagged TPDO's tag byte is the SYNC's
@@ -128,8 +129,8 @@ class TaxelNodes(can.Listener):
                     self.cycle = 0  # the recording starts with the master's cycle 0, as the twins' world
             if data[0] in (0x81, 0x82):
                 self.send_many([(0x700 + n, b"\x00") for n in targets])  # boot-up
-        elif 0x601 <= can_id <= 0x67F and len(data) == 8:
-            node_id = can_id - 0x600
+        elif 0x601 <= can_id <= 0x67F and len(data) == 8 and can_id - 0x600 in self.node_set:
+            node_id = can_id - 0x600  # (the drive's SDO is its twin's: never answered here)
             if data[0] & 0xE0 == 0x20:  # initiate download: accepted (expedited: the value is in the request)
                 answer = b"\x60" + data[1:4] + b"\x00\x00\x00\x00"
             else:
