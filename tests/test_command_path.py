@@ -173,3 +173,27 @@ def test_the_command_leaves_before_its_message_is_made(monkeypatch):
     assert (msg.arbitration_id, bytes(msg.data), msg.is_rx, msg.is_remote_frame, msg.channel) == \
         (0x240, bytes((0x0F, 0, 0x64, 0, 0, 0, 0, 0)), False, False, 0)
     assert isinstance(msg.data, bytearray) and msg.dlc == 8 and before <= msg.timestamp
+
+
+def test_a_turn_of_own_echoes_only_never_takes_the_stream_lock():
+    """udp_multicast hands the centre its SYNC back at once, while the SYNC producer still holds
+    the stream lock (it feeds the SYNC after sending it): a receive turn of nothing but own
+    echoes counts them and leaves the stream alone; a turn with a foreign frame is fed."""
+    import types
+
+    from fusion_center.service.stream import EchoFilter, _StreamListener
+
+    scene = patch_scene(sizes=(10, 70))
+    events = stream_module.EventStream(CycleAssembler(scene))
+    events.echoes = EchoFilter()
+    calls: list[list] = []
+    original = events.receive_all
+    events.receive_all = lambda msgs, channel: calls.append(list(msgs)) or original(msgs, channel)
+    service = types.SimpleNamespace(stream=events, own_echoes=0, on_bootup=lambda index: None)
+    listener = _StreamListener(service, 0)
+    events.echoes.sent(0, 0x80, b"", False)
+    listener.on_messages_received([can.Message(arbitration_id=0x80, data=b"", is_extended_id=False)])
+    assert calls == [] and service.own_echoes == 1   # receive_all (its lock) not called for nothing
+    heartbeat = can.Message(arbitration_id=0x701, data=b"\x05", is_extended_id=False)
+    listener.on_messages_received([heartbeat])
+    assert calls == [[heartbeat]]

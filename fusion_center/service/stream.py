@@ -472,7 +472,8 @@ class _StreamListener(can.Listener):
                 if foreign is not msgs:
                     self.service.own_echoes += len(msgs) - len(foreign)
                     msgs = foreign
-            answers = self.stream.receive_all(msgs, self.channel)
+            if msgs:  # a turn of own echoes only (the SYNC's, just sent) never waits for the stream lock
+                answers = self.stream.receive_all(msgs, self.channel)
             bootups = self.stream.assembler.bootups
             if bootups:
                 with self.stream.lock:
