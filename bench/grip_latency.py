@@ -2,13 +2,14 @@
 
     .venv/bin/python bench/grip_latency.py [--runs 3] [--cycles 600]
         [--scenes grasp_lift grasp_lift_raw grasp_fragile grasp_lift_patch grasp_lift_raw_patch
-                  grasp_lift_raw_patch_fd] [--transports embedded udp player] [--echo 2000]
+                  grasp_lift_raw_patch_fd grasp_fragile_patch] [--transports embedded udp player] [--echo 2000]
 
 Issue 23's goal: SYNC -> command p99 at most 2 ms on the grasp scenes at a 100 Hz SYNC. The
 chapter's one-taxel grasp scenes (52 CANopen nodes a gripper) need 3.2 / 4.5 ms of wire a cycle
 at 1 Mbit/s before the command can leave, so the goal is out of reach there on any host; their
 patch-node variants (``*_patch``: one node a pad, packed TPDOs) need 0.34 ms (decisions), 1.71 ms
-(INTEGER16 readings, classic CAN) and 0.47 ms (the same on CAN FD 1/5 Mbit/s). By default every
+(INTEGER16 readings, classic CAN) and 0.47 ms (the same on CAN FD 1/5 Mbit/s); grasp_fragile_patch
+is the fragile task on grasp_lift_patch's nodes (0.34 ms). By default every
 one of them runs, side by side. For each scene and transport, ``--runs`` times:
 
 * ``embedded``: the node twins, the drive and the grasp world (``node_sim.rig.Rig``) and the
@@ -95,7 +96,7 @@ from grip_latency_report import (HEADER, STAGES, _loadavg, _pct, compare, print_
 from taxel_net.resources import resolve_scene  # noqa: E402
 
 SCENES = ("grasp_lift", "grasp_lift_raw", "grasp_fragile",
-          "grasp_lift_patch", "grasp_lift_raw_patch", "grasp_lift_raw_patch_fd")
+          "grasp_lift_patch", "grasp_lift_raw_patch", "grasp_lift_raw_patch_fd", "grasp_fragile_patch")
 TRANSPORTS = ("embedded", "udp", "player")
 
 

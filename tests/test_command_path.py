@@ -197,3 +197,47 @@ def test_a_turn_of_own_echoes_only_never_takes_the_stream_lock():
     heartbeat = can.Message(arbitration_id=0x701, data=b"\x05", is_extended_id=False)
     listener.on_messages_received([heartbeat])
     assert calls == [[heartbeat]]
+
+
+@pytest.mark.parametrize("direct", [True, False])
+def test_a_one_channel_sync_is_fed_before_it_is_sent_and_the_lock_is_free_during_the_send(direct, monkeypatch):
+    """transmit_fed_first (the SYNC producer's on a one-channel network): the SYNC is an event of
+    the stream before its frame leaves - so no answer can be fed before it - and the stream lock
+    is not held across the send (the receive thread can feed the answers while it is sent); a
+    failed send is counted and its echo forgotten, the SYNC stays fed."""
+    from fusion_center.service.stream import EchoFilter
+
+    scene = patch_scene(sizes=(10, 70))
+    seen: list = []
+
+    class Bus:
+        def send(self, msg):
+            seen.append(("bus", events.fed, events.lock.acquire(blocking=False), bytes(msg.data)))
+            events.lock.release()
+            if fail:
+                raise can.CanError("bus off")
+
+    events = stream_module.EventStream(CycleAssembler(scene), buses=[Bus()])
+    events.echoes = EchoFilter()
+    if direct:
+        def sender(burst):
+            seen.append(("direct", events.fed, events.lock.acquire(blocking=False), bytes(burst[0][1])))
+            events.lock.release()
+            if fail:
+                raise can.CanError("bus off")
+        events._senders[0] = sender
+    else:
+        monkeypatch.setattr(events, "_direct_sender", lambda channel: None)
+    fed_before = events.fed
+    fail = False
+    before = stream_module.time.time()
+    events.transmit_fed_first(0, 0x80, bytes((1,)))
+    ((how, fed_at_send, lock_free, data),) = seen
+    assert how == ("direct" if direct else "bus") and data == b"\x01"
+    assert fed_at_send == fed_before + 1 and lock_free      # fed first; the lock free while sent
+    assert events.tx_errors == 0 and before <= events.last_us / 1e6 + 1e-6
+    fail = True
+    events.transmit_fed_first(0, 0x80, bytes((2,)))
+    assert events.fed == fed_before + 2 and events.tx_errors == 1
+    assert not events.echoes.is_echo(can.Message(arbitration_id=0x80, data=b"\x02", is_extended_id=False), 0)
+    assert events.echoes.is_echo(can.Message(arbitration_id=0x80, data=b"\x01", is_extended_id=False), 0)

@@ -471,10 +471,19 @@ class Master:
         next_at = time.monotonic()
         window = self.scene.bus.sync_window / 1e6
         last_sent = None
+        supervise = None  # the SYNC whose supervision is due, half a period after it
         try:
             for k in range(cycles):
                 if self._stop.is_set():
                     break
+                if supervise is not None:
+                    # mid-period, not right after the SYNC: _supervise takes the stream lock, which
+                    # the receive thread needs when hardware-speed answers arrive (0.2-0.3 ms)
+                    gap = next_at - period / 2 - time.monotonic()
+                    if gap > 0 and self._stop.wait(gap):
+                        break
+                    self._supervise(supervise)
+                    supervise = None
                 delay = next_at - time.monotonic()
                 if delay > 0:
                     if self._stop.wait(delay):
@@ -501,9 +510,12 @@ class Master:
                 if len(sent_at) > 256:  # cycles never evaluated (e.g. lost): keep the map bounded
                     sent_at.pop(next(iter(sent_at)), None)
                 last_sent = time.monotonic()
-                self.stream.transmit_all([(ch, COB_SYNC, payload) for ch in channels])
+                if len(channels) == 1:  # fed, then sent: the lock free while the answers arrive
+                    self.stream.transmit_fed_first(0, COB_SYNC, payload)
+                else:  # every channel's SYNC sent, then fed: the last one leaves sooner
+                    self.stream.transmit_all([(ch, COB_SYNC, payload) for ch in channels])
                 self.sync_sent += 1
-                self._supervise(k)
+                supervise = k
                 next_at += period
             # let the last cycle complete (early close) for up to one period, then end it
             deadline = time.monotonic() + period
@@ -516,7 +528,7 @@ class Master:
 
     # ------------------------------------------------------------------ supervision
     def _supervise(self, k: int) -> None:
-        """After SYNC ``k``: a live node found not operational (stopped or pre-operational: by a
+        """Half a period after SYNC ``k`` (off the answers' way: it takes the stream lock): a live node found not operational (stopped or pre-operational: by a
         heartbeat, or by an NMT command of another master seen in the stream) at every SYNC for
         1.2 heartbeat periods is started again (``[master] restart = "always"``), at most once per heartbeat
         period; a node being reconfigured after its boot-up is left to that. ``"never"``: the
