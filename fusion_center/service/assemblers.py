@@ -119,6 +119,11 @@ class _FuserStream(EventStream):
                     self.on_sync(bytes(data))
         super().transmit_all(frames, remote)
 
+    def transmit_fed_first(self, channel: int, can_id: int, data: bytes) -> None:
+        """A one-channel network's SYNC (the SYNC producer's way, :class:`EventStream`): noted too."""
+        if self.on_sync is not None and channel == 0 and can_id == COB_SYNC:
+            self.on_sync(bytes(data))
+        super().transmit_fed_first(channel, can_id, data)
 
 
 class _Link:
