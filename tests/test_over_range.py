@@ -246,7 +246,7 @@ def _closed(cycle, emcy=(), missing=False, state=0x05):
                        devices=devices)
 
 
-def test_the_centre_follows_a_nodes_over_range_from_its_emcys_and_forgets_it_on_a_reset():
+def test_the_centre_follows_a_nodes_over_range_from_its_emcys_and_forgets_it_on_a_reset_not_a_loss():
     from fusion_center.service.over_range import OverRangeTracker
 
     t = OverRangeTracker([1])
@@ -258,5 +258,11 @@ def test_the_centre_follows_a_nodes_over_range_from_its_emcys_and_forgets_it_on_
     assert t.update(_closed(5, [(0x3000, 0x05), (0x0000, 0x00), (0x3000, 0x05)])) == [1]   # in bus order
     assert t.update(_closed(6, state=-2)) == []                         # NMT reset sent: afresh
     assert t.update(_closed(7, [(0x3000, 0x05)])) == [1]
-    assert t.update(_closed(8, missing=True)) == []                     # lost: afresh
-    assert dict(t.emcy) == {1: 4}
+    # lost (heartbeat consumer time expired): a node heard again without a boot-up resumes with
+    # its error state as it was, and sends no second 0x3000 while still over range
+    assert t.update(_closed(8, missing=True)) == [1]
+    assert t.update(_closed(9)) == [1]
+    assert t.update(_closed(10, [(0x0000, 0x01)])) == []                # its error reset, once back in range
+    assert t.update(_closed(11, [(0x3000, 0x05)], missing=True)) == [1]
+    assert t.update(_closed(12, state=-2)) == []                        # NMT reset: afresh, missing or not
+    assert dict(t.emcy) == {1: 5}                                       # cycles 1, 5 (two), 7, 11
