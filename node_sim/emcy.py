@@ -44,8 +44,10 @@ rules: 0x1003:0 accepts only 0 (clear the history: subs 1-8 dropped), 0x1014 ref
 Inhibit time 0x1015 (CiA 301, UNSIGNED16 in 100 µs; where the node's EDS has it - the patch
 node's): an EMCY is not sent sooner than that after the previous one; one that would be is
 queued and sent when the time is up, in order (as CANopenNode's EMCY FIFO), each the inhibit
-time after the one before. A queued EMCY counts as reported; the queue is dropped when the node
-may no longer send (STOPPED, 0x1014 not valid, NMT reset). 0 (the default): no inhibit time.
+time after the one before. A queued EMCY counts as reported: it is kept while the node may not
+send (STOPPED, 0x1014 not valid) and sent when it may again (on entering PRE-OPERATIONAL /
+OPERATIONAL, :meth:`EmcyProducer.resume`, before what resuming owes; or 0x1014 written valid);
+only an NMT reset drops it (the error state starts afresh). 0 (the default): no inhibit time.
 """
 
 from __future__ import annotations
@@ -223,7 +225,9 @@ class EmcyProducer:
     def resume(self) -> None:
         """The node can report again (PRE-OPERATIONAL / OPERATIONAL entered): send what the
         master has not been told — the EMCY of a fault that began while it could not
-        report, or the error reset of a reported fault that cleared meanwhile."""
+        report, or the error reset of a reported fault that cleared meanwhile; the EMCYs queued
+        behind the inhibit time before it stopped go first (module docstring)."""
+        self._restart_queue()
         if self._active is not None and not self._reported:
             self._reported = self.send(*self._active)
         elif self._active is None and self._reported:
@@ -308,13 +312,17 @@ class EmcyProducer:
         if not self._queue:
             return
         cob = self._may_send()
-        if cob is None:
-            self._queue.clear()
+        if cob is None:   # kept, counted as reported: sent on resume()
             return
         self._send(cob, self._queue.popleft())
         self._last_tx = now = time.monotonic()
         if self._queue:
             self._timer = self._scheduler.call_at(now + self._inhibit_s(), self._drain)
+
+    def _restart_queue(self) -> None:
+        """The EMCYs kept while the node could not send: sent from the inhibit time on."""
+        if self._queue and self._timer is None and self._may_send() is not None:
+            self._timer = self._scheduler.call_at(self._last_tx + self._inhibit_s(), self._drain)
 
     def _drop_queue(self) -> None:
         self._queue.clear()
@@ -333,3 +341,6 @@ class EmcyProducer:
         if index == ERROR_FIELD and subindex == 0:  # 0 written: the history is cleared
             for sub in range(1, ERROR_HISTORY_LENGTH + 1):
                 self._objects.discard(ERROR_FIELD, sub)
+        elif index == COB_ID_EMCY and self._queue:
+            # the hook runs before the value is stored: the queue restarts, if now valid, just after
+            self._scheduler.call_later(0.0, self._restart_queue)

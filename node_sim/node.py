@@ -102,7 +102,7 @@ class TaxelNode:
         sdo.add_check(pdo_objects, self.pdo.check_write)
         sdo.add_check(self.APPLICATION_OBJECTS, self.detector.check_write)
         sdo.add_written(None, self.detector.invalidate)  # any write: parameters re-read at the next SYNC
-        sdo.add_written((odx.ERROR_FIELD,), self.emcy.written)
+        sdo.add_written((odx.ERROR_FIELD, odx.COB_ID_EMCY), self.emcy.written)
         sdo.add_written(pdo_objects, self.pdo.written)
         sdo.add_written((odx.HEARTBEAT_PRODUCER,), self.heartbeat.written)
         sdo.add_check((odx.CONSUMER_HEARTBEAT,), self.heartbeat_consumer.check_write)

@@ -157,6 +157,35 @@ def test_the_emcy_inhibit_time_spaces_the_error_reset(twin):
     assert second.timestamp - first.timestamp >= 0.3 - 0.005   # not before the inhibit time (a lower bound)
 
 
+@pytest.mark.parametrize("pause", ["stopped", "0x1014 invalid"])
+def test_an_emcy_queued_behind_the_inhibit_time_is_sent_after_a_pause(twin, pause):
+    # the error reset is queued behind the inhibit time, then the node may not send (NMT stop, or
+    # its EMCY COB-ID made not valid) while that time passes: it is kept and sent when the node may
+    # again (CANopenNode's EMCY FIFO), not lost - the master must not be left seeing the error
+    t = twin("int8")
+    t.node.sdo[0x1015].raw = 3000                           # 300 ms
+    t.x[4] = 10.0
+    t.sync()
+    assert wait_until(lambda: len(t.emcys()) == 1)
+    t.x[4] = 0.0
+    t.sync()                                                # the error reset: queued
+    cob = t.node.sdo[0x1014].raw
+    if pause == "stopped":
+        t.net.send_message(0x000, bytes((0x02, 1)))         # NMT stop node 1
+        assert wait_until(lambda: t.rig.node(1).state == 0x04)
+    else:
+        t.node.sdo[0x1014].raw = cob | 0x80000000
+    time.sleep(0.45)                                        # the inhibit time is up during the pause
+    assert [e.code for e in t.emcys()] == [0x3000]
+    if pause == "stopped":
+        t.net.send_message(0x000, bytes((0x01, 1)))         # NMT start
+    else:
+        t.node.sdo[0x1014].raw = cob
+    assert wait_until(lambda: len(t.emcys()) == 2), "the queued error reset was lost"
+    assert [(e.code, e.register) for e in t.emcys()] == [(0x3000, 0x05), (0x0000, 0x00)]
+    assert t.node.sdo[0x1001].raw == 0
+
+
 # ------------------------------------------------------------------------------ the centre
 OVER = range(6, 10)     # cycles whose readings are over range (taxel 3: sent as the largest code)
 EXACT = range(12, 15)   # cycles whose taxel 3 reads exactly the largest code's value: the same counts
