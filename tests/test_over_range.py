@@ -186,6 +186,26 @@ def test_an_emcy_queued_behind_the_inhibit_time_is_sent_after_a_pause(twin, paus
     assert t.node.sdo[0x1001].raw == 0
 
 
+def test_unmapping_the_readings_while_over_range_sends_the_error_reset(twin):
+    # no TPDO carries a reading any more: none is over range on the bus, so the error ends
+    t = twin("int8")
+    t.x[4] = 10.0
+    t.sync()
+    assert wait_until(lambda: len(t.emcys()) == 1)
+    (device,) = P.devices(t.scene)
+    t.net.send_message(0x000, bytes((0x80, 1)))             # pre-operational
+    assert wait_until(lambda: t.rig.node(1).state == 0x7F)
+    for tp in device.tpdos:                                 # every readings TPDO not valid (0x180x:1 bit 31)
+        t.node.sdo[0x1800 + tp.number][1].raw |= 0x80000000
+    t.net.send_message(0x000, bytes((0x01, 1)))             # operational
+    assert wait_until(lambda: t.rig.node(1).state == 0x05)
+    t.sync()                                                # still 10 mV: the reading is just not sent
+    assert wait_until(lambda: len(t.emcys()) == 2), "no error reset: 0x1001 = %#x" % t.node.sdo[0x1001].raw
+    reset = t.emcys()[1]
+    assert (reset.code, reset.register, bytes(reset.data)) == (0x0000, 0x00, bytes((3, 0, 0, 0, 0)))
+    assert t.node.sdo[0x1001].raw == 0
+
+
 # ------------------------------------------------------------------------------ the centre
 OVER = range(6, 10)     # cycles whose readings are over range (taxel 3: sent as the largest code)
 EXACT = range(12, 15)   # cycles whose taxel 3 reads exactly the largest code's value: the same counts

@@ -14,6 +14,7 @@ leave, the node compares the AI status of the mapped readings with the last one
 (:meth:`~node_sim.patch.node.PatchNode.check_over_range`): the over-range EMCY
 (:data:`taxel_net.patches.EMCY_INPUT_OVER_RANGE`) on the rising edge, its error reset when every
 mapped reading is back in range - so the EMCY precedes the first frame that carries a limit code.
+A mapping that no longer carries any reading ends an over range too (its error reset at activation).
 """
 
 from __future__ import annotations
@@ -44,6 +45,7 @@ class PatchTpdoEngine(TpdoEngine):
                          max_bits=8 * (P.FD_DATA_MAX if fd else P.CLASSIC_DATA_MAX), fd=fd)
         self._image = node.image
         self._check_over_range = node.check_over_range
+        self._emcy = node.emcy
         self._every_sync = self._tagged_decisions = None   # what _activate finds
         self._watch = None   # what the over-range check watches (_mapped_readings)
         self._every_sync_runtimes: tuple = ()
@@ -66,6 +68,8 @@ class PatchTpdoEngine(TpdoEngine):
                 rt.started = True
                 rt.sync_count = 0
         self._watch = self._mapped_readings(active)
+        if self._watch is None and self._emcy.over_range_active:
+            self._emcy.over_range(None)   # no reading mapped is over range now: the error reset
         return active
 
     def _mapped_readings(self, active):
