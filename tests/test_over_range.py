@@ -206,6 +206,35 @@ def test_unmapping_the_readings_while_over_range_sends_the_error_reset(twin):
     assert t.node.sdo[0x1001].raw == 0
 
 
+def test_the_ai_status_refers_to_the_mapped_readings_in_pre_operational(tmp_path):
+    # 10 mV at 0.05 mV a count: 200 counts, beyond INTEGER8, within INTEGER16. The raw scene's
+    # TPDOs map 0x2030 (INTEGER8): 0x2033 says "positive overload" from the boot on, before any
+    # OPERATIONAL SYNC; with those TPDOs not valid (no readings mapped) it refers to INTEGER16
+    scene = raw_scene(tmp_path, "int8")
+    x = np.zeros(scene.n)
+    x[4] = 10.0
+    rig = Rig(scene, channel=scene.bus.channels[0], reading_source=lambda c: x.copy()).start()
+    net = canopen.Network()
+    net.connect(interface="virtual", channel=scene.bus.channels[0])
+    node = net.add_node(canopen.RemoteNode(1, load_patch_od(1)))
+    node.sdo.RESPONSE_TIMEOUT = 2.0
+    try:
+        assert rig.node(1).state == 0x7F
+        net.send_message(0x080, b"")                        # a SYNC in PRE-OPERATIONAL: sampled, no TPDO
+        assert rig.wait_cycle(0, timeout=WAIT)
+        (device,) = P.devices(scene)
+        assert node.sdo[0x1A00 + tpdo_of(scene, 4) - 1][1].raw >> 16 == P.PATCH_READINGS_I8   # no tag: readings only
+        assert node.sdo[P.PATCH_READINGS_I8][5].raw == 127
+        assert node.sdo[P.PATCH_AI_STATUS][5].raw == 0x02
+        for tp in device.tpdos:
+            node.sdo[0x1800 + tp.number][1].raw |= 0x80000000
+        assert wait_until(lambda: node.sdo[P.PATCH_AI_STATUS][5].raw == 0)
+        assert node.sdo[P.PATCH_READINGS_I16][5].raw == 200
+    finally:
+        net.disconnect()
+        rig.stop()
+
+
 # ------------------------------------------------------------------------------ the centre
 OVER = range(6, 10)     # cycles whose readings are over range (taxel 3: sent as the largest code)
 EXACT = range(12, 15)   # cycles whose taxel 3 reads exactly the largest code's value: the same counts

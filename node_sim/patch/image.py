@@ -7,8 +7,9 @@ without), the fault bits 0x2022, the readings as INTEGER8 / INTEGER16 counts of 
 beyond the range; computed only when mapped or read) and the AI status of each taxel 0x2033
 (CiA 404 AI status 0x6150's bits: 1 not valid, 2 positive overload, 4 negative overload) with
 respect to the readings array the node's TPDOs map (:attr:`PatchImage.raw_index`, set by
-:class:`~node_sim.patch.tpdo.PatchTpdoEngine`; INTEGER16 while none is mapped). They are served to canopen's ``LocalNode``
-by a read callback (:meth:`node_sim.patch.PatchNode._read_image`), never copied into the data
+:class:`~node_sim.patch.tpdo.PatchTpdoEngine` when it reads the TPDO configuration, so in
+PRE-OPERATIONAL too; INTEGER16 while none is mapped). They are served to canopen's
+``LocalNode`` by a read callback (:meth:`node_sim.patch.PatchNode._read_image`), never copied into the data
 store per SYNC. Sub 0 of every patch array reads its number of entries for this node (``n``, or
 ``ceil(n / 8)`` for the packed bytes); a sub-index beyond it is refused (0x06090011) for reads,
 writes and mappings.

@@ -7,9 +7,10 @@ of a few slices per TPDO (the tag and the packed decisions: one concatenation); 
 are padded with 0 to the next valid FD length. TPDOs all sent on every SYNC (transmission type 1)
 leave in one call to the link.
 
-Raw mode's over-range signal (docs/node-twins.md): on activation the engine notes which readings
-array its TPDOs map (the narrowest when both are; :attr:`PatchImage.raw_index`, what the AI
-status 0x2033 refers to) and which TPDO carries each taxel; at every SYNC, before the TPDOs
+Raw mode's over-range signal (docs/node-twins.md): when the configuration is read (after a boot,
+after an SDO write to 0x180x / 0x1A0x: in PRE-OPERATIONAL too) the engine notes which readings
+array its TPDOs map (the narrowest when both are; :attr:`PatchImage.raw_index`, what the AI status
+0x2033 refers to), and on activation which TPDO carries each taxel; at every SYNC, before the TPDOs
 leave, the node compares the AI status of the mapped readings with the last one
 (:meth:`~node_sim.patch.node.PatchNode.check_over_range`): the over-range EMCY
 (:data:`taxel_net.patches.EMCY_INPUT_OVER_RANGE`) on the rising edge, its error reset when every
@@ -71,6 +72,25 @@ class PatchTpdoEngine(TpdoEngine):
         if self._watch is None and self._emcy.over_range_active:
             self._emcy.over_range(None)   # no reading mapped is over range now: the error reset
         return active
+
+    def read_configuration(self) -> None:
+        super().read_configuration()
+        self._note_readings_array()
+
+    def reconfigure(self) -> None:
+        super().reconfigure()
+        self._note_readings_array()
+
+    def _note_readings_array(self) -> None:
+        """The configuration was read (after a boot, after an SDO write to 0x180x / 0x1A0x): the
+        readings array the valid TPDOs map, what 0x2033 refers to from now on, also in
+        PRE-OPERATIONAL (:attr:`PatchImage.raw_index`; activation finds the same)."""
+        valid = []
+        for pdo in range(self.n_tpdos):
+            cfg = self.config(pdo)
+            if cfg.valid and cfg.mapping:
+                valid.append((pdo, cfg, None))
+        self._mapped_readings(valid)
 
     def _mapped_readings(self, active):
         """``(index, tpdo_of, overload)`` of the readings array the active TPDOs map (INTEGER8 when both
