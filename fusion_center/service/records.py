@@ -14,7 +14,8 @@ classes), which a walk over the value checks first (orjson itself writes NaN and
 ``null``: the walk keeps them refused) - else the standard library's ``json`` with the settings
 above, which writes what it always wrote or raises what it always raised (NaN and infinity,
 numpy scalars, ``int`` keys, non-ASCII text, circular references go there). The two write the
-same JSON values: the same text but for floats below 1e-4 that json writes in exponent form
+same JSON values: the same text but for DEL (U+007F: orjson writes the byte, json ``\\u007f``)
+and floats below 1e-4 that json writes in exponent form
 (``1e-05``, ``1.5e-07``; orjson: ``0.00001``, ``1.5e-7``) and, with orjson 3.10, from 1e16 up
 (``1e16`` for ``1e+16``) - the same digits (``tests/test_records_dumps.py``: every value of a generated record read back
 equal, floats bit for bit). A matrix57 record (1.7 kB) costs 10 us instead of 29 back to back,
