@@ -12,13 +12,14 @@ mapped reading is back in range; its AI status array 0x2033 says which taxels, b
 :class:`OverRangeTracker` follows those EMCYs cycle by cycle (a closed cycle's ``emcy``: every
 EMCY since the previous one, in bus order): a node is over range from its EMCY 0x3000 until an
 EMCY of its own says otherwise (the error register of every EMCY is the node's 0x1001: bit 2
-clear, e.g. the error reset), or until it restarts (the centre's NMT reset: its error state
-starts afresh; a boot-up the node sends by itself is not seen here yet - a cycle's states give
-PRE-OPERATIONAL after it - so such a node stays flagged until its next EMCY). A node that is lost (heartbeat consumer time expired) stays over range: a
-node heard again without a boot-up resumes in its NMT state with its error state as it was (it
-sends the EMCY 0x3000 on the rising edge only, so it says nothing more while still over range),
-and a missing node's records are degraded anyway. A record of a cycle in which some node
-is over range lists those nodes in ``over_range_nodes``: its raw-mode results (the nodes'
+clear, e.g. the error reset), or until the centre resets it (NMT reset: its error state starts
+afresh). A boot-up the node sends by itself is not seen here (a cycle's states give
+PRE-OPERATIONAL after it): such a node stays flagged until an EMCY of its own says otherwise. A
+node that is lost (heartbeat consumer time expired) stays over range: a node heard again without
+a boot-up resumes in its NMT state with its error state as it was (it sends the EMCY 0x3000 on
+the rising edge only, so it says nothing more while still over range), and a missing node's
+records are degraded anyway. A record of a cycle in which some node is over range lists those
+nodes in ``over_range_nodes``: its raw-mode results (the nodes'
 decisions computed centrally, the centralised tests, the forces) came from clipped readings.
 The EMCYs are counted per node (the run summary's ``over_range``). Pure: a function of the
 closed cycles, so a replay gives the same records.
