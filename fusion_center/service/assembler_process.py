@@ -32,6 +32,7 @@ logger = logging.getLogger("fusion_center.service.assemblers")
 
 RECONNECT_FIRST_S = 0.1  # wait before the first try after a break; doubled after every failed try
 RECONNECT_MAX_S = 2.0    # ... up to this
+CALLBACKS_WAIT_S = 2.0   # close(): at most this long for Zenoh callbacks still running
 
 
 class Refused(Exception):
@@ -175,6 +176,11 @@ class AssemblerProcess:
         self._broken = threading.Event()   # the link broke: the watcher says hello again
         self._dead: list[_Link] = []       # broken links, undeclared by the watcher
         self._log = RateLimitedLog(logger)
+        # Zenoh callbacks running now (its threads, not Python's): close() waits for them, for a
+        # Zenoh thread still in one when the interpreter finalizes is ended by pthread_exit, whose
+        # unwinding through Rust frames aborts the process ("FATAL: exception not rethrown", rc -6)
+        self._callbacks = 0
+        self._callbacks_done = threading.Condition()
 
     def open(self) -> "AssemblerProcess":
         import can
@@ -296,10 +302,24 @@ class AssemblerProcess:
             self._gc_held = True
             gcfreeze.hold()
 
+    def _in_callback(self, delta: int) -> None:
+        with self._callbacks_done:
+            self._callbacks += delta
+            if not self._callbacks:
+                self._callbacks_done.notify_all()
+
     def _on_message(self, link: "_Link", query) -> None:
         """A message on this link's key from the fuser (a query, answered once taken): its bye
         ends the process, a refused (it dropped the link) a new hello; anything not signed and
-        of the protocol is counted and ignored."""
+        of the protocol is counted and ignored. The query is answered before :attr:`closed` is
+        set: the bye's callback must not still be in Zenoh's ``reply`` when the process ends."""
+        self._in_callback(+1)
+        try:
+            self._message(link, query)
+        finally:
+            self._in_callback(-1)
+
+    def _message(self, link: "_Link", query) -> None:
         try:
             payload = link_keys.as_bytes(query.payload) or b""
             if len(payload) > ANSWER_MAX or not link_keys.verify(link.mac_key, link.to_key, payload,
@@ -314,19 +334,20 @@ class AssemblerProcess:
         except Exception:  # noqa: BLE001 - never raise into Zenoh
             logger.exception("fuser message failed")
             return
-        if self.link is link:
-            if answer["kind"] == "bye":
-                self.bye = True
-                self.closed.set()
-            else:
-                self._log.warning("dropped", f"the fuser dropped the link ({answer['why']})")
-                self._break(link)
         try:
             query.reply(link.to_key, b"")
         except Exception:  # noqa: BLE001 - the fuser gone meanwhile
             pass
+        if self.link is link:
+            if answer["kind"] == "bye":
+                self.bye = True
+                self.closed.set()  # last: the process may end from here on
+            else:
+                self._log.warning("dropped", f"the fuser dropped the link ({answer['why']})")
+                self._break(link)
 
     def _on_fuser_alive(self, link: "_Link", sample) -> None:
+        self._in_callback(+1)
         try:
             import zenoh
 
@@ -334,6 +355,8 @@ class AssemblerProcess:
                 self._break(link)
         except Exception:  # noqa: BLE001
             logger.exception("fuser liveliness failed")
+        finally:
+            self._in_callback(-1)
 
     def _break(self, link: "_Link") -> None:
         with self._send_lock:
@@ -429,6 +452,8 @@ class AssemblerProcess:
             except Exception:  # noqa: BLE001
                 pass
             self.session = None
+        with self._callbacks_done:  # none left in a Zenoh thread when the caller goes on (bounded)
+            self._callbacks_done.wait_for(lambda: not self._callbacks, timeout=CALLBACKS_WAIT_S)
 
     def __enter__(self):
         return self.open()
