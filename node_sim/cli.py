@@ -42,6 +42,7 @@ import logging
 import signal
 import sys
 import threading
+import time
 
 import can
 
@@ -223,8 +224,12 @@ def main(argv: list[str] | None = None) -> int:
                 hosts += " with the grasp world"
         print(f"node-sim: ready: {hosts} of scene {scene.name!r} on {interface} "
               f"channel(s) {', '.join(served)}", flush=True)
-        while not stop.wait(0.2):
-            pass
+        # sleep and look, never stop.wait(): a signal handled while this thread is inside
+        # Event.wait (holding the event's condition lock) ran stop.set(), which takes that same
+        # lock - a deadlock (node-sim still running 30 s after SIGINT in a CI run: the stacks
+        # showed on_signal -> Event.set -> Condition.__enter__ under Event.wait)
+        while not stop.is_set():
+            time.sleep(0.2)
     finally:
         rig.stop()
         if truth_log is not None:
