@@ -24,21 +24,13 @@ from node_sim.patch import load_patch_od
 from node_sim.rig import Rig
 from taxel_net import patches as P
 
+from test_node_conformance import wait_until  # noqa: E402 - bounded polling, WAIT = 5 s
 from test_node_patch import write_scene
 
 WAIT = 5.0
 _names = itertools.count()
 LSB = {"int8": 0.05, "int16": 0.01}   # mV a count: both ranges (6.35 / 327.67 mV) below full scale (1000 mV)
 TOP = {"int8": 127, "int16": 32767}
-
-
-def wait_until(pred, timeout=WAIT) -> bool:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if pred():
-            return True
-        time.sleep(0.005)
-    return False
 
 
 def raw_scene(tmp_path, raw_format: str, n: int = 10, channel: str | None = None, sync_counter: int = 0):
