@@ -153,6 +153,12 @@ class EmcyProducer:
             register |= ERR_REG_GENERIC | ERR_REG_COMMUNICATION
         return register
 
+    def _store_register(self) -> int:
+        """0x1001 set to the error register of the present errors (:meth:`_register`); returned."""
+        register = self._register()
+        self._objects.store(ERROR_REGISTER, 0, register)
+        return register
+
     def _push_history(self, entry: int) -> None:
         objects = self._objects
         count = objects.read(ERROR_FIELD, 0)
@@ -168,8 +174,7 @@ class EmcyProducer:
         if active == self._comm_error:
             return
         self._comm_error = active
-        register = self._register()
-        self._objects.store(ERROR_REGISTER, 0, register)
+        register = self._store_register()
         if active:
             self._push_history(EMCY_HEARTBEAT)
             self._comm_reported = self.send(EMCY_HEARTBEAT, register)
@@ -184,14 +189,12 @@ class EmcyProducer:
             if self._device is None:
                 return
             self._device = None
-            register = self._register()
-            self._objects.store(ERROR_REGISTER, 0, register)
+            register = self._store_register()
             if self._device_reported:
                 self._device_reported = not self.send(EMCY_NO_ERROR, register)
             return
         self._device = (code, bits)
-        register = self._register()
-        self._objects.store(ERROR_REGISTER, 0, register)
+        register = self._store_register()
         self._push_history(code)
         self._device_reported = self.send(code, register)
 
@@ -209,16 +212,14 @@ class EmcyProducer:
             if self._over is None:
                 return
             self._over = None
-            register = self._register()
-            self._objects.store(ERROR_REGISTER, 0, register)
+            register = self._store_register()
             if self._over_reported:
                 self._over_reported = not self.send_field(EMCY_NO_ERROR, register, OVER_RANGE_RESET_FIELD)
             return
         if self._over is not None:
             return
         self._over = bytes(field)
-        register = self._register()
-        self._objects.store(ERROR_REGISTER, 0, register)
+        register = self._store_register()
         self._push_history(EMCY_INPUT_OVER_RANGE | (FAULT_OVER_RANGE << 16))
         self._over_reported = self.send_field(EMCY_INPUT_OVER_RANGE, register, self._over)
 
@@ -248,18 +249,15 @@ class EmcyProducer:
     def fault_changed(self, fault: int, reading: float) -> None:
         """The application's fault state became ``fault`` (``FAULT_NONE``: cleared) on
         ``reading``: update 0x1001/0x1003, send the EMCY (or the error reset)."""
-        objects = self._objects
         if fault == FAULT_NONE:
             self._active = None
-            register = self._register()
-            objects.store(ERROR_REGISTER, 0, register)
+            register = self._store_register()
             if self._reported:  # an error reset only follows a reported error
                 self._reported = not self.send(EMCY_NO_ERROR, register)
             return
         code = FAULT_EMCY_CODE[fault]
         self._active = (code, ERR_REG_SENSOR_FAULT, fault, reading)
-        register = self._register()
-        objects.store(ERROR_REGISTER, 0, register)
+        register = self._store_register()
         self._push_history(code | (fault << 16))  # bits 16-31: manufacturer info (fault id)
         self._active = (code, register, fault, reading)
         self._reported = self.send(code, register, fault, reading)

@@ -35,7 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from taxel_net.scene import Scene
-from ..service.records import dumpb, dumps
+from ..service.records import dumpb as _dumpb, dumps as _json  # the decision log's encoder (below)
 
 MAP_NONE, MAP_NOT_HEARD, MAP_ABSENT, MAP_PRESENT = 0, 85, 170, 255
 DECISION_CODE = {"H1": 1, "H0": 0, "undecided": -1}
@@ -368,9 +368,7 @@ def _rules_parts(rules: dict) -> tuple[dict, dict]:
 
 _RULE_KEYS: dict[str, str] = {}
 # every message's JSON is the decision log's encoder (orjson for plain values, json otherwise:
-# compact, ASCII, NaN refused): _dumpb for bytes, _json for text
-_dumpb = dumpb
-_json = dumps
+# compact, ASCII, NaN refused): _dumpb for bytes, _json for text (imported above)
 
 
 def bus_message(record: dict) -> dict:

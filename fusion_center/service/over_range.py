@@ -42,8 +42,7 @@ class OverRangeTracker:
     label of every device (``pipeline.node_labels`` order)."""
 
     def __init__(self, labels: list):
-        self.labels = list(labels)
-        self.index = {label: i for i, label in enumerate(self.labels)}
+        self.index = {label: i for i, label in enumerate(labels)}
         self.active: set = set()          # node labels over range now
         self.emcy: Counter = Counter()    # node label -> over-range EMCYs (rising edges) heard
 

@@ -359,10 +359,7 @@ class EventStream:
                     else:  # the datagram first, the stream's Message of it after (the grip command)
                         direct([(can_id, data)])
                 except can.CanError as exc:
-                    if self.echoes is not None:
-                        self.echoes.forget(channel, can_id, data, remote)
-                    self.tx_errors += 1
-                    self.rate_log.warning("tx_error", "transmit 0x%03X on channel %d failed: %s", can_id, channel, exc)
+                    self._send_failed(channel, can_id, data, remote, exc)
                     continue
                 if msg is None:
                     msg = TxMessage(arbitration_id=can_id, data=data, is_extended_id=False, channel=channel)
@@ -403,12 +400,16 @@ class EventStream:
                 direct([(can_id, data)])
         except can.CanError as exc:
             with self.lock:
-                if self.echoes is not None:
-                    self.echoes.forget(channel, can_id, data, False)
-                self.tx_errors += 1
-            self.rate_log.warning("tx_error", "transmit 0x%03X on channel %d failed: %s", can_id, channel, exc)
+                self._send_failed(channel, can_id, data, False, exc)
         if closed or len(self._trace_queue) >= TRACE_BATCH:
             self._after_feed(closed)
+
+    def _send_failed(self, channel: int, can_id: int, data, remote: bool, exc: can.CanError) -> None:
+        """A frame that could not be sent (stream lock held): no echo will come, counted, logged."""
+        if self.echoes is not None:
+            self.echoes.forget(channel, can_id, data, remote)
+        self.tx_errors += 1
+        self.rate_log.warning("tx_error", "transmit 0x%03X on channel %d failed: %s", can_id, channel, exc)
 
     def _direct_sender(self, channel: int) -> Callable[[list[tuple]], None] | None:
         """How a data frame leaves on a python-can udp_multicast bus: its datagram written

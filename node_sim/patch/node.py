@@ -83,13 +83,10 @@ class PatchNode(TaxelNode):
         count = int(np.count_nonzero(over))
         emcy = self.emcy
         if not count:
-            if emcy.over_range_active:
-                emcy.over_range(None)
-            return
-        if emcy.over_range_active:
-            return
-        k = int(np.flatnonzero(over)[0])
-        emcy.over_range(over_range_field(k, int(tpdo_of[k]), int(status[k]), count))
+            emcy.over_range(None)   # its error reset, once (nothing while none is active)
+        elif not emcy.over_range_active:   # the rising edge: the field made only then
+            k = int(np.flatnonzero(over)[0])
+            emcy.over_range(over_range_field(k, int(tpdo_of[k]), int(status[k]), count))
 
     # ------------------------------------------------------------------ introspection
     @property

@@ -69,8 +69,8 @@ class PatchTpdoEngine(TpdoEngine):
                 rt.started = True
                 rt.sync_count = 0
         self._watch = self._mapped_readings(active)
-        if self._watch is None and self._emcy.over_range_active:
-            self._emcy.over_range(None)   # no reading mapped is over range now: the error reset
+        if self._watch is None:
+            self._emcy.over_range(None)   # no reading mapped is over range now: the error reset, if owed
         return active
 
     def read_configuration(self) -> None:
