@@ -312,3 +312,60 @@ def test_displacement_is_the_correctly_rounded_distance_to_the_reference(referen
             assert abs(state.displacement - float(exact)) <= tol
             checked += 1
         assert checked == 200 - reference_cycles
+
+
+@pytest.mark.parametrize("use_forces", [False, True])
+def test_an_unobserved_cycle_is_as_if_it_had_not_been(use_forces):
+    """A cycle that saw nothing of the contact (``unobserved``: its frames lost or late) neither
+    ends the episode nor moves it: every other cycle's state equals the batch detector's on the
+    trace without that cycle (cycle indices after it shifted by one), for an unobserved cycle
+    anywhere - before the reference, inside a moving run, at the onset, after it."""
+    rng = np.random.default_rng(11)
+    times, active, ft, fg, _ = synthetic_trace(rng, n=80, onset=30, velocity=(0.7, 0.0), dropout=0.0,
+                                               force_noise=0.05)
+    for lost in (1, 20, 29, 30, 31, 32, 33, 50, 79):
+        keep = [k for k in range(len(times)) if k != lost]
+        f_in = (ft[keep], fg[keep]) if use_forces else (None, None)
+        res = detect_slip(times[keep], centroids_of([active[k] for k in keep]), *f_in, 0.3, noise_band=1.5,
+                          period=PERIOD)
+        tracker = SlipTracker(0.3, 1.5, period=PERIOD)
+        states = {}
+        for k, (t, a) in enumerate(zip(times, active)):
+            if k == lost:
+                held = tracker.unobserved(t)
+                continue
+            forces = (ft[k], fg[k]) if use_forces else (None, None)
+            states[k] = tracker.update(t, a, *forces)
+        # the unobserved cycle's own state: the episode's, nothing measured
+        assert held.contact and held.displacement is None and held.force_ratio is None
+        assert held.slipping == states[lost - 1].slipping and held.cycle == lost
+        index = {k: i for i, k in enumerate(keep)}          # the tracker's cycle -> the batch's
+        batch_of = lambda c: None if c is None else index[c]  # noqa: E731
+        last = states[keep[-1]]
+        assert last.slipping == res.slipping
+        assert res.slipping, "the trace slides: nothing tested"
+        assert (batch_of(last.onset_index), batch_of(last.flagged_index), last.criterion) == \
+            (res.onset_index, res.flagged_index, res.criterion)
+        assert last.distance == pytest.approx(res.distance, rel=1e-9, abs=1e-12)
+        for k in keep:
+            assert states[k].slipping == (index[k] >= res.flagged_index), (lost, k)
+            d = res.displacement[index[k]]
+            assert (states[k].displacement is None) == bool(np.isnan(d)) and \
+                (states[k].displacement is None or states[k].displacement == pytest.approx(d, rel=1e-12))
+
+
+def test_an_unobserved_cycle_outside_a_contact_and_bad_times():
+    tracker = SlipTracker(0.3, 0.5, reference_cycles=1, motion_consecutive=1)
+    s = tracker.unobserved(0.0)
+    assert not s.contact and not s.slipping and s.cycle == 0
+    tracker.update(1.0, [(0, 0)])
+    with pytest.raises(ParameterError, match="time must be finite"):
+        tracker.unobserved(1.0)
+    with pytest.raises(ParameterError, match="time must be finite"):
+        tracker.unobserved(float("nan"))
+    s = tracker.unobserved(2.0)
+    assert s.contact and s.cycle == 2 and s.centroid.tolist() == [0.0, 0.0]
+    # a real "no taxel active" still ends the episode; the next contact takes a new reference
+    assert not tracker.update(3.0, []).contact
+    assert not tracker.unobserved(4.0).contact
+    assert tracker.update(5.0, [(9, 9)]).displacement is None

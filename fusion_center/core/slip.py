@@ -13,7 +13,8 @@ Onset (either criterion, whichever *flags* first):
   moves farther than ``noise_band`` (coordinate units) from its reference position for
   ``motion_consecutive`` consecutive cycles. The reference is the mean centroid of the first
   ``reference_cycles`` cycles of the contact episode (an episode ends when no taxel is
-  active); motion is not tested during those cycles.
+  active; a live cycle that observed nothing of the contact - :meth:`SlipTracker.unobserved` -
+  does not end it); motion is not tested during those cycles.
 
 The onset index is the first cycle of the run that triggered; the flagged index is the
 cycle at which the run completed (what a live system can know). The slip state latches
@@ -334,6 +335,34 @@ class SlipTracker:
                                  "the centroid of the points must be finite (their mean overflows a float)")
         return self.update_centroid(t, centroid, total_tangential, grip_force)
 
+    def unobserved(self, t) -> SlipState:
+        """A cycle that observed none of the contact - none of the taxels active in the episode's
+        last observed cycle was received (their frames lost or late, their node missing) - so it
+        cannot tell whether the contact moved or ended: the episode goes on as if the cycle had
+        not been (its reference, its runs of moving or overloaded cycles, a slip flagged; the
+        track gets no point), and only the time and the cycle count advance. The state returned
+        is the episode's at ``t``: ``displacement`` and ``force_ratio`` None (nothing measured),
+        ``centroid`` the last observed one; no contact outside an episode. (Without this a lost
+        cycle read as "no taxel active" ended the episode: the reference was taken again, three
+        cycles later, at wherever the contact had slid to, and a slip under way went unseen.)"""
+        t = float(t)
+        if not math.isfinite(t) or (self._last_time is not None and t <= self._last_time):
+            raise ParameterError("t", t, f"time must be finite and > the previous one ({self._last_time})")
+        if self._last_time is not None and self.period is None:
+            self._dts.append(t - self._last_time)
+        self._last_time = t
+        self.cycle += 1
+        if not self._recent:  # no episode: nothing to go on with
+            return SlipState(self.cycle, t, False, np.array([math.nan, math.nan]), None, None, False,
+                             None, None, None, None)
+        centroid = self._recent[-1][2].copy()
+        if self._onset is None:
+            return SlipState(self.cycle, t, True, centroid, None, None, False, None, None, None, None)
+        v, v_cycle, speed, distance = self._kinematics()
+        onset_idx, onset_t, flagged, criterion = self._onset
+        return SlipState(self.cycle, t, True, centroid, None, None, True, onset_idx, onset_t,
+                         flagged, criterion, v, v_cycle, speed, distance)
+
     def update_centroid(self, t, centroid, total_tangential=None, grip_force=None) -> SlipState:
         """:meth:`update` given the centroid of the active taxels' distinct locations - (nan,
         nan) for no contact - as a fixed layout computes it for any subset
@@ -385,10 +414,12 @@ class SlipTracker:
         self._recent.append((self.cycle, t, centroid))
         if self._onset is None:
             hits = []
+            # a run's first cycle from the observed cycles kept (an unobserved cycle inside a run is
+            # not one of its cycles: the onset is the run's first observed cycle)
             if ratio is not None and self._force_run >= self.force_consecutive:
-                hits.append((self.cycle - self.force_consecutive + 1, "force"))
+                hits.append((self._recent[-self.force_consecutive][0], "force"))
             if self._motion_run >= self.motion_consecutive:
-                hits.append((self.cycle - self.motion_consecutive + 1, "motion"))
+                hits.append((self._recent[-self.motion_consecutive][0], "motion"))
             if hits:
                 onset_idx, criterion = min(hits)
                 back = [(ti, ci) for k, ti, ci in self._recent if k >= onset_idx]

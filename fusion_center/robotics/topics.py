@@ -475,7 +475,8 @@ SCHEMAS = {
         "area": _NUM, "t_c": _NUM, "contact_type": _STR, "fp_c": _NUM, "contact_type_fp": _STR,
         "present_count": _INT}},
     T_SLIP: {"title": "taxel_can.Slip", "type": "object", "properties": {
-        "contact": {"type": ["boolean", "null"]}, "slipping": {"type": ["boolean", "null"]}, "criterion": _STR,
+        "contact": {"type": ["boolean", "null"]}, "observed": {"type": ["boolean", "null"]},
+        "slipping": {"type": ["boolean", "null"]}, "criterion": _STR,
         "force_ratio": _NUM, "onset_cycle": _INT, "speed": _NUM, "distance": _NUM}},
     T_FORCES: {"title": "taxel_can.Forces", "type": "object", "properties": {
         "unit": _STR, "total_tangential": _NUM, "grip_force": _NUM, "grip_force_limit": _NUM, "max_load": _NUM,

@@ -159,8 +159,10 @@ class GripStage:
             return False
         now = False
         displacement = slip.get("displacement")
+        unobserved = slip.get("observed") is False   # the cycle saw nothing of the contact (lost, late)
         if self.rebased and pressing is False:
             displacement = None     # the jaws let go (release, a lost part): the footprint dissolves
+            unobserved = False
         elif self.rebase is not None and not self.rebased:
             # the footprint forms as the jaws press (the contact was seen before, by presence cells
             # alone): no motion cue from the first press until settle_s later, then the slip
@@ -187,6 +189,10 @@ class GripStage:
                 self.edge_run = self.edge_run + 1 if displacement > self.edge_band + 1e-9 else 0
                 if self.edge_run >= self.edge_cycles:
                     self.peak_cycle = record["cycle"]   # the peak stays at the band: the full pitch flags again
+            now = self.peak_cycle is not None and record["cycle"] - self.peak_cycle < self.slip_hold
+        elif unobserved:
+            # nothing measured: the flag of the last new farthest displacement held as long as it
+            # would have been (slip_hold) - the motion it stood for is not known to have stopped
             now = self.peak_cycle is not None and record["cycle"] - self.peak_cycle < self.slip_hold
         ratio = slip.get("force_ratio")
         if self.raw and ratio is not None and ratio > 1.0:

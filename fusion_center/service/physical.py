@@ -18,7 +18,11 @@
   :func:`~fusion_center.core.contact.classify`).
 * slip (sec. 4): :class:`fusion_center.core.slip.SlipTracker`, motion criterion over the centroid
   of the present taxels, plus the force criterion TotF_t > mu F_g when raw-mode forces give
-  both a total tangential force and a load-cell grip force.
+  both a total tangential force and a load-cell grip force. A cycle that received none of the
+  taxels present in the contact's last observed cycle and has none present (its frames lost or
+  late) saw nothing of the contact: ``observed`` False, the episode goes on
+  (:meth:`~fusion_center.core.slip.SlipTracker.unobserved`) - not "contact ended", which took the
+  reference again wherever a sliding contact had got to and hid the slip under way.
 
 Area and contact type depend only on the decision vector: the pipeline caches them per vector.
 """
@@ -67,6 +71,7 @@ class PhysicalEvaluation:
             self.slip = SlipTracker(scene.forces.mu, noise_band=self._noise_band(),
                                     period=scene.bus.sync_period_ms * 1e-3)
         self._last_slip_t: float | None = None
+        self._contact_mask: np.ndarray | None = None  # the taxels present in the contact's last observed cycle
 
     @staticmethod
     def _jaw_layout(taxels):
@@ -155,21 +160,34 @@ class PhysicalEvaluation:
         return tuple(contact_fields)
 
     def slip_record(self, t_seconds: float, present_mask: np.ndarray, total_tangential: float | None,
-                    grip_force: float | None, cycle: int, centroid: np.ndarray | None = None) -> dict | None:
+                    grip_force: float | None, cycle: int, centroid: np.ndarray | None = None,
+                    received: np.ndarray | None = None) -> dict | None:
         """The cycle's slip state (``slip`` set), or None for a cycle not later than the last
         one fed (the tracker needs increasing times). ``centroid``: ``locations.centroid`` of
-        ``present_mask`` when the caller has it (the pipeline keeps it per decision vector)."""
+        ``present_mask`` when the caller has it (the pipeline keeps it per decision vector).
+        ``received``: the taxels whose u_i / X_i the cycle has; a cycle with no taxel present that
+        received none of those present in the contact's last observed cycle saw nothing of the
+        contact (``observed`` False: :meth:`SlipTracker.unobserved`, the episode goes on) - a lost
+        or late cycle is no "contact ended"."""
         if self._last_slip_t is not None and t_seconds <= self._last_slip_t:
             return None
         self._last_slip_t = t_seconds
         if centroid is None:
             centroid = self.locations.centroid(present_mask)
-        if total_tangential is not None and grip_force is not None:
+        contact_mask = self._contact_mask
+        observed = (received is None or contact_mask is None or not math.isnan(centroid[0])
+                    or bool((contact_mask & received).any()))
+        if not observed:
+            state = self.slip.unobserved(t_seconds)
+        elif total_tangential is not None and grip_force is not None:
             state = self.slip.update_centroid(t_seconds, centroid, total_tangential, grip_force)
         else:
             state = self.slip.update_centroid(t_seconds, centroid)
+        if observed:
+            self._contact_mask = present_mask if state.contact else None
         return {
             "contact": state.contact,
+            "observed": observed,
             "slipping": state.slipping,
             "criterion": state.criterion,
             "force_ratio": jsonable(state.force_ratio),

@@ -216,7 +216,8 @@ class CyclePipeline:
             total_tangential, grip_force = cycle_forces.total, cycle_forces.grip
         if self.want_slip:
             pending.slip = self.physical.slip_record(t_seconds, pattern.present_mask, total_tangential, grip_force,
-                                                     closed.cycle, centroid=pattern.centroid)
+                                                     closed.cycle, centroid=pattern.centroid,
+                                                     received=pattern.received)
         if self.grip is not None:
             main = (pending.central or pattern.rules).get(self.decide_with)
             device = closed.devices
