@@ -187,3 +187,48 @@ def test_output_path_and_discard_stale_by_file_type(tmp_path):
     assert not discard_stale(tmp_path / "new")
     with pytest.raises(UsageError, match=r"--json-lines .*is a directory"):
         OutputPath(tmp_path, option="--json-lines")
+
+
+def full_device() -> Path:
+    """``/dev/full``: every write fails with ENOSPC (a full disk without filling one)."""
+    path = Path("/dev/full")
+    if not path.exists():
+        pytest.skip("no /dev/full on this system (Linux has it): the full-disk case needs it")
+    return path
+
+
+def test_a_full_disk_under_the_decision_log_neither_stops_the_run_nor_passes_for_complete(run, capsys):
+    """Before: the run went on with a warning per write and ended in a traceback at close (exit 1,
+    no summary, nothing said of what the log lacks); replay blamed the trace ("unreadable after
+    frame 3253") and then crashed. Now the run goes on (the log's end said once), then one line
+    naming the option, the file, the error and the records missing, exit 2; replay stops there
+    with the same line, not the trace's."""
+    from fusion_center.cli import main
+
+    scene, trace, _, _ = run
+    full = full_device()
+    assert main(["demo", "--scene", str(scene), "--cycles", "12", "--json-lines", str(full)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1] == ("fusion-center demo: error: --json-lines '/dev/full': OSError: [Errno 28] No space left "
+                       "on device at cycle 0: 0 records written, 12 not (the decision log is incomplete)"), err
+    assert main(["replay", "--scene", str(scene), str(trace), "--json-lines", str(full)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["fusion-center replay: error: --json-lines '/dev/full': OSError: [Errno 28] No space left on "
+                   "device at cycle 0: 0 records written, 1 not (the decision log is incomplete)"], err
+
+
+def test_a_record_that_cannot_be_encoded_is_left_out_and_counted(tmp_path):
+    from fusion_center.service.records import RecordWriter, read_records
+
+    path = tmp_path / "log.jsonl"
+    with RecordWriter(path) as writer:
+        assert writer.write({"cycle": 0, "t": 0.0})
+        assert not writer.write({"cycle": 1, "t": float("nan")})     # the pipeline writes null, never NaN
+        assert writer.write({"cycle": 2, "t": 0.02})
+    assert [r["cycle"] for r in read_records(path)] == [0, 2]
+    assert (writer.count, writer.not_written, writer.io_failed) == (2, 1, False)
+    assert writer.failure == (f"--json-lines {str(path)!r}: ValueError: Out of range float values are not JSON "
+                              "compliant at cycle 1: 2 records written, 1 not (the decision log is incomplete)")
+    with RecordWriter(tmp_path / "fine.jsonl") as fine:
+        fine.write({"cycle": 0})
+    assert fine.failure is None

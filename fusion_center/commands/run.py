@@ -352,6 +352,10 @@ def run_with_outputs(service, outputs, body) -> dict:
         raise
     if outputs is not None:
         summary["robotics"] = outputs.close(ok=True)
+    if service.writer_failure:  # a full disk under --json-lines: the run went on, its log is incomplete
+        from taxel_net.errors import UsageError
+
+        raise UsageError(service.writer_failure)
     return summary
 
 

@@ -142,6 +142,7 @@ class FusionService:
         if interface == "udp_multicast":  # every datagram comes back to its sender
             self.stream.echoes = EchoFilter()
         self.writer: RecordWriter | None = None
+        self.writer_failure: str | None = None  # after close: the decision log's failure (RecordWriter.failure)
         self._trace_logger = None
         self._opened = False
         self.missing_at_boot: list[int] = []
@@ -256,6 +257,7 @@ class FusionService:
             self._trace_logger = None
         if self.writer is not None:
             self.writer.close()
+            self.writer_failure = self.writer.failure
             self.writer = None
         self._opened = False
 
@@ -387,11 +389,11 @@ class FusionService:
                 ms = (time.time() - (t0 + item.close_us) * 1e-6) * 1e3
                 self.centre_latency.add(ms)
                 self.centre_latency_ms.append(ms)
-        if self.writer is not None:
-            try:
-                self.writer.write(record)
-            except (OSError, ValueError) as exc:
-                self._rate_log.warning("writer", "decision log write failed: %s", exc)
+        writer = self.writer
+        if writer is not None and not writer.write(record) and writer.not_written == 1:
+            logger.error("cycle %d: the decision log %r: %s - %s", item.cycle, str(writer.path), writer.error,
+                         "no more records are written to it (the run goes on; counted)" if writer.io_failed
+                         else "the record is left out (counted)")
         try:
             self.stats.add(record)
         except Exception:  # noqa: BLE001 - the aggregates never stop the records

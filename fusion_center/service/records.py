@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 import orjson
 
-from taxel_net.errors import UsageError
+from taxel_net.errors import UsageError, one_line
 from taxel_net.json_lines import iter_log
 
 
@@ -119,27 +119,80 @@ def logged_line(record: dict) -> bytes:
 
 
 class RecordWriter:
-    """Append records to a JSON-lines file (created or truncated at open), flush per record."""
+    """Append records to a JSON-lines file (created or truncated at open), flush per record.
 
-    def __init__(self, path):
+    A write that fails never raises (a full disk must not stop a centre that holds a part):
+    :meth:`write` returns False. A record that cannot be encoded (NaN where the pipeline should
+    have put ``null``) is left out and counted; a failed write or flush (no space left, an I/O
+    error, a pipe's reader gone) ends the file - it is closed at once, and every later record is
+    counted, not written (a line cut in the middle would be followed by whole ones). After
+    :meth:`close`, :attr:`failure` is one line naming the file, the first failure and what is
+    missing, or None when every record was written."""
+
+    def __init__(self, path, option: str = "--json-lines"):
         self.path = Path(path)
+        self.option = option
         try:
             self._file = open(self.path, "wb")  # the lines are ASCII (dumpb)
         except OSError as exc:
             raise UsageError(f"cannot write the decision log {str(path)!r}: {exc.strerror or exc}") from None
         self.count = 0
+        self.error: str | None = None       # the first failure, one line
+        self.failed_cycle = None            # the cycle of the first record not written
+        self.not_written = 0                # records not written (encoding failures included)
+        self.io_failed = False              # the file ended by a failed write, flush or close
 
-    def write(self, record: dict) -> None:
+    def write(self, record: dict) -> bool:
+        """Write ``record`` as one line; False when it was not written (class docstring)."""
         global _logged
-        text = dumpb(record)
-        self._file.write(text + b"\n")
-        self._file.flush()
+        if self.io_failed:
+            self.not_written += 1
+            return False
+        try:
+            text = dumpb(record)
+        except (ValueError, TypeError, RecursionError) as exc:
+            self._failed(record, exc)
+            return False
+        try:
+            self._file.write(text + b"\n")
+            self._file.flush()
+        except (OSError, ValueError) as exc:  # ValueError: the file closed under us
+            self._failed(record, exc)
+            self._end()
+            return False
         self.count += 1
         _logged = (record, text)
+        return True
+
+    def _failed(self, record, exc) -> None:
+        self.not_written += 1
+        if self.error is None:
+            self.error = one_line(exc)
+            self.failed_cycle = record.get("cycle") if isinstance(record, dict) else None
+
+    def _end(self) -> None:
+        self.io_failed = True
+        try:
+            self._file.close()  # flushes what is buffered again (and fails again): the descriptor is closed
+        except OSError:
+            pass
+
+    @property
+    def failure(self) -> str | None:
+        if self.error is None:
+            return None
+        where = f"cycle {self.failed_cycle}" if self.failed_cycle is not None else "the end"
+        return (f"{self.option} {str(self.path)!r}: {self.error} at {where}: {self.count} records written, "
+                f"{self.not_written} not (the decision log is incomplete)")
 
     def close(self) -> None:
         if not self._file.closed:
-            self._file.close()
+            try:
+                self._file.close()
+            except OSError as exc:  # the last flush failed: what it held is lost
+                self.io_failed = True
+                if self.error is None:
+                    self.error, self.failed_cycle = one_line(exc), None
 
     def __enter__(self):
         return self

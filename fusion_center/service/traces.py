@@ -148,8 +148,8 @@ def replay_trace(scene: Scene, trace_path, *, json_lines=None, truth: bool = Tru
                     closed = closed_cycles.pop(0)
                     record = pipeline.evaluate(closed)
                     records.append(record)
-                    if writer is not None:
-                        writer.write(record)
+                    if writer is not None and not writer.write(record):
+                        raise UsageError(writer.failure)  # the log's fault, not the trace's
                     if on_record is not None:
                         on_record(record)
                     if on_cycle is not None:  # with the closed cycle, as FusionService.on_cycle
