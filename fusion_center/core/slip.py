@@ -355,13 +355,7 @@ class SlipTracker:
         if not self._recent:  # no episode: nothing to go on with
             return SlipState(self.cycle, t, False, np.array([math.nan, math.nan]), None, None, False,
                              None, None, None, None)
-        centroid = self._recent[-1][2].copy()
-        if self._onset is None:
-            return SlipState(self.cycle, t, True, centroid, None, None, False, None, None, None, None)
-        v, v_cycle, speed, distance = self._kinematics()
-        onset_idx, onset_t, flagged, criterion = self._onset
-        return SlipState(self.cycle, t, True, centroid, None, None, True, onset_idx, onset_t,
-                         flagged, criterion, v, v_cycle, speed, distance)
+        return self._contact_state(t, self._recent[-1][2].copy(), None, None)
 
     def update_centroid(self, t, centroid, total_tangential=None, grip_force=None) -> SlipState:
         """:meth:`update` given the centroid of the active taxels' distinct locations - (nan,
@@ -429,6 +423,11 @@ class SlipTracker:
         else:
             self._track_point(t, centroid)
 
+        return self._contact_state(t, centroid, displacement, ratio)
+
+    def _contact_state(self, t: float, centroid: np.ndarray, displacement, ratio) -> SlipState:
+        """The state of a cycle in a contact episode: slipping from the onset on, with the track's
+        kinematics."""
         if self._onset is None:
             return SlipState(self.cycle, t, True, centroid, displacement, ratio, False, None, None, None, None)
         v, v_cycle, speed, distance = self._kinematics()
