@@ -200,24 +200,50 @@ def full_device() -> Path:
 def test_a_full_disk_under_the_decision_log_neither_stops_the_run_nor_passes_for_complete(run, capsys):
     """Before: the run went on with a warning per write and ended in a traceback at close (exit 1,
     no summary, nothing said of what the log lacks); replay blamed the trace ("unreadable after
-    frame 3253") and then crashed. Now the run goes on (the log's end said once), then one line
-    naming the option, the file, the error and the records missing, exit 2; replay stops there
-    with the same line, not the trace's."""
+    frame 3253") and then crashed. Now the run goes on (the log's end said once), prints its
+    summary with the failure in it, then one line naming the option, the file, the error and the
+    records missing, exit 2; replay stops there with the same line, not the trace's."""
     from fusion_center.cli import main
 
     scene, trace, _, _ = run
     full = full_device()
+    line = ("--json-lines '/dev/full': OSError: [Errno 28] No space left on device at cycle 0: the file ends "
+            "there, {} records not written; 0 records written (the decision log is incomplete)")
     assert main(["demo", "--scene", str(scene), "--cycles", "12", "--json-lines", str(full)]) == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert err[-1] == ("fusion-center demo: error: --json-lines '/dev/full': OSError: [Errno 28] No space left "
-                       "on device at cycle 0: 0 records written, 12 not (the decision log is incomplete)"), err
+    out, err = capsys.readouterr()
+    assert err.strip().splitlines()[-1] == "fusion-center demo: error: " + line.format(12), err
+    assert "decision_log:" in out and "INCOMPLETE: " + line.format(12) in out and "latency_ms:" in out
     assert main(["replay", "--scene", str(scene), str(trace), "--json-lines", str(full)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert err == ["fusion-center replay: error: --json-lines '/dev/full': OSError: [Errno 28] No space left on "
-                   "device at cycle 0: 0 records written, 1 not (the decision log is incomplete)"], err
+    assert err == ["fusion-center replay: error: " + line.format(1) + "; the replay stopped there"], err
 
 
-def test_a_record_that_cannot_be_encoded_is_left_out_and_counted(tmp_path):
+def test_a_write_cut_by_a_full_file_leaves_the_log_readable_up_to_its_last_whole_line(tmp_path):
+    """A real full disk (here a file-size limit, SIGXFSZ ignored: write() then stores a part of the
+    line and fails with EFBIG) left a cut last line, which the log's readers refuse (the whole
+    log unreadable); the writer cuts it off again, the file ends with its last whole line."""
+    import resource
+    import signal
+
+    from fusion_center.service.records import RecordWriter, read_records
+
+    path = tmp_path / "log.jsonl"
+    old_handler = signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+    soft, hard = resource.getrlimit(resource.RLIMIT_FSIZE)
+    try:
+        with RecordWriter(path) as writer:
+            resource.setrlimit(resource.RLIMIT_FSIZE, (100, hard))
+            written = [writer.write({"cycle": k, "t": k * 0.01, "pad": "x" * 20}) for k in range(6)]
+            resource.setrlimit(resource.RLIMIT_FSIZE, (soft, hard))
+    finally:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (soft, hard))
+        signal.signal(signal.SIGXFSZ, old_handler)
+    assert written == [True, True, False, False, False, False]
+    assert [r["cycle"] for r in read_records(path)] == [0, 1] and path.read_bytes().endswith(b"}\n")
+    assert writer.io_error[0] == 2 and "File too large" in writer.failure and "4 records not written" in writer.failure
+
+
+def test_a_record_that_cannot_be_encoded_is_left_out_and_counted_and_a_later_end_said_too(tmp_path):
     from fusion_center.service.records import RecordWriter, read_records
 
     path = tmp_path / "log.jsonl"
@@ -226,9 +252,13 @@ def test_a_record_that_cannot_be_encoded_is_left_out_and_counted(tmp_path):
         assert not writer.write({"cycle": 1, "t": float("nan")})     # the pipeline writes null, never NaN
         assert writer.write({"cycle": 2, "t": 0.02})
     assert [r["cycle"] for r in read_records(path)] == [0, 2]
-    assert (writer.count, writer.not_written, writer.io_failed) == (2, 1, False)
-    assert writer.failure == (f"--json-lines {str(path)!r}: ValueError: Out of range float values are not JSON "
-                              "compliant at cycle 1: 2 records written, 1 not (the decision log is incomplete)")
+    assert (writer.count, writer.not_encoded, writer.io_failed) == (2, 1, False)
+    assert writer.failure == (f"--json-lines {str(path)!r}: 1 records left out, not encodable (the first at cycle 1: "
+                              "ValueError: Out of range float values are not JSON compliant); 2 records written "
+                              "(the decision log is incomplete)")
     with RecordWriter(tmp_path / "fine.jsonl") as fine:
         fine.write({"cycle": 0})
     assert fine.failure is None
+    with RecordWriter(full_device()) as both:
+        assert not both.write({"cycle": 0, "t": float("inf")}) and not both.write({"cycle": 1})
+    assert "at cycle 1: the file ends there" in both.failure and "the first at cycle 0" in both.failure

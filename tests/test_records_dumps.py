@@ -216,4 +216,4 @@ def test_a_record_with_nan_is_not_written(tmp_path):
         assert not writer.write({"cycle": 1, "U_G": math.nan})
         assert writer.write({"cycle": 2})
     assert (tmp_path / "log.jsonl").read_bytes() == b'{"cycle":0}\n{"cycle":2}\n'
-    assert writer.not_written == 1 and "at cycle 1" in writer.failure
+    assert writer.not_encoded == 1 and "at cycle 1" in writer.failure

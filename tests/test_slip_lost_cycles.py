@@ -92,3 +92,35 @@ def test_the_grip_stage_holds_its_slip_flag_through_an_unobserved_cycle():
         [True, True, False]
     assert cue(6, 3.1) and not cue(9, 3.1)
     assert not cue(10, None, observed=True) and not cue(11, None, observed=False)  # no peak in 3 cycles
+
+
+def test_a_lost_cycle_right_after_the_reference_is_taken_again_keeps_the_contact():
+    """The grip stage has the tracker take its reference again (``reset``) once the footprint has
+    formed; a lost cycle right after must not read as the contact's end (the stage would wait
+    ``settle_s`` and take the reference again, mid-slide)."""
+    pipe = CyclePipeline(SCENE, truth=False)
+    ws = wires(30)
+    got = []
+    for k, w in enumerate(ws):
+        if k == 12:
+            pipe.physical.slip.reset()                      # what GripStage's rebase does
+        if k == 13:
+            w = np.zeros(SCENE.n, dtype=np.int8)
+        got.append(pipe.evaluate(closed_cycle(w, k))["slip"])
+    assert got[13]["contact"] and not got[13]["observed"]
+    assert all(s["contact"] for s in got)
+    assert got[-1]["slipping"]
+
+
+def test_a_part_of_the_footprint_is_no_motion_and_a_contact_unseen_too_long_ends():
+    ws = wires(60)
+    contact = np.flatnonzero(footprint(8))
+    ws[8] = ws[8].copy()
+    ws[8][contact[0]] = 0                                   # one taxel of the contact not heard
+    got = slip_records(ws[:20])
+    assert not got[8]["observed"] and got[8]["displacement"] is None and got[8]["contact"]
+    assert all(s["displacement"] == 0.0 for s in got[3:8] + got[9:20])   # at rest: no motion at all
+    lost = [np.zeros(SCENE.n, dtype=np.int8)] * 15          # the contact's node gone for good
+    got = slip_records(wires(25) + lost)
+    unseen = [s["contact"] for s in got[25:]]
+    assert unseen == [True] * 10 + [False] * 5              # max_unobserved: 10 cycles

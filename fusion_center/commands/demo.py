@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import uuid
 
-from .run import add_common_outputs, execute, load_run_scene, print_summary, setup_logging
+from .run import add_common_outputs, execute, finish_summary, load_run_scene, setup_logging
 
 HELP = ("demo: node twins of a scene (default the 57-taxel matrix) and the fusion centre on an embedded "
         "virtual bus (no bus flags: python-can's configuration is not used); --mode raw|decision to compare both")
@@ -174,5 +174,4 @@ def run(args) -> int:
     warning = fell_behind(summary, scene.bus.sync_period_ms)
     if warning:
         summary["warning"] = warning
-    print_summary(summary)
-    return 130 if "interrupted" in summary else 0
+    return finish_summary(summary, "demo")

@@ -257,6 +257,8 @@ def format_summary(summary: dict) -> list[str]:
         lines.append(("slow_down", summary["slow_down"]))
     if "warning" in summary:
         lines.append(("warning", summary["warning"]))
+    if "decision_log_failed" in summary:
+        lines.append(("decision_log", "INCOMPLETE: " + summary["decision_log_failed"]))
     if "interrupted" in summary:
         lines.append(("interrupted", f"Ctrl-C after {summary['cycles']} of {summary['interrupted']['cycles_asked']} "
                                      "SYNC cycles: a partial summary; every record written is complete"))
@@ -353,10 +355,21 @@ def run_with_outputs(service, outputs, body) -> dict:
     if outputs is not None:
         summary["robotics"] = outputs.close(ok=True)
     if service.writer_failure:  # a full disk under --json-lines: the run went on, its log is incomplete
-        from taxel_net.errors import UsageError
-
-        raise UsageError(service.writer_failure)
+        summary["decision_log_failed"] = service.writer_failure
     return summary
+
+
+def finish_summary(summary: dict, command: str) -> int:
+    """Print ``summary``; the exit status: 2 with the decision log's failure as one line on
+    stderr after it (the run's figures are still worth having), 130 for an interrupted run."""
+    import sys
+
+    print_summary(summary)
+    failure = summary.get("decision_log_failed")
+    if failure:
+        print(f"fusion-center {command}: error: {failure}", file=sys.stderr)
+        return 2
+    return 130 if "interrupted" in summary else 0
 
 
 def print_summary(summary: dict) -> None:
@@ -402,5 +415,4 @@ def run(args) -> int:
         summary["assemblers"] = merger.stats.as_dict()
     if publisher is not None:
         summary["zenoh"] = publisher.summary()
-    print_summary(summary)
-    return 130 if "interrupted" in summary else 0
+    return finish_summary(summary, "run")

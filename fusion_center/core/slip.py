@@ -272,7 +272,7 @@ class SlipTracker:
 
     def __init__(self, mu, noise_band: float, *, motion_consecutive: int = 3,
                  force_consecutive: int = 1, reference_cycles: int = 3,
-                 fit_window: int | None = None, period: float | None = None):
+                 fit_window: int | None = None, period: float | None = None, max_unobserved: int = 10):
         self.mu, self.noise_band = _check_params(mu, noise_band, motion_consecutive, force_consecutive,
                                                  reference_cycles, fit_window)
         if period is not None and (not np.isfinite(period) or period <= 0):
@@ -282,9 +282,15 @@ class SlipTracker:
         self.reference_cycles = int(reference_cycles)
         self.fit_window = fit_window
         self.period = period
+        if isinstance(max_unobserved, bool) or int(max_unobserved) != max_unobserved or max_unobserved < 0:
+            raise ParameterError("max_unobserved", max_unobserved, "must be a whole number of cycles >= 0")
+        self.max_unobserved = int(max_unobserved)
         self.cycle = -1
         self._last_time: float | None = None
         self._dts: list[float] = []
+        self._in_contact = False           # the last observed cycle had contact (reset() keeps it)
+        self._last_centroid: np.ndarray | None = None
+        self._unobserved_run = 0           # unobserved cycles in a row
         self._new_episode()
 
     def _new_episode(self) -> None:
@@ -342,7 +348,10 @@ class SlipTracker:
         not been (its reference, its runs of moving or overloaded cycles, a slip flagged; the
         track gets no point), and only the time and the cycle count advance. The state returned
         is the episode's at ``t``: ``displacement`` and ``force_ratio`` None (nothing measured),
-        ``centroid`` the last observed one; no contact outside an episode. (Without this a lost
+        ``centroid`` the last observed one; no contact when the last observed cycle had none,
+        and the episode ends (no contact) once more than ``max_unobserved`` cycles in a row went
+        unobserved (a node gone for good must not keep a contact alive). A :meth:`reset` (the
+        reference to be taken again) is no end of the contact. (Without this a lost
         cycle read as "no taxel active" ended the episode: the reference was taken again, three
         cycles later, at wherever the contact had slid to, and a slip under way went unseen.)"""
         t = float(t)
@@ -352,10 +361,15 @@ class SlipTracker:
             self._dts.append(t - self._last_time)
         self._last_time = t
         self.cycle += 1
-        if not self._recent:  # no episode: nothing to go on with
+        self._unobserved_run += 1
+        if not self._in_contact or self._unobserved_run > self.max_unobserved:
+            # no contact to go on with - or not seen for max_unobserved cycles (a node gone for
+            # good): the episode ends as on a cycle without contact
+            self._in_contact, self._last_centroid = False, None
+            self._new_episode()
             return SlipState(self.cycle, t, False, np.array([math.nan, math.nan]), None, None, False,
                              None, None, None, None)
-        return self._contact_state(t, self._recent[-1][2].copy(), None, None)
+        return self._contact_state(t, self._last_centroid.copy(), None, None)
 
     def update_centroid(self, t, centroid, total_tangential=None, grip_force=None) -> SlipState:
         """:meth:`update` given the centroid of the active taxels' distinct locations - (nan,
@@ -381,7 +395,10 @@ class SlipTracker:
             self._dts.append(t - self._last_time)
         self._last_time = t
         self.cycle += 1
+        self._unobserved_run = 0
         contact = not math.isnan(cx)
+        self._in_contact = contact
+        self._last_centroid = centroid if contact else None
         if not contact:
             self._new_episode()
             return SlipState(self.cycle, t, False, centroid, None, None, False, None, None, None, None)

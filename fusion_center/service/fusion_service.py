@@ -160,6 +160,8 @@ class FusionService:
     def open(self) -> "FusionService":
         import canopen
 
+        self.writer_failure = None
+
         if self.interface not in can.interfaces.VALID_INTERFACES:
             raise UsageError(f"--interface {self.interface!r}: not a python-can interface (known: "
                              + ", ".join(sorted(can.interfaces.VALID_INTERFACES)) + ")")
@@ -390,10 +392,13 @@ class FusionService:
                 self.centre_latency.add(ms)
                 self.centre_latency_ms.append(ms)
         writer = self.writer
-        if writer is not None and not writer.write(record) and writer.not_written == 1:
-            logger.error("cycle %d: the decision log %r: %s - %s", item.cycle, str(writer.path), writer.error,
-                         "no more records are written to it (the run goes on; counted)" if writer.io_failed
-                         else "the record is left out (counted)")
+        if writer is not None and not writer.write(record):
+            if writer.io_failed and writer.not_written == 1:
+                logger.error("cycle %d: the decision log %r ends here: %s - no more records are written to it "
+                             "(the run goes on; counted)", item.cycle, str(writer.path), writer.io_error[1])
+            elif not writer.io_failed and writer.not_encoded == 1:
+                logger.error("cycle %d: the decision log %r: the record cannot be encoded (%s) - left out "
+                             "(further ones only counted)", item.cycle, str(writer.path), writer.encode_error[1])
         try:
             self.stats.add(record)
         except Exception:  # noqa: BLE001 - the aggregates never stop the records

@@ -18,9 +18,10 @@
   :func:`~fusion_center.core.contact.classify`).
 * slip (sec. 4): :class:`fusion_center.core.slip.SlipTracker`, motion criterion over the centroid
   of the present taxels, plus the force criterion TotF_t > mu F_g when raw-mode forces give
-  both a total tangential force and a load-cell grip force. A cycle that received none of the
-  taxels present in the contact's last observed cycle and has none present (its frames lost or
-  late) saw nothing of the contact: ``observed`` False, the episode goes on
+  both a total tangential force and a load-cell grip force. A cycle that did not receive all the
+  taxels present in the contact's last observed cycle (its frames lost or late; a part of the
+  footprint's centroid would jump) did not observe the contact: ``observed`` False, the
+  episode goes on for at most ``max_unobserved`` (10) cycles
   (:meth:`~fusion_center.core.slip.SlipTracker.unobserved`) - not "contact ended", which took the
   reference again wherever a sliding contact had got to and hid the slip under way.
 
@@ -165,25 +166,27 @@ class PhysicalEvaluation:
         """The cycle's slip state (``slip`` set), or None for a cycle not later than the last
         one fed (the tracker needs increasing times). ``centroid``: ``locations.centroid`` of
         ``present_mask`` when the caller has it (the pipeline keeps it per decision vector).
-        ``received``: the taxels whose u_i / X_i the cycle has; a cycle with no taxel present that
-        received none of those present in the contact's last observed cycle saw nothing of the
-        contact (``observed`` False: :meth:`SlipTracker.unobserved`, the episode goes on) - a lost
-        or late cycle is no "contact ended"."""
+        ``received``: the taxels whose u_i / X_i the cycle has; a cycle that did not receive every
+        taxel present in the contact's last observed cycle did not observe the contact
+        (``observed`` False: :meth:`SlipTracker.unobserved`, the episode goes on for at most its
+        ``max_unobserved`` cycles) - a lost or late cycle is no "contact ended", and a part of the
+        footprint no motion."""
         if self._last_slip_t is not None and t_seconds <= self._last_slip_t:
             return None
         self._last_slip_t = t_seconds
         if centroid is None:
             centroid = self.locations.centroid(present_mask)
         contact_mask = self._contact_mask
-        observed = (received is None or contact_mask is None or not math.isnan(centroid[0])
-                    or bool((contact_mask & received).any()))
+        # observed: every taxel of the contact's last observed cycle received (a part of them gives
+        # the centroid of a part: a jump of up to the footprint's size, no motion)
+        observed = received is None or contact_mask is None or bool(received[contact_mask].all())
         if not observed:
             state = self.slip.unobserved(t_seconds)
         elif total_tangential is not None and grip_force is not None:
             state = self.slip.update_centroid(t_seconds, centroid, total_tangential, grip_force)
         else:
             state = self.slip.update_centroid(t_seconds, centroid)
-        if observed:
+        if observed or not state.contact:  # (unobserved too long: the tracker ended the contact)
             self._contact_mask = present_mask if state.contact else None
         return {
             "contact": state.contact,

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 from pathlib import Path
 
 import numpy as np
@@ -119,86 +120,104 @@ def logged_line(record: dict) -> bytes:
 
 
 class RecordWriter:
-    """Append records to a JSON-lines file (created or truncated at open), flush per record.
+    """Append records to a JSON-lines file (created or truncated at open), one write per record.
 
     A write that fails never raises (a full disk must not stop a centre that holds a part):
     :meth:`write` returns False. A record that cannot be encoded (NaN where the pipeline should
-    have put ``null``) is left out and counted; a failed write or flush (no space left, an I/O
-    error, a pipe's reader gone) ends the file - it is closed at once, and every later record is
-    counted, not written (a line cut in the middle would be followed by whole ones). After
-    :meth:`close`, :attr:`failure` is one line naming the file, the first failure and what is
-    missing, or None when every record was written."""
+    have put ``null``) is left out and counted (``not_encoded``); a failed write (no space left,
+    a file-size limit, an I/O error, a pipe's reader gone) ends the file: what the failed write
+    left of its line is cut off again (a regular file ends with its last whole line, which the
+    log's readers need), the file is closed, and every later record is counted, not written
+    (``not_written``). After :meth:`close`, :attr:`failure` is one line naming the file, the
+    failures and what is missing, or None when every record was written. Unbuffered: each
+    record's line goes to the OS in one ``write`` as soon as it is made."""
 
     def __init__(self, path, option: str = "--json-lines"):
         self.path = Path(path)
         self.option = option
         try:
-            self._file = open(self.path, "wb")  # the lines are ASCII (dumpb)
+            self._file = open(self.path, "wb", buffering=0)  # the lines are ASCII (dumpb)
         except OSError as exc:
             raise UsageError(f"cannot write the decision log {str(path)!r}: {exc.strerror or exc}") from None
         self.count = 0
-        self.error: str | None = None       # the first failure, one line
-        self.failed_cycle = None            # the cycle of the first record not written
-        self.not_written = 0                # records not written (encoding failures included)
-        self.io_failed = False              # the file ended by a failed write, flush or close
+        self.not_encoded = 0                 # records left out: not encodable
+        self.encode_error: tuple | None = None   # (cycle, one line) of the first
+        self.not_written = 0                 # records not written since the file ended
+        self.io_error: tuple | None = None   # (cycle, one line): the failure that ended the file
+        self._end_offset = 0                 # the file's size after its last whole line
+
+    @property
+    def io_failed(self) -> bool:
+        return self.io_error is not None
 
     def write(self, record: dict) -> bool:
         """Write ``record`` as one line; False when it was not written (class docstring)."""
         global _logged
-        if self.io_failed:
+        if self.io_error is not None:
             self.not_written += 1
             return False
         try:
             text = dumpb(record)
         except (ValueError, TypeError, RecursionError) as exc:
-            self._failed(record, exc)
+            self.not_encoded += 1
+            if self.encode_error is None:
+                self.encode_error = (_cycle_of(record), one_line(exc))
             return False
+        line = memoryview(text + b"\n")
         try:
-            self._file.write(text + b"\n")
-            self._file.flush()
+            while line:  # a raw write may take part of it
+                line = line[self._file.write(line):]
         except (OSError, ValueError) as exc:  # ValueError: the file closed under us
-            self._failed(record, exc)
+            self.not_written += 1
+            self.io_error = (_cycle_of(record), one_line(exc))
             self._end()
             return False
+        self._end_offset += len(text) + 1
         self.count += 1
         _logged = (record, text)
         return True
 
-    def _failed(self, record, exc) -> None:
-        self.not_written += 1
-        if self.error is None:
-            self.error = one_line(exc)
-            self.failed_cycle = record.get("cycle") if isinstance(record, dict) else None
-
     def _end(self) -> None:
-        self.io_failed = True
         try:
-            self._file.close()  # flushes what is buffered again (and fails again): the descriptor is closed
+            os.ftruncate(self._file.fileno(), self._end_offset)  # a regular file: its last whole line
+        except (OSError, ValueError):
+            pass  # a device, a FIFO, a closed file: nothing to cut
+        try:
+            self._file.close()
         except OSError:
             pass
 
     @property
     def failure(self) -> str | None:
-        if self.error is None:
+        parts = []
+        if self.io_error is not None:
+            cycle, error = self.io_error
+            parts.append(f"{error} at cycle {cycle}: the file ends there, {self.not_written} records not written")
+        if self.encode_error is not None:
+            cycle, error = self.encode_error
+            parts.append(f"{self.not_encoded} records left out, not encodable (the first at cycle {cycle}: {error})")
+        if not parts:
             return None
-        where = f"cycle {self.failed_cycle}" if self.failed_cycle is not None else "the end"
-        return (f"{self.option} {str(self.path)!r}: {self.error} at {where}: {self.count} records written, "
-                f"{self.not_written} not (the decision log is incomplete)")
+        return (f"{self.option} {str(self.path)!r}: " + "; ".join(parts)
+                + f"; {self.count} records written (the decision log is incomplete)")
 
     def close(self) -> None:
         if not self._file.closed:
             try:
                 self._file.close()
-            except OSError as exc:  # the last flush failed: what it held is lost
-                self.io_failed = True
-                if self.error is None:
-                    self.error, self.failed_cycle = one_line(exc), None
+            except OSError as exc:
+                if self.io_error is None:
+                    self.io_error = ("close", one_line(exc))
 
     def __enter__(self):
         return self
 
     def __exit__(self, *exc):
         self.close()
+
+
+def _cycle_of(record):
+    return record.get("cycle") if isinstance(record, dict) else None
 
 
 def read_records(path) -> list[dict]:

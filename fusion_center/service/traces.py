@@ -148,8 +148,8 @@ def replay_trace(scene: Scene, trace_path, *, json_lines=None, truth: bool = Tru
                     closed = closed_cycles.pop(0)
                     record = pipeline.evaluate(closed)
                     records.append(record)
-                    if writer is not None and not writer.write(record):
-                        raise UsageError(writer.failure)  # the log's fault, not the trace's
+                    if writer is not None and not writer.write(record) and writer.io_failed:
+                        raise UsageError(writer.failure + "; the replay stopped there")  # the log's fault, not the trace's
                     if on_record is not None:
                         on_record(record)
                     if on_cycle is not None:  # with the closed cycle, as FusionService.on_cycle
@@ -164,13 +164,17 @@ def replay_trace(scene: Scene, trace_path, *, json_lines=None, truth: bool = Tru
                              + (f" (the {len(records)} records so far are in {str(partial)!r})"
                                 if partial is not None else "")) from None
     finally:
+        failure = None
         if writer is not None:
             writer.close()
             if ok:
                 out.commit()
+                failure = writer.failure  # records left out, not encodable (as live): kept, said
             else:
                 out.discard_stale()  # a log of an earlier replay must not pass for this one's
         _stop(reader)
+    if failure:
+        raise UsageError(failure)
     return records, stream.counters()
 
 
