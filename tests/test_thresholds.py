@@ -39,13 +39,26 @@ def _dps(xi):
     return 60 + int(-math.log10(xi)) + 20
 
 
-def _roots(H, span):
-    """All sign changes of H(d), d = end - lambda in (0, span], refined (mp numbers)."""
+# mean_deficit(d) on the grid of _roots, per curve (key: every input of the curve, at the working
+# precision the curve fixes): the levels of GRID share a curve, and H = mean_deficit - level on the
+# grid is the same subtraction whether or not the mean is remembered (the same mp numbers)
+_GRID_MEANS: dict = {}
+
+
+def _roots(H, span, curve_key=None, mean=None, level=None):
+    """All sign changes of H(d), d = end - lambda in (0, span], refined (mp numbers).
+    With ``curve_key``: H(d) is ``mean(d) - level`` and mean(d) on the grid is computed once per key."""
     span = mp.mpf(span)
     grid = {span * mp.mpf(10) ** (-mp.mpf(k) / 4) for k in range(0, 72)}
     grid |= {span * mp.mpf(i) / 96 for i in range(1, 97)}
     grid = sorted(grid)
-    vals = [H(d) for d in grid]
+    if curve_key is None:
+        vals = [H(d) for d in grid]
+    else:
+        key = (curve_key, mp.mp.prec, span)
+        if key not in _GRID_MEANS:
+            _GRID_MEANS[key] = [mean(d) for d in grid]
+        vals = [m - level for m in _GRID_MEANS[key]]
     found = []
     for (a, fa), (b, fb) in zip(zip(grid, vals), zip(grid[1:], vals[1:])):
         if fa == 0:
@@ -67,11 +80,14 @@ def ref_multiplicative(n, xi, beta):
         F = lambda x: a / m * mp.e ** (m * x)  # antiderivative of eq 10
         F_end, level = F(E), 1 - B
 
-        def H(w):  # w = (e^n - lambda)/e^n
+        def mean(w):  # w = (e^n - lambda)/e^n
             lam = E - E * w
-            return (F_end - F(lam)) / (E - lam) - level
+            return (F_end - F(lam)) / (E - lam)
 
-        return [float(1 - w) for w in _roots(H, 2)]
+        def H(w):
+            return mean(w) - level
+
+        return [float(1 - w) for w in _roots(H, 2, ("multiplicative", n, xi), mean, level)]
 
 
 def _pm1_parts(n, X):
@@ -97,8 +113,10 @@ def ref_additive(n, xi, alpha, encoding):
         N, X, A = mp.mpf(n), mp.mpf(xi), mp.mpf(alpha)
         _, F = _pm1_parts(N, X) if encoding == "pm1" else _01_parts(N, X)
         F_end, level = F(N), 1 - A
-        H = lambda d: (F_end - F(N - d)) / d - level
-        return sorted(float(N - d) for d in _roots(H, 2 * N if encoding == "pm1" else N))
+        mean = lambda d: (F_end - F(N - d)) / d
+        H = lambda d: mean(d) - level
+        return sorted(float(N - d) for d in _roots(H, 2 * N if encoding == "pm1" else N,
+                                                   ("additive", n, xi, encoding), mean, level))
 
 
 def ref_g(n, p, q):
@@ -113,8 +131,9 @@ def ref_preferential(n, xi, alpha, p, q):
         X, A = mp.mpf(xi), mp.mpf(alpha)
         g = ref_g(n, p, q) if n < 50 else (2**mp.mpf(p) + 2**mp.mpf(q)) + (n - 2) * 2 ** mp.mpf(p + q)
         F = lambda x: (1 - X) * x**3 / (3 * g**2) + X * x  # antiderivative of eq 14
-        H = lambda d: (F(g) - F(g - d)) / d - (1 - A)
-        return sorted(float(g - d) for d in _roots(H, 2 * g)), float(g)
+        mean = lambda d: (F(g) - F(g - d)) / d
+        H = lambda d: mean(d) - (1 - A)
+        return sorted(float(g - d) for d in _roots(H, 2 * g, ("preferential", n, xi, p, q), mean, 1 - A)), float(g)
 
 
 def _rel(a, b):
