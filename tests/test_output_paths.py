@@ -262,3 +262,34 @@ def test_a_record_that_cannot_be_encoded_is_left_out_and_counted_and_a_later_end
     with RecordWriter(full_device()) as both:
         assert not both.write({"cycle": 0, "t": float("inf")}) and not both.write({"cycle": 1})
     assert "at cycle 1: the file ends there" in both.failure and "the first at cycle 0" in both.failure
+
+
+@pytest.mark.parametrize("suffix", [".log", ".blf"])
+def test_a_full_disk_under_the_trace_ends_it_says_so_and_replay_reads_what_it_holds(run, tmp_path, suffix):
+    """Before: a trace on a full disk (here a file-size limit of 8 KiB, SIGXFSZ ignored: writes
+    fail with EFBIG, as ENOSPC on a full disk) gave a warning, a traceback from the trace's close,
+    and exit 0 with a summary that did not mention it. Now: the trace ends at the failure (logged
+    once; not stopped, so it stays an unclosed trace, not a complete-looking one), the summary
+    says `trace: INCOMPLETE`, one error line names --log, exit 2; replay reads the trace up to its
+    last whole frame."""
+    import resource
+    import signal
+
+    scene = run[0]
+    trace = tmp_path / f"cut{suffix}"
+
+    def limited():
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (8192, resource.RLIM_INFINITY))
+
+    done = subprocess.run(CLI + ["demo", "--scene", str(scene), "--cycles", "120", "--no-live", "--log", str(trace)],
+                          cwd=ROOT, capture_output=True, text=True, timeout=120, preexec_fn=limited)
+    assert done.returncode == 2 and "Traceback" not in done.stderr, done.stderr
+    errors = [line for line in done.stderr.splitlines() if "error:" in line]
+    assert len(errors) == 1 and errors[0].startswith(f"fusion-center demo: error: --log {str(trace)!r}: OSError: "
+                                                     "[Errno 27] File too large after "), errors
+    assert "frames not traced (the trace is incomplete" in errors[0]
+    assert "trace:                     INCOMPLETE: --log" in done.stdout and "latency_ms:" in done.stdout
+    assert trace.stat().st_size <= 8192
+    again = cli("replay", "--scene", scene, trace)
+    assert again.returncode == 0 and "read up to its last complete" in again.stderr, again.stderr

@@ -257,8 +257,8 @@ def format_summary(summary: dict) -> list[str]:
         lines.append(("slow_down", summary["slow_down"]))
     if "warning" in summary:
         lines.append(("warning", summary["warning"]))
-    if "decision_log_failed" in summary:
-        lines.append(("decision_log", "INCOMPLETE: " + summary["decision_log_failed"]))
+    for label, text in summary.get("incomplete", ()):
+        lines.append((label, "INCOMPLETE: " + text))
     if "interrupted" in summary:
         lines.append(("interrupted", f"Ctrl-C after {summary['cycles']} of {summary['interrupted']['cycles_asked']} "
                                      "SYNC cycles: a partial summary; every record written is complete"))
@@ -354,20 +354,25 @@ def run_with_outputs(service, outputs, body) -> dict:
         raise
     if outputs is not None:
         summary["robotics"] = outputs.close(ok=True)
-    if service.writer_failure:  # a full disk under --json-lines: the run went on, its log is incomplete
-        summary["decision_log_failed"] = service.writer_failure
+    # a full disk under --json-lines / --log: the run went on, the file is incomplete
+    failed = [(label, text) for label, text in (("decision_log", service.writer_failure),
+                                                 ("trace", service.trace_failure)) if text]
+    if failed:
+        summary["incomplete"] = failed
     return summary
 
 
 def finish_summary(summary: dict, command: str) -> int:
-    """Print ``summary``; the exit status: 2 with the decision log's failure as one line on
-    stderr after it (the run's figures are still worth having), 130 for an interrupted run."""
+    """Print ``summary``; the exit status: 2 with each output's failure (decision log, trace) as
+    one line on stderr after it (the run's figures are still worth having), 130 for an
+    interrupted run."""
     import sys
 
     print_summary(summary)
-    failure = summary.get("decision_log_failed")
-    if failure:
-        print(f"fusion-center {command}: error: {failure}", file=sys.stderr)
+    failed = summary.get("incomplete")
+    for _, text in failed or ():
+        print(f"fusion-center {command}: error: {text}", file=sys.stderr)
+    if failed:
         return 2
     return 130 if "interrupted" in summary else 0
 

@@ -143,6 +143,7 @@ class FusionService:
             self.stream.echoes = EchoFilter()
         self.writer: RecordWriter | None = None
         self.writer_failure: str | None = None  # after close: the decision log's failure (RecordWriter.failure)
+        self.trace_failure: str | None = None   # after close: the trace's failure (EventStream.trace_error)
         self._trace_logger = None
         self._opened = False
         self.missing_at_boot: list[int] = []
@@ -161,6 +162,7 @@ class FusionService:
         import canopen
 
         self.writer_failure = None
+        self.trace_failure = None
 
         if self.interface not in can.interfaces.VALID_INTERFACES:
             raise UsageError(f"--interface {self.interface!r}: not a python-can interface (known: "
@@ -257,6 +259,11 @@ class FusionService:
             except Exception:  # noqa: BLE001
                 logger.exception("trace close failed")
             self._trace_logger = None
+            stream = self.stream
+            if stream.trace_error is not None:
+                self.trace_failure = (f"--log {str(self.trace_path)!r}: {stream.trace_error} after {stream.traced} "
+                                      f"frames: the trace ends there, {stream.not_traced} frames not traced (the "
+                                      "trace is incomplete; replay reads it up to its last whole frame)")
         if self.writer is not None:
             self.writer.close()
             self.writer_failure = self.writer.failure

@@ -36,6 +36,7 @@ from typing import TYPE_CHECKING, Callable, Iterable, Sequence
 import can
 
 from taxel_net.canmsg import TxMessage
+from taxel_net.errors import one_line
 from taxel_net.udp_wire import udp_multicast_burst_sender
 from .common_frames import CommonFrames
 from .node_frames import NodeFrames
@@ -220,6 +221,9 @@ class EventStream:
         self.first_us: int | None = None
         self.tx_errors = 0
         self.trace_errors = 0
+        self.traced = 0                 # frames the trace writer took
+        self.trace_error: str | None = None   # the failure that ended the trace (one line), None while fine
+        self.not_traced = 0             # frames not traced since (the trace ended there)
         self.rate_log = RateLimitedLog(logger)
         self._trace_queue: list[can.Message] = []
         self._trace_lock = threading.Lock()  # taken before ``lock``, never while holding it
@@ -437,30 +441,57 @@ class EventStream:
                 trace = self.trace
             if trace is None:
                 return
+            self._write_trace(trace, batch, to_disk)
+
+    def _write_trace(self, trace, batch, to_disk: bool) -> None:
+        """Write ``batch`` (holding ``_trace_lock``). The first failure (a full disk, a file-size
+        limit, an I/O error) ends the trace: logged once, its file closed as it stands (not
+        ``stop``: an ASC's end or a BLF's header written after a cut would make a cut trace pass
+        for a complete one - replay reads an unclosed trace up to its last whole frame), every
+        later frame counted in :attr:`not_traced`; the service says so at the end
+        (``FusionService.trace_failure``)."""
+        if self.trace_error is not None:
+            self.not_traced += len(batch)
+            return
+        done = 0
+        try:
             for msg in batch:
-                try:
-                    trace.on_message_received(msg)
-                except Exception as exc:  # noqa: BLE001 - e.g. disk full: count, log, go on
-                    self.trace_errors += 1
-                    self.rate_log.warning("trace", "trace write failed: %s: %s", type(exc).__name__, exc)
+                trace.on_message_received(msg)
+                done += 1
             if to_disk:
-                try:
-                    flush_to_os(trace)
-                except Exception as exc:  # noqa: BLE001 - e.g. disk full: count, log, go on
-                    self.trace_errors += 1
-                    self.rate_log.warning("trace", "trace flush failed: %s: %s", type(exc).__name__, exc)
+                flush_to_os(trace)
+        except Exception as exc:  # noqa: BLE001 - a full disk: the trace ends here, the run goes on
+            self.trace_errors += 1
+            self.traced += done
+            self.not_traced += len(batch) - done
+            self.trace_error = one_line(exc)
+            logger.error("the trace ends here: %s - no more frames are written to it (the run goes on; "
+                         "counted)", self.trace_error)
+            file = getattr(trace, "file", None)
+            try:
+                if file is not None:
+                    file.close()
+            except Exception:  # noqa: BLE001 - it fails to flush again: the descriptor is closed anyway
+                pass
+            return
+        self.traced += done
 
     def close_trace(self) -> None:
-        """Write what is queued, then stop the trace writer (``can.Logger``) and detach it."""
+        """Write what is queued, then stop the trace writer (``can.Logger``) and detach it (a trace
+        ended by a failure is not stopped: :meth:`_write_trace`)."""
         self.flush_trace()
         with self._trace_lock:
             with self.lock:
                 trace, self.trace = self.trace, None
                 batch, self._trace_queue = self._trace_queue, []
             if trace is not None:
-                for msg in batch:
-                    trace.on_message_received(msg)
-                trace.stop()
+                self._write_trace(trace, batch, False)
+                if self.trace_error is None:
+                    try:
+                        trace.stop()
+                    except Exception as exc:  # noqa: BLE001 - its last flush failed: the trace is cut
+                        self.trace_errors += 1
+                        self.trace_error = one_line(exc)
 
     def cycle_open(self) -> bool:
         with self.lock:
