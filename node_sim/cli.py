@@ -238,16 +238,18 @@ def main(argv: list[str] | None = None) -> int:
 
 
 class TruthLog:
-    """``--truth-log FILE``: the world's records as JSON lines (module docstring)."""
+    """``--truth-log FILE``: the world's records as JSON lines (module docstring), written by
+    :class:`taxel_net.json_lines.JsonLinesWriter` (NaN refused, as the log's reader does; a failed
+    write ends the file at its last whole line, said once)."""
 
-    def __init__(self, path, stream):
+    def __init__(self, path, writer):
         self.path = path
-        self.stream = stream
-        self._failed = False
+        self.writer = writer
         self._lock = threading.Lock()
 
     @classmethod
     def open(cls, path: str, scene, rig) -> "TruthLog":
+        from taxel_net.json_lines import JsonLinesWriter
         from taxel_net.outputs import OutputPath
 
         from .world_runner import has_world
@@ -259,32 +261,27 @@ class TruthLog:
             raise UsageError(f"--truth-log {path!r}: this process does not serve the gripper drive's channel "
                              f"{scene.gripper.channel} (--serve): the world runs beside the drive")
         out = OutputPath(path, option="--truth-log")   # a directory: refused in one line
-        try:
-            stream = open(out.path, "w", encoding="utf-8")   # in place: a FIFO / device is never replaced
-        except OSError as exc:
-            raise UsageError(f"--truth-log {path!r}: cannot be opened for writing: {exc.strerror or exc}") from None
-        return cls(path, stream)
+        # in place (out.path, not a partial file): a FIFO / device is never replaced
+        return cls(path, JsonLinesWriter(out.path, _truth_line, option="--truth-log"))
 
     def write(self, record: dict) -> None:
-        import json
-
-        if self._failed:
-            return
         with self._lock:
-            try:
-                self.stream.write(json.dumps(record, separators=(",", ":")) + "\n")
-                self.stream.flush()
-            except (OSError, ValueError) as exc:
-                self._failed = True
-                print(f"node-sim: --truth-log {self.path!r}: write failed ({exc}); no more truth lines",
-                      file=sys.stderr, flush=True)
+            writer = self.writer
+            if not writer.write(record) and writer.not_written + writer.not_encoded == 1:
+                print(f"node-sim: --truth-log {self.path!r}: write failed ({(writer.io_error or writer.encode_error)[1]}); "
+                      + ("no more truth lines" if writer.io_failed else "the line is left out"), file=sys.stderr, flush=True)
 
     def close(self) -> None:
         with self._lock:
-            try:
-                self.stream.close()
-            except OSError:
-                pass
+            self.writer.close()
+            if self.writer.failure:
+                print(f"node-sim: {self.writer.failure}", file=sys.stderr, flush=True)
+
+
+def _truth_line(record: dict) -> bytes:
+    import json
+
+    return json.dumps(record, separators=(",", ":"), allow_nan=False).encode()
 
 
 if __name__ == "__main__":

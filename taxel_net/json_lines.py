@@ -1,5 +1,6 @@
-"""JSON-lines files read back: the decision log (``fusion-center plot`` and ``export``) and
-node-sim's ``--truth-log`` (``replay --truth-log``) - one reader, one way to say what is wrong.
+"""JSON-lines files written and read back: the decision log (``--json-lines``; ``fusion-center
+plot`` and ``export`` read it) and node-sim's ``--truth-log`` (``replay --truth-log``) - one
+writer (:class:`JsonLinesWriter`), one reader (:func:`iter_log`), one way to say what is wrong.
 
 Standard library only (and :class:`UsageError`): ``plot`` starts without the service's imports.
 """
@@ -7,9 +8,11 @@ Standard library only (and :class:`UsageError`): ``plot`` starts without the ser
 from __future__ import annotations
 
 import json
+import os
 from collections.abc import Callable, Iterator
+from pathlib import Path
 
-from .errors import UsageError
+from .errors import UsageError, one_line
 
 
 def iter_log(path, label: str = "decision log", *, check: Callable[[object], str | None] | None = None,
@@ -69,3 +72,106 @@ def _a_json_object(value) -> str | None:
 
 def _no_constant(name: str):
     raise ValueError(f"{name} is not JSON")
+
+
+class JsonLinesWriter:
+    """Write values as JSON lines to ``path`` (created or truncated at open), one ``write`` system
+    call a line: each line reaches the OS as soon as it is made (a killed process loses at most
+    the line in flight). ``encode(value) -> bytes``: one line without its newline.
+
+    A write that fails never raises (a full disk must not stop a centre holding a part, nor the
+    twins): :meth:`write` returns False. A value that cannot be encoded is left out and counted
+    (``not_encoded``); a failed write (no space left, a file-size limit, an I/O error, a pipe's
+    reader gone) ends the file: what the failed write left of its line is cut off again (a
+    regular file ends with its last whole line, which :func:`iter_log` needs), the file is
+    closed, every later value is counted, not written (``not_written``). :attr:`failure` is one
+    line naming the option, the file, the failures and what is missing, or None."""
+
+    def __init__(self, path, encode: Callable[[object], bytes], *, option: str):
+        self.path = Path(path)
+        self.option = option
+        self._encode = encode
+        try:
+            self._file = open(self.path, "wb", buffering=0)
+        except OSError as exc:
+            raise UsageError(f"{option} {str(path)!r}: cannot be opened for writing: {exc.strerror or exc}") from None
+        self.count = 0
+        self.last_line = b""                  # the last line written (without its newline)
+        self.not_encoded = 0
+        self.encode_error: tuple | None = None   # (cycle, one line) of the first value left out
+        self.not_written = 0
+        self.io_error: tuple | None = None       # (cycle, one line): the failure that ended the file
+        self._end_offset = 0                     # the file's size after its last whole line
+
+    @property
+    def io_failed(self) -> bool:
+        return self.io_error is not None
+
+    def write(self, value) -> bool:
+        """Write ``value`` as one line; False when it was not written (class docstring)."""
+        if self.io_error is not None:
+            self.not_written += 1
+            return False
+        try:
+            text = self._encode(value)
+        except (ValueError, TypeError, RecursionError) as exc:
+            self.not_encoded += 1
+            if self.encode_error is None:
+                self.encode_error = (_cycle_of(value), one_line(exc))
+            return False
+        line = memoryview(text + b"\n")
+        try:
+            while line:  # a raw write may take a part of it
+                line = line[self._file.write(line):]
+        except (OSError, ValueError) as exc:  # ValueError: the file closed under us
+            self.not_written += 1
+            self.io_error = (_cycle_of(value), one_line(exc))
+            self._end()
+            return False
+        self._end_offset += len(text) + 1
+        self.count += 1
+        self.last_line = text
+        return True
+
+    def _end(self) -> None:
+        try:
+            os.ftruncate(self._file.fileno(), self._end_offset)  # a regular file: its last whole line
+        except (OSError, ValueError):
+            pass  # a device, a FIFO, a closed file: nothing to cut
+        try:
+            self._file.close()
+        except OSError:
+            pass
+
+    @property
+    def failure(self) -> str | None:
+        parts = []
+        if self.io_error is not None:
+            cycle, error = self.io_error
+            where = "its close" if cycle == "close" else f"cycle {cycle}" if cycle is not None else "a record of no cycle"
+            parts.append(f"{error} at {where}: the file ends there, {self.not_written} records not written")
+        if self.encode_error is not None:
+            cycle, error = self.encode_error
+            parts.append(f"{self.not_encoded} records left out, not encodable (the first at cycle {cycle}: {error})")
+        if not parts:
+            return None
+        return (f"{self.option} {str(self.path)!r}: " + "; ".join(parts)
+                + f"; {self.count} records written (the file is incomplete)")
+
+    def close(self) -> None:
+        if not self._file.closed:
+            try:
+                self._file.close()
+            except OSError as exc:
+                if self.io_error is None:
+                    self.io_error = ("close", one_line(exc))
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+def _cycle_of(value):
+    return value.get("cycle") if isinstance(value, dict) else None

@@ -142,3 +142,22 @@ def test_read_records_of_a_file_that_cannot_be_read_raises_the_os_error(tmp_path
         read_records(tmp_path / "nope.jsonl")
     with pytest.raises(IsADirectoryError):
         read_records(tmp_path)
+
+
+def test_node_sims_truth_log_leaves_a_bad_line_out_and_says_so(tmp_path, capsys):
+    """node-sim's --truth-log writes through the decision log's writer: a record it cannot write
+    (NaN: not JSON, the reader refuses it) is left out, said once; the file stays readable."""
+    from node_sim.cli import TruthLog, _truth_line
+    from taxel_net.json_lines import JsonLinesWriter
+
+    path = tmp_path / "truth.jsonl"
+    log = TruthLog(str(path), JsonLinesWriter(path, _truth_line, option="--truth-log"))
+    for k, normal in enumerate([1.0, float("nan"), 2.0, float("nan")]):
+        log.write({"cycle": k, "normal_n": normal})
+    log.close()
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 2 and "the line is left out" in err[0], err
+    assert err[1] == (f"node-sim: --truth-log {str(path)!r}: 2 records left out, not encodable (the first at cycle 1: "
+                      "ValueError: Out of range float values are not JSON compliant); 2 records written (the file "
+                      "is incomplete)")
+    assert [v["cycle"] for _, v in iter_log(path, "--truth-log", allow_nan=False)] == [0, 2]

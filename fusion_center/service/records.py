@@ -27,14 +27,12 @@ from __future__ import annotations
 
 import json
 import math
-import os
-from pathlib import Path
 
 import numpy as np
 import orjson
 
-from taxel_net.errors import UsageError, one_line
-from taxel_net.json_lines import iter_log
+from taxel_net.errors import UsageError
+from taxel_net.json_lines import JsonLinesWriter, iter_log
 
 
 def jsonable(value):
@@ -119,105 +117,25 @@ def logged_line(record: dict) -> bytes:
     return text if last is record else dumpb(record)
 
 
-class RecordWriter:
-    """Append records to a JSON-lines file (created or truncated at open), one write per record.
-
-    A write that fails never raises (a full disk must not stop a centre that holds a part):
-    :meth:`write` returns False. A record that cannot be encoded (NaN where the pipeline should
-    have put ``null``) is left out and counted (``not_encoded``); a failed write (no space left,
-    a file-size limit, an I/O error, a pipe's reader gone) ends the file: what the failed write
-    left of its line is cut off again (a regular file ends with its last whole line, which the
-    log's readers need), the file is closed, and every later record is counted, not written
-    (``not_written``). After :meth:`close`, :attr:`failure` is one line naming the file, the
-    failures and what is missing, or None when every record was written. Unbuffered: each
-    record's line goes to the OS in one ``write`` as soon as it is made."""
+class RecordWriter(JsonLinesWriter):
+    """Append records to a JSON-lines file (created or truncated at open) with :func:`dumpb`, one
+    write a record: :class:`taxel_net.json_lines.JsonLinesWriter` (a failed write never raises,
+    ends the file at its last whole line and is said in :attr:`failure`)."""
 
     def __init__(self, path, option: str = "--json-lines"):
-        self.path = Path(path)
-        self.option = option
-        try:
-            self._file = open(self.path, "wb", buffering=0)  # the lines are ASCII (dumpb)
-        except OSError as exc:
-            raise UsageError(f"cannot write the decision log {str(path)!r}: {exc.strerror or exc}") from None
-        self.count = 0
-        self.not_encoded = 0                 # records left out: not encodable
-        self.encode_error: tuple | None = None   # (cycle, one line) of the first
-        self.not_written = 0                 # records not written since the file ended
-        self.io_error: tuple | None = None   # (cycle, one line): the failure that ended the file
-        self._end_offset = 0                 # the file's size after its last whole line
-
-    @property
-    def io_failed(self) -> bool:
-        return self.io_error is not None
-
-    def write(self, record: dict) -> bool:
-        """Write ``record`` as one line; False when it was not written (class docstring)."""
-        global _logged
-        if self.io_error is not None:
-            self.not_written += 1
-            return False
-        try:
-            text = dumpb(record)
-        except (ValueError, TypeError, RecursionError) as exc:
-            self.not_encoded += 1
-            if self.encode_error is None:
-                self.encode_error = (_cycle_of(record), one_line(exc))
-            return False
-        line = memoryview(text + b"\n")
-        try:
-            while line:  # a raw write may take part of it
-                line = line[self._file.write(line):]
-        except (OSError, ValueError) as exc:  # ValueError: the file closed under us
-            self.not_written += 1
-            self.io_error = (_cycle_of(record), one_line(exc))
-            self._end()
-            return False
-        self._end_offset += len(text) + 1
-        self.count += 1
-        _logged = (record, text)
-        return True
-
-    def _end(self) -> None:
-        try:
-            os.ftruncate(self._file.fileno(), self._end_offset)  # a regular file: its last whole line
-        except (OSError, ValueError):
-            pass  # a device, a FIFO, a closed file: nothing to cut
-        try:
-            self._file.close()
-        except OSError:
-            pass
+        super().__init__(path, dumpb, option=option)
 
     @property
     def failure(self) -> str | None:
-        parts = []
-        if self.io_error is not None:
-            cycle, error = self.io_error
-            parts.append(f"{error} at cycle {cycle}: the file ends there, {self.not_written} records not written")
-        if self.encode_error is not None:
-            cycle, error = self.encode_error
-            parts.append(f"{self.not_encoded} records left out, not encodable (the first at cycle {cycle}: {error})")
-        if not parts:
-            return None
-        return (f"{self.option} {str(self.path)!r}: " + "; ".join(parts)
-                + f"; {self.count} records written (the decision log is incomplete)")
+        text = super().failure
+        return None if text is None else text.replace("(the file is incomplete)", "(the decision log is incomplete)")
 
-    def close(self) -> None:
-        if not self._file.closed:
-            try:
-                self._file.close()
-            except OSError as exc:
-                if self.io_error is None:
-                    self.io_error = ("close", one_line(exc))
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self.close()
-
-
-def _cycle_of(record):
-    return record.get("cycle") if isinstance(record, dict) else None
+    def write(self, record: dict) -> bool:
+        global _logged
+        if not super().write(record):
+            return False
+        _logged = (record, self.last_line)
+        return True
 
 
 def read_records(path) -> list[dict]:
