@@ -77,6 +77,25 @@ class RunSummary:
         return data[k]
 
 
+def trace_failure(path, stream) -> str:
+    """The one line of a trace ended by a failure (``EventStream.trace_error``): how far it got -
+    at most the frames its writer took (what its buffers held at the failure is lost), nothing
+    when the file is an empty regular file - and how many were not traced."""
+    import os
+    import stat
+
+    try:
+        st = os.stat(path)
+        empty = stat.S_ISREG(st.st_mode) and st.st_size == 0
+    except OSError:
+        empty = False
+    where = ("nothing of it reached the file" if empty else
+             f"the file holds at most the {stream.traced} frames before it (replay reads it up to its last "
+             "whole frame)")
+    return (f"--log {str(path)!r}: {stream.trace_error}: the trace ends there, {where}; {stream.not_traced} later "
+            "frames not traced (the trace is incomplete)")
+
+
 class FusionService:
     """The fusion centre on one python-can interface (one bus per scene channel).
 
@@ -261,9 +280,7 @@ class FusionService:
             self._trace_logger = None
             stream = self.stream
             if stream.trace_error is not None:
-                self.trace_failure = (f"--log {str(self.trace_path)!r}: {stream.trace_error} after {stream.traced} "
-                                      f"frames: the trace ends there, {stream.not_traced} frames not traced (the "
-                                      "trace is incomplete; replay reads it up to its last whole frame)")
+                self.trace_failure = trace_failure(self.trace_path, stream)
         if self.writer is not None:
             self.writer.close()
             self.writer_failure = self.writer.failure

@@ -316,7 +316,7 @@ class CyclePipeline:
             record["grip"], record["grip_flags"], record["grip_detail"] = \
                 view["grip"], view["grip_flags"], view["grip_detail"]
             stages_run.append("grip")
-            if self.grasp_truth is not None and self._sampled(closed):
+            if self.grasp_truth is not None:
                 truth = self.grasp_truth.for_cycle(closed.cycle)
                 if truth is not None:
                     record["grasp_truth"] = truth
@@ -328,18 +328,8 @@ class CyclePipeline:
                 record["truth"] = self.truth(closed.cycle)
             else:  # a grasp world's readings: the truth is the world's (None where it is not known)
                 table = self.grasp_truth
-                record["truth"] = None if table is None or not self._sampled(closed) else table.presence(closed.cycle)
+                record["truth"] = None if table is None else table.presence(closed.cycle)
         return record
-
-    @staticmethod
-    def _sampled(closed: ClosedCycle) -> bool:
-        """Whether the cycle holds an answer of the twins to its SYNC (a taxel frame): only then is
-        the world step that SYNC sampled - the last one tagged with the cycle before
-        (.grasp_truth) - known to be in the truth table when the record is made. A cycle closed
-        before any answer came (frames lost or late: a stalled host) gets no world truth: the live
-        record would take whatever step the table held then, the replay (the whole truth log)
-        the last one - they differed."""
-        return bool(closed.received.any())
 
     def _nodes_by_state(self, closed: ClosedCycle, missing: np.ndarray, silent: np.ndarray) -> dict:
         """Every node that did not take part as an operational node: ``missing`` (heartbeat

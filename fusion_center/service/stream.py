@@ -223,7 +223,8 @@ class EventStream:
         self.trace_errors = 0
         self.traced = 0                 # frames the trace writer took
         self.trace_error: str | None = None   # the failure that ended the trace (one line), None while fine
-        self.not_traced = 0             # frames not traced since (the trace ended there)
+        self.not_traced = 0             # frames not given to the writer: the trace had ended
+        self._fed_at_end: int | None = None   # ``fed`` when the trace ended
         self.rate_log = RateLimitedLog(logger)
         self._trace_queue: list[can.Message] = []
         self._trace_lock = threading.Lock()  # taken before ``lock``, never while holding it
@@ -440,19 +441,15 @@ class EventStream:
                 self._trace_queue = []
                 trace = self.trace
             if trace is None:
+                if self.trace_error is not None:  # queued before the trace ended
+                    self.not_traced += len(batch)
                 return
             self._write_trace(trace, batch, to_disk)
 
     def _write_trace(self, trace, batch, to_disk: bool) -> None:
-        """Write ``batch`` (holding ``_trace_lock``). The first failure (a full disk, a file-size
-        limit, an I/O error) ends the trace: logged once, its file closed as it stands (not
-        ``stop``: an ASC's end or a BLF's header written after a cut would make a cut trace pass
-        for a complete one - replay reads an unclosed trace up to its last whole frame), every
-        later frame counted in :attr:`not_traced`; the service says so at the end
-        (``FusionService.trace_failure``)."""
-        if self.trace_error is not None:
-            self.not_traced += len(batch)
-            return
+        """Write ``batch`` (holding ``_trace_lock``); ``to_disk``: then hand it all to the OS.
+        :attr:`traced` counts the frames the writer took (which of them reached the file before a
+        failure, its buffers decide)."""
         done = 0
         try:
             for msg in batch:
@@ -461,24 +458,37 @@ class EventStream:
             if to_disk:
                 flush_to_os(trace)
         except Exception as exc:  # noqa: BLE001 - a full disk: the trace ends here, the run goes on
-            self.trace_errors += 1
-            self.traced += done
             self.not_traced += len(batch) - done
-            self.trace_error = one_line(exc)
-            logger.error("the trace ends here: %s - no more frames are written to it (the run goes on; "
-                         "counted)", self.trace_error)
-            file = getattr(trace, "file", None)
-            try:
-                if file is not None:
-                    file.close()
-            except Exception:  # noqa: BLE001 - it fails to flush again: the descriptor is closed anyway
-                pass
-            return
-        self.traced += done
+            self._trace_ended(trace, exc)
+        finally:
+            self.traced += done
+
+    def _trace_ended(self, trace, exc: BaseException) -> None:
+        """The first failure (a full disk, a file-size limit, an I/O error) ends the trace (holding
+        ``_trace_lock``): logged once; its file closed as it stands, not ``stop``ped (an ASC's end
+        or a BLF's header written after a cut would make a cut trace pass for a complete one:
+        replay reads an unclosed trace up to its last whole frame); every later frame counted in
+        :attr:`not_traced` (the stream traces no more: its fast path for common frames back
+        on); the service says so at the end
+        (``FusionService.trace_failure``)."""
+        self.trace_errors += 1
+        self.trace_error = one_line(exc)
+        logger.error("the trace ends here: %s - no more frames are written to it (the run goes on; counted)",
+                     self.trace_error)
+        file = getattr(trace, "file", None)
+        try:
+            if file is not None:
+                file.close()
+        except Exception:  # noqa: BLE001 - it fails to flush again: the descriptor is closed anyway
+            pass
+        with self.lock:
+            if self.trace is trace:
+                self.trace = None
+            self._fed_at_end = self.fed
 
     def close_trace(self) -> None:
         """Write what is queued, then stop the trace writer (``can.Logger``) and detach it (a trace
-        ended by a failure is not stopped: :meth:`_write_trace`)."""
+        ended by a failure is not stopped: :meth:`_trace_ended`)."""
         self.flush_trace()
         with self._trace_lock:
             with self.lock:
@@ -486,12 +496,15 @@ class EventStream:
                 batch, self._trace_queue = self._trace_queue, []
             if trace is not None:
                 self._write_trace(trace, batch, False)
-                if self.trace_error is None:
-                    try:
-                        trace.stop()
-                    except Exception as exc:  # noqa: BLE001 - its last flush failed: the trace is cut
-                        self.trace_errors += 1
-                        self.trace_error = one_line(exc)
+            if trace is not None and self.trace_error is None:
+                try:
+                    trace.stop()
+                except Exception as exc:  # noqa: BLE001 - its last flush failed: the trace is cut
+                    self._trace_ended(trace, exc)
+            with self.lock:
+                if self._fed_at_end is not None:  # frames fed after the trace ended: never queued
+                    self.not_traced += self.fed - self._fed_at_end
+                    self._fed_at_end = self.fed
 
     def cycle_open(self) -> bool:
         with self.lock:
