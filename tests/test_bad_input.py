@@ -2,24 +2,27 @@
 range, scene/EDS/trace files of any content exit 2 with one line naming the file, and a
 truncated or corrupted trace leaves no complete-looking decision log."""
 
-import subprocess
-import sys
 from pathlib import Path
 
 import can
 import pytest
 
+from cli_inprocess import run_cli
+from fusion_center.cli import main
 from fusion_center.service import FusionService
 from taxel_net.errors import UsageError
 from taxel_net.scene import load_scene
 
 ROOT = Path(__file__).resolve().parent.parent
 MATRIX = ROOT / "scenes" / "matrix57.toml"
-CLI = [sys.executable, "-c", "import sys; from fusion_center.cli import main; sys.exit(main())"]
 
 
-def cli(*args, timeout=60):
-    return subprocess.run(CLI + [str(a) for a in args], cwd=ROOT, capture_output=True, text=True, timeout=timeout)
+@pytest.fixture
+def cli(capsys):
+    """``fusion-center ARGS`` in this process (tests/cli_inprocess.py): these tests are about what
+    the command makes of its input - its exit status, its one-line error, the files it leaves -
+    and an exception escaping it (a traceback in a subprocess) fails the test."""
+    return lambda *args: run_cli(capsys, *args)
 
 
 def assert_one_line_exit_2(done, *needles):
@@ -40,7 +43,7 @@ def scene_text():
     (bytes(range(256)) * 4, "not a UTF-8 text file"),
     ('[scene]\nname = "caf\u00e9"\n'.encode("latin-1"), "byte 0xE9"),
 ])
-def test_scene_of_any_content(tmp_path, content, needle):
+def test_scene_of_any_content(cli, tmp_path, content, needle):
     p = tmp_path / "s.toml"
     p.write_bytes(content)
     assert_one_line_exit_2(cli("run", "--scene", p), str(p), needle)
@@ -50,7 +53,7 @@ def test_scene_of_any_content(tmp_path, content, needle):
     ("cycles = 200", "cycles = 1000000000000", "scene.cycles"),
     ("sync_period_ms = 10.0", "sync_period_ms = 1e-9", "bus.sync_period_ms"),
 ])
-def test_scene_values_out_of_range(tmp_path, old, new, needle):
+def test_scene_values_out_of_range(cli, tmp_path, old, new, needle):
     p = tmp_path / "s.toml"
     p.write_text(scene_text().replace(old, new))
     assert_one_line_exit_2(cli("demo", "--scene", p), needle)
@@ -64,7 +67,7 @@ def test_scene_values_out_of_range(tmp_path, old, new, needle):
     (["--boot-timeout", "inf"], "--boot-timeout inf"),
     (["--bitrate", "-1"], "--bitrate -1"),
 ])
-def test_cli_values_out_of_range(args, needle):
+def test_cli_values_out_of_range(cli, args, needle):
     assert_one_line_exit_2(cli("run", "--scene", MATRIX, *args), needle)
 
 
@@ -90,8 +93,7 @@ def traces(tmp_path_factory):
     """One demo trace in .log, converted to .asc and .blf (python-can's writers)."""
     d = tmp_path_factory.mktemp("traces")
     log = d / "t.log"
-    done = cli("demo", "--cycles", "20", "--no-live", "--log", log, timeout=120)
-    assert done.returncode == 0, done.stderr
+    assert main(["demo", "--cycles", "20", "--no-live", "--log", str(log)]) == 0
     for suffix in (".asc", ".blf"):
         with can.Logger(str(d / f"t{suffix}")) as writer:
             for msg in can.LogReader(str(log)):
@@ -100,7 +102,7 @@ def traces(tmp_path_factory):
 
 
 @pytest.mark.parametrize("suffix", [".log", ".asc", ".blf"])
-def test_complete_trace_replays(traces, tmp_path, suffix):
+def test_complete_trace_replays(cli, traces, tmp_path, suffix):
     out = tmp_path / "o.jsonl"
     done = cli("replay", "--scene", MATRIX, traces / f"t{suffix}", "--json-lines", out)
     assert done.returncode == 0, done.stderr
@@ -114,7 +116,7 @@ def test_complete_trace_replays(traces, tmp_path, suffix):
     (".log", 0.6, "unreadable after frame"),
     (".blf", None, "cannot be read"),
 ])
-def test_truncated_or_corrupted_trace_leaves_no_complete_looking_log(traces, tmp_path, suffix, cut, needle):
+def test_truncated_or_corrupted_trace_leaves_no_complete_looking_log(cli, traces, tmp_path, suffix, cut, needle):
     src = (traces / f"t{suffix}").read_bytes()
     bad = tmp_path / f"bad{suffix}"
     if cut is None:
