@@ -13,9 +13,12 @@ import shutil
 import subprocess
 import sys
 from pathlib import Path
+from unittest import mock
 
+import can.logconvert
 import pytest
 
+from cli_inprocess import run_cli
 from fusion_center.commands.demo import run_demo
 from fusion_center.service import replay_trace
 from fusion_center.service.traces import FOREIGN_FRACTION_MAX, check_trace
@@ -23,7 +26,6 @@ from taxel_net.errors import UsageError
 from taxel_net.scene import load_scene
 
 ROOT = Path(__file__).resolve().parent.parent
-CLI = [sys.executable, "-c", "import sys; from fusion_center.cli import main; sys.exit(main())"]
 
 TAXELS = """
 [[taxels]]
@@ -93,15 +95,19 @@ def traces(tmp_path_factory):
         else:  # --log refuses the lossy formats: a copy converted as users make one
             recorded = d / f"{key}.recorded.log"
             run_demo(load_scene(paths[scene_key]), 10, json_lines=live, trace=recorded)
-            subprocess.run([sys.executable, "-m", "can.logconvert", str(recorded), str(trace)],
-                           check=True, capture_output=True, timeout=60)
+            with mock.patch.object(sys, "argv", ["can.logconvert", str(recorded), str(trace)]):
+                can.logconvert.main()  # python -m can.logconvert's code, in this process
         out[key] = (paths[scene_key], trace, live)
     out["scenes"] = paths
     return out
 
 
-def cli(*args):
-    return subprocess.run(CLI + [str(a) for a in args], cwd=ROOT, capture_output=True, text=True, timeout=60)
+@pytest.fixture
+def cli(capsys):
+    """``fusion-center ARGS`` in this process (tests/cli_inprocess.py): these tests are about what
+    the command makes of the trace and scene - its exit status, its one-line error, what it prints
+    and writes - and an exception escaping it (a traceback in a subprocess) fails the test."""
+    return lambda *args: run_cli(capsys, *args)
 
 
 def assert_one_line_exit_2(done, *needles):
@@ -125,7 +131,7 @@ def test_trc_replays_to_the_live_records(traces, tmp_path):
     assert check_trace(load_scene(scene), trace)["frames"] > 0
 
 
-def test_two_channel_trace_against_a_one_channel_scene_exits_2(traces, tmp_path):
+def test_two_channel_trace_against_a_one_channel_scene_exits_2(cli, traces, tmp_path):
     _, trace, _ = traces["two_log"]
     out = tmp_path / "out.jsonl"
     out.write_text('{"cycle": 0}\n')  # a log of an earlier replay must not pass for this one's
@@ -134,7 +140,7 @@ def test_two_channel_trace_against_a_one_channel_scene_exits_2(traces, tmp_path)
     assert not out.exists() and not Path(str(out) + ".partial").exists()
 
 
-def test_two_channel_csv_exits_2_at_replay(traces):
+def test_two_channel_csv_exits_2_at_replay(cli, traces):
     scene, trace, _ = traces["two_csv"]
     with pytest.raises(UsageError, match=r"\.csv stores no channel.*2 channels"):
         check_trace(load_scene(scene), trace)
@@ -143,7 +149,7 @@ def test_two_channel_csv_exits_2_at_replay(traces):
 
 
 @pytest.mark.parametrize("ext,needle", [("csv", "CAN FD flag"), ("db", "CAN FD flag"), ("trc", "drops CAN FD")])
-def test_formats_that_lose_frames_are_refused_at_log_time(traces, tmp_path, ext, needle):
+def test_formats_that_lose_frames_are_refused_at_log_time(cli, traces, tmp_path, ext, needle):
     """python-can's CSV and SQLite record no FD flag (an FD frame on a node's PDO COB-ID came
     back as that node's classic PDO), its TRC writer drops FD, remote and error frames: the
     replay of a run with such frames on its bus differed from the live records (issue 21)."""
@@ -161,13 +167,13 @@ def test_two_channel_log_replays_with_its_scene(traces, tmp_path):
     assert replayed.read_bytes() == live.read_bytes()
 
 
-def test_trace_of_another_scene_exits_2(traces):
+def test_trace_of_another_scene_exits_2(cli, traces):
     _, trace, _ = traces["log"]
     other = traces["scenes"]["other"]
     assert_one_line_exit_2(cli("replay", "--scene", other, trace), "node-ID(s) 4, 9, 17", "other3", "--force")
 
 
-def test_force_replays_the_trace_of_another_scene(traces, tmp_path):
+def test_force_replays_the_trace_of_another_scene(cli, traces, tmp_path):
     _, trace, _ = traces["log"]
     other = traces["scenes"]["other"]
     out = tmp_path / "forced.jsonl"
@@ -194,14 +200,14 @@ def test_a_few_foreign_frames_are_tolerated(traces, tmp_path):
     ("log", "one", "raw", "recorded in decision mode"),    # --mode raw on a decision trace
     ("raw_log", "one", None, "recorded in raw mode"),      # a raw trace replayed with the decision scene
 ])
-def test_mode_mismatch_exits_2(traces, trace_key, scene_key, mode, needle):
+def test_mode_mismatch_exits_2(cli, traces, trace_key, scene_key, mode, needle):
     _, trace, _ = traces[trace_key]
     args = ["replay", "--scene", traces["scenes"][scene_key], trace] + (["--mode", mode] if mode else [])
     other = "decision" if "decision" in needle else "raw"
     assert_one_line_exit_2(cli(*args), needle, f"--mode {other}", "--force")
 
 
-def test_mode_given_right_replays_the_raw_trace(traces, tmp_path):
+def test_mode_given_right_replays_the_raw_trace(cli, traces, tmp_path):
     scene, trace, live = traces["raw_log"]
     replayed = tmp_path / "r.jsonl"
     done = cli("replay", "--scene", traces["scenes"]["one"], trace, "--mode", "raw", "--json-lines", replayed)
@@ -209,7 +215,7 @@ def test_mode_given_right_replays_the_raw_trace(traces, tmp_path):
     assert replayed.read_bytes() == live.read_bytes()
 
 
-def test_log_formats_python_can_cannot_read_back_are_refused_before_the_run(tmp_path):
+def test_log_formats_python_can_cannot_read_back_are_refused_before_the_run(cli, tmp_path):
     scene = tmp_path / "s.toml"
     scene.write_text(scene_text("tiny3"))
     assert_one_line_exit_2(cli("demo", "--scene", scene, "--log", tmp_path / "x.txt", "--no-live"),
