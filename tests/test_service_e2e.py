@@ -14,6 +14,7 @@ import can
 import numpy as np
 import pytest
 
+from cli_inprocess import run_cli
 from taxel_net.errors import UsageError
 from fusion_center.commands.demo import run_demo
 from fusion_center.core.encoding import local_decision
@@ -152,8 +153,6 @@ def test_sigkill_loses_at_most_the_cycle_in_flight(tmp_path):
     assert 30 <= len(records) < 400
 
 
-def run_cli(*args):
-    return subprocess.run(CLI + list(args), cwd=ROOT, capture_output=True, text=True, timeout=60)
 
 
 @pytest.mark.parametrize("args,needle", [
@@ -164,8 +163,8 @@ def run_cli(*args):
     (["replay", "--scene", str(MATRIX), "no/such/trace.log"], "trace.log"),
     (["demo", "--drop-node", "999@5", "--no-live"], "999"),
 ])
-def test_bad_input_exits_2_with_one_line(args, needle):
-    result = run_cli(*args)
+def test_bad_input_exits_2_with_one_line(capsys, args, needle):
+    result = run_cli(capsys, *args)  # in this process (tests/cli_inprocess.py): exit code and stderr as the command's
     assert result.returncode == 2, result.stderr
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and needle in lines[0] and "Traceback" not in result.stderr
