@@ -14,7 +14,8 @@ What differs from a subprocess, and how it is made up for:
 - the log records of WARNING and above go to stderr as in the subprocess (``run``'s
   ``logging.basicConfig`` finds pytest's handlers on the root logger and adds none): a handler of
   this call's writes them there, so a test counting stderr's lines still sees them;
-- the working directory is the repository's, as the subprocesses were started in.
+- the working directory is the one asked for (default the repository's), as the subprocesses
+  were started in, and the test's again after the call.
 """
 
 from __future__ import annotations
@@ -30,9 +31,10 @@ from fusion_center.cli import main
 ROOT = Path(__file__).resolve().parent.parent
 
 
-def run_cli(capsys, *args) -> subprocess.CompletedProcess:
-    """``fusion-center ARGS`` through ``main``: a CompletedProcess with its exit code, stdout
-    and stderr (those of this call only: what the test printed before is read off first)."""
+def run_cli(capsys, *args, cwd: Path = ROOT) -> subprocess.CompletedProcess:
+    """``fusion-center ARGS`` through ``main``, in the working directory ``cwd`` (the
+    repository's unless given): a CompletedProcess with its exit code, stdout and stderr (those
+    of this call only: what the test printed before is read off first)."""
     argv = [str(a) for a in args]
     capsys.readouterr()
     handler = logging.StreamHandler(sys.stderr)  # capsys's stderr of this call
@@ -41,7 +43,7 @@ def run_cli(capsys, *args) -> subprocess.CompletedProcess:
     root = logging.getLogger()
     root.addHandler(handler)
     cwd = os.getcwd()
-    os.chdir(ROOT)
+    os.chdir(cwd)
     try:
         try:
             code = main(argv)

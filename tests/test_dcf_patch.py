@@ -6,7 +6,6 @@ from __future__ import annotations
 import dataclasses
 import re
 import struct
-import subprocess
 import sys
 from pathlib import Path
 
@@ -22,6 +21,7 @@ from taxel_net.resources import patch_eds_path
 from taxel_net.scene import load_scene
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from cli_inprocess import run_cli  # noqa: E402
 from test_service_patch import booted_by_the_centre, small_skin  # noqa: E402 - shared test set-ups
 
 
@@ -159,10 +159,9 @@ def test_node_of_a_patch_scene_to_stdout_and_to_a_file(tmp_path, capsys):
     ("4", "--node '4': no node 4 on channel 0 (use C:N for another channel) of scene 'skin4096'"),
     ("8:1", "--node '8:1': no node 1 on channel 8 of scene 'skin4096'"),
 ])
-def test_a_node_that_is_no_patch_node_exits_2_with_one_line(tmp_path, node, message):
-    run = subprocess.run([sys.executable, "-c", "import sys; from fusion_center.cli import main; sys.exit(main())",
-                          "dcf", "--scene", "skin4096", "--node", node, "-o", "x.dcf"],
-                         capture_output=True, text=True, timeout=120, cwd=tmp_path)
+def test_a_node_that_is_no_patch_node_exits_2_with_one_line(tmp_path, capsys, node, message):
+    # in this process (tests/cli_inprocess.py): the exit status and stderr are main()'s
+    run = run_cli(capsys, "dcf", "--scene", "skin4096", "--node", node, "-o", "x.dcf", cwd=tmp_path)
     assert run.returncode == 2 and run.stdout == "", run
     assert run.stderr == f"fusion-center dcf: error: {message}\n"
     assert not (tmp_path / "x.dcf").exists()

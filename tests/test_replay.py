@@ -1,12 +1,11 @@
 """Replay of a recorded trace reproduces the live run's decision log byte for byte."""
 
-import subprocess
-import sys
 from pathlib import Path
 
 import can
 import pytest
 
+from cli_inprocess import run_cli
 from fusion_center.commands.demo import run_demo
 from taxel_net.scene import load_scene
 from fusion_center.service import replay_trace
@@ -34,15 +33,13 @@ def test_replay_equals_live(matrix, tmp_path, ext):
     assert sum(counters.values()) == len(list(can.LogReader(str(trace))))
 
 
-def test_replay_cli_writes_the_same_lines(matrix, tmp_path):
+def test_replay_cli_writes_the_same_lines(matrix, tmp_path, capsys):
     live = tmp_path / "live.jsonl"
     trace = tmp_path / "trace.log"
     run_demo(matrix, 20, json_lines=live, trace=trace)
     out = tmp_path / "cli.jsonl"
-    result = subprocess.run(
-        [sys.executable, "-c", "import sys; from fusion_center.cli import main; sys.exit(main())",
-         "replay", "--scene", str(MATRIX), str(trace), "--json-lines", str(out)],
-        cwd=ROOT, capture_output=True, text=True, timeout=60)
+    # the command's main() in this process (tests/cli_inprocess.py): the test is about what it writes
+    result = run_cli(capsys, "replay", "--scene", MATRIX, trace, "--json-lines", out)
     assert result.returncode == 0, result.stderr
     assert out.read_bytes() == live.read_bytes()
     # the candump trace is readable as text: "(timestamp) channel id#data"
