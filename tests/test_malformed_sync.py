@@ -143,6 +143,14 @@ def matrix_trace(tmp_path_factory):
     return scene, trace
 
 
+@pytest.fixture(scope="module")
+def clean_replay(matrix_trace):
+    """The trace replayed without junk (the reference of every payload's case: the same trace
+    through the same objects gives the same records; the tests read copies of them)."""
+    scene, trace = matrix_trace
+    return replay_with_junk(scene, trace, 30, None)
+
+
 def replay_with_junk(scene, trace, junk_cycle, payload):
     """The issue's reproduction: the trace fed through the public service objects, two
     malformed SYNCs injected right after the first two TPDO1s of cycle ``junk_cycle``."""
@@ -162,10 +170,10 @@ def replay_with_junk(scene, trace, junk_cycle, payload):
 
 
 @pytest.mark.parametrize("payload", [b"", b"\x00", b"\x01\x01"])
-def test_malformed_syncs_in_a_recorded_matrix57_run_flip_nothing(matrix_trace, payload):
+def test_malformed_syncs_in_a_recorded_matrix57_run_flip_nothing(matrix_trace, clean_replay, payload):
     scene, trace = matrix_trace
     assert scene.bus.sync_counter > 0 and scene.bus.sync_window  # the case of the finding
-    clean, clean_counts = replay_with_junk(scene, trace, 30, None)
+    clean, clean_counts = clean_replay
     dirty, dirty_counts = replay_with_junk(scene, trace, 30, payload)
     assert len(dirty) == len(clean)
     assert dirty[30]["closed_by"] == clean[30]["closed_by"] and dirty[30]["n_received"] == clean[30]["n_received"]
