@@ -148,15 +148,14 @@ def test_master_table_in_the_scene(tmp_path):
 
 
 @pytest.mark.multiprocess
-def test_second_run_against_running_node_sim_decides_as_well_as_the_first(tmp_path):
+def test_second_run_against_running_node_sim_decides_as_well_as_the_first(tmp_path, capsys):
     """node-sim keeps running between two `fusion-center run` processes (udp_multicast, hop
     limit 0): the master resets every node's communication at start, so the second run starts
     from the same node state and the same simulated cycle 0 (before: the twins went on from the
     first run's last cycle and the second run agreed with the truth in 47/145 cycles)."""
     import json
-    import subprocess
-    import sys
 
+    from cli_inprocess import run_cli
     from process_helpers import node_sim, udp_loopback
     from test_service_multiprocess import GROUP, multicast_port
 
@@ -172,10 +171,11 @@ def test_second_run_against_running_node_sim_decides_as_well_as_the_first(tmp_pa
         runs = []
         for k in range(2):
             out = tmp_path / f"run{k}.jsonl"
-            done = subprocess.run([sys.executable, "-c", "import sys; from fusion_center.cli import main; "
-                                   "sys.exit(main())", "run", "--scene", str(scene_file), "--cycles", "100",
-                                   "--no-live", "--json-lines", str(out)] + bus,
-                                  cwd=ROOT, capture_output=True, text=True, timeout=120)
+            # each `fusion-center run` through main() in this process (tests/cli_inprocess.py): a new
+            # service, master and bus each time; what is about processes here is node-sim's, which
+            # runs on between the two
+            done = run_cli(capsys, "run", "--scene", scene_file, "--cycles", "100", "--no-live",
+                           "--json-lines", out, *bus)
             assert done.returncode == 0, done.stderr
             runs.append([json.loads(line) for line in out.read_text().splitlines()])
     agreement, seen = [], []
