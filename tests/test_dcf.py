@@ -13,6 +13,7 @@ import canopen
 import pytest
 
 from fusion_center.cli import main
+from cli_inprocess import run_cli
 from fusion_center.commands.dcf import configured_values, dcf_text, file_name
 from fusion_center.service.master import node_configuration
 from node_sim.rig import identity_serial
@@ -146,9 +147,8 @@ def test_bad_input_one_line_exit_2(tmp_path, monkeypatch, capsys, argv, message)
 @pytest.mark.parametrize("argv", [["--scene", "matrix57", "-o", "x"], ["--scene", "matrix57", "--node", "1"],
                                   ["--scene", "matrix57", "--node", "1", "--all", "-o", "x"],
                                   ["--node", "1", "-o", "x"]])
-def test_usage_errors_exit_2(argv):
-    run = subprocess.run([sys.executable, "-c", "import sys; from fusion_center.cli import main; sys.exit(main())",
-                          "dcf", *argv], capture_output=True, text=True, timeout=120)
+def test_usage_errors_exit_2(argv, tmp_path, capsys):
+    run = run_cli(capsys, "dcf", *argv, cwd=tmp_path)  # main() in this process (tests/cli_inprocess.py)
     assert run.returncode == 2 and run.stdout == "" and len(run.stderr.splitlines()) == 1, run
 
 

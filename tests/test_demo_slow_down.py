@@ -4,20 +4,18 @@ and the warning when a demo falls behind its SYNC."""
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from fusion_center.commands.demo import fell_behind, slowed_down
+from cli_inprocess import run_cli
 from node_sim import physics
 from taxel_net.errors import UsageError
 from taxel_net.scene import load_scene
 
 ROOT = Path(__file__).resolve().parent.parent
-CLI = [sys.executable, "-c", "import sys; from fusion_center.cli import main; sys.exit(main())"]
 
 
 def test_every_bus_time_scales_and_nothing_else():
@@ -56,12 +54,12 @@ def test_warning_only_when_most_cycles_are_degraded_with_late_pdos():
     assert "80 of 100 cycles degraded, 30 PDOs late" in warning and warning.endswith("--slow-down 8")
 
 
-def test_demo_slowed_down_runs_at_k_times_the_period_with_the_same_records(tmp_path):
+def test_demo_slowed_down_runs_at_k_times_the_period_with_the_same_records(tmp_path, capsys):
     """matrix57 at --slow-down 3: SYNCs 30 ms apart (the records' bus times), every complete cycle's
     decisions the physics of its cycle, as at the scene's own period, and the summary says so."""
     out = tmp_path / "slow.jsonl"
-    done = subprocess.run(CLI + ["demo", "--cycles", "30", "--no-live", "--slow-down", "3", "--json-lines", str(out)],
-                          capture_output=True, text=True, timeout=300, cwd=tmp_path)
+    # main() in this process (tests/cli_inprocess.py): the test is about the records and the summary
+    done = run_cli(capsys, "demo", "--cycles", "30", "--no-live", "--slow-down", "3", "--json-lines", out, cwd=tmp_path)
     assert done.returncode == 0, done.stderr
     assert "slow_down:" in done.stdout and "SYNC every 30 ms instead of 10 ms" in done.stdout
     records = [json.loads(line) for line in out.read_text().splitlines()]
@@ -80,8 +78,7 @@ def test_demo_slowed_down_runs_at_k_times_the_period_with_the_same_records(tmp_p
 
 
 @pytest.mark.parametrize("value", ["0.5", "nan", "abc"])
-def test_bad_slow_down_is_one_line_exit_2(value, tmp_path):
-    done = subprocess.run(CLI + ["demo", "--cycles", "5", "--no-live", "--slow-down", value],
-                          capture_output=True, text=True, timeout=120, cwd=tmp_path)
+def test_bad_slow_down_is_one_line_exit_2(value, tmp_path, capsys):
+    done = run_cli(capsys, "demo", "--cycles", "5", "--no-live", "--slow-down", value, cwd=tmp_path)
     assert done.returncode == 2
     assert len(done.stderr.strip().splitlines()) == 1 and "--slow-down" in done.stderr

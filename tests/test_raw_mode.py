@@ -7,8 +7,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -16,6 +14,7 @@ import pytest
 from scipy.stats import norm
 
 from fusion_center.commands.demo import run_demo
+from cli_inprocess import run_cli
 from fusion_center.commands.run import apply_mode
 from taxel_net.scene import load_scene
 from fusion_center.service import ClosedCycle, CyclePipeline, replay_trace
@@ -23,7 +22,6 @@ from node_sim import physics
 
 ROOT = Path(__file__).resolve().parent.parent
 SCENES = ROOT / "scenes"
-CLI = [sys.executable, "-c", "import sys; from fusion_center.cli import main; sys.exit(main())"]
 
 
 @pytest.fixture(scope="module")
@@ -134,7 +132,7 @@ def test_raw_demo_degraded_cycles_use_the_received_taxels(raw_demo):
         assert "27" not in r["forces"]["per_taxel"]
 
 
-def test_replay_of_a_raw_trace_equals_live(matrix_raw, raw_demo, tmp_path):
+def test_replay_of_a_raw_trace_equals_live(matrix_raw, raw_demo, tmp_path, capsys):
     _, live, trace, _ = raw_demo
     replayed = tmp_path / "replay.jsonl"
     records, counters = replay_trace(matrix_raw, trace, json_lines=replayed)
@@ -142,8 +140,7 @@ def test_replay_of_a_raw_trace_equals_live(matrix_raw, raw_demo, tmp_path):
     assert counters["tpdo2"] > 0
     # the CLI with --mode raw on the decision-mode scene file reproduces it too
     out = tmp_path / "cli.jsonl"
-    result = subprocess.run(CLI + ["replay", "--scene", str(SCENES / "matrix57.toml"), "--mode", "raw", str(trace),
-                                   "--json-lines", str(out)], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    result = run_cli(capsys, "replay", "--scene", SCENES / "matrix57.toml", "--mode", "raw", trace, "--json-lines", out)
     assert result.returncode == 0, result.stderr
     cli = [json.loads(line) for line in out.read_text().splitlines()]
     # same records: the scene file differs only in name and (here) the SYNC period, which the
@@ -152,10 +149,10 @@ def test_replay_of_a_raw_trace_equals_live(matrix_raw, raw_demo, tmp_path):
     assert all(r["mode"] == "raw" for r in cli)
 
 
-def test_demo_mode_option_overrides_the_scene(tmp_path):
+def test_demo_mode_option_overrides_the_scene(tmp_path, capsys):
     out = tmp_path / "d.jsonl"
-    result = subprocess.run(CLI + ["demo", "--mode", "raw", "--cycles", "12", "--no-live", "--json-lines", str(out)],
-                            cwd=ROOT, capture_output=True, text=True, timeout=120)
+    # main() in this process (tests/cli_inprocess.py): the test is about the records and the summary
+    result = run_cli(capsys, "demo", "--mode", "raw", "--cycles", "12", "--no-live", "--json-lines", out)
     assert result.returncode == 0, result.stderr
     records = [json.loads(line) for line in out.read_text().splitlines()]
     assert len(records) == 12

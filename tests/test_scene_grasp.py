@@ -3,17 +3,15 @@ field (SceneError; the CLIs exit 2)."""
 
 from __future__ import annotations
 
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
 from node_sim.world import GraspWorld
+from cli_inprocess import run_cli
 from taxel_net.errors import SceneError
 from taxel_net.scene import load_scene
 
-ROOT = Path(__file__).resolve().parents[1]
 
 HEAD = """[scene]
 name = "grasp"
@@ -150,10 +148,9 @@ def test_a_number_a_hold_without_shaking_ignores_must_still_be_finite(tmp_path, 
     assert "\n" not in str(exc.value) and str(path) in str(exc.value)
 
 
-def test_cli_exits_2_with_one_line(tmp_path):
+def test_cli_exits_2_with_one_line(tmp_path, capsys):
     path = write(tmp_path, with_("mu_k", "0.6"))
-    done = subprocess.run([sys.executable, "-c", "import sys; from fusion_center.cli import main; sys.exit(main())",
-                           "bandwidth", "--scene", str(path)], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    done = run_cli(capsys, "bandwidth", "--scene", path)  # main() in this process (tests/cli_inprocess.py)
     assert done.returncode == 2
     lines = done.stderr.strip().splitlines()
     assert len(lines) == 1 and "grasp.mu_k=0.6" in lines[0] and str(path) in lines[0]

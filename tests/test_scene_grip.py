@@ -12,6 +12,7 @@ from pathlib import Path
 import pytest
 
 from fusion_center.core import grip_law
+from cli_inprocess import run_cli
 from taxel_net.errors import SceneError
 from taxel_net.scene import load_scene
 
@@ -176,10 +177,13 @@ def test_defaults_that_do_not_fit_the_drive_name_their_origin(tmp_path):
     ("fusion_center.cli", "edge_cycles = 0\n", "grip.edge_cycles"),
     ("node_sim.cli", "edge_cycles = 2.5\n", "grip.edge_cycles"),
 ])
-def test_clis_exit_2_with_the_one_line(tmp_path, cli, body, field):
+def test_clis_exit_2_with_the_one_line(tmp_path, capsys, cli, body, field):
     path = write(tmp_path, body)
-    args = ["--scene", str(path), "-i", "virtual"] if cli == "node_sim.cli" else ["demo", "--scene", str(path)]
-    done = subprocess.run([sys.executable, "-m", cli, *args], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    if cli == "node_sim.cli":  # node-sim, a real process (its main, given a good scene, serves until a signal)
+        done = subprocess.run([sys.executable, "-m", cli, "--scene", str(path), "-i", "virtual"], cwd=ROOT,
+                              capture_output=True, text=True, timeout=120)
+    else:  # fusion-center's main() in this process (tests/cli_inprocess.py): exit status and stderr
+        done = run_cli(capsys, "demo", "--scene", path)
     assert done.returncode == 2, done.stderr
     lines = [line for line in done.stderr.splitlines() if line.strip()]
     assert len(lines) == 1 and field in lines[0] and str(path) in lines[0], lines

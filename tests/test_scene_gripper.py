@@ -12,6 +12,7 @@ import canopen
 import pytest
 
 from taxel_net.errors import SceneError
+from cli_inprocess import run_cli
 from taxel_net.gripper import GripperSpec, startup_values
 from taxel_net.resources import gripper_eds_path
 from taxel_net.scene import load_scene
@@ -176,11 +177,14 @@ def test_patch_tpdo_on_a_drive_cob_id_is_refused(tmp_path):
 
 
 @pytest.mark.parametrize("cli", ["node_sim.cli", "fusion_center.cli"])
-def test_clis_exit_2_with_the_one_line(tmp_path, cli):
+def test_clis_exit_2_with_the_one_line(tmp_path, capsys, cli):
     path = tmp_path / "g.toml"
     path.write_text(BASE.replace("node_id = 20\n", "node_id = 20\nstroke_max_mm = 80.0005\n"))
-    args = ["--scene", str(path), "-i", "virtual"] if cli == "node_sim.cli" else ["demo", "--scene", str(path)]
-    done = subprocess.run([sys.executable, "-m", cli, *args], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    if cli == "node_sim.cli":  # node-sim, a real process (its main, given a good scene, serves until a signal)
+        done = subprocess.run([sys.executable, "-m", cli, "--scene", str(path), "-i", "virtual"], cwd=ROOT,
+                              capture_output=True, text=True, timeout=120)
+    else:  # fusion-center's main() in this process (tests/cli_inprocess.py): exit status and stderr
+        done = run_cli(capsys, "demo", "--scene", path)
     assert done.returncode == 2, done.stderr
     lines = [line for line in done.stderr.splitlines() if line.strip()]
     assert len(lines) == 1 and "gripper.stroke_max_mm" in lines[0] and str(path) in lines[0], lines
