@@ -42,7 +42,7 @@ def run_cli(capsys, *args, cwd: Path = ROOT) -> subprocess.CompletedProcess:
     handler.setFormatter(logging.Formatter("%(levelname)s %(name)s: %(message)s"))
     root = logging.getLogger()
     root.addHandler(handler)
-    cwd = os.getcwd()
+    previous = os.getcwd()
     os.chdir(cwd)
     try:
         try:
@@ -50,7 +50,7 @@ def run_cli(capsys, *args, cwd: Path = ROOT) -> subprocess.CompletedProcess:
         except SystemExit as exc:  # argparse: its usage and error are on stderr
             code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
     finally:
-        os.chdir(cwd)
+        os.chdir(previous)
         root.removeHandler(handler)
     out, err = capsys.readouterr()
     return subprocess.CompletedProcess(["fusion-center", *argv], code, out, err)
