@@ -45,6 +45,40 @@ def test_the_records_truth_on_a_grasp_scene_is_the_worlds_in_grip():
     assert "in_grip" not in t.for_cycle(2)
 
 
+def test_a_cycle_without_any_answer_of_the_twins_gets_no_world_truth():
+    """Under a stalled host a cycle can close before the twins answered its SYNC; which world step
+    that SYNC sampled is then not in the table yet - the live record took whatever step the table
+    held, the replay (the whole truth log) the last one: they differed (seen once in a loaded
+    suite, test_raw_mode_grips_with_eq_26a_and_replays). Where every taxel answers every SYNC such
+    a record has no grasp_truth, its ``truth`` None; a cycle with one taxel frame in has both."""
+    import numpy as np
+
+    from fusion_center.service.pipeline import CyclePipeline
+    from taxel_net.scene import load_scene
+    from test_pipeline_fastpath import closed_cycle
+
+    scene = load_scene("grasp_lift_patch")
+    pipe = CyclePipeline(scene)
+    pipe.grasp_truth = table = TruthTable()
+    for k in range(4):
+        table.add(step(k, normal_n=float(k)))
+    heard = np.full(scene.n, -1, dtype=np.int8)
+    one = np.zeros(scene.n, dtype=np.int8)
+    one[0] = -1
+    silent = np.zeros(scene.n, dtype=np.int8)
+    records = [pipe.evaluate(closed_cycle(w, k)) for k, w in enumerate([heard, one, silent, heard], start=1)]
+    assert [r.get("grasp_truth", {}).get("normal_n") for r in records] == [0.0, 1.0, None, 3.0]
+    assert [r["truth"] for r in records] == ["H1", "H1", None, "H1"]
+    # taxels that answer every 2nd SYNC: a cycle without an answer is the rule, its truth kept
+    import dataclasses
+
+    every_2nd = dataclasses.replace(scene, bus=dataclasses.replace(scene.bus, transmission_type=2))
+    pipe = CyclePipeline(every_2nd)
+    pipe.grasp_truth = table
+    records = [pipe.evaluate(closed_cycle(w, k)) for k, w in enumerate([heard, silent, heard], start=1)]
+    assert [r["grasp_truth"]["normal_n"] for r in records] == [0.0, 1.0, 2.0]
+
+
 def test_a_grasp_demo_agrees_with_the_worlds_truth():
     from fusion_center.commands.demo import run_demo, slowed_down
     from taxel_net.scene import load_scene

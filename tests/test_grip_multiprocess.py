@@ -60,7 +60,11 @@ def test_run_against_node_sim_in_another_process_and_replay_with_its_truth_log(t
         [dict(r, truth=q["truth"]) for r, q in zip(records, replayed)]
     assert {r["truth"] for r in replayed} >= {"H0", "H1"}  # (None in the first cycles: no step yet)
     with_truth = [r for r in replayed if "grasp_truth" in r]
-    assert len(with_truth) >= CYCLES - 10
+    # every cycle with a taxel frame in, but the first few (no world step yet); a cycle closed with
+    # none (a stalled host) has no truth (docs/service.md, grasp_truth)
+    answered = [r for r in replayed if r["n_received"] > 0]
+    assert all(r["n_received"] > 0 for r in with_truth) and len(with_truth) >= len(answered) - 10
+    assert len(answered) >= CYCLES // 2
     assert {r["grasp_truth"]["phase"] for r in with_truth} >= {"approach", "close", "lift"}
 
 

@@ -143,6 +143,7 @@ class CyclePipeline:
         self.want_slip = self.physical.slip is not None
         self.fusion = DecisionFusion(scene, tuple(r for r in fusion.rules if r in self.plan.rules_run))
         self.grasp_truth = None  # cycle -> the world's truth (a .grasp_truth.TruthTable), demo / replay --truth-log
+        self._every_sync_answers = scene.bus.transmission_type == 1  # every taxel answers every SYNC (._sampled)
         self._patterns: dict[bytes, _Pattern] = {}
         self._truth: list[str] = []
         if truth:
@@ -316,7 +317,7 @@ class CyclePipeline:
             record["grip"], record["grip_flags"], record["grip_detail"] = \
                 view["grip"], view["grip_flags"], view["grip_detail"]
             stages_run.append("grip")
-            if self.grasp_truth is not None:
+            if self.grasp_truth is not None and self._sampled(closed):
                 truth = self.grasp_truth.for_cycle(closed.cycle)
                 if truth is not None:
                     record["grasp_truth"] = truth
@@ -328,8 +329,20 @@ class CyclePipeline:
                 record["truth"] = self.truth(closed.cycle)
             else:  # a grasp world's readings: the truth is the world's (None where it is not known)
                 table = self.grasp_truth
-                record["truth"] = None if table is None else table.presence(closed.cycle)
+                record["truth"] = None if table is None or not self._sampled(closed) else table.presence(closed.cycle)
         return record
+
+    def _sampled(self, closed: ClosedCycle) -> bool:
+        """Whether the world step this cycle's SYNC sampled - the last one tagged with the cycle
+        before (.grasp_truth) - is known to be in the truth table when the record is made. Where
+        every taxel answers every SYNC (transmission type 1), a cycle closed before any answer
+        came (frames lost or late: a stalled host) gets no world truth: the live record took
+        whatever step the table held then, the replay (the whole truth log) the last one - they
+        differed (reproduced: 3 such records in 8 runs of grasp_scripted's raw grasp beside 4
+        spinning processes, each with n_received 0, closed by the SYNC window; none in 9 with
+        this). Where taxels answer every n-th SYNC or on events, a cycle without an answer is
+        the rule and keeps its truth."""
+        return not self._every_sync_answers or bool(closed.received.any())
 
     def _nodes_by_state(self, closed: ClosedCycle, missing: np.ndarray, silent: np.ndarray) -> dict:
         """Every node that did not take part as an operational node: ``missing`` (heartbeat
