@@ -267,14 +267,11 @@ class TruthLog:
     def write(self, record: dict) -> None:
         with self._lock:
             writer = self.writer
-            if writer.write(record):
+            if writer.write(record) or writer.new_failure is None:
                 return
-            if writer.io_failed and writer.not_written == 1:        # the first failed write: the file ends
-                print(f"node-sim: --truth-log {self.path!r}: write failed ({writer.io_error[1]}); no more truth lines",
-                      file=sys.stderr, flush=True)
-            elif not writer.io_failed and writer.not_encoded == 1:  # the first line that cannot be written
-                print(f"node-sim: --truth-log {self.path!r}: write failed ({writer.encode_error[1]}); the line is "
-                      "left out (further ones only counted)", file=sys.stderr, flush=True)
+            kind, error = writer.new_failure
+            end = "no more truth lines" if kind == "io" else "the line is left out (further ones only counted)"
+            print(f"node-sim: --truth-log {self.path!r}: write failed ({error}); {end}", file=sys.stderr, flush=True)
 
     def close(self) -> None:
         with self._lock:

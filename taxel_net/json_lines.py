@@ -87,9 +87,10 @@ class JsonLinesWriter:
     closed, every later value is counted, not written (``not_written``). :attr:`failure` is one
     line naming the option, the file, the failures and what is missing, or None."""
 
-    def __init__(self, path, encode: Callable[[object], bytes], *, option: str):
+    def __init__(self, path, encode: Callable[[object], bytes], *, option: str, what: str = "file"):
         self.path = Path(path)
         self.option = option
+        self.what = what                      # what the file is, in :attr:`failure`
         self._encode = encode
         try:
             self._file = open(self.path, "wb", buffering=0)
@@ -101,6 +102,7 @@ class JsonLinesWriter:
         self.encode_error: tuple | None = None   # (cycle, one line) of the first value left out
         self.not_written = 0
         self.io_error: tuple | None = None       # (cycle, one line): the failure that ended the file
+        self.new_failure: tuple | None = None    # after write: ("io" | "encode", one line) when it was the first of its kind
         self._end_offset = 0                     # the file's size after its last whole line
 
     @property
@@ -109,6 +111,7 @@ class JsonLinesWriter:
 
     def write(self, value) -> bool:
         """Write ``value`` as one line; False when it was not written (class docstring)."""
+        self.new_failure = None
         if self.io_error is not None:
             self.not_written += 1
             return False
@@ -118,6 +121,7 @@ class JsonLinesWriter:
             self.not_encoded += 1
             if self.encode_error is None:
                 self.encode_error = (_cycle_of(value), one_line(exc))
+                self.new_failure = ("encode", self.encode_error[1])
             return False
         line = memoryview(text + b"\n")
         try:
@@ -126,6 +130,7 @@ class JsonLinesWriter:
         except (OSError, ValueError) as exc:  # ValueError: the file closed under us
             self.not_written += 1
             self.io_error = (_cycle_of(value), one_line(exc))
+            self.new_failure = ("io", self.io_error[1])
             self._end()
             return False
         self._end_offset += len(text) + 1
@@ -156,7 +161,7 @@ class JsonLinesWriter:
         if not parts:
             return None
         return (f"{self.option} {str(self.path)!r}: " + "; ".join(parts)
-                + f"; {self.count} records written (the file is incomplete)")
+                + f"; {self.count} records written (the {self.what} is incomplete)")
 
     def close(self) -> None:
         if not self._file.closed:

@@ -416,13 +416,14 @@ class FusionService:
                 self.centre_latency.add(ms)
                 self.centre_latency_ms.append(ms)
         writer = self.writer
-        if writer is not None and not writer.write(record):
-            if writer.io_failed and writer.not_written == 1:
+        if writer is not None and not writer.write(record) and writer.new_failure is not None:
+            kind, error = writer.new_failure
+            if kind == "io":
                 logger.error("cycle %d: the decision log %r ends here: %s - no more records are written to it "
-                             "(the run goes on; counted)", item.cycle, str(writer.path), writer.io_error[1])
-            elif not writer.io_failed and writer.not_encoded == 1:
+                             "(the run goes on; counted)", item.cycle, str(writer.path), error)
+            else:
                 logger.error("cycle %d: the decision log %r: the record cannot be encoded (%s) - left out "
-                             "(further ones only counted)", item.cycle, str(writer.path), writer.encode_error[1])
+                             "(further ones only counted)", item.cycle, str(writer.path), error)
         try:
             self.stats.add(record)
         except Exception:  # noqa: BLE001 - the aggregates never stop the records

@@ -189,10 +189,9 @@ class GripStage:
                 self.edge_run = self.edge_run + 1 if displacement > self.edge_band + 1e-9 else 0
                 if self.edge_run >= self.edge_cycles:
                     self.peak_cycle = record["cycle"]   # the peak stays at the band: the full pitch flags again
-            now = self.peak_cycle is not None and record["cycle"] - self.peak_cycle < self.slip_hold
-        elif unobserved:
-            # nothing measured: the flag of the last new farthest displacement held as long as it
-            # would have been (slip_hold) - the motion it stood for is not known to have stopped
+        if displacement is not None or unobserved:
+            # (unobserved: nothing measured - the flag of the last new farthest displacement held as
+            # long as it would have been: the motion it stood for is not known to have stopped)
             now = self.peak_cycle is not None and record["cycle"] - self.peak_cycle < self.slip_hold
         ratio = slip.get("force_ratio")
         if self.raw and ratio is not None and ratio > 1.0:

@@ -123,12 +123,7 @@ class RecordWriter(JsonLinesWriter):
     ends the file at its last whole line and is said in :attr:`failure`)."""
 
     def __init__(self, path, option: str = "--json-lines"):
-        super().__init__(path, dumpb, option=option)
-
-    @property
-    def failure(self) -> str | None:
-        text = super().failure
-        return None if text is None else text.replace("(the file is incomplete)", "(the decision log is incomplete)")
+        super().__init__(path, dumpb, option=option, what="decision log")
 
     def write(self, record: dict) -> bool:
         global _logged
