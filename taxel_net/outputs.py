@@ -15,6 +15,7 @@ failed command was to replace, only where that is a regular file.
 
 from __future__ import annotations
 
+import logging
 import os
 import stat
 from pathlib import Path
@@ -22,6 +23,8 @@ from pathlib import Path
 from .errors import UsageError
 
 PARTIAL = ".partial"
+
+log = logging.getLogger(__name__)
 
 
 def _mode(path: Path) -> int | None:
@@ -68,9 +71,10 @@ class OutputPath:
             os.replace(self.partial, self.target)
 
     def discard_partial(self) -> None:
-        """Remove the partial file written so far (never a special file)."""
+        """Remove the partial file written so far (never a special file); a file that cannot be
+        removed is left, with a warning (this runs on a command's failure path: never raises)."""
         if not self.in_place and _is_regular(self.partial):
-            self.partial.unlink()
+            _remove(self.partial, "the partial output")
 
     def discard_stale(self) -> None:
         """A failed run: remove an earlier output at the target so it cannot pass for this
@@ -88,10 +92,23 @@ def _is_regular(path: Path) -> bool:
 def discard_stale(path) -> bool:
     """Remove the regular file an output path names (the target of a link to one, the link kept),
     so an earlier run's output cannot pass for a failed run's; a device, FIFO, socket or
-    directory is left alone. Returns whether a file was removed."""
+    directory is left alone. Returns whether a file was removed: a file that cannot be removed
+    (``/proc/version``, a read-only file system) is left with a warning - this runs on a command's
+    failure path, whose own error is the one to report, so it never raises."""
     p = Path(path)
     mode = _mode(p)
     if mode is None or not stat.S_ISREG(mode):
         return False
-    Path(os.path.realpath(p)).unlink()
+    return _remove(Path(os.path.realpath(p)), "an earlier file at")
+
+
+def _remove(path: Path, what: str) -> bool:
+    try:
+        path.unlink()
+    except FileNotFoundError:
+        return False
+    except OSError as exc:
+        log.warning("%s %r could not be removed (%s: %s): it is not this run's output", what, str(path),
+                    type(exc).__name__, exc.strerror or exc)
+        return False
     return True

@@ -32,7 +32,8 @@ Convention (also in docs/contributing.md):
     matches any text within that line. Before comparing, ``VOLATILE_TEXT`` rewrites the values
     that depend on the machine's timing, not on the code, in both texts: the summary lines of a
     run that count late or degraded cycles, frames and latencies (``TIMING_SUMMARY_KEYS``, compared
-    by name only) and the elapsed time of a progress bar.
+    by name only), the elapsed time of a progress bar, and the ``nmt_restarts`` line a run prints only
+    when nodes were found stopped on a slow host (removed).
 """
 
 from __future__ import annotations
@@ -77,6 +78,9 @@ VOLATILE_TEXT = [
     (re.compile(r"^(\s*(?:" + "|".join(TIMING_SUMMARY_KEYS) + r"):)[^\n]*$", re.MULTILINE), r"\g<1> <timing>"),
     # elapsed time of a rich progress bar
     (re.compile(r"\b\d+:\d\d:\d\d\b"), "<h:mm:ss>"),
+    # a summary line a run prints only when the host was slow: nodes that stopped on a late master
+    # heartbeat (CiA 301 0x1029) and were started again by the master's supervision - removed
+    (re.compile(r"^\s*nmt_restarts:[^\n]*\n?", re.MULTILINE), ""),
 ]
 
 SETUP_LINE = re.compile(

@@ -189,6 +189,34 @@ def test_output_path_and_discard_stale_by_file_type(tmp_path):
         OutputPath(tmp_path, option="--json-lines")
 
 
+def unremovable_file() -> Path:
+    """A file ``stat`` calls regular that not even root can remove, open for writing or create a
+    sibling of: ``/proc/version``."""
+    path = Path("/proc/version")
+    if not (path.exists() and stat.S_ISREG(os.stat(path).st_mode)):
+        pytest.skip("no /proc/version on this system (Linux has it): the unremovable-file case needs it")
+    return path
+
+
+def test_a_file_that_cannot_be_removed_is_left_with_a_warning_never_a_traceback(tmp_path, caplog):
+    version = unremovable_file()
+    before = version.read_bytes()
+    assert not discard_stale(version)
+    assert version.read_bytes() == before
+    assert "could not be removed" in caplog.text and "/proc/version" in caplog.text
+
+
+def test_mcap_onto_a_file_that_cannot_be_removed_fails_in_one_line(tmp_path):
+    version = unremovable_file()
+    scene = tmp_path / "tiny3.toml"
+    scene.write_text(TINY)
+    done = cli("demo", "--scene", scene, "--cycles", 3, "--no-live", "--mcap", version)
+    assert done.returncode == 2, done.stderr
+    assert "Traceback" not in done.stderr
+    errors = [line for line in done.stderr.splitlines() if "error:" in line]
+    assert len(errors) == 1 and "--mcap '/proc/version': cannot be written" in errors[0], done.stderr
+
+
 def full_device() -> Path:
     """``/dev/full``: every write fails with ENOSPC (a full disk without filling one)."""
     path = Path("/dev/full")
