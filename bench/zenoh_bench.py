@@ -27,7 +27,8 @@ CPU of ``--zenoh`` per cycle, side by side in one run.
   decision log (to /dev/null), whose line the publisher puts instead of serialising the record
   again. Goal: at most +5 %.
 
-bench/zenoh_floor.py measures Zenoh's per-message cost alone (two processes, no centre).
+bench/zenoh_floor.py measures Zenoh's per-message cost alone (two processes, no centre);
+bench/zenoh_put_floor.py that of one ``--zenoh`` put under each of Zenoh's settings.
 The host's load is printed with each run: on a shared 2-core machine the spread between runs
 is the figure to compare the ratios with.
 """
