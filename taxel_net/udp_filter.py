@@ -16,14 +16,30 @@ would drop. Linux only; elsewhere, or for filters the program cannot express (a 
 over 32 bits, more than fit a program), the bus keeps Python's filtering alone.
 
 Filters set with ``bus.set_filters`` directly do not reach the kernel: use :func:`set_filters`.
+
+**A sender's own frames** (:func:`drop_own_frames`): the group loops every datagram back to its
+sender too, where a CAN controller never hands a node its own frames. The fusion centre sends its
+datagrams with a tag of its own in python-can's ``timestamp`` field - a float64 that python-can's
+receivers never read (``UdpMulticastBus`` and :func:`taxel_net.udp_wire.udp_multicast_drain`
+replace it with the receive time stamp), so every receiver sees the frame it saw before - and
+its socket's program drops the datagrams carrying that tag before they are queued: no wake-up,
+no system call, no unpacking for an echo (the centre read its SYNC's echo in a receive turn of
+its own, ~0.1 ms of the receive thread's time on the way to the cycle's command,
+docs/grip-control.md). The tag is the time the bus was opened with its last 20 mantissa bits
+drawn at random (a plausible time stamp for any reader that does look; never the 0.0 a new
+``can.Message`` and node_sim's senders write); datagrams of other senders, whatever their
+content, pass as before.
 """
 
 from __future__ import annotations
 
 import ctypes
 import logging
+import random
 import socket
 import struct
+import time
+import weakref
 from typing import Sequence
 
 import can
@@ -45,6 +61,11 @@ _AND, _XOR = 0x50, 0xA0
 _JA, _JEQ, _JGE = 0x00, 0x10, 0x30
 _K = 0x00
 _MAX_INSTRUCTIONS = 4096
+TIMESTAMP_AT = PAYLOAD + len(_MAP_TIMESTAMP)  # the float64 of python-can's "timestamp" field
+
+# bus -> the 8 bytes (big endian float64) its own datagrams carry in "timestamp" and its socket's
+# program drops (drop_own_frames); set_filters keeps them in every program it attaches
+_OWN_TAGS: "weakref.WeakKeyDictionary[can.BusABC, bytes]" = weakref.WeakKeyDictionary()
 
 
 class _Program:
@@ -90,9 +111,17 @@ class _Program:
         return b"".join(out)
 
 
-def compile_filters(filters: Sequence[dict]) -> bytes | None:
+def compile_filters(filters: Sequence[dict], own_tag: bytes | None = None) -> bytes | None:
     """The BPF program (``struct sock_filter`` array) of python-can ``filters`` (module
-    docstring), or None when they cannot be expressed (an ID or mask beyond 32 bits, too many)."""
+    docstring), or None when they cannot be expressed (an ID or mask beyond 32 bits, too many).
+    ``own_tag`` (8 bytes): datagrams of python-can's layout whose ``timestamp`` float64 is
+    exactly these bytes are dropped first (the sender's own, :func:`drop_own_frames`); with no
+    ``filters`` every other datagram passes. No filters and no tag: None (no program)."""
+    filters = list(filters or ())
+    if not filters and own_tag is None:
+        return None
+    if own_tag is not None and len(own_tag) != 8:
+        raise ValueError(f"own_tag: 8 bytes (a float64), got {len(own_tag)}")
     for f in filters:
         if not (0 <= int(f["can_id"]) < 2 ** 32 and 0 <= int(f["can_mask"]) < 2 ** 32):
             return None
@@ -100,6 +129,15 @@ def compile_filters(filters: Sequence[dict]) -> bytes | None:
     p.op(_LD | _W | _LEN)                                   # A = datagram length (UDP header included)
     p.op(_JMP | _JGE | _K, PAYLOAD + MIN_LENGTH, 0, "accept")
     p.expect_bytes(_ABS, PAYLOAD, _MAP_TIMESTAMP)          # fixmap(11), "timestamp", float64
+    if own_tag is not None:  # the float64 is the sender's own tag: its own echo, dropped here
+        p.op(_LD | _W | _ABS, TIMESTAMP_AT)
+        p.op(_JMP | _JEQ | _K, int.from_bytes(own_tag[:4], "big"), 0, "not_own")
+        p.op(_LD | _W | _ABS, TIMESTAMP_AT + 4)
+        p.op(_JMP | _JEQ | _K, int.from_bytes(own_tag[4:], "big"), 0, "not_own")
+        p.op(_RET | _K, DROP)   # (no scratch memory stored yet: the return may precede a label)
+        p.label("not_own")
+        if not filters:
+            p.op(_JMP | _JA, "accept")
     p.expect_bytes(_ABS, PAYLOAD + 20, _ARBITRATION_ID)    # after the 8 bytes of the float
     at = PAYLOAD + 20 + len(_ARBITRATION_ID)                # the ID's msgpack marker
     p.op(_LD | _B | _ABS, at)
@@ -150,30 +188,83 @@ def _socket_of(bus: can.BusABC) -> socket.socket | None:
     return sock if isinstance(sock, socket.socket) and sock.family in (socket.AF_INET, socket.AF_INET6) else None
 
 
+def _attach(sock: socket.socket, program: bytes | None) -> bool:
+    """``program`` attached to ``sock`` (None: any program detached); whether one is attached."""
+    if program is None:
+        try:
+            sock.setsockopt(socket.SOL_SOCKET, SO_DETACH_FILTER, 0)
+        except OSError:  # none attached
+            pass
+        return False
+    buffer = ctypes.create_string_buffer(program, len(program))
+    sock.setsockopt(socket.SOL_SOCKET, SO_ATTACH_FILTER, struct.pack("@HP", len(program) // 8, ctypes.addressof(buffer)))
+    return True
+
+
 def set_filters(bus: can.BusABC, filters: Sequence[dict] | None) -> bool:
     """``bus.set_filters(filters)``, and on a ``udp_multicast`` bus the same filters in its
-    socket's kernel filter (module docstring); None / no filters: the kernel filter removed.
-    Returns whether the kernel filters the bus now."""
+    socket's kernel filter (module docstring); None / no filters: the kernel filter removed
+    (but for the bus's own tag, :func:`drop_own_frames`, which every program keeps).
+    Returns whether the kernel filters the bus's IDs now."""
     bus.set_filters(filters)
     sock = _socket_of(bus)
     if sock is None:
         return False
-    program = compile_filters(list(filters)) if filters else None
+    own = _OWN_TAGS.get(bus)
+    if not filters:
+        program = None
+    else:  # (a bus without a tag: the filters' program as it always was)
+        program = compile_filters(list(filters)) if own is None else compile_filters(list(filters), own)
     try:
-        if program is None:
-            try:
-                sock.setsockopt(socket.SOL_SOCKET, SO_DETACH_FILTER, 0)
-            except OSError:  # none attached
-                pass
+        if program is None:  # no filters, or none the kernel can express: the own tag alone, if any
+            _attach(sock, compile_filters((), own) if own is not None else None)
             return False
-        buffer = ctypes.create_string_buffer(program, len(program))
-        sock.setsockopt(socket.SOL_SOCKET, SO_ATTACH_FILTER,
-                        struct.pack("@HP", len(program) // 8, ctypes.addressof(buffer)))
-        return True
+        return _attach(sock, program)
     except OSError as exc:  # not Linux, or refused: Python's filtering alone
         logger.debug("udp_multicast bus %s: no kernel filter (%s)", bus.channel_info, exc)
+        _OWN_TAGS.pop(bus, None)  # (its own frames come back again: the caller's echo filter takes them)
         try:
             sock.setsockopt(socket.SOL_SOCKET, SO_DETACH_FILTER, 0)
         except OSError:
             pass
         return False
+
+
+def new_own_tag() -> float:
+    """A tag for a bus's own datagrams (module docstring): the time now, its last 20 mantissa
+    bits random - a finite positive float64, never 0.0."""
+    bits, = struct.unpack(">Q", struct.pack(">d", time.time()))
+    bits = (bits & ~0xFFFFF) | random.SystemRandom().getrandbits(20)
+    tag, = struct.unpack(">d", struct.pack(">Q", bits))
+    return tag
+
+
+def drop_own_frames(bus: can.BusABC) -> float | None:
+    """On a ``udp_multicast`` bus (Linux): a tag for the bus's own datagrams, which its socket's
+    kernel filter drops from now on (module docstring) - its python-can filters kept, in the
+    kernel where they were; write it in the ``timestamp`` field of what the bus sends
+    (:func:`taxel_net.udp_wire.udp_multicast_burst_sender` ``stamp``) and no echo of those
+    comes back. None for any other bus, or where no filter can be attached (the echoes come
+    back as before)."""
+    sock = _socket_of(bus)
+    if sock is None or not hasattr(bus, "_multicast"):
+        return None
+    tag = new_own_tag()
+    packed = struct.pack(">d", tag)
+    filters = getattr(bus, "_filters", None)
+    program = compile_filters(list(filters), packed) if filters else None
+    if program is None:  # no filters, or not expressible in the kernel (Python filters them)
+        program = compile_filters((), packed)
+    try:
+        _attach(sock, program)
+    except OSError as exc:
+        logger.debug("udp_multicast bus %s: its own frames not dropped in the kernel (%s)", bus.channel_info, exc)
+        return None
+    _OWN_TAGS[bus] = packed
+    return tag
+
+
+def own_tag(bus: can.BusABC) -> float | None:
+    """The tag :func:`drop_own_frames` gave the bus (its socket drops datagrams carrying it), or None."""
+    packed = _OWN_TAGS.get(bus)
+    return None if packed is None else struct.unpack(">d", packed)[0]

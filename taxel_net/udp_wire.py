@@ -204,17 +204,18 @@ def udp_multicast_drain(bus: can.BusABC) -> Callable[[], Iterator[can.Message]] 
 
 
 
-def udp_multicast_burst_sender(bus: can.BusABC) -> Callable[[list[tuple]], None] | None:
+def udp_multicast_burst_sender(bus: can.BusABC, stamp: float = 0.0) -> Callable[[list[tuple]], None] | None:
     """For a python-can 4.x ``UdpMulticastBus``: send a burst of 11-bit data frames (``(can_id,
     data)``, or ``(can_id, data, True)`` for CAN FD with bit-rate switch; ``node_sim.link``'s
     burst) as ``bus.send`` sends ``can.Message(arbitration_id=can_id, data=data,
-    is_extended_id=False, is_fd=..., bitrate_switch=...)`` for each, in order: the same datagram
-    bytes (``pack_message``; the time stamp field 0.0, as a new Message's - receivers stamp
-    the kernel's receive time), one ``sendto`` each, the same errors (an FD frame on a classic
-    bus: ``CanOperationError``; a failed send: ``CanOperationError``, the frames before it
-    sent). Each datagram is a cached prefix per (COB-ID, length, FD) + the data + a tail.
-    None for any other bus, or a python-can whose datagrams these are not (checked once, on
-    a probe frame, against ``pack_message``)."""
+    is_extended_id=False, is_fd=..., bitrate_switch=..., timestamp=stamp)`` for each, in order:
+    the same datagram bytes (``pack_message``; the time stamp field ``stamp``, by default 0.0
+    as a new Message's - receivers stamp the kernel's receive time; the centre writes its own
+    tag there, :func:`taxel_net.udp_filter.drop_own_frames`), one ``sendto`` each, the same
+    errors (an FD frame on a classic bus: ``CanOperationError``; a failed send:
+    ``CanOperationError``, the frames before it sent). Each datagram is a cached prefix per
+    (COB-ID, length, FD) + the data + a tail. None for any other bus, or a python-can whose
+    datagrams these are not (checked once, on a probe frame, against ``pack_message``)."""
     multicast = getattr(bus, "_multicast", None)
     sock = getattr(multicast, "_socket", None)
     destination = getattr(multicast, "_send_destination", None)
@@ -234,7 +235,7 @@ def udp_multicast_burst_sender(bus: can.BusABC) -> Callable[[list[tuple]], None]
 
     def prefix(can_id: int, length: int, fd: bool) -> bytes:
         bin_header = msgpack.packb(bytes(length), use_bin_type=True)[:-length or None]
-        head = b"\x8b" + b"".join((pack("timestamp", 0.0), pack("arbitration_id", can_id), pack("is_extended_id", False),
+        head = b"\x8b" + b"".join((pack("timestamp", float(stamp)), pack("arbitration_id", can_id), pack("is_extended_id", False),
                                   pack("is_remote_frame", False), pack("is_error_frame", False), pack("channel", None),
                                   pack("dlc", length), msgpack.packb("data", use_bin_type=True), bin_header))
         prefixes[can_id, length, fd] = head
@@ -242,7 +243,7 @@ def udp_multicast_burst_sender(bus: can.BusABC) -> Callable[[list[tuple]], None]
             tails[fd] = pack("is_fd", fd) + pack("bitrate_switch", fd) + pack("error_state_indicator", False)
         return head
 
-    probe = can.Message(arbitration_id=0x181, data=b"\x01\x02", is_extended_id=False)
+    probe = can.Message(arbitration_id=0x181, data=b"\x01\x02", is_extended_id=False, timestamp=float(stamp))
     if prefix(0x181, 2, False) + b"\x01\x02" + tails[False] != pack_message(probe):
         return None  # another python-can layout: bus.send per frame
     sendto = sock.sendto

@@ -241,3 +241,46 @@ def test_a_one_channel_sync_is_fed_before_it_is_sent_and_the_lock_is_free_during
     assert events.fed == fed_before + 2 and events.tx_errors == 1
     assert not events.echoes.is_echo(can.Message(arbitration_id=0x80, data=b"\x02", is_extended_id=False), 0)
     assert events.echoes.is_echo(can.Message(arbitration_id=0x80, data=b"\x01", is_extended_id=False), 0)
+
+
+def test_the_centre_s_own_frames_never_come_back_to_its_receive_thread():
+    """udp_multicast loops every datagram back to its sender, and the centre's receive thread read
+    its own SYNC (and command, heartbeat, NMT) in a turn of its own - a wake-up, a system call, an
+    unpacking and the echo filter, on the way to the cycle's answers (docs/grip-control.md). The
+    centre's datagrams now carry its bus's tag (taxel_net.udp_filter.drop_own_frames), which its
+    socket's kernel filter drops: no frame of its own reaches its listener, each is still counted
+    as an own echo dropped, and another sender's identical SYNC is still a foreign SYNC."""
+    import time
+
+    from test_junk_isolation import MATRIX, _without_sync_counter
+    from test_service_multiprocess import GROUP, multicast_port
+
+    from fusion_center.service import FusionService
+    from taxel_net.scene import load_scene
+
+    port = multicast_port()
+    scene = _without_sync_counter(load_scene(MATRIX))
+    tool = can.Bus(interface="udp_multicast", channel=GROUP, port=port, hop_limit=0)
+    try:
+        with FusionService(scene, interface="udp_multicast", channels=[GROUP],
+                           bus_kwargs={"port": port, "hop_limit": 0}) as service:
+            (handle,) = service.notifiers
+            (listener,) = handle.listeners
+            heard: list[int] = []
+            original = listener.on_messages_received
+            listener.on_messages_received = lambda msgs: heard.extend(m.arbitration_id for m in msgs) or original(msgs)
+            for _ in range(20):
+                service.stream.transmit(0, 0x080, b"")
+                time.sleep(0.002)
+            time.sleep(0.2)
+            assert heard == []
+            assert service.summary().own_echoes == 20
+            tool.send(can.Message(arbitration_id=0x080, data=b"", is_extended_id=False))
+            deadline = time.monotonic() + 2
+            while not heard and time.monotonic() < deadline:
+                time.sleep(0.01)
+            time.sleep(0.05)
+            assert heard == [0x080]
+            assert service.stream.counters()["foreign_sync"] == 1
+    finally:
+        tool.shutdown()

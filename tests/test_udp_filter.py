@@ -197,3 +197,100 @@ def test_a_sync_sent_once_the_sdo_answer_came_reaches_the_twin_whose_cob_id_it_m
     finally:
         rig.stop()
         master.shutdown()
+
+
+def _drain_raw(sock, settle: float = 0.05) -> list[bytes]:
+    time.sleep(settle)
+    got = []
+    while True:
+        try:
+            got.append(sock.recv(4096, socket.MSG_DONTWAIT))
+        except BlockingIOError:
+            return got
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_the_kernel_drops_a_sender_s_own_tagged_datagrams_and_only_those(seed):
+    """drop_own_frames: the datagrams whose python-can ``timestamp`` float64 is the bus's tag are
+    dropped before they are queued - with and without ID filters, which keep their own rule - and
+    every other datagram (python-can's with any other time stamp, other layouts, cut short,
+    random bytes) is left as before."""
+    import struct as struct_
+
+    from taxel_net.udp_filter import drop_own_frames, own_tag
+
+    rng = random.Random(seed)
+    port = multicast_port()
+    bus = can.Bus(interface="udp_multicast", channel=GROUP, port=port, hop_limit=0)
+    tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        tune_udp_multicast(bus)
+        filters = random_filters(rng) if seed else None
+        if filters:
+            set_filters(bus, filters)
+        tag = drop_own_frames(bus)
+        assert tag is not None and tag > 0 and own_tag(bus) == tag
+        packed = struct_.pack(">d", tag)
+        datagrams = random_datagrams(rng, 300)
+        for k in range(0, len(datagrams), 3):  # a third of them carry the tag where python-can's layout has it
+            data = datagrams[k]
+            if data.startswith(b"\x8b\xa9timestamp\xcb") and len(data) >= 20:
+                datagrams[k] = data[:12] + packed + data[20:]
+        near = bytearray(datagrams[3])
+        near[19] ^= 1                                     # one bit off the tag: not ours
+        datagrams.append(bytes(near))
+        sock = bus._multicast._socket
+        got = []
+        for data in datagrams:
+            tx.sendto(data, (GROUP, port))
+            got += _drain_raw(sock, 0)
+        got += _drain_raw(sock)
+
+        def own(data: bytes) -> bool:
+            return len(data) >= MIN_LENGTH and data.startswith(b"\x8b\xa9timestamp\xcb") and data[12:20] == packed
+
+        expected = [d for d in datagrams if not own(d) and (filters is None or kernel_keeps(filters, d))]
+        assert got == expected
+        assert any(own(d) for d in datagrams) and own(datagrams[3]) and not own(datagrams[-1])
+        if filters:  # filters set after the tag keep it; none at all: the tag alone
+            set_filters(bus, filters)
+            tx.sendto(datagrams[3], (GROUP, port))
+            assert _drain_raw(sock) == []
+        set_filters(bus, None)
+        tx.sendto(datagrams[3], (GROUP, port))
+        tx.sendto(datagrams[-1], (GROUP, port))
+        assert _drain_raw(sock) == [datagrams[-1]]     # the tag outlives the filters' removal
+    finally:
+        tx.close()
+        bus.shutdown()
+
+
+def test_a_tagged_frame_is_the_frame_bus_send_sends_to_every_other_receiver():
+    """The tag is python-can's ``timestamp`` field, which receivers replace with their receive
+    time: another bus gets the same frame as from ``bus.send``; the sender's own socket none of
+    it; a byte-identical frame of another sender (no tag) reaches the tagged bus."""
+    from taxel_net.udp_filter import drop_own_frames
+    from taxel_net.udp_wire import udp_multicast_burst_sender
+
+    port = multicast_port()
+    centre = can.Bus(interface="udp_multicast", channel=GROUP, port=port, hop_limit=0)
+    other = can.Bus(interface="udp_multicast", channel=GROUP, port=port, hop_limit=0)
+    try:
+        tag = drop_own_frames(centre)
+        assert tag is not None
+        send = udp_multicast_burst_sender(centre, stamp=tag)
+        send([(0x080, b""), (0x240, bytes((0x0F, 0, 0x64, 0, 0, 0, 0, 0)))])
+        other.send(can.Message(arbitration_id=0x080, data=b"", is_extended_id=False))  # another master's SYNC
+        seen = []
+        while (msg := other.recv(0.2)) is not None:
+            seen.append(msg)
+        assert [(m.arbitration_id, bytes(m.data), m.is_extended_id, m.is_fd, m.dlc) for m in seen[:2]] == \
+            [(0x080, b"", False, False, 0), (0x240, bytes((0x0F, 0, 0x64, 0, 0, 0, 0, 0)), False, False, 8)]
+        assert all(abs(m.timestamp - time.time()) < 5 for m in seen)   # the receive time, not the tag
+        heard = []
+        while (msg := centre.recv(0.2)) is not None:
+            heard.append((msg.arbitration_id, bytes(msg.data)))
+        assert heard == [(0x080, b"")]                                     # the other sender's only
+    finally:
+        centre.shutdown()
+        other.shutdown()

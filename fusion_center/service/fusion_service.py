@@ -36,6 +36,7 @@ from taxel_net.eds_file import import_eds
 from taxel_net.errors import EdsError, UsageError
 from taxel_net.receiver import notifiers_for
 from taxel_net.resources import eds_path, patch_eds_path
+from taxel_net.udp_filter import drop_own_frames
 from taxel_net.scene import Scene
 from .aggregates import LatencyHistogram, RunAggregates
 from .cycle_records import MALFORMED, ClosedCycle
@@ -253,6 +254,8 @@ class FusionService:
             raise UsageError(f"--channel {name!r} cannot be opened with interface {self.interface!r}: "
                              f"{type(exc).__name__}: {exc}") from None
         tune_udp_multicast(bus)  # udp_multicast: its own group only, room for bursts (taxel_net.canmsg)
+        if self.interface == "udp_multicast":  # its own datagrams dropped in the kernel on their way back
+            drop_own_frames(bus)                # (taxel_net.udp_filter; the stream tags what it sends)
         return bus
 
     def close(self) -> None:
@@ -360,7 +363,7 @@ class FusionService:
             sdo_timeouts=m.sdo_timeouts if m else 0,
             sync_overruns=m.sync_overruns if m else 0,
             missing_at_boot=[self.labels[i] for i in self.missing_at_boot],
-            own_echoes=self.own_echoes,
+            own_echoes=self.own_echoes + self.stream.echoes_dropped_in_kernel,
             tx_errors=self.stream.tx_errors,
             latency_ms=list(self.latency_ms),
             latency_hist=self.latency,

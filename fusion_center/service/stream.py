@@ -37,6 +37,7 @@ import can
 
 from taxel_net.canmsg import TxMessage
 from taxel_net.errors import one_line
+from taxel_net.udp_filter import own_tag
 from taxel_net.udp_wire import udp_multicast_burst_sender
 from .common_frames import CommonFrames
 from .node_frames import NodeFrames
@@ -234,6 +235,10 @@ class EventStream:
         self.foreign_syncs = 0
         self._sent_any = False
         self._senders: dict[int, Callable[[list[tuple]], None] | None] = {}  # channel -> _direct_sender
+        # channel -> its direct sender tags the datagrams its socket's kernel filter drops on their
+        # way back (taxel_net.udp_filter.drop_own_frames): no echo to await (self.echoes)
+        self._own_dropped: dict[int, bool] = {}
+        self.echoes_dropped_in_kernel = 0  # frames sent so tagged: their echoes the kernel dropped
         # the common frames of a receive turn fed in one loop (None: each by _feed_locked): packed
         # patch TPDOs (.common_frames), or one-taxel nodes' TPDO1 / TPDO2 (.node_frames)
         self.common: CommonFrames | NodeFrames | None = (CommonFrames.for_assembler(assembler)
@@ -352,9 +357,10 @@ class EventStream:
             for channel, can_id, data in frames:
                 data = bytearray(data) if data is not None else bytearray()  # as can.Message keeps it
                 sent_at = time.time()  # before the send: every answer to this frame is later
-                if self.echoes is not None:  # before the send: its echo can come back at once
-                    self.echoes.sent(channel, can_id, data, remote)
                 direct = None if remote else self._direct_sender(channel)
+                own = direct is not None and self._own_dropped.get(channel, False)  # its echo never comes back
+                if self.echoes is not None and not own:  # before the send: its echo can come back at once
+                    self.echoes.sent(channel, can_id, data, remote)
                 msg = None
                 try:
                     if direct is None:
@@ -364,8 +370,10 @@ class EventStream:
                     else:  # the datagram first, the stream's Message of it after (the grip command)
                         direct([(can_id, data)])
                 except can.CanError as exc:
-                    self._send_failed(channel, can_id, data, remote, exc)
+                    self._send_failed(channel, can_id, data, remote, exc, own)
                     continue
+                if own:
+                    self.echoes_dropped_in_kernel += 1
                 if msg is None:
                     msg = TxMessage(arbitration_id=can_id, data=data, is_extended_id=False, channel=channel)
                 msg.timestamp = sent_at
@@ -392,11 +400,14 @@ class EventStream:
         fed = TxMessage(arbitration_id=can_id, data=data, is_extended_id=False, channel=channel)
         fed.timestamp = sent_at
         fed.is_rx = False  # sent by the centre: "Tx" in the trace
+        direct = self._direct_sender(channel)
+        own = direct is not None and self._own_dropped.get(channel, False)  # its echo never comes back
         with self.lock:
-            if self.echoes is not None:  # before the send: its echo can come back at once
+            if own:  # counted before the send (the lock is not taken again for it), undone if it fails
+                self.echoes_dropped_in_kernel += 1
+            elif self.echoes is not None:  # before the send: its echo can come back at once
                 self.echoes.sent(channel, can_id, data, False)
             closed = self._feed_locked(fed, channel)
-        direct = self._direct_sender(channel)
         try:
             if direct is None:  # a Message of its own: the fed one is the stream's (time stamp, channel)
                 self.buses[channel].send(TxMessage(arbitration_id=can_id, data=bytearray(data),
@@ -405,13 +416,16 @@ class EventStream:
                 direct([(can_id, data)])
         except can.CanError as exc:
             with self.lock:
-                self._send_failed(channel, can_id, data, False, exc)
+                if own:
+                    self.echoes_dropped_in_kernel -= 1
+                self._send_failed(channel, can_id, data, False, exc, own)
         if closed or len(self._trace_queue) >= TRACE_BATCH:
             self._after_feed(closed)
 
-    def _send_failed(self, channel: int, can_id: int, data, remote: bool, exc: can.CanError) -> None:
+    def _send_failed(self, channel: int, can_id: int, data, remote: bool, exc: can.CanError,
+                     own: bool = False) -> None:
         """A frame that could not be sent (stream lock held): no echo will come, counted, logged."""
-        if self.echoes is not None:
+        if self.echoes is not None and not own:
             self.echoes.forget(channel, can_id, data, remote)
         self.tx_errors += 1
         self.rate_log.warning("tx_error", "transmit 0x%03X on channel %d failed: %s", can_id, channel, exc)
@@ -421,11 +435,19 @@ class EventStream:
         straight on the socket (:func:`taxel_net.udp_wire.udp_multicast_burst_sender`: the
         bytes ``bus.send`` writes but the ``channel`` field, None - receivers stamp their own -
         in 14 against 21 µs a frame: the eight SYNCs of a skin4096 cycle leave ~60 µs sooner).
-        None for any other bus (``bus.send``)."""
+        Where the bus's socket drops its own datagrams in the kernel
+        (:func:`taxel_net.udp_filter.drop_own_frames`, set when the service opened the bus), the
+        datagrams carry the bus's tag in their ``timestamp`` field (which receivers replace with
+        their receive time): no echo of them comes back to be read and dropped
+        (``echoes_dropped_in_kernel`` counts them). None for any other bus (``bus.send``)."""
         try:
             return self._senders[channel]
         except KeyError:
-            sender = self._senders[channel] = udp_multicast_burst_sender(self.buses[channel])
+            bus = self.buses[channel]
+            tag = own_tag(bus)
+            sender = udp_multicast_burst_sender(bus, stamp=tag if tag is not None else 0.0)
+            self._own_dropped[channel] = sender is not None and tag is not None
+            self._senders[channel] = sender
             return sender
 
     def flush_trace(self, to_disk: bool = False) -> None:
