@@ -330,6 +330,9 @@ class FusionService:
         # traversed by the cyclic collector during the run: a full collection of it took
         # 40-130 ms at 4,096 taxels (bench/skin_scale.py), a SYNC -> record outlier each time
         gcfreeze.hold()
+        # nor does the collector run on the way from a cycle's answers to its command: the SYNC
+        # producer collects what is due half a period after each SYNC (taxel_net.gcfreeze.defer)
+        gcfreeze.defer()
         try:
             self.master.start_sync(cycles, before_sync)
             if timeout_s is None:
@@ -338,6 +341,7 @@ class FusionService:
             self.master.stop()
             self.drain(timeout=5.0)
         finally:
+            gcfreeze.resume()
             gcfreeze.release()
         return self.summary()
 

@@ -59,7 +59,7 @@ from typing import Callable
 
 import canopen
 
-from taxel_net import patches
+from taxel_net import gcfreeze, patches
 from taxel_net.scene import TAXEL_KINDS, Scene
 import numpy as np
 
@@ -484,6 +484,10 @@ class Master:
                         break
                     self._supervise(supervise)
                     supervise = None
+                    # the cyclic collector's due work, here rather than in whichever thread
+                    # allocates next - often the receive thread between a cycle's answers and
+                    # its command (taxel_net.gcfreeze.defer, FusionService.run)
+                    gcfreeze.collect_due()
                 delay = next_at - time.monotonic()
                 if delay > 0:
                     if self._stop.wait(delay):

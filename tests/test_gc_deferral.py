@@ -1,0 +1,76 @@
+"""taxel_net.gcfreeze.defer / collect_due: while the centre runs, the cyclic collector's work is
+done by its SYNC producer half a period after each SYNC, never by its receive thread between a
+cycle's answers and its grip command (issue 23, docs/grip-control.md "SYNC -> command")."""
+
+from __future__ import annotations
+
+import gc
+import threading
+
+import pytest
+
+from taxel_net import gcfreeze
+
+
+@pytest.fixture
+def collections():
+    seen: list[tuple[int, str]] = []
+
+    def callback(phase, info):
+        if phase == "start":
+            seen.append((info["generation"], threading.current_thread().name))
+
+    gc.callbacks.append(callback)
+    try:
+        yield seen
+    finally:
+        gc.callbacks.remove(callback)
+
+
+def test_deferred_collections_wait_for_collect_due_which_follows_cpythons_rule(collections):
+    assert gc.isenabled()
+    before = gc.get_threshold()
+    gc.collect()
+    collections.clear()
+    gcfreeze.defer()
+    gcfreeze.defer()                                    # a second holder
+    resumed = 0
+    try:
+        assert gc.get_threshold() == (before[0] * gcfreeze.BACKSTOP, before[1], before[2])
+        kept = [[] for _ in range(3 * before[0])]      # containers: 3x the usual threshold
+        assert collections == [] and gc.get_count()[0] > before[0]
+        assert gcfreeze.collect_due() == 0              # what the collector would have done
+        assert collections == [(0, threading.current_thread().name)]
+        assert gcfreeze.collect_due() is None           # nothing due any more
+        for _ in range(before[1] + 1):                  # generation 1 due: its count over its threshold
+            kept += [[] for _ in range(before[0] + 1)]
+            gcfreeze.collect_due()
+        assert [g for g, _ in collections].count(1) == 1
+        gcfreeze.resume()
+        resumed += 1
+        assert gc.get_threshold() != before             # one holder left
+    finally:
+        for _ in range(2 - resumed):
+            gcfreeze.resume()
+    assert gc.get_threshold() == before
+    assert gcfreeze.collect_due() is None               # not deferred: the collector's own rule
+    gcfreeze.resume()                                    # one too many: nothing
+    assert gc.get_threshold() == before
+
+
+def test_the_centre_s_receive_thread_does_not_collect_during_a_run(collections):
+    """A demo run (the twins and the centre in one process): the collector runs (the run
+    allocates), but never in the centre's receive thread, where a cycle's answers become its
+    command; the SYNC producer does it."""
+    from fusion_center.commands.demo import run_demo
+    from taxel_net.resources import resolve_scene
+    from taxel_net.scene import load_scene
+
+    scene = load_scene(resolve_scene("grasp_lift_patch"))
+    before = gc.get_threshold()
+    service, _ = run_demo(scene, 150, keep_records=True)
+    assert len(service.records) == 150
+    threads = {name for _, name in collections}
+    assert "centre-receive" not in threads, collections
+    assert "sync-producer" in threads, collections
+    assert gc.get_threshold() == before                  # given back after the run
