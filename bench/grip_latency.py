@@ -41,8 +41,9 @@ marks taken by wrappers put around the centre's methods (they add ~1 µs a mark)
   ``complete`` (a late answer: the window or the next SYNC closes the cycle) is counted apart;
 * ``wake``: that frame's stamp -> the stream got the receive turn that brought it
   (``EventStream.receive_all``): the receive thread's wake-up, then the turn's datagrams read
-  and unpacked (one ``recvmsg`` each, the centre's own echoes among them) and its echoes
-  dropped; 0 when that began before the frame was sent (a burst drained as it comes);
+  and unpacked (one ``recvmsg`` each; the centre's own echoes among them before 2026-11-30,
+  since then dropped in the kernel: ``taxel_net.udp_filter.drop_own_frames``) and any echoes
+  left dropped; 0 when that began before the frame was sent (a burst drained as it comes);
 * ``assemble``: -> the cycle's evaluation starts (the turn's frames fed to the assembler under
   the stream lock, the cycle closed, its evaluation begun in the same thread);
 * ``rules``, ``forces``, ``slip``, ``grip``: the pipeline's stages (decision-vector part with the

@@ -8,7 +8,8 @@ Marks (``time.time()``, taken by wrappers around the centre's and its receive th
 ~1 µs each): ``kernel`` the closing frame's stamp (the record's ``closed_after_ms``), ``turn``
 the receive thread's turn began (``select`` returned: the wake-up), ``dispatch`` the turn's
 datagrams read and unpacked (``udp_multicast_drain``), ``recv_all`` the centre's own echoes
-dropped (``EchoFilter.foreign``), ``close_start`` / ``close_end`` the assembler's ``_close``
+dropped (``EchoFilter.foreign``; since its datagrams carry its bus's tag, 2026-11-30, the kernel
+drops them and this is the check that none is awaited), ``close_start`` / ``close_end`` the assembler's ``_close``
 (the frames before it fed), ``pending`` the stream lock released and the closed cycle's
 evaluation begun in the same thread, ``eval`` ``CyclePipeline.evaluate_command`` entered. Prints
 p50/p90/p99 ms of each step over the cycles, the COB-IDs of the closing turns (most common
