@@ -15,7 +15,9 @@ centre's own work, not waiting for the interpreter lock or a core), split into r
 datagrams), -> the close (echo filter, feed, close) and -> the command (evaluation, send); the
 closing frame's kernel stamp -> the turn's begin (the wake-up); the frames of the closing turns
 (COB-IDs, most common first); the receive thread's CPU per cycle over all its turns and its turns
-per cycle; the bench's ``answers``, ``wake``, ``centre`` and SYNC -> command on the bus; the load
+per cycle; the master's heartbeats' offset after their SYNC and SYNC -> command (the centre's
+clock: the SYNC's feed and send, the command's send and feed) of the cycles with a heartbeat
+between the two against the others; the bench's ``answers``, ``wake``, ``centre`` and SYNC -> command on the bus; the load
 average before and after. CPU time is less sensitive to the host's load than the latency
 (docs/grip-control.md, "2026-11-30").
 """
@@ -30,17 +32,18 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 
 ONE = r'''
-import collections, sys, time
+import bisect, collections, sys, threading, time
 from pathlib import Path
 root = Path(sys.argv[1]); scene, transport, ncycles = sys.argv[2], sys.argv[3], int(sys.argv[4])
 sys.path.insert(0, str(root)); sys.path.insert(0, str(root / "bench"))
 import numpy as np
 import grip_latency
-from fusion_center.service import drive_link, cycles as cycles_mod
+from fusion_center.service import drive_link, cycles as cycles_mod, stream as stream_mod
 from taxel_net import receiver
 
 wall, cpu = time.time, time.thread_time
 turns, cur, closing = [], {}, {}
+syncs, beats, commands = [], [], []   # time.time() of the SYNCs sent, the master's heartbeats, the commands
 
 def wrap(cls, name, before=None, after=None):
     fn = getattr(cls, name)
@@ -63,17 +66,26 @@ def closed(self, out, *a):
     cur["closed"] = out.cycle
     closing[out.cycle] = dict(cur, kernel=(self.t0_us + out.close_us) * 1e-6, we=wall(), ce=cpu())
 def sent(self, out, *a):
+    commands.append(wall())
     m = closing.get(cur.get("closed"))
     if m is not None and "ws" not in m:
         m["ws"], m["cs"] = wall(), cpu()
+def sync(self, channel, can_id, *a):
+    if can_id == 0x080:
+        syncs.append(wall())
+def beat(self, *a):
+    if threading.current_thread().name == "master-heartbeat":
+        beats.append(wall())
 
 wrap(receiver.SelectNotifiers, "_turn", turn_begin, turn_end)
 wrap(receiver._Handle, "dispatch_all", read)
 wrap(cycles_mod.CycleAssembler, "_close", None, closed)
 wrap(drive_link.DriveLink, "send_command", None, sent)
+wrap(stream_mod.EventStream, "transmit_fed_first", sync)
+wrap(stream_mod.EventStream, "transmit_all", beat)
 if transport == "player":
     grip_latency.run_embedded(scene, ncycles, instrumented=False)  # the recording, unmarked
-turns.clear(); closing.clear()
+turns.clear(); closing.clear(); syncs.clear(); beats.clear(); commands.clear()
 start = grip_latency.uptime().split("average:")[1].strip()
 out = grip_latency.RUNS[transport](scene, ncycles)
 end = grip_latency.uptime().split("average:")[1].strip()
@@ -93,6 +105,17 @@ print("  closing turns' frames:", [(" ".join(f"{i:#05x}" for i in ids), n) for i
 done = [t for t in turns if t[0] is not None]
 print(f"  receive thread CPU per cycle, all turns: {sum(t[3] - t[1] for t in done) / max(1, len(rows)) * 1e3:.3f} ms;"
       f" turns per cycle {len(done) / max(1, len(rows)):.2f}")
+with_beat, without = [], []
+for c in commands:
+    k = bisect.bisect_right(syncs, c) - 1
+    if k >= 0:
+        (with_beat if any(syncs[k] <= b <= c for b in beats) else without).append(c - syncs[k])
+offsets = [b - syncs[k] for b in beats if (k := bisect.bisect_right(syncs, b) - 1) >= 0]
+if offsets and with_beat:
+    print(f"  master heartbeats: p50 {np.median(offsets) * 1e3:.2f} ms after their SYNC; SYNC -> command sent "
+          f"(centre's clock) with one between: n {len(with_beat)} {p(with_beat)}; without: n {len(without)} {p(without)}")
+elif offsets:
+    print(f"  master heartbeats: p50 {np.median(offsets) * 1e3:.2f} ms after their SYNC; none between a SYNC and its command")
 stages = out["stages"]
 print("  bench: " + ", ".join(f"{s} p50 {np.median(stages[s]):.3f} p99 {np.percentile(stages[s], 99):.3f}"
                               for s in ("answers", "wake", "centre")))

@@ -162,3 +162,58 @@ def test_a_thread_start_cut_short_by_ctrl_c_does_not_break_the_close():
         master.stop_heartbeat()
         master.stop()
         assert master.wait_sync_done(0.1) is True
+
+
+def test_quiet_wait_is_the_way_to_the_sync_period_s_second_half():
+    import types
+
+    from fusion_center.service.master import Master
+
+    def wait(schedule, now, limit=1.0):
+        return Master._quiet_wait(types.SimpleNamespace(_sync_schedule=schedule), now, limit)
+
+    assert wait(None, 5.0) == 0.0                                  # no SYNC producer: at once
+    assert wait((9.990, 0.01), 9.991) == pytest.approx(0.004)      # 1 ms after the SYNC sent at 9.990: to 9.995
+    assert wait((9.990, 0.01), 9.996) == 0.0                       # in the second half already
+    assert wait((9.990, 0.01), 9.991, limit=0.002) == 0.0          # further than its limit: at once
+    assert wait((9.990, 0.01), 9.980) == 0.0                       # before that SYNC (a stale schedule): at once
+
+
+def test_the_master_heartbeat_keeps_out_of_the_first_half_of_a_sync_period(monkeypatch):
+    """The master's heartbeat (50 ms) has a fixed phase to the SYNCs (10 ms); where it fell right
+    after a SYNC, every fifth cycle's answers met its send and feed on their way to the grip
+    command (docs/grip-control.md). While the SYNC producer runs it waits for the period's second
+    half. A heartbeat of 53 ms walks through every phase of the 10 ms period (3 ms a beat)."""
+    import threading
+    import time
+
+    from fusion_center.commands.demo import run_demo
+    from fusion_center.service import stream as stream_module
+    from taxel_net.resources import resolve_scene
+
+    scene = load_scene(resolve_scene("grasp_lift_patch"))
+    scene = dataclasses.replace(scene, master=dataclasses.replace(scene.master, heartbeat_ms=53))
+    period = scene.bus.sync_period_ms / 1000.0
+    syncs: list[float] = []
+    beats: list[float] = []
+    fed_first = stream_module.EventStream.transmit_fed_first
+    transmit_all = stream_module.EventStream.transmit_all
+
+    def spy_fed_first(self, channel, can_id, data):
+        if can_id == 0x080:
+            syncs.append(time.monotonic())
+        return fed_first(self, channel, can_id, data)
+
+    def spy_all(self, frames, remote=False):
+        if threading.current_thread().name == "master-heartbeat":
+            beats.append(time.monotonic())
+        return transmit_all(self, frames, remote)
+
+    monkeypatch.setattr(stream_module.EventStream, "transmit_fed_first", spy_fed_first)
+    monkeypatch.setattr(stream_module.EventStream, "transmit_all", spy_all)
+    run_demo(scene, 150, keep_records=False)
+    during = [b for b in beats if syncs and syncs[0] < b < syncs[-1]]
+    assert len(during) >= 20
+    offsets = [(b - max(s for s in syncs if s <= b)) / period for b in during]
+    early = [round(o, 3) for o in offsets if o < 0.45]             # in the first half of its period
+    assert len(early) <= len(during) // 10, (early, [round(o, 3) for o in offsets])  # (a late SYNC may put one there)

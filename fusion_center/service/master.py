@@ -242,6 +242,9 @@ class Master:
         self._heartbeat_stop = threading.Event()
         self._heartbeat_thread: threading.Thread | None = None
         self.heartbeats_sent = 0  # heartbeat instants (one frame per channel each)
+        # while the SYNC producer runs: (its last SYNC's monotonic send time, its period) - the
+        # heartbeat waits for the period's quiet half (_quiet_wait)
+        self._sync_schedule: tuple[float, float] | None = None
         self._reconfigure: set[int] = set()
         self.restart = scene.master.restart == "always"
         self._log = RateLimitedLog(logger, 2.0)
@@ -425,7 +428,8 @@ class Master:
     def _heartbeat_loop(self, period: float) -> None:
         """0x700 + node-ID [0x05] on every channel every ``period`` s: the next beat one period
         after the planned time (no drift); one that fell behind by more than a period is re-phased
-        (no burst of catch-up beats)."""
+        (no burst of catch-up beats). While the SYNC producer runs, a beat due in the first half of
+        a SYNC period waits for its second half (:meth:`_quiet_wait`)."""
         cob = BASE_HEARTBEAT + self.scene.master.node_id
         frames = [(ch, cob, bytes((STATE_OPERATIONAL,))) for ch in range(len(self.networks))]
         next_at = time.monotonic()
@@ -439,11 +443,31 @@ class Master:
                     return
                 elif delay < -period:
                     next_at = time.monotonic()
+                quiet = self._quiet_wait(time.monotonic(), period / 4)
+                if quiet > 0 and self._heartbeat_stop.wait(quiet):
+                    return
                 self.stream.transmit_all(frames)
                 self.heartbeats_sent += 1
                 next_at += period
         except Exception:  # noqa: BLE001 - e.g. the bus went away: stop beating, never hang
             logger.exception("master heartbeat stopped")
+
+    def _quiet_wait(self, now: float, limit: float) -> float:
+        """Seconds from ``now`` (monotonic) to the quiet half of the running SYNC period - half a
+        period after its SYNC, where the supervision runs - or 0 (in it already, no SYNC
+        producer, or further than ``limit``: the heartbeat waits a quarter of its own period at
+        most). The master's heartbeat has a fixed phase to the SYNCs (both periodic on one
+        clock, 50 ms and 10 ms in the grasp scenes): where it fell within the 1-2 ms after a SYNC,
+        every fifth cycle's answers met it - its send and feed under the stream lock, the
+        interpreter lock - on their way to the grip command, for a whole run
+        (docs/grip-control.md). At most half a SYNC period later, and a quarter of the
+        heartbeat's own period: within its consumers' time (CiA 301: longer than the producer's)."""
+        schedule = self._sync_schedule
+        if schedule is None:
+            return 0.0
+        sent, period = schedule   # (half a period after the SYNC as sent, not as planned: a late one's answers come later too)
+        wait = sent + period / 2 - now
+        return wait if 0.0 < wait <= min(period / 2, limit) else 0.0
 
     # ------------------------------------------------------------------ SYNC
     def start_sync(self, cycles: int, before_sync: Callable[[int], None] | None = None) -> None:
@@ -521,6 +545,8 @@ class Master:
                 self.sync_sent += 1
                 supervise = k
                 next_at += period
+                self._sync_schedule = (last_sent, period)  # (the heartbeat's quiet half, _quiet_wait)
+            self._sync_schedule = None
             # let the last cycle complete (early close) for up to one period, then end it
             deadline = time.monotonic() + period
             while time.monotonic() < deadline and self.stream.cycle_open():
@@ -528,6 +554,8 @@ class Master:
             self.stream.transmit_all([(ch, COB_NMT, bytes((NMT_PRE_OPERATIONAL, 0))) for ch in channels])
         except Exception:  # noqa: BLE001 - e.g. the bus went away: end the run, never hang
             logger.exception("SYNC producer stopped")
+        finally:
+            self._sync_schedule = None
 
 
     # ------------------------------------------------------------------ supervision
