@@ -25,10 +25,13 @@ replace it with the receive time stamp), so every receiver sees the frame it saw
 its socket's program drops the datagrams carrying that tag before they are queued: no wake-up,
 no system call, no unpacking for an echo (the centre read its SYNC's echo in a receive turn of
 its own, ~0.1 ms of the receive thread's time on the way to the cycle's command,
-docs/grip-control.md). The tag is the time the bus was opened with its last 20 mantissa bits
-drawn at random (a plausible time stamp for any reader that does look; never the 0.0 a new
-``can.Message`` and node_sim's senders write); datagrams of other senders, whatever their
-content, pass as before.
+docs/grip-control.md). The tag is a negative number of about -1.6e9 with 52 random mantissa
+bits: no clock writes it (a new ``can.Message`` and node_sim's senders write 0.0, a bridge or a
+replay copies a receive or log time, all >= 0), and two centres on one group draw the same one
+with a chance of 2^-52; datagrams of other senders, whatever their content, pass as before. The
+program keeps the ID filters :func:`set_filters` put in the kernel, not those the bus was opened
+with (``can_filters``), which stay Python's, so a later ``bus.set_filters`` changes what the bus
+receives as it did before.
 """
 
 from __future__ import annotations
@@ -38,7 +41,6 @@ import logging
 import random
 import socket
 import struct
-import time
 import weakref
 from typing import Sequence
 
@@ -66,6 +68,8 @@ TIMESTAMP_AT = PAYLOAD + len(_MAP_TIMESTAMP)  # the float64 of python-can's "tim
 # bus -> the 8 bytes (big endian float64) its own datagrams carry in "timestamp" and its socket's
 # program drops (drop_own_frames); set_filters keeps them in every program it attaches
 _OWN_TAGS: "weakref.WeakKeyDictionary[can.BusABC, bytes]" = weakref.WeakKeyDictionary()
+# bus -> the ID filters set_filters put in its socket's program (drop_own_frames keeps those only)
+_KERNEL_FILTERS: "weakref.WeakKeyDictionary[can.BusABC, list]" = weakref.WeakKeyDictionary()
 
 
 class _Program:
@@ -207,6 +211,7 @@ def set_filters(bus: can.BusABC, filters: Sequence[dict] | None) -> bool:
     (but for the bus's own tag, :func:`drop_own_frames`, which every program keeps).
     Returns whether the kernel filters the bus's IDs now."""
     bus.set_filters(filters)
+    _KERNEL_FILTERS.pop(bus, None)
     sock = _socket_of(bus)
     if sock is None:
         return False
@@ -219,7 +224,9 @@ def set_filters(bus: can.BusABC, filters: Sequence[dict] | None) -> bool:
         if program is None:  # no filters, or none the kernel can express: the own tag alone, if any
             _attach(sock, compile_filters((), own) if own is not None else None)
             return False
-        return _attach(sock, program)
+        _attach(sock, program)
+        _KERNEL_FILTERS[bus] = list(filters)
+        return True
     except OSError as exc:  # not Linux, or refused: Python's filtering alone
         logger.debug("udp_multicast bus %s: no kernel filter (%s)", bus.channel_info, exc)
         _OWN_TAGS.pop(bus, None)  # (its own frames come back again: the caller's echo filter takes them)
@@ -230,19 +237,21 @@ def set_filters(bus: can.BusABC, filters: Sequence[dict] | None) -> bool:
         return False
 
 
+_TAG_SIGN_EXPONENT = 0xC1D << 52  # sign 1, exponent 2^30: a float64 in [-2^31, -2^30)
+
+
 def new_own_tag() -> float:
-    """A tag for a bus's own datagrams (module docstring): the time now, its last 20 mantissa
-    bits random - a finite positive float64, never 0.0."""
-    bits, = struct.unpack(">Q", struct.pack(">d", time.time()))
-    bits = (bits & ~0xFFFFF) | random.SystemRandom().getrandbits(20)
+    """A tag for a bus's own datagrams (module docstring): a finite negative float64 in
+    [-2^31, -2^30) with 52 random mantissa bits - no time stamp a clock writes."""
+    bits = _TAG_SIGN_EXPONENT | random.SystemRandom().getrandbits(52)
     tag, = struct.unpack(">d", struct.pack(">Q", bits))
     return tag
 
 
 def drop_own_frames(bus: can.BusABC) -> float | None:
     """On a ``udp_multicast`` bus (Linux): a tag for the bus's own datagrams, which its socket's
-    kernel filter drops from now on (module docstring) - its python-can filters kept, in the
-    kernel where they were; write it in the ``timestamp`` field of what the bus sends
+    kernel filter drops from now on (module docstring) - the ID filters :func:`set_filters` put
+    in the kernel kept there; write it in the ``timestamp`` field of what the bus sends
     (:func:`taxel_net.udp_wire.udp_multicast_burst_sender` ``stamp``) and no echo of those
     comes back. None for any other bus, or where no filter can be attached (the echoes come
     back as before)."""
@@ -251,8 +260,8 @@ def drop_own_frames(bus: can.BusABC) -> float | None:
         return None
     tag = new_own_tag()
     packed = struct.pack(">d", tag)
-    filters = getattr(bus, "_filters", None)
-    program = compile_filters(list(filters), packed) if filters else None
+    filters = _KERNEL_FILTERS.get(bus)
+    program = compile_filters(filters, packed) if filters else None
     if program is None:  # no filters, or not expressible in the kernel (Python filters them)
         program = compile_filters((), packed)
     try:
