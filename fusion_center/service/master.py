@@ -210,6 +210,32 @@ def _join(thread: threading.Thread, timeout: float | None) -> None:
         if thread is threading.current_thread():
             raise
 
+def quiet_beat(planned: float, sync_schedule: tuple[float, float] | None, limit: float) -> float:
+    """When to send the master's heartbeat planned at ``planned`` (monotonic s) while SYNCs run on
+    the grid ``sync_schedule`` = (a SYNC's planned time, the SYNC period), never later than planned:
+    a beat planned in the first half of a SYNC period - where the nodes' answers arrive and the
+    grip command is made - goes a quarter period before the next SYNC instead, provided that is
+    at most ``limit`` earlier (the heartbeat loop gives a quarter of its own period); else, and
+    without SYNCs, as planned. The heartbeat and the SYNC run on one clock (50 ms and 10 ms in the
+    grasp scenes), so a phase the start put right after a SYNC stayed there for the whole run and
+    every fifth cycle's answers met the beat's send and feed (stream lock, interpreter lock) on
+    their way to the command (docs/grip-control.md). The loop plans the next beat one period
+    after this one: moving beats earlier shortens an interval, never lengthens one, so the
+    consumers' heartbeat time (CiA 301 0x1016, longer than the producer's) is never at risk
+    (a first version delayed beats into the second half instead: intervals of 45-55 ms on a
+    50 ms heartbeat, and a drive watching with 55 ms tripped its 0x6007 reaction)."""
+    if sync_schedule is None:
+        return planned
+    anchor, sync_period = sync_schedule
+    if sync_period <= 0:
+        return planned
+    phase = (planned - anchor) % sync_period
+    if phase >= sync_period / 2:
+        return planned
+    shift = phase + sync_period / 4
+    return planned - shift if shift <= limit else planned
+
+
 class Master:
     """NMT master + SYNC producer over a :class:`~fusion_center.service.stream.EventStream`."""
 
@@ -242,8 +268,8 @@ class Master:
         self._heartbeat_stop = threading.Event()
         self._heartbeat_thread: threading.Thread | None = None
         self.heartbeats_sent = 0  # heartbeat instants (one frame per channel each)
-        # while the SYNC producer runs: (its last SYNC's monotonic send time, its period) - the
-        # heartbeat waits for the period's quiet half (_quiet_wait)
+        # while the SYNC producer runs: (its last SYNC's planned monotonic time, its period) - the
+        # heartbeat keeps to the periods' quiet halves (quiet_beat)
         self._sync_schedule: tuple[float, float] | None = None
         self._reconfigure: set[int] = set()
         self.restart = scene.master.restart == "always"
@@ -428,13 +454,16 @@ class Master:
     def _heartbeat_loop(self, period: float) -> None:
         """0x700 + node-ID [0x05] on every channel every ``period`` s: the next beat one period
         after the planned time (no drift); one that fell behind by more than a period is re-phased
-        (no burst of catch-up beats). While the SYNC producer runs, a beat due in the first half of
-        a SYNC period waits for its second half (:meth:`_quiet_wait`)."""
+        (no burst of catch-up beats). While the SYNC producer runs, a beat planned in the first half
+        of a SYNC period is sent earlier, in the second half of the period before, and the plan
+        moves with it (:func:`quiet_beat`): a beat never comes later than one period after the
+        last, as the consumers' heartbeat time (CiA 301 0x1016) expects."""
         cob = BASE_HEARTBEAT + self.scene.master.node_id
         frames = [(ch, cob, bytes((STATE_OPERATIONAL,))) for ch in range(len(self.networks))]
         next_at = time.monotonic()
         try:
             while True:
+                next_at = quiet_beat(next_at, self._sync_schedule, period / 4)
                 delay = next_at - time.monotonic()
                 if delay > 0:
                     if self._heartbeat_stop.wait(delay):
@@ -443,31 +472,11 @@ class Master:
                     return
                 elif delay < -period:
                     next_at = time.monotonic()
-                quiet = self._quiet_wait(time.monotonic(), period / 4)
-                if quiet > 0 and self._heartbeat_stop.wait(quiet):
-                    return
                 self.stream.transmit_all(frames)
                 self.heartbeats_sent += 1
                 next_at += period
         except Exception:  # noqa: BLE001 - e.g. the bus went away: stop beating, never hang
             logger.exception("master heartbeat stopped")
-
-    def _quiet_wait(self, now: float, limit: float) -> float:
-        """Seconds from ``now`` (monotonic) to the quiet half of the running SYNC period - half a
-        period after its SYNC, where the supervision runs - or 0 (in it already, no SYNC
-        producer, or further than ``limit``: the heartbeat waits a quarter of its own period at
-        most). The master's heartbeat has a fixed phase to the SYNCs (both periodic on one
-        clock, 50 ms and 10 ms in the grasp scenes): where it fell within the 1-2 ms after a SYNC,
-        every fifth cycle's answers met it - its send and feed under the stream lock, the
-        interpreter lock - on their way to the grip command, for a whole run
-        (docs/grip-control.md). At most half a SYNC period later, and a quarter of the
-        heartbeat's own period: within its consumers' time (CiA 301: longer than the producer's)."""
-        schedule = self._sync_schedule
-        if schedule is None:
-            return 0.0
-        sent, period = schedule   # (half a period after the SYNC as sent, not as planned: a late one's answers come later too)
-        wait = sent + period / 2 - now
-        return wait if 0.0 < wait <= min(period / 2, limit) else 0.0
 
     # ------------------------------------------------------------------ SYNC
     def start_sync(self, cycles: int, before_sync: Callable[[int], None] | None = None) -> None:
@@ -545,7 +554,7 @@ class Master:
                 self.sync_sent += 1
                 supervise = k
                 next_at += period
-                self._sync_schedule = (last_sent, period)  # (the heartbeat's quiet half, _quiet_wait)
+                self._sync_schedule = (next_at - period, period)  # the SYNCs' planned grid (quiet_beat)
             self._sync_schedule = None
             # let the last cycle complete (early close) for up to one period, then end it
             deadline = time.monotonic() + period
