@@ -136,6 +136,7 @@ class TopicMap:
         self._contact_cache: dict = {}
         self._bus_cache: dict = {}
         self._flat_cache: dict = {}
+        self.cycle_parts: dict = {}  # mcap_out.encode's: a cycle's shared message parts per content
         self.known_topics = self._known_topics()
 
     def _known_topics(self) -> list[tuple[str, bool]]:

@@ -1,0 +1,139 @@
+"""``mcap_out.encode``'s per-cycle cache (docs/robotics.md, *Cost*): a cycle whose content an
+earlier cycle had is built from that cycle's message parts - the bytes every output (MCAP file,
+live server) gets are exactly those of the plain encoding, cycle for cycle, for a run's records
+and for hand-made ones the cache must not cover or must tell apart."""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from pathlib import Path
+
+import pytest
+
+from fusion_center.robotics import mcap_out
+from fusion_center.robotics.topics import TopicMap
+from taxel_net.scene import load_scene
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from robotics_helpers import decode_raw_image  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def demo_records():
+    """Records of short demos: matrix57 (decision mode, contact stages), slipping (the slip
+    stage's /fusion/slip every cycle)."""
+    from fusion_center.commands.demo import run_demo
+
+    out = {}
+    for name, cycles in (("matrix57", 150), ("slipping", 80)):
+        scene = load_scene(name)
+        service, _ = run_demo(scene, cycles, keep_records=True)
+        out[name] = (scene, list(service.records))
+    return out
+
+
+def _plain(scene, records):
+    """Every record through encode_plain (its own TopicMap: caches apart from encode's)."""
+    topics = TopicMap(scene)
+    out = []
+    for record in records:
+        try:
+            out.append(mcap_out.encode_plain(topics, record))
+        except Exception as exc:  # noqa: BLE001 - compared with encode's failure
+            out.append(type(exc))
+    return out
+
+
+def _cached(scene, records, passes=2):
+    topics = TopicMap(scene)
+    out = []
+    for _ in range(passes):  # the second pass: every cycle from the cache
+        got = []
+        for record in records:
+            try:
+                got.append(mcap_out.encode(topics, record))
+            except Exception as exc:  # noqa: BLE001
+                got.append(type(exc))
+        out.append(got)
+    return topics, out
+
+
+def test_a_runs_cycles_are_the_plain_encodings_byte_for_byte(demo_records, monkeypatch):
+    """Every cycle of the demos, twice over: the same (log time, [(topic, kind, bytes)]) as
+    encode_plain's; and the cache is what makes them - encode_plain runs once per distinct
+    content, not once per cycle."""
+    for name, (scene, records) in demo_records.items():
+        expected = _plain(scene, records)
+        calls = []
+        plain = mcap_out.encode_plain
+        monkeypatch.setattr(mcap_out, "encode_plain", lambda *a: calls.append(a[1]["cycle"]) or plain(*a))
+        topics, (first, second) = _cached(scene, records)
+        monkeypatch.setattr(mcap_out, "encode_plain", plain)
+        assert first == expected, name
+        assert second == expected, name
+        distinct = len(topics.cycle_parts)
+        assert 0 < distinct < len(records) // 2, (name, distinct)
+        assert len(calls) == distinct, (name, len(calls), distinct)  # the second pass: no plain encoding
+
+
+def _variants(record: dict) -> list[dict]:
+    """Records like ``record`` in what the cache keys on, apart in what it does not - each must
+    get its own bytes."""
+    rules = record["rules"]
+    name = next(iter(rules))
+    other = dict(rules, **{name: dict(rules[name], U_G=12345.5)})
+    states = {"silent": [record["present_nodes"][0] if record["present_nodes"] else 5]}
+    return [
+        dict(record, cycle=9), dict(record, cycle=10), dict(record, cycle=100000),     # the cycle's width
+        dict(record, t=0.999999), dict(record, t=1.0), dict(record, t=12.000001),     # the stamp's seconds
+        dict(record, t=0.0),
+        dict(record, sync_counter=None), dict(record, closed_after_ms=1e-05),         # json's own texts
+        dict(record, late_frames=True), dict(record, bad_frames=3),
+        dict(record, rules=other), dict(record, U_G=-1.5), dict(record, truth=None),
+        dict(record, present_nodes=[]), dict(record, nodes_by_state=states),
+        dict(record, nodes_by_state=states, present_nodes=[]),
+        dict(record, n_live=record["n_live"] - 1), dict(record, closed_by="window"),
+        dict(record, area=0.123), dict(record, contact_type="point"),
+        dict(record, emcy=[{"node": 5, "code": "0x8130", "register": "0x11", "manufacturer": "", "t": 1.0}]),
+        dict(record, emcy_dropped=2), dict(record, duplicate_nodes=[7]), dict(record, error="boom"),
+        dict(record, slip={"speed": 0.5}), dict(record, slip={"speed": math.nan}),   # NaN: refused both ways
+        dict(record, grip={"command_n": 1.0}), dict(record, grasp_truth={"phase": "hold"}),
+        dict(record, rules=dict(rules, band={"U_G": [1, 2]})),                       # a list: no key
+        {k: v for k, v in record.items() if k != "bad_frames"},                      # a field missing
+        {k: v for k, v in record.items() if k != "t_c"},                             # the contact's, too
+        dict({k: v for k, v in record.items() if k != "t_c"}, area=0.5),
+        dict(record, present_nodes=None), dict(record, rules=None),
+        dict(record, U_G=math.nan),
+    ]
+
+
+def test_hand_made_records_get_their_own_bytes(demo_records):
+    """Variants of a run's records in every field the cached parts are keyed on or put around
+    them (cycle and time stamp widths, per-cycle numbers, rules, nodes, contact, EMCY, errors,
+    the per-cycle topics, fields missing, values no key can hold, NaN): encode gives
+    encode_plain's bytes - or its failure - for each, before and after the originals are cached."""
+    scene, records = demo_records["matrix57"]
+    base = [records[30], records[60], records[100]]
+    recs = base + [v for r in base for v in _variants(r)] + base
+    expected = _plain(scene, recs)
+    _, (first, second) = _cached(scene, recs)
+    assert first == expected
+    assert second == expected
+    assert expected.count(ValueError) >= 2  # the NaN cases failed in both paths (not written as null)
+
+
+def test_cached_cycles_decode_to_the_records_values(demo_records):
+    """Independently of encode_plain: the cached path's JSON reads back as TopicMap.values of
+    the record (the plain dicts), and its images carry the cycle's own time stamp."""
+    scene, records = demo_records["slipping"]
+    topics = TopicMap(scene)
+    for _ in range(2):
+        for record in records:
+            t, messages = mcap_out.encode(topics, record)
+            assert t == round(record["t"] * 1e6) * 1000
+            images = [p for _, kind, p in messages if kind == mcap_out.IMAGE]
+            assert [decode_raw_image(p)["stamp_ns"] for p in images] == [t] * len(topics.pads)
+            text = [(topic, json.loads(p)) for topic, kind, p in messages if kind == mcap_out.JSON_MSG]
+            assert text == topics.values(record)
