@@ -62,20 +62,30 @@ def _cached(scene, records, passes=2):
 
 def test_a_runs_cycles_are_the_plain_encodings_byte_for_byte(demo_records, monkeypatch):
     """Every cycle of the demos, twice over: the same (log time, [(topic, kind, bytes)]) as
-    encode_plain's; and the cache is what makes them - encode_plain runs once per distinct
-    content, not once per cycle."""
+    encode_plain's; and the caches are what make them - the JSON texts and the maps are made
+    once per distinct content, not once per cycle (none in the second pass)."""
     for name, (scene, records) in demo_records.items():
         expected = _plain(scene, records)
-        calls = []
-        plain = mcap_out.encode_plain
-        monkeypatch.setattr(mcap_out, "encode_plain", lambda *a: calls.append(a[1]["cycle"]) or plain(*a))
+        made = {"json": 0, "maps": 0}
+        json_messages, map_images = TopicMap.json_messages, TopicMap.map_images
+
+        def counted_json(self, *a, _f=json_messages):
+            made["json"] += 1
+            return _f(self, *a)
+
+        def counted_maps(self, *a, _f=map_images):
+            made["maps"] += 1
+            return _f(self, *a)
+
+        monkeypatch.setattr(TopicMap, "json_messages", counted_json)
+        monkeypatch.setattr(TopicMap, "map_images", counted_maps)
         topics, (first, second) = _cached(scene, records)
-        monkeypatch.setattr(mcap_out, "encode_plain", plain)
+        monkeypatch.undo()
         assert first == expected, name
         assert second == expected, name
-        distinct = len(topics.cycle_parts)
-        assert 0 < distinct < len(records) // 2, (name, distinct)
-        assert len(calls) == distinct, (name, len(calls), distinct)  # the second pass: no plain encoding
+        assert 0 < len(topics.cycle_parts) < len(records) // 2, (name, len(topics.cycle_parts))
+        assert 0 < len(topics.map_parts) < len(records) // 2, (name, len(topics.map_parts))
+        assert made == {"json": len(topics.cycle_parts), "maps": len(topics.map_parts)}, name
 
 
 def _variants(record: dict) -> list[dict]:

@@ -38,27 +38,48 @@ def encode(topics: TopicMap, record: dict, readings=None) -> tuple[int, list[tup
     """(log time ns, [(topic, kind, payload), ...]) of one record, in a fixed order: the taxel
     maps, the readings (raw mode, with ``readings``), then the JSON topics.
 
-    The bytes are :func:`encode_plain`'s. What a cycle's messages share with an earlier cycle
-    of the same content - the taxel maps' images but their time stamp, ``/fusion/decision`` but
-    its ``cycle``, ``/bus`` but its per-cycle numbers, ``/fusion/contact`` - is kept per content
-    (one key a cycle, :func:`_cycle_key`; at most 1024 entries), cut from
-    :func:`encode_plain`'s output the first time: a cycle like an earlier one is its time stamp
-    and five numbers put around those parts (docs/robotics.md, *Cost*: the publisher's Python
-    work a cycle, not the SDK's, was most of the live server's cost). A record the key does not
-    cover - raw mode's readings, EMCY, duplicate nodes, an error, a field missing or not
-    hashable - is :func:`encode_plain`'s alone."""
+    The bytes are :func:`encode_plain`'s. What a cycle's messages share with earlier cycles is
+    kept per content (at most 1024 entries each) and put around the cycle's own numbers: the
+    taxel maps' images but their time stamp, per (present taxels, nodes by state) pattern
+    (``TopicMap.map_parts``); ``/fusion/decision`` but its ``cycle``, ``/bus`` but its per-cycle
+    numbers and ``/fusion/contact``, per content (``TopicMap.cycle_parts``, one key a cycle,
+    :func:`_cycle_key`), cut from :meth:`TopicMap.json_messages`'s texts the first time
+    (docs/robotics.md, *Cost*: the publisher's Python work a cycle was most of the live
+    server's cost). A record the keys do not cover - raw mode's readings, EMCY, duplicate nodes,
+    an error, a field missing or not hashable - is :func:`encode_plain`'s."""
     if readings is None:
         try:
-            key, heads = _cycle_key(record)
+            key, heads, maps_key, states_key = _cycle_key(record)
+            images = topics.map_parts.get(maps_key)
             parts = topics.cycle_parts.get(key)  # TypeError: a value that is no key (a list in a rule)
         except (KeyError, TypeError, AttributeError):  # a hand-made record: the plain path
-            parts = key = None
-        if parts is not None:
-            return _from_parts(topics, record, heads, parts)
-        t, messages = encode_plain(topics, record)
-        if key is not None:
-            _remember_parts(topics, key, heads, record, t, messages)
-        return t, messages
+            return encode_plain(topics, record)
+        t = log_time_ns(record)
+        stamp = _stamp(t)
+        if images is None:
+            images = _remember(topics.map_parts, maps_key, tuple(
+                (pad.map_topic, raw_image(b"", pad.name, pad.width, pad.height, "mono8", pad.width, data))
+                for pad, data in zip(topics.pads, topics.map_images(record, states_key))))
+        out = [(topic, IMAGE, stamp + rest) for topic, rest in images]
+        if parts is None:
+            texts = topics.json_messages(record, states_key)
+            _remember_parts(topics, key, heads, record, texts)
+            out += [(topic, JSON_MSG, payload) for topic, payload in texts]
+            return t, out
+        decision, bus, contact = parts
+        cycle_head, bus_head = heads
+        out.append((T_DECISION, JSON_MSG, cycle_head + decision))
+        out.append((T_BUS, JSON_MSG, bus_head + bus))
+        if contact is not None:
+            out.append((T_CONTACT, JSON_MSG, contact))
+        get = record.get
+        for topic, name in ((T_SLIP, "slip"), (T_FORCES, "forces"), (T_GRIP, "grip")):
+            value = get(name)
+            if isinstance(value, dict):
+                out.append((topic, JSON_MSG, topics._flat_json(value)))
+        if isinstance(get("grasp_truth"), dict):
+            out.append((T_TRUTH, JSON_MSG, _dumpb(truth_message(record))))
+        return t, out
     return encode_plain(topics, record, readings)
 
 
@@ -70,11 +91,12 @@ _PER_CYCLE = itemgetter("cycle", "sync_counter", "closed_after_ms", "late_frames
 
 
 def _cycle_key(record: dict):
-    """(key, heads) of a record whose cached parts may be used: the key holds every field the
-    maps, the decision (but its cycle), the bus's stable part and the contact are made from (the
-    same values :class:`TopicMap`'s own caches key on); the heads are the per-cycle texts that
-    open ``/fusion/decision`` (``{"cycle":N,``) and ``/bus`` (its cycle, SYNC counter, close
-    time, late and malformed frames), as :meth:`TopicMap.json_messages` writes them.
+    """(key, heads, maps key, states key) of a record whose cached parts may be used: the key
+    holds every field the decision (but its cycle), the bus's stable part and the contact are
+    made from, the maps key the present taxels and nodes by state (the values
+    :class:`TopicMap`'s own caches key on); the heads are the per-cycle texts that open
+    ``/fusion/decision`` (``{"cycle":N,``) and ``/bus`` (its cycle, SYNC counter, close time,
+    late and malformed frames), as :meth:`TopicMap.json_messages` writes them.
     KeyError / TypeError / AttributeError: not this path's record."""
     cycle, sync, closed_ms, late, bad, emcy, duplicates = _PER_CYCLE(record)
     get = record.get
@@ -87,24 +109,22 @@ def _cycle_key(record: dict):
             contact = _contact_key(record)
         except KeyError:  # a stage plan with the area but not the contact type: which fields there are, too
             contact = tuple([(k in record, get(k)) for k in _CONTACT_FIELDS])
-    key = (tuple(present), _states_key(states), _decision_key(record), tuple(rules),
-           tuple([tuple(r.values()) for r in rules.values()]), _bus_key(record), contact)
+    states_key = _states_key(states)
+    key = (states_key, _decision_key(record), tuple(rules), tuple([tuple(r.values()) for r in rules.values()]),
+           _bus_key(record), contact)
     cycle_head = b'{"cycle":' + _scalar(cycle).encode() + b","
     bus_head = cycle_head + (f'"sync_counter":{_scalar(sync)},"closed_after_ms":{_scalar(closed_ms)},'
                              f'"late_frames":{_scalar(late)},"bad_frames":{_scalar(bad)}').encode()
-    return key, (cycle_head, bus_head)
+    return key, (cycle_head, bus_head), (tuple(present), states_key), states_key
 
 
-def _remember_parts(topics: TopicMap, key, heads, record: dict, t: int, messages) -> None:
-    """Cut the cycle's shared parts from :func:`encode_plain`'s messages and keep them under
-    ``key`` - only when every message is one the parts rebuild exactly."""
+def _remember_parts(topics: TopicMap, key, heads, record: dict, texts) -> None:
+    """Cut the cycle's shared parts from :meth:`TopicMap.json_messages`'s texts and keep them
+    under ``key`` - only when every text is one the parts rebuild exactly."""
     cycle_head, bus_head = heads
-    stamp = _stamp(t)
-    images, decision, bus, contact, extra = [], None, None, None, 0
-    for topic, kind, payload in messages:
-        if kind == IMAGE and payload.startswith(stamp):
-            images.append((topic, payload[len(stamp):]))
-        elif topic == T_DECISION and decision is None and payload.startswith(cycle_head):
+    decision, bus, contact, extra = None, None, None, 0
+    for topic, payload in texts:
+        if topic == T_DECISION and decision is None and payload.startswith(cycle_head):
             decision = payload[len(cycle_head):]
         elif topic == T_BUS and bus is None and payload.startswith(bus_head):
             bus = payload[len(bus_head):]
@@ -114,39 +134,17 @@ def _remember_parts(topics: TopicMap, key, heads, record: dict, t: int, messages
             extra += 1  # made every cycle (topics._flat_json caches them itself)
         else:
             return
-    if decision is None or bus is None or len(images) != len(topics.pads) or \
-            (contact is None) != (key[-1] is None) or extra != _per_cycle_count(record):
+    if decision is None or bus is None or (contact is None) != (key[-1] is None) or \
+            extra != sum(isinstance(record.get(k), dict) for k in ("slip", "forces", "grip", "grasp_truth")):
         return
-    cache = topics.cycle_parts
+    _remember(topics.cycle_parts, key, (decision, bus, contact))
+
+
+def _remember(cache: dict, key, value):
     if len(cache) > 1024:
         cache.clear()
-    cache[key] = (tuple(images), decision, bus, contact)
-
-
-def _per_cycle_count(record: dict) -> int:
-    get = record.get
-    return sum(isinstance(get(k), dict) for k in ("slip", "forces", "grip", "grasp_truth"))
-
-
-def _from_parts(topics: TopicMap, record: dict, heads, parts) -> tuple[int, list[tuple[str, int, bytes]]]:
-    """A cycle's messages from its cached parts, in :func:`encode_plain`'s order."""
-    images, decision, bus, contact = parts
-    cycle_head, bus_head = heads
-    t = log_time_ns(record)
-    stamp = _stamp(t)
-    out = [(topic, IMAGE, stamp + rest) for topic, rest in images]
-    out.append((T_DECISION, JSON_MSG, cycle_head + decision))
-    out.append((T_BUS, JSON_MSG, bus_head + bus))
-    if contact is not None:
-        out.append((T_CONTACT, JSON_MSG, contact))
-    get = record.get
-    for topic, name in ((T_SLIP, "slip"), (T_FORCES, "forces"), (T_GRIP, "grip")):
-        value = get(name)
-        if isinstance(value, dict):
-            out.append((topic, JSON_MSG, topics._flat_json(value)))
-    if isinstance(get("grasp_truth"), dict):
-        out.append((T_TRUTH, JSON_MSG, _dumpb(truth_message(record))))
-    return t, out
+    cache[key] = value
+    return value
 
 
 def encode_plain(topics: TopicMap, record: dict, readings=None) -> tuple[int, list[tuple[str, int, bytes]]]:

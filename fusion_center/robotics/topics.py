@@ -136,7 +136,8 @@ class TopicMap:
         self._contact_cache: dict = {}
         self._bus_cache: dict = {}
         self._flat_cache: dict = {}
-        self.cycle_parts: dict = {}  # mcap_out.encode's: a cycle's shared message parts per content
+        self.cycle_parts: dict = {}  # mcap_out.encode's: a cycle's shared JSON parts per content
+        self.map_parts: dict = {}    # mcap_out.encode's: the maps' images but their stamp, per pattern
         self.known_topics = self._known_topics()
 
     def _known_topics(self) -> list[tuple[str, bool]]:
