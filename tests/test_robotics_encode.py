@@ -67,7 +67,7 @@ def test_a_runs_cycles_are_the_plain_encodings_byte_for_byte(demo_records, monke
     for name, (scene, records) in demo_records.items():
         expected = _plain(scene, records)
         made = {"json": 0, "maps": 0}
-        json_messages, map_images = TopicMap.json_messages, TopicMap.map_images
+        json_messages, map_images = TopicMap.json_messages, TopicMap.make_map_images
 
         def counted_json(self, *a, _f=json_messages):
             made["json"] += 1
@@ -78,7 +78,7 @@ def test_a_runs_cycles_are_the_plain_encodings_byte_for_byte(demo_records, monke
             return _f(self, *a)
 
         monkeypatch.setattr(TopicMap, "json_messages", counted_json)
-        monkeypatch.setattr(TopicMap, "map_images", counted_maps)
+        monkeypatch.setattr(TopicMap, "make_map_images", counted_maps)
         topics, (first, second) = _cached(scene, records)
         monkeypatch.undo()
         assert first == expected, name
@@ -145,5 +145,48 @@ def test_cached_cycles_decode_to_the_records_values(demo_records):
             assert t == round(record["t"] * 1e6) * 1000
             images = [p for _, kind, p in messages if kind == mcap_out.IMAGE]
             assert [decode_raw_image(p)["stamp_ns"] for p in images] == [t] * len(topics.pads)
-            text = [(topic, json.loads(p)) for topic, kind, p in messages if kind == mcap_out.JSON_MSG]
-            assert text == topics.values(record)
+            text = [(topic, _exact_json(p)) for topic, kind, p in messages if kind == mcap_out.JSON_MSG]
+            assert text == [(topic, _exact_json(json.dumps(value, separators=(",", ":"))))
+                            for topic, value in topics.values(record)]  # number texts too: -0.0, 1.0
+
+
+def _exact_json(payload: bytes):
+    """A JSON text with its numbers as their texts: -0.0 and 0.0, 1 and 1.0 stay apart."""
+    return json.loads(payload, parse_float=str, parse_int=str)
+
+
+def test_numbers_equal_but_written_apart_keep_their_own_texts(demo_records):
+    """A field's value that equals an earlier cycle's in Python but is written apart in JSON
+    (p_h1 0.0 / -0.0, n_expected 57 / 57.0, degraded False / 0, a rule's U_G 1 / 1.0, slip
+    speed 0.0 / -0.0) gets its own text in encode and in encode_plain, cached or not - as
+    json.dumps writes the record's values (compared number text by number text)."""
+    scene, records = demo_records["matrix57"]
+    base = records[60]
+    name = next(iter(base["rules"]))
+    pairs = [("p_h1", 0.0, -0.0), ("n_expected", base["n_expected"], float(base["n_expected"])),
+             ("degraded", False, 0), ("area", 0.0, -0.0), ("n_live", 3, 3.0)]
+    recs = []
+    for field, a, b in pairs:
+        recs += [dict(base, **{field: a}), dict(base, **{field: b})]
+    rule = base["rules"][name]
+    recs += [dict(base, rules=dict(base["rules"], **{name: dict(rule, U_G=1)})),
+             dict(base, rules=dict(base["rules"], **{name: dict(rule, U_G=1.0)})),
+             dict(base, slip={"speed": 0.0}), dict(base, slip={"speed": -0.0})]
+    plain = TopicMap(scene)
+    cached = TopicMap(scene)
+    for _ in range(2):  # the second pass: every text from the caches
+        for record in recs:
+            want = [(topic, _exact_json(json.dumps(value, separators=(",", ":"))))
+                    for topic, value in plain.values(record)]
+            for got in (mcap_out.encode_plain(plain, record)[1], mcap_out.encode(cached, record)[1]):
+                assert [(topic, _exact_json(p)) for topic, kind, p in got if kind == mcap_out.JSON_MSG] == want
+
+
+def test_a_miss_keeps_the_map_once(demo_records):
+    """The cached path makes a new pattern's map without putting it in TopicMap's own map cache
+    (which it never reads): each pattern is kept once."""
+    scene, records = demo_records["matrix57"]
+    topics = TopicMap(scene)
+    for record in records:
+        mcap_out.encode(topics, record)
+    assert topics.map_parts and not topics._maps

@@ -8,6 +8,7 @@ import asyncio
 import json
 import struct
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -239,3 +240,19 @@ def test_demo_with_foxglove_names_the_server_in_its_summary(capsys):
     line = [x for x in capsys.readouterr().out.splitlines() if x.startswith("foxglove:")]
     assert len(line) == 1 and "ws://127.0.0.1:" in line[0] and "0 client(s)" in line[0]
     assert "5 with none subscribed" in line[0]
+
+
+def test_close_wakes_the_publisher_at_once(monkeypatch):
+    """close() ends the publisher's wait between bursts, however long its period: with a period
+    of an hour, close() returns (bounded here at 60 s, a hang guard) - a plain sleep held it
+    up to one period."""
+    from fusion_center.robotics import outputs as outputs_mod
+
+    monkeypatch.setattr(outputs_mod, "POLL_S", 3600.0)
+    scene = load_scene("matrix57")
+    outputs = RoboticsOutputs(scene, mcap=None, foxglove=None, ros2_bag=None, threaded=True)
+    time.sleep(0.05)  # the publisher is in its wait
+    done = threading.Event()
+    closer = threading.Thread(target=lambda: (outputs.close(), done.set()), daemon=True)
+    closer.start()
+    assert done.wait(60.0), "close() did not wake the publisher"

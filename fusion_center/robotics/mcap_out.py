@@ -26,7 +26,8 @@ from taxel_net.outputs import OutputPath
 
 from .topics import _CONTACT_KEYS as _CONTACT_FIELDS
 from .topics import (JSON_TOPICS, SCHEMAS, T_BUS, T_CONTACT, T_DECISION, T_FORCES, T_GRIP, T_SLIP, T_TRUTH, TopicMap,
-                     _bus_key, _contact_key, _decision_key, _dumpb, _scalar, _states_key, log_time_ns, truth_message)
+                     _bus_key, _contact_key, _decision_key, _dumpb, _exact, _scalar, _states_key, log_time_ns,
+                     truth_message)
 
 PROFILE = ""            # MCAP header profile: none of the registry's (the messages are protobuf + JSON)
 CHUNK_BYTES = 256 * 1024  # uncompressed chunk size: bounds the work of one chunk's compression
@@ -41,7 +42,8 @@ def encode(topics: TopicMap, record: dict, readings=None) -> tuple[int, list[tup
     The bytes are :func:`encode_plain`'s. What a cycle's messages share with earlier cycles is
     kept per content (at most 1024 entries each) and put around the cycle's own numbers: the
     taxel maps' images but their time stamp, per (present taxels, nodes by state) pattern
-    (``TopicMap.map_parts``); ``/fusion/decision`` but its ``cycle``, ``/bus`` but its per-cycle
+    (``TopicMap.map_parts``, made on a miss by ``TopicMap.make_map_images``: kept here only);
+    ``/fusion/decision`` but its ``cycle``, ``/bus`` but its per-cycle
     numbers and ``/fusion/contact``, per content (``TopicMap.cycle_parts``, one key a cycle,
     :func:`_cycle_key`), cut from :meth:`TopicMap.json_messages`'s texts the first time
     (docs/robotics.md, *Cost*: the publisher's Python work a cycle was most of the live
@@ -59,7 +61,7 @@ def encode(topics: TopicMap, record: dict, readings=None) -> tuple[int, list[tup
         if images is None:
             images = _remember(topics.map_parts, maps_key, tuple(
                 (pad.map_topic, raw_image(b"", pad.name, pad.width, pad.height, "mono8", pad.width, data))
-                for pad, data in zip(topics.pads, topics.map_images(record, states_key))))
+                for pad, data in zip(topics.pads, topics.make_map_images(record))))
         out = [(topic, IMAGE, stamp + rest) for topic, rest in images]
         if parts is None:
             texts = topics.json_messages(record, states_key)
@@ -93,8 +95,8 @@ _PER_CYCLE = itemgetter("cycle", "sync_counter", "closed_after_ms", "late_frames
 def _cycle_key(record: dict):
     """(key, heads, maps key, states key) of a record whose cached parts may be used: the key
     holds every field the decision (but its cycle), the bus's stable part and the contact are
-    made from, the maps key the present taxels and nodes by state (the values
-    :class:`TopicMap`'s own caches key on); the heads are the per-cycle texts that open
+    made from, as their exact texts (``topics._exact``: 0.0 and -0.0, 1 and 1.0 apart), the maps
+    key the present taxels and nodes by state (labels); the heads are the per-cycle texts that open
     ``/fusion/decision`` (``{"cycle":N,``) and ``/bus`` (its cycle, SYNC counter, close time,
     late and malformed frames), as :meth:`TopicMap.json_messages` writes them.
     KeyError / TypeError / AttributeError: not this path's record."""
@@ -109,9 +111,10 @@ def _cycle_key(record: dict):
             contact = _contact_key(record)
         except KeyError:  # a stage plan with the area but not the contact type: which fields there are, too
             contact = tuple([(k in record, get(k)) for k in _CONTACT_FIELDS])
+    if rules.__class__ is not dict:
+        raise TypeError("rules")
     states_key = _states_key(states)
-    key = (states_key, _decision_key(record), tuple(rules), tuple([tuple(r.values()) for r in rules.values()]),
-           _bus_key(record), contact)
+    key = (states_key, _exact((_decision_key(record), rules, _bus_key(record), contact)))
     cycle_head = b'{"cycle":' + _scalar(cycle).encode() + b","
     bus_head = cycle_head + (f'"sync_counter":{_scalar(sync)},"closed_after_ms":{_scalar(closed_ms)},'
                              f'"late_frames":{_scalar(late)},"bad_frames":{_scalar(bad)}').encode()

@@ -185,18 +185,20 @@ class TopicMap:
         key = (tuple(present) if present else (), states_key)
         images = self._maps.get(key)
         if images is None:
-            if len(self._maps) > 1024:
-                self._maps.clear()
-            codes = self.taxel_codes(record)
-            images = []
-            for pad in self.pads:
-                img = np.zeros(pad.width * pad.height, dtype=np.uint8)
-                if pad.shared_sites:  # taxels on one site: the highest value
-                    np.maximum.at(img, pad.cells, codes[pad.taxels])
-                else:
-                    img[pad.cells] = codes[pad.taxels]
-                images.append(img.tobytes())
-            self._maps[key] = images
+            images = _remember(self._maps, key, self.make_map_images(record))
+        return images
+
+    def make_map_images(self, record: dict) -> list[bytes]:
+        """:meth:`map_images` made anew, kept nowhere (``mcap_out.encode`` keeps its own)."""
+        codes = self.taxel_codes(record)
+        images = []
+        for pad in self.pads:
+            img = np.zeros(pad.width * pad.height, dtype=np.uint8)
+            if pad.shared_sites:  # taxels on one site: the highest value
+                np.maximum.at(img, pad.cells, codes[pad.taxels])
+            else:
+                img[pad.cells] = codes[pad.taxels]
+            images.append(img.tobytes())
         return images
 
     def readings_of(self, closed) -> np.ndarray | None:
@@ -230,17 +232,17 @@ class TopicMap:
         the rules' results, which the pipeline itself caches per vector), ``/fusion/contact``,
         ``/bus`` but its per-cycle numbers (per nodes-by-state pattern: ``states_key``, the
         record's :func:`_states_key`, when the caller has made it for the map too), and the
-        ``slip`` / ``grip`` / ``forces`` objects whose values are scalars. Keys are the values
-        themselves: numbers equal in Python (1 and 1.0, 0.0 and -0.0) share a text - a field
-        keeps its type from cycle to cycle, and the JSON values are equal anyway."""
+        ``slip`` / ``grip`` / ``forces`` objects whose values are scalars. Keys are the values'
+        texts (:func:`_exact`): values equal in Python but written apart (1, 1.0 and True; 0.0 and
+        -0.0) never share a text."""
         get = record.get
         cycle = _scalar(get("cycle"))
         out = [(T_DECISION, self._decision_json(record, cycle)), (T_BUS, self._bus_json(record, cycle, states_key))]
         if "area" in record or "contact_type" in record:
             try:
-                key = _contact_key(record)
+                key = _exact(_contact_key(record))
             except KeyError:
-                key = tuple([get(k) for k in _CONTACT_KEYS])
+                key = _exact(tuple([get(k) for k in _CONTACT_KEYS]))
             text = self._contact_cache.get(key)
             if text is None:
                 text = _remember(self._contact_cache, key, _dumpb(contact_message(record)))
@@ -257,10 +259,11 @@ class TopicMap:
         """A record's ``slip`` / ``grip`` / ``forces`` as JSON, cached per content when its values
         are scalars (a slip stage's result repeats while nothing slides); nested ones encoded."""
         try:
-            key = tuple(value.items())
-            text = self._flat_cache.get(key)
+            hash(tuple(value.items()))
         except TypeError:  # a list or dict inside (forces' per-taxel values)
             return _dumpb(value)
+        key = _exact(value)
+        text = self._flat_cache.get(key)
         if text is None:
             text = _remember(self._flat_cache, key, _dumpb(value))
         return text
@@ -271,23 +274,12 @@ class TopicMap:
             flat = _decision_key(record)
         except KeyError:  # a hand-made record without some field
             flat = tuple([record.get(k) for k in _DECISION_KEYS])
-        try:
-            key = (flat, tuple(rules), tuple([tuple(r.values()) for r in rules.values()]))
-            hash(key)
-        except TypeError:  # a list inside (preferential's band): as tuples
-            try:
-                key = (flat, tuple(rules), tuple([tuple([tuple(v) if v.__class__ is list else v for v in r.values()])
-                                                  for r in rules.values()]))
-                hash(key)
-            except TypeError:
-                key = None
-        body = self._decision_cache.get(key) if key is not None else None
+        key = _exact((flat, rules))
+        body = self._decision_cache.get(key)
         if body is None:
             value = decision_message(record)
             del value["cycle"]
-            body = _dumpb(value)[1:]  # b'"decide_with":...}'
-            if key is not None:
-                _remember(self._decision_cache, key, body)
+            body = _remember(self._decision_cache, key, _dumpb(value)[1:])  # b'"decide_with":...}'
         return b'{"cycle":' + cycle.encode() + b"," + body
 
     def _bus_json(self, record: dict, cycle: str, states_key=None) -> bytes:
@@ -298,17 +290,18 @@ class TopicMap:
         if states and states_key is None:
             states_key = _states_key(states)
         try:
-            key = _bus_key(record) + (states_key if states else (),)
+            values = _bus_key(record)
         except KeyError:
-            key = (get("closed_by"), get("n_expected"), get("n_live"), get("n_received"), states_key if states else ())
+            values = (get("closed_by"), get("n_expected"), get("n_live"), get("n_received"))
         try:
+            key = (_exact(values), states_key if states else ())
             stable = self._bus_cache.get(key)
         except TypeError:  # a label that is no scalar (a hand-made record)
             return _dumpb(bus_message(record))
         if stable is None:
             stable = _remember(self._bus_cache, key, (
-                f',"closed_by":{_json(key[0])},"n_expected":{_scalar(key[1])},"n_live":{_scalar(key[2])},'
-                f'"n_received":{_scalar(key[3])},"emcy_count":0,"emcy":[],'
+                f',"closed_by":{_json(values[0])},"n_expected":{_scalar(values[1])},"n_live":{_scalar(values[2])},'
+                f'"n_received":{_scalar(values[3])},"emcy_count":0,"emcy":[],'
                 f'"not_taking_part":{sum(len(v) for v in states.values()) if states else 0},'
                 f'"nodes_by_state":{_json(states) if states else "{}"},"duplicate_nodes":[],"error":null}}'))
         return (f'{{"cycle":{cycle},"sync_counter":{_scalar(get("sync_counter"))},'
@@ -440,6 +433,14 @@ def _scalar(value) -> str:
     if value is None:
         return "null"
     return _json(value)
+
+
+# A cache key of values as exact as their JSON: their ``repr`` (one C call on the whole tuple) -
+# a float's shortest round-trip text with its sign (``-0.0``) and each number's type (``1`` /
+# ``1.0`` / ``True``), which ``==`` and ``hash`` do not tell apart: two values whose JSON differs
+# never share a cached text. The plain types a record holds (str, int, float, bool, None, lists /
+# dicts / tuples of them) have a repr that fixes their JSON; records hold no other.
+_exact = repr
 
 
 def _remember(cache: dict, key, value):
