@@ -116,7 +116,13 @@ def _variants(record: dict) -> list[dict]:
         dict({k: v for k, v in record.items() if k != "t_c"}, area=0.5),
         dict(record, present_nodes=None), dict(record, rules=None),
         dict(record, U_G=math.nan),
+        dict(record, p_h1=_Float(0.25)), dict(record, area=_Float(-0.0)),             # no plain type: no key
+        dict(record, slip={"speed": _Float(0.5)}),
     ]
+
+
+class _Float(float):
+    """A float subclass (as numpy's float64 is): no cache key is made of it (topics._exact)."""
 
 
 def test_hand_made_records_get_their_own_bytes(demo_records):

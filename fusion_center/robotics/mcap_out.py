@@ -48,13 +48,13 @@ def encode(topics: TopicMap, record: dict, readings=None) -> tuple[int, list[tup
     :func:`_cycle_key`), cut from :meth:`TopicMap.json_messages`'s texts the first time
     (docs/robotics.md, *Cost*: the publisher's Python work a cycle was most of the live
     server's cost). A record the keys do not cover - raw mode's readings, EMCY, duplicate nodes,
-    an error, a field missing or not hashable - is :func:`encode_plain`'s."""
+    an error, a field missing, not hashable or of no plain type - is :func:`encode_plain`'s."""
     if readings is None:
         try:
             key, heads, maps_key, states_key = _cycle_key(record)
             images = topics.map_parts.get(maps_key)
             parts = topics.cycle_parts.get(key)  # TypeError: a value that is no key (a list in a rule)
-        except (KeyError, TypeError, AttributeError):  # a hand-made record: the plain path
+        except (KeyError, TypeError, AttributeError, ValueError):  # a hand-made record: the plain path
             return encode_plain(topics, record)
         t = log_time_ns(record)
         stamp = _stamp(t)
@@ -99,7 +99,7 @@ def _cycle_key(record: dict):
     key the present taxels and nodes by state (labels); the heads are the per-cycle texts that open
     ``/fusion/decision`` (``{"cycle":N,``) and ``/bus`` (its cycle, SYNC counter, close time,
     late and malformed frames), as :meth:`TopicMap.json_messages` writes them.
-    KeyError / TypeError / AttributeError: not this path's record."""
+    KeyError / TypeError / AttributeError / ValueError: not this path's record."""
     cycle, sync, closed_ms, late, bad, emcy, duplicates = _PER_CYCLE(record)
     get = record.get
     if emcy or duplicates or get("error") is not None or get("emcy_dropped"):

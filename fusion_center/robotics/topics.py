@@ -29,6 +29,7 @@ image (raw mode, ``32FC1``): X_i in mV, the mean of a site's readings, NaN where
 from __future__ import annotations
 
 import math
+from marshal import dumps as _marshal
 from operator import itemgetter
 from dataclasses import dataclass
 
@@ -240,12 +241,18 @@ class TopicMap:
         out = [(T_DECISION, self._decision_json(record, cycle)), (T_BUS, self._bus_json(record, cycle, states_key))]
         if "area" in record or "contact_type" in record:
             try:
-                key = _exact(_contact_key(record))
+                values = _contact_key(record)
             except KeyError:
-                key = _exact(tuple([get(k) for k in _CONTACT_KEYS]))
+                values = tuple([get(k) for k in _CONTACT_KEYS])
+            try:
+                key = _exact(values)
+            except ValueError:  # no plain value: not cached
+                key = None
             text = self._contact_cache.get(key)
             if text is None:
-                text = _remember(self._contact_cache, key, _dumpb(contact_message(record)))
+                text = _dumpb(contact_message(record))
+                if key is not None:
+                    _remember(self._contact_cache, key, text)
             out.append((T_CONTACT, text))
         for topic, key in ((T_SLIP, "slip"), (T_FORCES, "forces"), (T_GRIP, "grip")):
             value = get(key)
@@ -260,9 +267,9 @@ class TopicMap:
         are scalars (a slip stage's result repeats while nothing slides); nested ones encoded."""
         try:
             hash(tuple(value.items()))
-        except TypeError:  # a list or dict inside (forces' per-taxel values)
+            key = _exact(value)
+        except (TypeError, ValueError):  # a list or dict inside (forces' per-taxel values), no plain value
             return _dumpb(value)
-        key = _exact(value)
         text = self._flat_cache.get(key)
         if text is None:
             text = _remember(self._flat_cache, key, _dumpb(value))
@@ -274,12 +281,17 @@ class TopicMap:
             flat = _decision_key(record)
         except KeyError:  # a hand-made record without some field
             flat = tuple([record.get(k) for k in _DECISION_KEYS])
-        key = _exact((flat, rules))
+        try:
+            key = _exact((flat, rules))
+        except ValueError:  # no plain value: not cached
+            key = None
         body = self._decision_cache.get(key)
         if body is None:
             value = decision_message(record)
             del value["cycle"]
-            body = _remember(self._decision_cache, key, _dumpb(value)[1:])  # b'"decide_with":...}'
+            body = _dumpb(value)[1:]  # b'"decide_with":...}'
+            if key is not None:
+                _remember(self._decision_cache, key, body)
         return b'{"cycle":' + cycle.encode() + b"," + body
 
     def _bus_json(self, record: dict, cycle: str, states_key=None) -> bytes:
@@ -296,7 +308,7 @@ class TopicMap:
         try:
             key = (_exact(values), states_key if states else ())
             stable = self._bus_cache.get(key)
-        except TypeError:  # a label that is no scalar (a hand-made record)
+        except (TypeError, ValueError):  # a label that is no scalar (a hand-made record)
             return _dumpb(bus_message(record))
         if stable is None:
             stable = _remember(self._bus_cache, key, (
@@ -435,12 +447,15 @@ def _scalar(value) -> str:
     return _json(value)
 
 
-# A cache key of values as exact as their JSON: their ``repr`` (one C call on the whole tuple) -
-# a float's shortest round-trip text with its sign (``-0.0``) and each number's type (``1`` /
-# ``1.0`` / ``True``), which ``==`` and ``hash`` do not tell apart: two values whose JSON differs
-# never share a cached text. The plain types a record holds (str, int, float, bool, None, lists /
-# dicts / tuples of them) have a repr that fixes their JSON; records hold no other.
-_exact = repr
+def _exact(value) -> bytes:
+    """A cache key of plain values (str, int, float, bool, None; tuples, lists and dicts of them)
+    as exact as their JSON: their ``marshal`` bytes (format 2: no back-references, so the same
+    values make the same bytes) - a float's 8 bytes with its sign (``-0.0``) and each number's
+    type (``1`` / ``1.0`` / ``True``), which ``==`` and ``hash`` do not tell apart: two values
+    whose JSON differs never share a cached text. One C call (``repr`` would be exact too, but
+    writing the floats costs several times more). Only made, never loaded.
+    ValueError: a value of another type (the caller does not cache it)."""
+    return _marshal(value, 2)
 
 
 def _remember(cache: dict, key, value):
