@@ -26,7 +26,7 @@ from taxel_net.outputs import OutputPath
 
 from .topics import _CONTACT_KEYS as _CONTACT_FIELDS
 from .topics import (JSON_TOPICS, SCHEMAS, T_BUS, T_CONTACT, T_DECISION, T_FORCES, T_GRIP, T_SLIP, T_TRUTH, TopicMap,
-                     _bus_key, _contact_key, _decision_key, _dumpb, _exact, _scalar, _states_key, log_time_ns,
+                     _bus_key, _contact_key, _decision_key, _dumpb, _exact, _remember, _scalar, _states_key, log_time_ns,
                      truth_message)
 
 PROFILE = ""            # MCAP header profile: none of the registry's (the messages are protobuf + JSON)
@@ -141,13 +141,6 @@ def _remember_parts(topics: TopicMap, key, heads, record: dict, texts) -> None:
             extra != sum(isinstance(record.get(k), dict) for k in ("slip", "forces", "grip", "grasp_truth")):
         return
     _remember(topics.cycle_parts, key, (decision, bus, contact))
-
-
-def _remember(cache: dict, key, value):
-    if len(cache) > 1024:
-        cache.clear()
-    cache[key] = value
-    return value
 
 
 def encode_plain(topics: TopicMap, record: dict, readings=None) -> tuple[int, list[tuple[str, int, bytes]]]:
