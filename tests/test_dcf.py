@@ -15,7 +15,7 @@ import pytest
 from fusion_center.cli import main
 from cli_inprocess import run_cli
 from fusion_center.commands.dcf import configured_values, dcf_text, file_name
-from fusion_center.service.master import node_configuration
+from fusion_center.service.node_config import node_configuration
 from node_sim.rig import identity_serial
 from taxel_net.resources import eds_path
 from taxel_net.scene import load_scene

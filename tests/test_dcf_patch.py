@@ -14,7 +14,7 @@ import pytest
 
 from fusion_center.cli import main
 from fusion_center.commands.dcf import configured_values, dcf_text, file_name
-from fusion_center.service.master import patch_configuration
+from fusion_center.service.node_config import patch_configuration
 from node_sim.rig import identity_serial
 from taxel_net.patches import devices
 from taxel_net.resources import patch_eds_path

@@ -268,7 +268,7 @@ def test_trace_marks_the_centres_own_frames_tx_and_the_master_writes_no_rtr_cob_
     (python-can's ASCReader reads the direction back); the TPDO COB-IDs the master writes keep
     bit 30 (no RTR), as the EDS defaults and the twins' start-up values have it."""
     from fusion_center.commands.demo import run_demo
-    from fusion_center.service.master import node_configuration
+    from fusion_center.service.node_config import node_configuration
 
     scene = load_scene(ROOT / "docs" / "examples" / "four_taxels.toml")
     trace = tmp_path / "t.asc"

@@ -11,7 +11,7 @@ import can
 import pytest
 
 from fusion_center.service import FusionService
-from fusion_center.service.master import master_consumer_entry, node_configuration
+from fusion_center.service.node_config import master_consumer_entry, node_configuration
 from node_sim.rig import Rig
 from taxel_net.scene import MasterSpec, load_scene
 

@@ -118,7 +118,7 @@ def test_demo_of_patch_nodes_decides_every_cycle_from_its_own_decisions_and_repl
 
 
 def test_the_master_configures_the_patch_twins_as_their_tpdos_describe():
-    from fusion_center.service.master import patch_configuration
+    from fusion_center.service.node_config import patch_configuration
 
     scene = small_skin("skin4096_raw", channels=1)
     touched = scene.taxels[int(np.argmax(physics.signal_batch(scene, np.arange(scene.cycles)).sum(axis=0)))]

@@ -4,7 +4,7 @@ A DCF is the node's EDS plus what commissioning gave this one device: a
 ``[DeviceComissioning]`` section (NodeID, NodeName, Baudrate in kbit/s, NetNumber,
 NetworkName, CANopenManager, LSS_SerialNumber) and a ``ParameterValue=`` in the section of
 every object the fusion centre configures, with the value it writes over SDO
-(``fusion_center.service.master.node_configuration``: ζ, N_i, kind, x, y, calibration,
+(``fusion_center.service.node_config.node_configuration``: ζ, N_i, kind, x, y, calibration,
 heartbeat, SYNC counter and window, TPDO parameters and mapping; the last value written
 where an object is written twice, e.g. a TPDO COB-ID made invalid, then valid).
 
@@ -17,7 +17,7 @@ One DCF per CANopen node, i.e. per device of :func:`taxel_net.patches.devices`. 
 one-taxel scene that is one per taxel (device k is taxel k), from ``eds/taxel_node.eds``. In a
 patch scene (``[bus] patch_nodes = true``) it is one per patch node, from
 ``eds/taxel_patch.eds`` (``taxel_net.resources.patch_eds_path``), with the values of
-``fusion_center.service.master.patch_configuration`` (with the detector arrays, as the master
+``fusion_center.service.node_config.patch_configuration`` (with the detector arrays, as the master
 writes them by default): ζ and N_i of every taxel (ARRAY entries, sections ``[2010subK]`` /
 ``[2011subK]`` with K in hex for the device's taxel K - 1), 0x2032 in raw mode, heartbeat,
 0x1016, SYNC counter and window, and every TPDO's parameters and mapping. The patches' kind,
@@ -106,7 +106,7 @@ def configured_values(scene, index: int) -> dict[tuple[int, int], object]:
     """(index, sub-index) -> the value the centre leaves there (its last SDO write) in node
     ``index`` (:func:`node_index`): ``node_configuration`` of a one-taxel node,
     ``patch_configuration`` of a patch node."""
-    from ..service.master import node_configuration, patch_configuration
+    from ..service.node_config import node_configuration, patch_configuration
 
     if scene.bus.patch_nodes:
         writes = [(obj, sub, value) for obj, sub, value, _ in patch_configuration(scene, _devices(scene)[index])]

@@ -43,7 +43,8 @@ from .cycle_records import MALFORMED, ClosedCycle
 from .cycles import CycleAssembler
 from .pipeline import CyclePipeline
 from .records import RecordWriter
-from .stream import EchoFilter, EventStream, RateLimitedLog, _StreamListener
+from .echo_filter import EchoFilter
+from .stream import EventStream, RateLimitedLog, _StreamListener
 from .traces import open_trace_writer
 
 logger = logging.getLogger("fusion_center.service")
@@ -193,7 +194,7 @@ class FusionService:
             od = import_eds(self.eds_path)  # any content: one line naming the file (taxel_net.eds_file)
         except EdsError as exc:
             raise UsageError(str(exc)) from None
-        from .master import node_configuration
+        from .node_config import node_configuration
 
         for index in range(0 if self.scene.bus.patch_nodes else self.scene.n):  # every object the SDO configuration writes
             for obj, sub, _ in node_configuration(self.scene, index):
