@@ -181,7 +181,8 @@ def test_a_turn_of_own_echoes_only_never_takes_the_stream_lock():
     echoes counts them and leaves the stream alone; a turn with a foreign frame is fed."""
     import types
 
-    from fusion_center.service.stream import EchoFilter, _StreamListener
+    from fusion_center.service.echo_filter import EchoFilter
+    from fusion_center.service.stream import _StreamListener
 
     scene = patch_scene(sizes=(10, 70))
     events = stream_module.EventStream(CycleAssembler(scene))
@@ -205,7 +206,7 @@ def test_a_one_channel_sync_is_fed_before_it_is_sent_and_the_lock_is_free_during
     the stream before its frame leaves - so no answer can be fed before it - and the stream lock
     is not held across the send (the receive thread can feed the answers while it is sent); a
     failed send is counted and its echo forgotten, the SYNC stays fed."""
-    from fusion_center.service.stream import EchoFilter
+    from fusion_center.service.echo_filter import EchoFilter
 
     scene = patch_scene(sizes=(10, 70))
     seen: list = []

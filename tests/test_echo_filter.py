@@ -3,8 +3,8 @@ sent, within the echo window, on the channel it was sent on - nothing else."""
 
 import can
 
-from fusion_center.service import stream
-from fusion_center.service.stream import ECHO_WINDOW_S, EchoFilter
+from fusion_center.service import echo_filter, stream
+from fusion_center.service.echo_filter import ECHO_WINDOW_S, EchoFilter
 
 
 class Clock:
@@ -82,7 +82,7 @@ def test_a_frame_that_could_not_be_sent_is_forgotten():
 
 
 def test_awaited_frames_are_bounded(monkeypatch):
-    monkeypatch.setattr(stream, "ECHO_PENDING_MAX", 4)
+    monkeypatch.setattr(echo_filter, "ECHO_PENDING_MAX", 4)
     echoes = EchoFilter(Clock())
     for counter in range(6):
         echoes.sent(0, 0x080, bytes([counter]), False)
