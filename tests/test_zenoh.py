@@ -203,6 +203,51 @@ def test_settings_come_from_flags_then_environment_then_the_file_loopback_by_def
         resolve()
 
 
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="RUSAGE_THREAD (a thread's page faults) is Linux's")
+def test_a_links_part_sized_put_never_fills_a_shared_memory_pool(monkeypatch, tmp_path):
+    """Zenoh 1.x's shared-memory transport optimisation (on by default) made one early put of
+    a session's first >3 KiB samples touch ~10 MiB of its pool in the caller's thread (2,660
+    page faults, 8-11 ms of CPU: the assemblers' early stall, docs/robotics.md); the link's
+    and the publication's sessions switch it off. Counted in page faults, not time."""
+    import os
+    import resource
+    import time
+
+    import zenoh
+    from fusion_center.service.assembler_link import assembler_config, fuser_config
+    from fusion_center.service.zenoh_config import SHM_OPTIMIZATION, open_session, resolve
+
+    for name in ("FUSION_CENTER_ZENOH_CONFIG", "FUSION_CENTER_ZENOH_LISTEN", "FUSION_CENTER_ZENOH_CONNECT",
+                 "FUSION_CENTER_ZENOH_MODE"):
+        monkeypatch.delenv(name, raising=False)
+    monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path / "xdg"))
+    config, _ = resolve()
+    assert json.loads(config.get_json(SHM_OPTIMIZATION)) is False
+    port, = _ports(1)
+    fuser_cfg, what = fuser_config(f"tcp/127.0.0.1:{port}", None)
+    fuser = open_session(fuser_cfg, what)
+    assembler_cfg, what = assembler_config(f"tcp/127.0.0.1:{port}", None)
+    assembler = open_session(assembler_cfg, what)
+    try:
+        sub, got, wait = _subscribe(fuser, "t/part")
+        pub = assembler.declare_publisher("t/part", express=True, congestion_control=zenoh.CongestionControl.BLOCK)
+        end = time.monotonic() + 30
+        while not pub.matching_status.matching and time.monotonic() < end:
+            time.sleep(0.01)
+        payload = os.urandom(15_000)  # a skin4096 part's size
+        faults = []
+        for _ in range(30):  # paced as parts are: the pool was filled by the 3rd to the 12th
+            time.sleep(0.01)
+            before = resource.getrusage(resource.RUSAGE_THREAD).ru_minflt
+            pub.put(payload)
+            faults.append(resource.getrusage(resource.RUSAGE_THREAD).ru_minflt - before)
+        assert len(wait(30)) == 30
+        assert max(faults) < 500, f"a put touched {max(faults)} new pages (4 KiB each): {faults}"
+    finally:
+        assembler.close()
+        fuser.close()
+
 def _cli(*argv, env=None):
     import os
 

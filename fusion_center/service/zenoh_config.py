@@ -45,6 +45,14 @@ MAX_MESSAGE = 16 * 1024 * 1024
 # slots hold five cycles' puts; a stalled subscriber still fills them and loses samples, not
 # cycles. Batches are allocated as used (lazy), at most 64 KiB each.
 TX_QUEUE_DATA = 16
+# Zenoh 1.x carries a sample above 3 KiB to a peer on the same host through its shared-memory
+# pool (``transport/shared_memory/transport_optimization``, on by default). Measured here
+# (bench/zenoh_floor.py, 15 kB at 100 Hz, the link's settings): the first such put of a
+# session spends 8-11 ms of the caller's CPU touching ~10 MiB of the pool (2,661 page faults
+# in the put: the assemblers' early stall, docs/robotics.md), and every later one costs the
+# sender more than the socket does (440 against 320-360 us a message). Off unless the user's
+# configuration says otherwise.
+SHM_OPTIMIZATION = "transport/shared_memory/transport_optimization/enabled"
 
 _ENDPOINT = re.compile(r"[a-z0-9]+/[^\s#?]+:\d{1,5}([?#].*)?")
 _SEGMENT_BAD = re.compile(r"[^A-Za-z0-9_.-]")
@@ -177,6 +185,8 @@ def resolve(*, config_flag: str | None = None, listen=None, connect=None, mode: 
         _set(config, "transport/link/rx/max_message_size", MAX_MESSAGE, what)
     if _is_default(config, "transport/link/tx/queue/size/data"):
         _set(config, "transport/link/tx/queue/size/data", TX_QUEUE_DATA, what)
+    if _is_default(config, SHM_OPTIMIZATION):
+        _set(config, SHM_OPTIMIZATION, False, what)
     return config, what
 
 
