@@ -1,7 +1,7 @@
 """The assembler link's messages (issue 21, item 3: "Any local user can run code in the fusion
 centre"; issue 24: the link on Zenoh): nothing that arrives is unpickled, on either side. A
 part, a hello and the answers travel as the msgpack maps of
-``fusion_center.service.assembler_wire`` (protocol 2, docs/service.md), checked against the
+``fusion_center.service.assembler_wire`` (protocol 3, docs/service.md), checked against the
 scene's group layout, each signed with the run's key (``assembler_link``); a Zenoh peer on the
 assemblers' keys (loopback, scouting off) that sends anything else - a pickle (the issue's
 os.system payload among them), random bytes, an oversize message, a map of wrong types or
@@ -99,6 +99,7 @@ def _rich_parts(scene):
         out[name] = dataclasses.replace(
             part, readings=readings, held_readings=rng.normal(size=n), emcy=emcy,
             duplicates=(int(lay.devices[-1]),), late_frames=3, bad_frames=1, emcy_dropped=2,
+            bootups=((int(lay.devices[0]), 123_456 + int(lay.devices[0])),),
             states=np.where(np.arange(n) % 3 == 0, 127, 5).astype(np.int16), sent_at=1.7e9 + 0.25,
             decisions=rng.integers(-1, 2, size=n).astype(np.int8))
     return out
@@ -138,7 +139,7 @@ def test_a_part_round_trips_and_merges_as_the_part_itself(tmp_path):
         _same_part(part, decoded[name])
         # the spec's layout, read with msgpack alone: raw little-endian arrays, nil for no readings
         m = msgpack.unpackb(data)
-        assert m["v"] == 2 and m["kind"] == "part"
+        assert m["v"] == 3 and m["kind"] == "part"
         assert m["states"] == part.states.astype("<i2").tobytes()
         assert m["readings"] == np.asarray(part.readings, dtype="<f8").tobytes()
         assert m["received"] == bytes(part.received.astype(np.uint8))
@@ -155,6 +156,7 @@ def test_a_part_round_trips_and_merges_as_the_part_itself(tmp_path):
         merged.append(closed)
     a, b = merged
     assert a.emcy == b.emcy and len(a.emcy) == 4 and a.duplicates == b.duplicates
+    assert a.bootups == b.bootups == tuple(sorted(p.bootups[0] for p in parts.values())) and len(a.bootups) == 2
     for f in ("decisions", "readings", "received", "expected", "missing", "states", "held_decisions", "held_readings"):
         np.testing.assert_array_equal(getattr(a, f), getattr(b, f), err_msg=f)
 
@@ -177,7 +179,8 @@ def _largest_part(scene, lay):
         emcy=(EmcyEvent(node_label(full[longest].channel, full[longest].node_id), int(lay.taxels[-1]), 0xFFFF, 0xFF,
                         "f" * 10, -big),) * EMCY_PER_CYCLE,
         emcy_dropped=big, duplicates=tuple(int(i) for i in lay.devices),
-        devices=(np.ones(d, bool), np.ones(d, bool), np.full(d, 127, np.int16), np.ones(d, bool)), sent_at=-1e300)
+        devices=(np.ones(d, bool), np.ones(d, bool), np.full(d, 127, np.int16), np.ones(d, bool)), sent_at=-1e300,
+        bootups=tuple((int(i), -big) for i in lay.devices))
 
 
 def test_the_largest_part_fits_its_frame_limit():
@@ -261,6 +264,12 @@ def _mutations(scene):
         ("emcy 17", lambda m: m.__setitem__("emcy", [m["emcy"][0]] * 17)),
         ("duplicates of group 0", put("duplicates", [0])),
         ("duplicates repeated", lambda m: m.__setitem__("duplicates", m["duplicates"] * 2)),
+        ("bootups of group 0", put("bootups", [[0, 5]])),
+        ("bootups repeated", lambda m: m.__setitem__("bootups", m["bootups"] * 2)),
+        ("bootups t float", lambda m: m["bootups"][0].__setitem__(1, 5.0)),
+        ("bootups t 2**63", lambda m: m["bootups"][0].__setitem__(1, 2 ** 63 - 1)),
+        ("bootups entry short", lambda m: m["bootups"][0].pop()),
+        ("bootups not a list", put("bootups", {})),
         ("devices 3", lambda m: m["devices"].pop()),
         ("devices short", lambda m: m["devices"].__setitem__(2, b"\x05\x00")),
     ]
@@ -312,10 +321,10 @@ def test_hello_and_answers_are_checked(tmp_path):
     with pytest.raises(BadMessage):
         decode_answer(encode_welcome("0"), ("bye",))  # after the welcome only a bye
     # a refused of another version is read (its layout is every version's); other maps are not
-    assert decode_answer(msgpack.packb({"v": 3, "kind": "refused", "why": "too old"})) == \
+    assert decode_answer(msgpack.packb({"v": 4, "kind": "refused", "why": "too old"})) == \
         {"kind": "refused", "why": "too old"}
     with pytest.raises(OtherVersion):
-        decode_answer(msgpack.packb({"v": 3, "kind": "welcome", "group": "0"}))
+        decode_answer(msgpack.packb({"v": 4, "kind": "welcome", "group": "0"}))
 
 
 def test_an_answer_of_another_version_is_unpacked_once(monkeypatch):
@@ -331,11 +340,11 @@ def test_an_answer_of_another_version_is_unpacked_once(monkeypatch):
         return real(*args, **kwargs)
 
     monkeypatch.setattr(assembler_wire.msgpack, "unpackb", counting)
-    data = msgpack.packb({"v": 3, "kind": "refused", "why": "too old"})
+    data = msgpack.packb({"v": 4, "kind": "refused", "why": "too old"})
     assert assembler_wire.decode_answer(data) == {"kind": "refused", "why": "too old"}
     assert calls == [data]
     calls.clear()
-    other = msgpack.packb({"v": 3, "kind": "welcome", "group": "0"})
+    other = msgpack.packb({"v": 4, "kind": "welcome", "group": "0"})
     with pytest.raises(assembler_wire.OtherVersion):
         assembler_wire.decode_answer(other)
     assert calls == [other]
@@ -406,8 +415,8 @@ def test_junk_peers_are_refused_counted_logged_once_and_the_link_goes_on(tmp_pat
             unanswered.append(_hello(peer, scene, signed_with or b"", payload, sign=signed_with is not None)[1])
         assert unanswered == [None] * 6
         # another version: told why (signed), counted
-        _, answer = _hello(peer, scene, key, msgpack.packb({**good, "v": 3}))
-        assert answer["kind"] == "refused" and "protocol version 3" in answer["why"], answer
+        _, answer = _hello(peer, scene, key, msgpack.packb({**good, "v": 4}))
+        assert answer["kind"] == "refused" and "protocol version 4" in answer["why"], answer
         # a hello of another scene: refused with the reason
         _, answer = _hello(peer, scene, key, msgpack.packb({**good, "scene": {**good["scene"], "n": 81}}))
         assert answer["kind"] == "refused" and "scene differs" in answer["why"], answer
@@ -485,7 +494,7 @@ def test_an_assembler_runs_nothing_its_fuser_sends(tmp_path, monkeypatch):
         finally:
             process.close()
         assert not marker.exists()
-        assert "not a fuser of protocol 2" in str(info.value)
+        assert "not a fuser of protocol 3" in str(info.value)
         fuser.answers.put(encode_welcome("1"))
         process = AssemblerProcess(scene, [1], fuser=("127.0.0.1", port), interface="virtual", reconnect_timeout_s=10)
         try:

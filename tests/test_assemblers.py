@@ -35,12 +35,13 @@ ASSEMBLE = "fusion-center assemble"  # the program whose ready line the tests wa
 RECONNECT_S = 120.0  # an assembler's reconnect after its fuser broke the link: seconds on a loaded host
 
 
-def _parts(scene, k, counter, *, decisions=(1, -1)):
-    """Parts of both groups for cycle k, built through GroupAssembler.part from a ClosedCycle."""
+def _parts(scene, k, counter, *, decisions=(1, -1), bootups=((), ())):
+    """Parts of both groups for cycle k, built through GroupAssembler.part from a ClosedCycle;
+    ``bootups``: each group's closed cycle's (sub-scene device, t_us) pairs."""
     from fusion_center.service.cycle_records import ClosedCycle, DeviceCycle
 
     out = {}
-    for g, value in zip((0, 1), decisions):
+    for g, value, booted in zip((0, 1), decisions, bootups):
         ga = GroupAssembler(scene, [g])
         n, nd = ga.layout.sub.n, len(ga.layout.devices)
         closed = ClosedCycle(
@@ -50,7 +51,7 @@ def _parts(scene, k, counter, *, decisions=(1, -1)):
             held_decisions=np.full(n, value, dtype=np.int8), held_readings=np.full(n, np.nan),
             late_frames=0, bad_frames=0, emcy=(), states=np.full(n, 5, dtype=np.int16),
             devices=DeviceCycle(np.ones(nd, dtype=bool), np.zeros(nd, dtype=bool), np.full(nd, 5, dtype=np.int16),
-                                np.ones(nd, dtype=bool)))
+                                np.ones(nd, dtype=bool)), bootups=tuple(booted))
         out[ga.layout.name] = ga.part(closed)
     return out
 
@@ -112,6 +113,23 @@ def test_merge_out_of_order_and_a_missing_part(tmp_path):
     assert [c.cycle for c in out] == [4] and merger.info[4] == {"parts_missing": ["1"]}
     s = merger.stats
     assert (s.complete, s.degraded, s.parts_missing, s.late_parts) == (3, 2, 2, 1)
+
+
+def test_a_groups_boot_ups_reach_the_merged_cycle_as_scene_devices(tmp_path):
+    """A node's own boot-up (the over-range tracker forgets its flag on it) crosses the link:
+    the group's device index becomes the scene's, the merge keeps every group's."""
+    scene = load_scene(_scene_file(tmp_path))
+    merger = CycleMerger(scene, part_deadline_s=0.5)
+    for g in (0, 1):
+        merger.add_group(group_layout(scene, [g]))
+    merger.opened(1, 0, 100.0)
+    parts = _parts(scene, 0, 1, bootups=(((0, 700),), ((1, 500),)))
+    lay1 = group_layout(scene, [1])
+    assert parts["1"].bootups == ((int(lay1.devices[1]), 500),) and parts["0"].bootups == ((0, 700),)
+    for name, part in parts.items():
+        merger.add_part(name, part)
+    (closed,) = merger.emit(100.0)
+    assert closed.bootups == ((0, 700), (int(lay1.devices[1]), 500)) and int(lay1.devices[1]) == 3
 
 
 def test_counter_maps_a_part_to_its_sync_and_numbers_jump_over_lost_syncs(tmp_path):

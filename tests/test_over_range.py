@@ -302,7 +302,9 @@ def test_the_ai_status_of_readings_at_and_beyond_the_integer_ranges():
     assert counts.tolist() == [32767, 32767, -32767] and status.tolist() == [0, 2, 4]
 
 
-def _closed(cycle, emcy=(), missing=False, state=0x05):
+def _closed(cycle, emcy=(), missing=False, state=0x05, bootups=()):
+    """A closed cycle of one raw patch node (node-ID 1): ``emcy`` its EMCYs as (code, register)
+    or (code, register, t_us); ``bootups`` ((device 0, t_us),) when it sent a boot-up."""
     from fusion_center.service.cycle_records import ClosedCycle, DeviceCycle, EmcyEvent
 
     n = 3
@@ -312,8 +314,8 @@ def _closed(cycle, emcy=(), missing=False, state=0x05):
                        decisions=np.zeros(n, np.int8), readings=np.zeros(n), received=np.ones(n, bool),
                        expected=np.ones(n, bool), missing=np.zeros(n, bool), held_decisions=np.zeros(n, np.int8),
                        held_readings=np.zeros(n), late_frames=0, bad_frames=0,
-                       emcy=tuple(EmcyEvent(1, 0, code, register, "", 0) for code, register in emcy),
-                       devices=devices)
+                       emcy=tuple(EmcyEvent(1, 0, e[0], e[1], "", e[2] if len(e) > 2 else 0) for e in emcy),
+                       devices=devices, bootups=tuple(bootups))
 
 
 def test_the_centre_follows_a_nodes_over_range_from_its_emcys_and_forgets_it_on_a_reset_not_a_loss():
@@ -336,3 +338,46 @@ def test_the_centre_follows_a_nodes_over_range_from_its_emcys_and_forgets_it_on_
     assert t.update(_closed(11, [(0x3000, 0x05)], missing=True)) == [1]
     assert t.update(_closed(12, state=-2)) == []                        # NMT reset: afresh, missing or not
     assert dict(t.emcy) == {1: 5}                                       # cycles 1, 5 (two), 7, 11
+
+
+def test_a_node_that_restarts_by_itself_starts_its_over_range_afresh_at_its_boot_up():
+    """A boot-up the centre did not ask for (a watchdog, a power cycle) - no NMT reset sent, so
+    no RESETTING state - clears the node's flag: back in range, it would never send the error
+    reset of an EMCY it no longer remembers. Its EMCYs of the same cycle count in bus time."""
+    from fusion_center.service.over_range import OverRangeTracker
+
+    t = OverRangeTracker([1])
+    assert t.update(_closed(0, [(0x3000, 0x05)])) == [1]
+    assert t.update(_closed(1, state=0x7F)) == [1]                       # pre-operational alone says nothing
+    assert t.update(_closed(2, bootups=((0, 500),), state=0x7F)) == []   # its boot-up: afresh
+    assert t.update(_closed(3, state=0x05)) == []
+    assert t.update(_closed(4, [(0x3000, 0x05, 900)], bootups=((0, 500),))) == [1]  # over range after it
+    assert t.update(_closed(5, [(0x0000, 0x00, 100), (0x3000, 0x05, 200)], bootups=((0, 500),))) == []
+    assert t.emcy == {1: 3}                                              # every 0x3000 heard, applied or not
+
+
+def test_a_boot_up_between_syncs_reaches_the_closed_cycle_and_clears_the_record_flag():
+    """The chain a live run and a replay take: the boot-up frame -> the closed cycle's
+    ``bootups`` -> ``over_range_nodes`` of the record (the pipeline as the centre runs it)."""
+    from fusion_center.service.cycles import CycleAssembler
+    from fusion_center.service.pipeline import CyclePipeline
+    from taxel_net.patches import devices
+    from test_cycles_patch import MS, boot, patch_scene, sync
+
+    sc = patch_scene(sizes=(3,), mode="raw", raw_format="int8", lsb=0.1)
+    a, pipeline = CycleAssembler(sc), CyclePipeline(sc, truth=False)
+    boot(a, sc)
+    (tpdo,) = devices(sc)[0].tpdos
+    records = []
+    for k in range(4):
+        sync(a, (k + 1) * 10 * MS, k + 1)
+        if k == 0:  # the rising edge: EMCY 0x3000, error register bits 0 and 2, before the TPDO
+            assert a.feed(10 * MS + 1, 0, 0x081, bytes([0x00, 0x30, 0x05, 0, 0, 0, 0, 0])) is None
+        if k == 2:  # a boot-up the centre did not ask for, then NMT start by another master
+            assert a.feed(30 * MS + 1, 0, 0x701, b"\x00") is None
+            assert a.feed(30 * MS + 2, 0, 0x000, bytes([0x01, 1])) is None
+        closed = a.feed((k + 1) * 10 * MS + 5, 0, tpdo.cob_id, bytes([k + 1, 127, 3, 4]))
+        assert closed is not None and closed.closed_by == "complete", k
+        assert closed.bootups == {0: ((0, 0),), 2: ((0, 30 * MS + 1),)}.get(k, ()), k  # 0: the first boot
+        records.append(pipeline.evaluate(closed))
+    assert [r["over_range_nodes"] for r in records] == [[1], [1], [], []]

@@ -1,6 +1,6 @@
 """The assembler link on Zenoh (issue 24): key expressions, the per-run key's message
 authentication, and the sessions of the fuser (``run --assemblers ENDPOINT``) and of an
-assembler (``assemble --fuser ENDPOINT``). The messages are protocol 2's
+assembler (``assemble --fuser ENDPOINT``). The messages are protocol 3's
 (:mod:`.assembler_wire`: msgpack maps, checked, never unpickled); this module says where they
 travel and how a receiver knows they come from its run.
 
@@ -18,7 +18,7 @@ travel and how a receiver knows they come from its run.
                             its reply to the hello): gone without a bye = reconnect
 ==========================  ===========================================================
 
-**Authentication** (attachments; the payload is the protocol-2 message unchanged). Every
+**Authentication** (attachments; the payload is the protocol-3 message unchanged). Every
 message carries ``HMAC-SHA256(K, key expression + "\\n" + bound + payload)`` (32 bytes),
 ``K`` = SHA-256 of the shared key - ``$FUSION_CENTER_AUTHKEY``, else on loopback the fuser's
 per-run key file (:mod:`.assembler_parts`). A hello's attachment is ``<link>`` (32 ASCII hex

@@ -243,6 +243,7 @@ class CyclePart:
     duplicates: tuple = ()      # scene device indexes
     devices: tuple | None = None  # patch scenes: (expected, missing, states, complete) per device of the group
     sent_at: float = 0.0        # time.time() when sent (assembler -> fuser delay, same-host clocks)
+    bootups: tuple = ()         # (scene device index, t_us of its last boot-up) since the previous cycle
 
 
 

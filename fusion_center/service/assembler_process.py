@@ -108,7 +108,8 @@ class GroupAssembler:
             states=np.asarray(closed.states), held_decisions=closed.held_decisions, held_readings=held,
             late_frames=closed.late_frames, bad_frames=closed.bad_frames, emcy=emcy,
             emcy_dropped=closed.emcy_dropped, duplicates=tuple(int(lay.devices[d]) for d in closed.duplicates),
-            devices=None if dev is None else (dev.expected, dev.missing, dev.states, dev.complete))
+            devices=None if dev is None else (dev.expected, dev.missing, dev.states, dev.complete),
+            bootups=tuple((int(lay.devices[d]), int(t_us)) for d, t_us in closed.bootups))
 
 
 # ---------------------------------------------------------------------------- the assembler process
@@ -225,7 +226,7 @@ class AssemblerProcess:
         the fuser's signed answer -> the welcomed :class:`_Link`. Raises :class:`Refused`,
         :class:`NoKey`, :class:`Unanswered` (no signed answer within HANDSHAKE_TIMEOUT_S: no
         fuser there yet, or one of another key) or :class:`~.assembler_wire.BadMessage` (a
-        signed answer that is no message of protocol 2). Nothing received is unpickled."""
+        signed answer that is no message of protocol 3). Nothing received is unpickled."""
         import zenoh
 
         mac_key = link_keys.mac_key(self._key())

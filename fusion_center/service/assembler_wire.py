@@ -1,8 +1,8 @@
-"""The assembler link's messages, protocol version 2 (issue 21; :mod:`.assemblers`): what an
+"""The assembler link's messages, protocol version 3 (issue 21; :mod:`.assemblers`): what an
 assembler and the fuser send each other, encoded and decoded here only. Nothing that arrives is
 unpickled or executed: every message is one msgpack map, checked against this specification
-(docs/service.md, *The assembler link, protocol 2*, is the same text for a peer in another
-language). Version 1 was a pickle of Python objects and is gone.
+(docs/service.md, *The assembler link, protocol 3*, is the same text for a peer in another
+language). Version 1 was a pickle of Python objects and is gone; version 2 had no ``bootups``.
 
 **Transport.** One message is the payload of one Zenoh sample (:mod:`.assembler_link`: the
 keys, the sessions, and the HMAC-SHA256 in each sample's attachment on the run's key that a
@@ -61,6 +61,10 @@ only.
   ``devices``         nil or array of 4 bins: expected u8 x d, missing u8 x d,
                       states i16 x d, complete u8 x d
   ``sent_at``         float, finite: seconds since 1970 when sent (latency figures)
+  ``bootups``         array of at most d arrays ``[device, t_us]`` (protocol 3): each of
+                      the group's devices (scene device index) at most once, that sent a
+                      boot-up since the previous cycle, t_us its last one's time (int,
+                      \\|x\\| < 2**53)
   ==================  ==============================================================
 
 A message that breaks any of this is refused (:class:`BadMessage`): the fuser counts it and
@@ -82,7 +86,7 @@ from .assembler_parts import CyclePart, GroupLayout
 from .cycle_records import EMCY_PER_CYCLE, STATE_RESETTING, EmcyEvent
 from .decoder import STATE_NAMES
 
-PROTOCOL = 2
+PROTOCOL = 3  # 3: a part's ``bootups`` (the over-range flags of a node that restarted by itself)
 HELLO_MAX = 16 * 1024    # bytes: the largest hello a fuser reads
 ANSWER_MAX = 16 * 1024   # bytes: the largest welcome / refused / bye an assembler reads
 HANDSHAKE_TIMEOUT_S = 5.0  # hello -> the fuser's answer, else the try failed
@@ -105,7 +109,7 @@ ANSWER_KEYS = {"welcome": frozenset({"v", "kind", "group"}), "refused": frozense
 PART_KEYS = frozenset({"v", "kind", "channels", "number", "sync_counter", "closed_by", "closed_after_us",
                        "decisions", "readings", "received", "expected", "missing", "states", "held_decisions",
                        "held_readings", "late_frames", "bad_frames", "emcy", "emcy_dropped", "duplicates",
-                       "devices", "sent_at"})
+                       "devices", "sent_at", "bootups"})
 
 
 class BadMessage(Exception):
@@ -259,7 +263,8 @@ def encode_part(part: CyclePart) -> bytes:
         "emcy_dropped": int(part.emcy_dropped), "duplicates": [int(d) for d in part.duplicates],
         "devices": None if dev is None else [_raw(dev[0], U8), _raw(dev[1], U8), _raw(dev[2], I16),
                                              _raw(dev[3], U8)],
-        "sent_at": float(part.sent_at)})
+        "sent_at": float(part.sent_at),
+        "bootups": [[int(d), int(t_us)] for d, t_us in part.bootups]})
 
 
 class PartCodec:
@@ -277,7 +282,7 @@ class PartCodec:
         self.devices = {int(i) for i in layout.devices}
         # per taxel: 5 flag / decision bytes, 2 state bytes, 16 reading bytes; per device 5 bytes and a
         # duplicate (9); EMCY entries; bin / array headers, keys and scalars (under 1 kB)
-        self.max_bytes = 4096 + 23 * self.n + 14 * self.d + EMCY_PER_CYCLE * 128 + 9 * len(self.channels)
+        self.max_bytes = 4096 + 23 * self.n + 30 * self.d + EMCY_PER_CYCLE * 128 + 9 * len(self.channels)
 
     def _array(self, key: str, data, dtype: np.dtype, count: int, *, nil: bool = False):
         if data is None and nil:
@@ -322,7 +327,8 @@ class PartCodec:
             held_readings=array("held_readings", F64, nil=True),
             late_frames=_int(m, "late_frames", 0, BIG), bad_frames=_int(m, "bad_frames", 0, BIG),
             emcy=self._emcy(m["emcy"]), emcy_dropped=_int(m, "emcy_dropped", 0, BIG),
-            duplicates=self._duplicates(m["duplicates"]), devices=self._devices(m), sent_at=sent_at)
+            duplicates=self._duplicates(m["duplicates"]), devices=self._devices(m), sent_at=sent_at,
+            bootups=self._bootups(m["bootups"]))
 
     def _emcy(self, entries) -> tuple:
         if not isinstance(entries, list) or len(entries) > EMCY_PER_CYCLE:
@@ -351,6 +357,21 @@ class PartCodec:
                 or any(type(d) is not int or d not in self.devices for d in entries)):
             raise BadMessage(f"part: duplicates {_shown(entries)}: expected distinct devices of the group")
         return tuple(entries)
+
+    def _bootups(self, entries) -> tuple:
+        if not isinstance(entries, list) or len(entries) > self.d:
+            raise BadMessage(f"part: bootups {_shown(entries)}: expected an array of at most {self.d} "
+                             "[device, t_us]")
+        out = []
+        for entry in entries:
+            if (not isinstance(entry, list) or len(entry) != 2 or type(entry[0]) is not int
+                    or entry[0] not in self.devices):
+                raise BadMessage(f"part: bootups entry {_shown(entry)}: expected [a device of the group, t_us]")
+            _int({"t_us": entry[1]}, "t_us", -BIG, BIG)
+            out.append((entry[0], entry[1]))
+        if len({d for d, _ in out}) != len(out):
+            raise BadMessage(f"part: bootups {_shown(entries)}: a device twice")
+        return tuple(out)
 
     def _devices(self, m: dict):
         dev = m["devices"]

@@ -21,7 +21,7 @@ evaluates them with the usual pipeline, writing the same records as
   (the latest SYNC it sent with that counter: unambiguous while a part arrives within
   ``sync_counter`` periods of its SYNC), without a counter by the assembler's number.
 * **Assembler -> fuser: Zenoh** (:mod:`.assembler_link`: keys, sessions, authentication)
-  carrying the messages of :mod:`.assembler_wire` (protocol 2: msgpack maps, arrays as raw
+  carrying the messages of :mod:`.assembler_wire` (protocol 3: msgpack maps, arrays as raw
   little-endian bytes, every field checked against the scene's group layout on decode;
   nothing received is unpickled, on either side). The fuser's session listens on
   ``--assemblers`` (``HOST:PORT`` = ``tcp/HOST:PORT``, or any Zenoh endpoint such as

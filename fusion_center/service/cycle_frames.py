@@ -162,6 +162,7 @@ class CycleFrames:
                 self.state[idx] = STATE_PRE_OPERATIONAL  # a node boots into pre-operational
                 self.bootup_seq[idx] = sum(counts)
                 self.bootups.append(idx)
+                self.bootup_since[idx] = t
                 counts[C_BOOTUP] += 1
             else:
                 self.state[idx] = state

@@ -220,6 +220,7 @@ class CycleMerger:
         late = bad = dropped = 0
         emcy: list[EmcyEvent] = []
         duplicates: set[int] = set()
+        bootups: list = []
         close_after = 0
         by = []
         for name, part in got.items():
@@ -245,6 +246,7 @@ class CycleMerger:
             dropped += part.emcy_dropped
             emcy.extend(part.emcy)
             duplicates.update(part.duplicates)
+            bootups.extend(part.bootups)
             close_after = max(close_after, part.closed_after_us)
             by.append(part.closed_by)
         if len(emcy) > EMCY_PER_CYCLE:
@@ -267,5 +269,6 @@ class CycleMerger:
             decisions=decisions, readings=readings, received=received, expected=expected, missing=missing_t,
             held_decisions=self.held_decisions.copy(), held_readings=self.held_readings.copy(),
             late_frames=late, bad_frames=bad, emcy=tuple(emcy), states=states,
-            duplicates=tuple(sorted(duplicates)), emcy_dropped=dropped, devices=device)
+            duplicates=tuple(sorted(duplicates)), emcy_dropped=dropped, devices=device,
+            bootups=tuple(sorted(bootups)))
 

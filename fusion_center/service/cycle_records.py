@@ -142,11 +142,12 @@ class ClosedCycle:
     emcy_dropped: int = 0      # EMCY frames since the previous cycle beyond EMCY_PER_CYCLE (counted only)
     devices: DeviceCycle | None = None  # patch scenes: the nodes' view (one-taxel scenes: node = taxel)
     drive: object = None       # [gripper] scenes: the drive as known at the close (.drive_frames.DriveCycle)
+    bootups: tuple[tuple[int, int], ...] = ()  # (device index, t_us of its last boot-up) since the previous cycle
 
     @classmethod
     def make(cls, cycle, sync_us, close_us, sync_counter, closed_by, decisions, readings, received, expected, missing,
              held_decisions, held_readings, late_frames, bad_frames, emcy, states=None, duplicates=(), emcy_dropped=0,
-             devices=None, drive=None) -> "ClosedCycle":
+             devices=None, drive=None, bootups=()) -> "ClosedCycle":
         """``ClosedCycle(...)``, made faster (:func:`frozen_instance`): the assembler's close."""
         return frozen_instance(cls, {
             "cycle": cycle, "sync_us": sync_us, "close_us": close_us, "sync_counter": sync_counter,
@@ -154,4 +155,4 @@ class ClosedCycle:
             "expected": expected, "missing": missing, "held_decisions": held_decisions,
             "held_readings": held_readings, "late_frames": late_frames, "bad_frames": bad_frames, "emcy": emcy,
             "states": states, "duplicates": duplicates, "emcy_dropped": emcy_dropped, "devices": devices,
-            "drive": drive})
+            "drive": drive, "bootups": bootups})

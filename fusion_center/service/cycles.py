@@ -179,6 +179,7 @@ class CycleAssembler(CycleFrames):
         self.emcy_since: list[EmcyEvent] = []
         self.emcy_dropped = 0
         self.bootups: list[int] = []  # device indexes that sent boot-up (drained by the master)
+        self.bootup_since: dict[int, int] = {}  # device index -> t_us of its last boot-up since the previous close
         # duplicate node-ID evidence (two devices answering for one node-ID):
         self.sdo_outstanding = np.zeros(nd, dtype=bool)  # an SDO request is waiting for its answer
         self.duplicate_since: set[int] = set()          # evidence since the previous closed cycle
@@ -417,6 +418,7 @@ class CycleAssembler(CycleFrames):
             emcy_dropped=self.emcy_dropped,
             devices=device,
             drive=None if self.drive is None else self.drive.snapshot(t),
+            bootups=tuple(sorted(self.bootup_since.items())) if self.bootup_since else (),
         )
         self.is_open = False
         self.late_since = 0
@@ -425,4 +427,6 @@ class CycleAssembler(CycleFrames):
         self.emcy_dropped = 0
         if self.duplicate_since:
             self.duplicate_since = set()
+        if self.bootup_since:
+            self.bootup_since = {}
         return closed

@@ -12,13 +12,15 @@ mapped reading is back in range; its AI status array 0x2033 says which taxels, b
 :class:`OverRangeTracker` follows those EMCYs cycle by cycle (a closed cycle's ``emcy``: every
 EMCY since the previous one, in bus order): a node is over range from its EMCY 0x3000 until an
 EMCY of its own says otherwise (the error register of every EMCY is the node's 0x1001: bit 2
-clear, e.g. the error reset), or until the centre resets it (NMT reset: its error state starts
-afresh). A boot-up the node sends by itself is not seen here (a cycle's states give
-PRE-OPERATIONAL after it): such a node stays flagged until an EMCY of its own says otherwise. A
-node that is lost (heartbeat consumer time expired) stays over range: a node heard again without
-a boot-up resumes in its NMT state with its error state as it was (it sends the EMCY 0x3000 on
-the rising edge only, so it says nothing more while still over range), and a missing node's
-records are degraded anyway. A record of a cycle in which some node is over range lists those
+clear, e.g. the error reset), until the centre resets it (NMT reset: its error state starts
+afresh), or until it boots by itself (its boot-up message, a closed cycle's ``bootups``: a
+node that restarted - a watchdog, a power cycle - starts its error state afresh too, and one
+that came back in range would never send the error reset of an EMCY it no longer remembers).
+An over-range EMCY of the same cycle after the boot-up flags it again; one before it is
+counted, not applied. A node that is lost (heartbeat consumer time expired) stays over range:
+a node heard again without a boot-up resumes in its NMT state with its error state as it was
+(it sends the EMCY 0x3000 on the rising edge only, so it says nothing more while still over
+range), and a missing node's records are degraded anyway. A record of a cycle in which some node is over range lists those
 nodes in ``over_range_nodes``: its raw-mode results (the nodes'
 decisions computed centrally, the centralised tests, the forces) came from clipped readings.
 The EMCYs are counted per node (the run summary's ``over_range``). Pure: a function of the
@@ -42,6 +44,7 @@ class OverRangeTracker:
     label of every device (``pipeline.node_labels`` order)."""
 
     def __init__(self, labels: list):
+        self.labels = list(labels)
         self.index = {label: i for i, label in enumerate(labels)}
         self.active: set = set()          # node labels over range now
         self.emcy: Counter = Counter()    # node label -> over-range EMCYs (rising edges) heard
@@ -51,13 +54,20 @@ class OverRangeTracker:
         self.emcy.clear()
 
     def update(self, closed: ClosedCycle) -> list:
-        """The cycle's EMCYs applied, restarted nodes forgotten (not lost ones: module
-        docstring): the labels of the nodes over range in this cycle (device order)."""
+        """The cycle's boot-ups and EMCYs applied, restarted nodes forgotten (not lost ones:
+        module docstring): the labels of the nodes over range in this cycle (device order)."""
         active = self.active
+        booted = None
+        if closed.bootups:  # restarted by itself: its error state starts afresh at its boot-up
+            booted = {self.labels[d]: t_us for d, t_us in closed.bootups if d < len(self.labels)}
+            active.difference_update(booted)
         for e in closed.emcy:
             if e.code == EMCY_INPUT_OVER_RANGE:
-                active.add(e.node)
                 self.emcy[e.node] += 1
+            if booted is not None and e.t_us < booted.get(e.node, -1 << 63):
+                continue  # sent before its restart: superseded
+            if e.code == EMCY_INPUT_OVER_RANGE:
+                active.add(e.node)
             elif not e.register & ERR_REG_VOLTAGE:
                 active.discard(e.node)
         if not active:
