@@ -34,6 +34,7 @@ from taxel_net.canmsg import tune_udp_multicast
 from taxel_net import gcfreeze
 from taxel_net.eds_file import import_eds
 from taxel_net.errors import EdsError, UsageError
+from taxel_net import realtime
 from taxel_net.receiver import notifiers_for
 from taxel_net.resources import eds_path, patch_eds_path
 from taxel_net.udp_filter import drop_own_frames
@@ -98,6 +99,24 @@ def trace_failure(path, stream) -> str:
             "frames not traced (the trace is incomplete)")
 
 
+BUSY_POLL_MAX_MS = 20.0  # --busy-poll-ms: at most two periods of a 100 Hz SYNC
+
+
+def check_realtime_options(rt_priority, busy_poll_ms) -> tuple[int | None, float | None]:
+    """``--rt-priority`` (1-99) and ``--busy-poll-ms`` ((0, 20]), each None for off; a bad
+    value: UsageError naming the option, the value and what is allowed."""
+    try:
+        priority = None if rt_priority is None else realtime.check_priority(rt_priority)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    if busy_poll_ms is not None:
+        ok = isinstance(busy_poll_ms, (int, float)) and not isinstance(busy_poll_ms, bool)
+        if not (ok and 0 < busy_poll_ms <= BUSY_POLL_MAX_MS):
+            raise UsageError(f"--busy-poll-ms {busy_poll_ms!r}: must be a number of ms in (0, {BUSY_POLL_MAX_MS:g}]")
+        busy_poll_ms = float(busy_poll_ms)
+    return priority, busy_poll_ms
+
+
 class FusionService:
     """The fusion centre on one python-can interface (one bus per scene channel).
 
@@ -115,8 +134,15 @@ class FusionService:
     def __init__(self, scene: Scene, *, interface: str = "virtual", channels: Sequence[str] | None = None,
                  bitrate: int | None = None, bus_kwargs: dict | None = None, json_lines=None, trace=None,
                  eds_path=DEFAULT_EDS, truth: bool = True, keep_records: bool = True,
-                 on_record: Callable[[dict], None] | None = None):
+                 on_record: Callable[[dict], None] | None = None, rt_priority: int | None = None,
+                 busy_poll_ms: float | None = None):
         self.scene = scene
+        # SCHED_FIFO for the receive thread(s) and the SYNC producer during run (--rt-priority;
+        # taxel_net.realtime): None keeps the normal priority
+        # the receive thread reads without blocking from each SYNC until its cycle closes, at most
+        # busy_poll_ms (--busy-poll-ms; taxel_net.receiver.SelectNotifiers.busy_poll): None = off
+        self.rt_priority, self.busy_poll_ms = check_realtime_options(rt_priority, busy_poll_ms)
+        self.rt_threads: list[str] = []
         self.interface = interface
         names = list(scene.bus.channels)
         if channels is not None:
@@ -335,7 +361,11 @@ class FusionService:
         # producer collects what is due half a period after each SYNC (taxel_net.gcfreeze.defer)
         gcfreeze.defer()
         try:
+            if self.busy_poll_ms is not None:
+                self.master.after_sync = self._busy_poll
             self.master.start_sync(cycles, before_sync)
+            if self.rt_priority is not None:
+                self.rt_threads = realtime.fifo_threads(self._critical_threads(), self.rt_priority)
             if timeout_s is None:
                 timeout_s = cycles * period * 3 + 10.0
             self.master.wait_sync_done(timeout_s)
@@ -345,6 +375,33 @@ class FusionService:
             gcfreeze.resume()
             gcfreeze.release()
         return self.summary()
+
+    def _busy_poll(self) -> None:
+        """After a SYNC's send (the SYNC producer): the receive thread polls until the cycle closes."""
+        deadline = time.monotonic() + self.busy_poll_ms * 1e-3
+        assembler = self.assembler
+        owners = []
+        for notifier in self.notifiers:
+            owner = getattr(notifier, "owner", None)
+            if owner is not None and owner not in owners:
+                owners.append(owner)
+                owner.busy_poll(deadline, lambda: assembler.is_open)
+
+    def _critical_threads(self) -> list[threading.Thread]:
+        """The threads on the SYNC -> command path: the receive thread(s), the SYNC producer."""
+        threads = []
+        for notifier in self.notifiers:
+            owner = getattr(notifier, "owner", None)  # a handle of taxel_net.receiver's one thread
+            own = getattr(owner, "_thread", None)
+            if own is not None:
+                if own not in threads:
+                    threads.append(own)
+            else:  # python-can's Notifier: a thread per bus
+                threads.extend(t for t in getattr(notifier, "_readers", []) if isinstance(t, threading.Thread))
+        sync = getattr(self.master, "_sync_thread", None)
+        if sync is not None:
+            threads.append(sync)
+        return threads
 
     def drain(self, timeout: float = 5.0) -> None:
         """Wait for the evaluation in progress, then evaluate every closed cycle still queued."""

@@ -1,0 +1,151 @@
+"""--rt-priority (taxel_net.realtime, FusionService(rt_priority=...), fusion-center run): the
+centre's receive thread and SYNC producer under SCHED_FIFO, opt-in; a refusal is one warning
+line, never an error (issue 23, docs/grip-control.md "2026-11-30 (stop 31)")."""
+
+from __future__ import annotations
+
+import logging
+import os
+import threading
+import uuid
+
+import pytest
+
+from fusion_center.service import FusionService
+from node_sim.rig import Rig
+from taxel_net import realtime
+from taxel_net.errors import UsageError
+from taxel_net.scene import load_scene
+
+SCENE = """
+[scene]
+name = "rt1"
+cycles = 10
+[bus]
+channels = ["a"]
+sync_period_ms = 10.0
+[[taxels]]
+node_id = 1
+kind = "R"
+[[taxels]]
+node_id = 2
+kind = "R"
+[fusion]
+tuple = "pm1"
+"""
+
+linux_rt = pytest.mark.skipif(not hasattr(os, "sched_setscheduler"), reason="no sched_setscheduler here")
+
+
+def _fifo_permitted() -> bool:
+    """Whether this process may use SCHED_FIFO (tried on a short-lived thread of its own)."""
+    result = []
+
+    def probe():
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO | os.SCHED_RESET_ON_FORK, os.sched_param(1))
+            result.append(True)
+        except OSError:
+            result.append(False)
+
+    t = threading.Thread(target=probe)
+    t.start()
+    t.join(5)
+    return bool(result and result[0])
+
+
+@pytest.mark.parametrize("value", [0, 100, -1, "x", 1.5, None])
+def test_a_priority_outside_1_to_99_is_refused_with_the_option_named(value):
+    with pytest.raises(ValueError, match=r"^--rt-priority .*allowed: 1-99"):
+        realtime.check_priority(value)
+
+
+def test_priorities_1_and_99_are_accepted():
+    assert realtime.check_priority(1) == 1 and realtime.check_priority("99") == 99
+
+
+def test_the_service_refuses_a_bad_priority_as_a_usage_error(tmp_path):
+    path = tmp_path / "rt1.toml"
+    path.write_text(SCENE)
+    with pytest.raises(UsageError, match="--rt-priority 0: out of range"):
+        FusionService(load_scene(path), rt_priority=0)
+
+
+@linux_rt
+def test_not_permitted_is_one_warning_and_the_thread_keeps_its_policy(monkeypatch, caplog):
+    calls = []
+
+    def refuse(tid, policy, param):
+        calls.append(tid)
+        raise PermissionError(1, "Operation not permitted")
+
+    monkeypatch.setattr(os, "sched_setscheduler", refuse)
+    monkeypatch.setattr(realtime, "_warned", False)
+    stop = threading.Event()
+    threads = [threading.Thread(target=stop.wait, args=(10,), name=f"t{k}") for k in range(2)]
+    for t in threads:
+        t.start()
+    try:
+        before = realtime.policy_of(threads[0])
+        with caplog.at_level(logging.WARNING, logger="taxel_net.realtime"):
+            assert realtime.fifo_threads(threads, 50) == []
+            assert realtime.fifo_threads(threads, 50) == []
+        assert realtime.policy_of(threads[0]) == before and before[0] == os.SCHED_OTHER
+    finally:
+        stop.set()
+        for t in threads:
+            t.join(5)
+    assert len(calls) == 2                               # one try per call, not per thread after a refusal
+    lines = [r.getMessage() for r in caplog.records if r.name == "taxel_net.realtime"]
+    assert len(lines) == 1 and "--rt-priority 50: SCHED_FIFO not permitted (EPERM" in lines[0]
+
+
+@linux_rt
+def test_fifo_threads_puts_a_running_thread_under_sched_fifo():
+    if not _fifo_permitted():
+        pytest.skip("SCHED_FIFO not permitted for this user")
+    stop = threading.Event()
+    t = threading.Thread(target=stop.wait, args=(10,), name="rt-probe")
+    t.start()
+    try:
+        assert realtime.policy_of(t)[0] == os.SCHED_OTHER
+        assert realtime.fifo_threads([t], 7) == ["rt-probe"]
+        assert realtime.policy_of(t) == (os.SCHED_FIFO, 7)
+    finally:
+        stop.set()
+        t.join(5)
+
+
+def _run(tmp_path, rt_priority):
+    """A short run on a virtual bus; the scheduling policy seen by the receive thread (where the
+    records are made) and by the SYNC producer (before_sync) in each cycle."""
+    path = tmp_path / "rt1.toml"
+    path.write_text(SCENE)
+    scene = load_scene(path)
+    channel = f"rt-{uuid.uuid4().hex[:8]}"
+    seen = {"record": [], "sync": []}
+    rig = Rig(scene, channel=[channel])
+    try:
+        with FusionService(scene, channels=[channel], rt_priority=rt_priority,
+                           on_record=lambda r: seen["record"].append(os.sched_getscheduler(0))) as service:
+            rig.start()
+            service.boot(3.0)
+            service.run(8, before_sync=lambda k: seen["sync"].append(os.sched_getscheduler(0)))
+    finally:
+        rig.stop()
+    return service, seen
+
+
+@linux_rt
+def test_the_receive_thread_and_the_sync_producer_run_under_sched_fifo_with_rt_priority(tmp_path):
+    if not _fifo_permitted():
+        pytest.skip("SCHED_FIFO not permitted for this user")
+    flags = getattr(os, "SCHED_RESET_ON_FORK", 0)
+    service, seen = _run(tmp_path, 20)
+    assert service.rt_threads == ["centre-receive", "sync-producer"]
+    # the records are made in the receive thread; the first cycles' before_sync may come before
+    # the SYNC producer was raised (it is raised once started)
+    assert len(seen["record"]) == 8 and {p & ~flags for p in seen["record"][2:]} == {os.SCHED_FIFO}
+    assert {p & ~flags for p in seen["sync"][2:]} == {os.SCHED_FIFO}
+    service, seen = _run(tmp_path, None)                 # default: the normal policy
+    assert service.rt_threads == [] and set(seen["record"]) == set(seen["sync"]) == {os.SCHED_OTHER}
