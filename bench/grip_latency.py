@@ -223,6 +223,8 @@ def latencies(sync_at, cmd_at) -> list[float]:
 
 
 # --------------------------------------------------------------------------- one run
+# --rt-priority, --busy-poll-ms: the centre's FusionService options in udp / player runs
+CENTRE_OPTIONS: dict = {}
 RECORDED: dict[tuple[str, int], list] = {}  # (scene, cycles) -> an embedded run's taxel answers per cycle
 
 
@@ -303,8 +305,13 @@ def observer_main(group: str, port: int, out: str) -> int:
     return 0
 
 
+NODE_CPUS: list[set[int]] = []  # --pin: the node / drive / observer processes' CPUs
+
+
 def _start(cmd: list[str], word: str) -> subprocess.Popen:
-    proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    cpus = NODE_CPUS[0] if NODE_CPUS else None
+    proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=(lambda: os.sched_setaffinity(0, cpus)) if cpus else None)
     got: list[str] = []
     reader = threading.Thread(target=lambda: got.append(proc.stdout.readline()), daemon=True)
     reader.start()
@@ -352,10 +359,18 @@ def run_udp(name: str, cycles: int, player: list | None = None, world: bool = Fa
                 sim = _start(base + ["--part", "nodes", "--frames", str(frames_file)], "ready")
             marks = Marks()
             service = FusionService(scene, interface="udp_multicast", channels=[group],
-                                    bus_kwargs={"port": port, "hop_limit": 0}, keep_records=True)
+                                    bus_kwargs={"port": port, "hop_limit": 0}, keep_records=True,
+                                    **CENTRE_OPTIONS)
             with service:
                 instrument(service, marks)
+                receive = getattr(getattr(service.notifiers[0], "owner", None), "_thread", None)
+                clock = time.pthread_getcpuclockid(receive.ident) if receive is not None else None
+                cpu0 = time.clock_gettime(clock) if clock is not None else None
                 summary = execute(service, cycles, live=False, boot_timeout=5.0)
+                # the receive thread's CPU time over the run (boot included), per SYNC cycle
+                receive_cpu_ms = ((time.clock_gettime(clock) - cpu0) * 1e3 / max(1, service.master.sync_sent)
+                                  if clock is not None else None)
+                poll_turns = getattr(getattr(service.notifiers[0], "owner", None), "poll_turns", 0)
         finally:
             for proc in (sim, drive):
                 if proc is not None:
@@ -366,8 +381,10 @@ def run_udp(name: str, cycles: int, player: list | None = None, world: bool = Fa
             observer.wait(20)
         seen = json.loads(seen_file.read_text())
     frames = [can.Message(timestamp=t, arbitration_id=i, data=bytes.fromhex(d)) for t, i, d in seen]
-    return finish(scene, service, summary, frames, marks)
-
+    out = finish(scene, service, summary, frames, marks)
+    out["rt_threads"] = getattr(service, "rt_threads", [])
+    out["receive_cpu_ms"], out["poll_turns"] = receive_cpu_ms, poll_turns
+    return out
 
 
 RUNS = {"embedded": run_embedded, "udp": run_udp, "player": run_player}
@@ -380,6 +397,18 @@ def main(argv=None) -> int:
     ap.add_argument("--scenes", nargs="*", default=list(SCENES))
     ap.add_argument("--transports", nargs="+", default=list(TRANSPORTS), choices=TRANSPORTS)
     ap.add_argument("--echo", type=int, default=2000, help="echo samples (0: skip)")
+    ap.add_argument("--rt-priority", type=int, default=None, metavar="N",
+                    help="the centre's receive thread and SYNC producer under SCHED_FIFO N (udp, player; "
+                         "fusion-center run --rt-priority)")
+    ap.add_argument("--busy-poll-ms", type=float, default=None, metavar="MS",
+                    help="the centre's receive thread polls from each SYNC until the cycle closes, at most MS "
+                         "(udp, player; fusion-center run --busy-poll-ms)")
+    ap.add_argument("--pin", nargs=2, metavar=("NODE_CPUS", "CENTRE_CPUS"), default=None,
+                    help="CPU lists (e.g. 0 1): the node/drive/observer processes on NODE_CPUS, this process "
+                         "(the centre) on CENTRE_CPUS - the nodes as hardware of their own (udp, player)")
+    ap.add_argument("--switch-interval-ms", type=float, default=None, metavar="MS",
+                    help="sys.setswitchinterval in this process (the centre's) for the runs, restored after "
+                         "(default: Python's 5 ms)")
     ap.add_argument("--json", metavar="OUT", help="append each scene x transport's runs to OUT (JSON lines)")
     ap.add_argument("--compare", nargs="+", metavar="JSONL", help="print --json files side by side, run nothing")
     ap.add_argument("--observe", nargs=3, metavar=("GROUP", "PORT", "OUT"), help=argparse.SUPPRESS)
@@ -391,7 +420,25 @@ def main(argv=None) -> int:
     import logging
 
     logging.basicConfig(level=logging.ERROR)
-    print(f"code: {ROOT}   start: {uptime()}")
+    if args.rt_priority is not None:
+        CENTRE_OPTIONS["rt_priority"] = args.rt_priority
+    if args.busy_poll_ms is not None:
+        CENTRE_OPTIONS["busy_poll_ms"] = args.busy_poll_ms
+    if args.pin:
+        NODE_CPUS.append({int(c) for c in args.pin[0].split(",")})
+        os.sched_setaffinity(0, {int(c) for c in args.pin[1].split(",")})  # this thread: the ones it starts inherit
+    switch_before = sys.getswitchinterval()
+    if args.switch_interval_ms is not None:
+        sys.setswitchinterval(args.switch_interval_ms / 1e3)
+    try:
+        return _measure(args)
+    finally:
+        sys.setswitchinterval(switch_before)
+
+
+def _measure(args) -> int:
+    print(f"code: {ROOT}   start: {uptime()}   centre options: {CENTRE_OPTIONS or 'none'}   pin: {args.pin or 'no'}   "
+          f"switch interval: {sys.getswitchinterval() * 1e3:g} ms")
     print(f"SYNC -> command on the bus (observer's stamps), ms; {args.runs} run(s) x {args.cycles} cycles; "
           "figures: median over runs (min-max)")
     print(HEADER)
@@ -412,6 +459,9 @@ def main(argv=None) -> int:
                 with open(args.json, "a", encoding="utf-8") as out:
                     out.write(json.dumps({"scene": name, "transport": transport, "code": str(ROOT),
                                           "uptime": uptime(), "loadavg": load, "wire_floor_ms": floor,
+                                          "rt_priority": args.rt_priority, "busy_poll_ms": args.busy_poll_ms,
+                                          "pin": args.pin,
+                                          "switch_interval_ms": sys.getswitchinterval() * 1e3,
                                           "runs": runs}) + "\n")
     print_summary(results)
     if args.echo:

@@ -51,6 +51,9 @@ def print_breakdown(runs: list[dict]) -> None:
             continue
         parts.append(f"{stage} {_pct(values, 50):.3f}/{_pct(values, 99):.3f}")
     n = sum(len(r["stages"]["send"]) for r in runs)
+    cpu = [r["receive_cpu_ms"] for r in runs if r.get("receive_cpu_ms") is not None]
+    if cpu:  # udp / player: the centre's receive thread's CPU time (boot included) per SYNC
+        parts.append("receive thread CPU " + "/".join(f"{v:.2f}" for v in cpu) + " ms/cycle")
     print(f"{'':10s}breakdown p50/p99 ms over {n} complete cycles: " + ", ".join(parts))
 
 
