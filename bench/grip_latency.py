@@ -306,12 +306,21 @@ def observer_main(group: str, port: int, out: str) -> int:
 
 
 NODE_CPUS: list[set[int]] = []  # --pin: the node / drive / observer processes' CPUs
+NODES_RT: list[int] = []        # --nodes-rt: their SCHED_FIFO priority
+
+
+def _node_process_setup() -> None:
+    """In the node / drive / observer processes before exec (--pin, --nodes-rt): every thread
+    they start inherits it."""
+    if NODE_CPUS:
+        os.sched_setaffinity(0, NODE_CPUS[0])
+    if NODES_RT:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(NODES_RT[0]))
 
 
 def _start(cmd: list[str], word: str) -> subprocess.Popen:
-    cpus = NODE_CPUS[0] if NODE_CPUS else None
     proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            preexec_fn=(lambda: os.sched_setaffinity(0, cpus)) if cpus else None)
+                            preexec_fn=_node_process_setup if NODE_CPUS or NODES_RT else None)
     got: list[str] = []
     reader = threading.Thread(target=lambda: got.append(proc.stdout.readline()), daemon=True)
     reader.start()
@@ -406,6 +415,9 @@ def main(argv=None) -> int:
     ap.add_argument("--pin", nargs=2, metavar=("NODE_CPUS", "CENTRE_CPUS"), default=None,
                     help="CPU lists (e.g. 0 1): the node/drive/observer processes on NODE_CPUS, this process "
                          "(the centre) on CENTRE_CPUS - the nodes as hardware of their own (udp, player)")
+    ap.add_argument("--nodes-rt", type=int, default=None, metavar="N",
+                    help="the node / drive / observer processes under SCHED_FIFO N: the stand-ins for CAN hardware "
+                         "answer whatever else the host runs (udp, player)")
     ap.add_argument("--switch-interval-ms", type=float, default=None, metavar="MS",
                     help="sys.setswitchinterval in this process (the centre's) for the runs, restored after "
                          "(default: Python's 5 ms)")
@@ -424,6 +436,8 @@ def main(argv=None) -> int:
         CENTRE_OPTIONS["rt_priority"] = args.rt_priority
     if args.busy_poll_ms is not None:
         CENTRE_OPTIONS["busy_poll_ms"] = args.busy_poll_ms
+    if args.nodes_rt is not None:
+        NODES_RT.append(args.nodes_rt)
     if args.pin:
         NODE_CPUS.append({int(c) for c in args.pin[0].split(",")})
         os.sched_setaffinity(0, {int(c) for c in args.pin[1].split(",")})  # this thread: the ones it starts inherit
@@ -437,7 +451,7 @@ def main(argv=None) -> int:
 
 
 def _measure(args) -> int:
-    print(f"code: {ROOT}   start: {uptime()}   centre options: {CENTRE_OPTIONS or 'none'}   pin: {args.pin or 'no'}   "
+    print(f"code: {ROOT}   start: {uptime()}   centre options: {CENTRE_OPTIONS or 'none'}   pin: {args.pin or 'no'}   nodes-rt: {args.nodes_rt or 'no'}   "
           f"switch interval: {sys.getswitchinterval() * 1e3:g} ms")
     print(f"SYNC -> command on the bus (observer's stamps), ms; {args.runs} run(s) x {args.cycles} cycles; "
           "figures: median over runs (min-max)")
@@ -460,7 +474,7 @@ def _measure(args) -> int:
                     out.write(json.dumps({"scene": name, "transport": transport, "code": str(ROOT),
                                           "uptime": uptime(), "loadavg": load, "wire_floor_ms": floor,
                                           "rt_priority": args.rt_priority, "busy_poll_ms": args.busy_poll_ms,
-                                          "pin": args.pin,
+                                          "pin": args.pin, "nodes_rt": args.nodes_rt,
                                           "switch_interval_ms": sys.getswitchinterval() * 1e3,
                                           "runs": runs}) + "\n")
     print_summary(results)
