@@ -223,7 +223,7 @@ def latencies(sync_at, cmd_at) -> list[float]:
 
 
 # --------------------------------------------------------------------------- one run
-# --rt-priority, --busy-poll-ms: the centre's FusionService options in udp / player runs
+# --rt-priority: the centre's FusionService options in udp / player runs
 CENTRE_OPTIONS: dict = {}
 RECORDED: dict[tuple[str, int], list] = {}  # (scene, cycles) -> an embedded run's taxel answers per cycle
 
@@ -379,7 +379,6 @@ def run_udp(name: str, cycles: int, player: list | None = None, world: bool = Fa
                 # the receive thread's CPU time over the run (boot included), per SYNC cycle
                 receive_cpu_ms = ((time.clock_gettime(clock) - cpu0) * 1e3 / max(1, service.master.sync_sent)
                                   if clock is not None else None)
-                poll_turns = getattr(getattr(service.notifiers[0], "owner", None), "poll_turns", 0)
         finally:
             for proc in (sim, drive):
                 if proc is not None:
@@ -392,7 +391,7 @@ def run_udp(name: str, cycles: int, player: list | None = None, world: bool = Fa
     frames = [can.Message(timestamp=t, arbitration_id=i, data=bytes.fromhex(d)) for t, i, d in seen]
     out = finish(scene, service, summary, frames, marks)
     out["rt_threads"] = getattr(service, "rt_threads", [])
-    out["receive_cpu_ms"], out["poll_turns"] = receive_cpu_ms, poll_turns
+    out["receive_cpu_ms"] = receive_cpu_ms
     return out
 
 
@@ -409,9 +408,6 @@ def main(argv=None) -> int:
     ap.add_argument("--rt-priority", type=int, default=None, metavar="N",
                     help="the centre's receive thread and SYNC producer under SCHED_FIFO N (udp, player; "
                          "fusion-center run --rt-priority)")
-    ap.add_argument("--busy-poll-ms", type=float, default=None, metavar="MS",
-                    help="the centre's receive thread polls from each SYNC until the cycle closes, at most MS "
-                         "(udp, player; fusion-center run --busy-poll-ms)")
     ap.add_argument("--pin", nargs=2, metavar=("NODE_CPUS", "CENTRE_CPUS"), default=None,
                     help="CPU lists (e.g. 0 1): the node/drive/observer processes on NODE_CPUS, this process "
                          "(the centre) on CENTRE_CPUS - the nodes as hardware of their own (udp, player)")
@@ -434,8 +430,6 @@ def main(argv=None) -> int:
     logging.basicConfig(level=logging.ERROR)
     if args.rt_priority is not None:
         CENTRE_OPTIONS["rt_priority"] = args.rt_priority
-    if args.busy_poll_ms is not None:
-        CENTRE_OPTIONS["busy_poll_ms"] = args.busy_poll_ms
     if args.nodes_rt is not None:
         NODES_RT.append(args.nodes_rt)
     if args.pin:
@@ -473,7 +467,7 @@ def _measure(args) -> int:
                 with open(args.json, "a", encoding="utf-8") as out:
                     out.write(json.dumps({"scene": name, "transport": transport, "code": str(ROOT),
                                           "uptime": uptime(), "loadavg": load, "wire_floor_ms": floor,
-                                          "rt_priority": args.rt_priority, "busy_poll_ms": args.busy_poll_ms,
+                                          "rt_priority": args.rt_priority,
                                           "pin": args.pin, "nodes_rt": args.nodes_rt,
                                           "switch_interval_ms": sys.getswitchinterval() * 1e3,
                                           "runs": runs}) + "\n")

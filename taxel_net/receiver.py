@@ -36,12 +36,10 @@ from __future__ import annotations
 
 import itertools
 import logging
-import os
 import queue
 import select
 import threading
-import time
-from typing import Callable, Iterator, Sequence
+from typing import Iterator, Sequence
 
 import can
 
@@ -124,58 +122,20 @@ class SelectNotifiers:
         self.handles = [_Handle(self, bus, listeners) for bus, listeners in pairs]
         self.timeout = timeout
         self._stop = threading.Event()
-        self._poll: tuple[float, Callable[[], bool]] | None = None  # busy poll: (deadline, keep)
-        self._wake: tuple[int, int] | None = None                   # its wake-up pipe (r, w), made at the first
-        self.poll_turns = 0  # selects that did not block (busy poll), for the cost's record
         self._thread = threading.Thread(target=self._run, name=name, daemon=True)
         self._thread.start()
-
-    def busy_poll(self, deadline: float, keep: Callable[[], bool]) -> None:
-        """Opt-in busy poll (``fusion-center run --busy-poll-ms``): wake the thread now and let
-        it read its buses without blocking - ``select`` with a zero timeout, again and again -
-        until ``deadline`` (``time.monotonic()``) or until ``keep()`` is false, then block as
-        before. The centre calls it right after each SYNC, ``keep`` being "the cycle is still
-        open": the frame that closes the cycle is then read without a wake-up (the scheduler's
-        wake-up latency, whose tail on a shared host is milliseconds), at the price of a core
-        kept busy for up to that long each cycle. Wakes the thread through a pipe (made at the
-        first call) that its ``select`` waits on with the buses."""
-        self._poll = (deadline, keep)
-        if self._wake is None:
-            self._wake = os.pipe()
-            os.set_blocking(self._wake[0], False)
-        try:
-            os.write(self._wake[1], b"\0")
-        except (BlockingIOError, OSError):  # full (the thread is behind: it will look anyway) or closed
-            pass
 
     def _run(self) -> None:
         by_fd = {h.bus.fileno(): h for h in self.handles}
         fds = list(by_fd)
-        wake = None
         while not self._stop.is_set() and fds:
-            timeout = self.timeout
-            poll = self._poll
-            if poll is not None:
-                if time.monotonic() < poll[0] and poll[1]():
-                    timeout = 0.0
-                    self.poll_turns += 1
-                else:
-                    self._poll = None
-            if wake is None and self._wake is not None:
-                wake = self._wake[0]
             try:
-                ready, _, _ = select.select(fds if wake is None else fds + [wake], [], [], timeout)
+                ready, _, _ = select.select(fds, [], [], self.timeout)
             except (OSError, ValueError):  # a bus closed under us: only at shutdown
                 if self._stop.is_set():
                     return
                 raise
             for fd in ready:
-                if fd == wake:
-                    try:
-                        os.read(wake, 4096)
-                    except BlockingIOError:
-                        pass
-                    continue
                 # the rest of a flooded bus's frames stays in its socket, ready at the next select
                 if self._turn(by_fd[fd]) is None:
                     if self._stop.is_set():
@@ -217,17 +177,8 @@ class SelectNotifiers:
 
     def stop(self, timeout: float = 5.0) -> None:
         self._stop.set()
-        if self._wake is not None:  # its select waits on the pipe too: woken now, not at its timeout
-            try:
-                os.write(self._wake[1], b"\0")
-            except OSError:
-                pass
         if self._thread is not threading.current_thread():
             self._thread.join(timeout)
-        if self._wake is not None and not self._thread.is_alive():
-            for fd in self._wake:
-                os.close(fd)
-            self._wake = None
 
 
 class _SignallingQueue(queue.Queue):
@@ -298,9 +249,6 @@ class VirtualNotifiers(SelectNotifiers):
                     handles.remove(handle)
                 elif taken == TURN_FRAMES:
                     signal.set()  # frames left in its queue: no wait before the next turn
-
-    def busy_poll(self, deadline: float, keep: Callable[[], bool]) -> None:
-        """Not for virtual buses (no socket to poll; their frames set an event): nothing."""
 
     def stop(self, timeout: float = 5.0) -> None:
         self._stop.set()

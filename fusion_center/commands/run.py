@@ -79,10 +79,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="run the centre's receive thread and SYNC producer under SCHED_FIFO at priority N "
                              "(1-99; Linux, root or CAP_SYS_NICE or `ulimit -r` >= N; not permitted: one warning, "
                              "normal priority). Default: the normal priority (docs/service.md)")
-    parser.add_argument("--busy-poll-ms", type=float, default=None, metavar="MS",
-                        help="after each SYNC the receive thread reads without blocking until the cycle closes, "
-                             "at most MS ms (udp_multicast, socketcan): no wake-up before the command, at the cost "
-                             "of a core busy that long each cycle. Default: off (docs/service.md)")
     from ..robotics.cli import add_arguments as add_robotics_arguments
 
     add_robotics_arguments(parser, live=True, bag=True)
@@ -327,9 +323,9 @@ def load_run_scene(args):
     if args.cycles is not None and not 1 <= args.cycles <= CYCLES_MAX:
         raise UsageError(f"--cycles {args.cycles}: must lie in 1..{CYCLES_MAX}")
     check_boot_timeout(args.boot_timeout)
-    from ..service.fusion_service import check_realtime_options
+    from ..service.fusion_service import check_rt_priority
 
-    check_realtime_options(getattr(args, "rt_priority", None), getattr(args, "busy_poll_ms", None))
+    check_rt_priority(getattr(args, "rt_priority", None))
     from . import check_bitrate_flags
 
     check_bitrate_flags(args)
@@ -407,7 +403,7 @@ def run(args) -> int:
     bus = resolve_bus(args, scene)
     options = dict(interface=bus.interface, channels=bus.channels, bitrate=bus.bitrate, bus_kwargs=bus.kwargs,
                    json_lines=args.json_lines, trace=args.log, keep_records=False,
-                   rt_priority=getattr(args, "rt_priority", None), busy_poll_ms=getattr(args, "busy_poll_ms", None))
+                   rt_priority=getattr(args, "rt_priority", None))
     if getattr(args, "assemblers", None):  # the cycles come from `fusion-center assemble` processes
         from ..service.assemblers import AssembledFusionService
         from ..service.zenoh_config import endpoint

@@ -99,22 +99,13 @@ def trace_failure(path, stream) -> str:
             "frames not traced (the trace is incomplete)")
 
 
-BUSY_POLL_MAX_MS = 20.0  # --busy-poll-ms: at most two periods of a 100 Hz SYNC
-
-
-def check_realtime_options(rt_priority, busy_poll_ms) -> tuple[int | None, float | None]:
-    """``--rt-priority`` (1-99) and ``--busy-poll-ms`` ((0, 20]), each None for off; a bad
-    value: UsageError naming the option, the value and what is allowed."""
+def check_rt_priority(rt_priority) -> int | None:
+    """``--rt-priority``: None (off) or 1-99; a bad value: UsageError naming the option, the
+    value and what is allowed."""
     try:
-        priority = None if rt_priority is None else realtime.check_priority(rt_priority)
+        return None if rt_priority is None else realtime.check_priority(rt_priority)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
-    if busy_poll_ms is not None:
-        ok = isinstance(busy_poll_ms, (int, float)) and not isinstance(busy_poll_ms, bool)
-        if not (ok and 0 < busy_poll_ms <= BUSY_POLL_MAX_MS):
-            raise UsageError(f"--busy-poll-ms {busy_poll_ms!r}: must be a number of ms in (0, {BUSY_POLL_MAX_MS:g}]")
-        busy_poll_ms = float(busy_poll_ms)
-    return priority, busy_poll_ms
 
 
 class FusionService:
@@ -134,14 +125,11 @@ class FusionService:
     def __init__(self, scene: Scene, *, interface: str = "virtual", channels: Sequence[str] | None = None,
                  bitrate: int | None = None, bus_kwargs: dict | None = None, json_lines=None, trace=None,
                  eds_path=DEFAULT_EDS, truth: bool = True, keep_records: bool = True,
-                 on_record: Callable[[dict], None] | None = None, rt_priority: int | None = None,
-                 busy_poll_ms: float | None = None):
+                 on_record: Callable[[dict], None] | None = None, rt_priority: int | None = None):
         self.scene = scene
         # SCHED_FIFO for the receive thread(s) and the SYNC producer during run (--rt-priority;
         # taxel_net.realtime): None keeps the normal priority
-        # the receive thread reads without blocking from each SYNC until its cycle closes, at most
-        # busy_poll_ms (--busy-poll-ms; taxel_net.receiver.SelectNotifiers.busy_poll): None = off
-        self.rt_priority, self.busy_poll_ms = check_realtime_options(rt_priority, busy_poll_ms)
+        self.rt_priority = check_rt_priority(rt_priority)
         self.rt_threads: list[str] = []
         self.interface = interface
         names = list(scene.bus.channels)
@@ -361,8 +349,6 @@ class FusionService:
         # producer collects what is due half a period after each SYNC (taxel_net.gcfreeze.defer)
         gcfreeze.defer()
         try:
-            if self.busy_poll_ms is not None:
-                self.master.after_sync = self._busy_poll
             self.master.start_sync(cycles, before_sync)
             if self.rt_priority is not None:
                 self.rt_threads = realtime.fifo_threads(self._critical_threads(), self.rt_priority)
@@ -375,17 +361,6 @@ class FusionService:
             gcfreeze.resume()
             gcfreeze.release()
         return self.summary()
-
-    def _busy_poll(self) -> None:
-        """After a SYNC's send (the SYNC producer): the receive thread polls until the cycle closes."""
-        deadline = time.monotonic() + self.busy_poll_ms * 1e-3
-        assembler = self.assembler
-        owners = []
-        for notifier in self.notifiers:
-            owner = getattr(notifier, "owner", None)
-            if owner is not None and owner not in owners:
-                owners.append(owner)
-                owner.busy_poll(deadline, lambda: assembler.is_open)
 
     def _critical_threads(self) -> list[threading.Thread]:
         """The threads on the SYNC -> command path: the receive thread(s), the SYNC producer."""

@@ -123,7 +123,6 @@ class Master:
         self._stats_lock = threading.Lock()
         self._stop = threading.Event()
         self._sync_thread: threading.Thread | None = None
-        self.after_sync: Callable[[], None] | None = None  # called in the SYNC producer after each SYNC's send
         self._heartbeat_stop = threading.Event()
         self._heartbeat_thread: threading.Thread | None = None
         self.heartbeats_sent = 0  # heartbeat instants (one frame per channel each)
@@ -411,8 +410,6 @@ class Master:
                 else:  # every channel's SYNC sent, then fed: the last one leaves sooner
                     self.stream.transmit_all([(ch, COB_SYNC, payload) for ch in channels])
                 self.sync_sent += 1
-                if self.after_sync is not None:  # FusionService's busy poll (--busy-poll-ms)
-                    self.after_sync()
                 supervise = k
                 next_at += period
                 self._sync_schedule = (next_at - period, period)  # the SYNCs' planned grid (quiet_beat)
