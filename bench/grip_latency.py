@@ -3,6 +3,7 @@
     .venv/bin/python bench/grip_latency.py [--runs 3] [--cycles 600]
         [--scenes grasp_lift grasp_lift_raw grasp_fragile grasp_lift_patch grasp_lift_raw_patch
                   grasp_lift_raw_patch_fd grasp_fragile_patch] [--transports embedded udp player] [--echo 2000]
+        [--rt-priority N] [--nodes-rt N] [--pin NODE_CPUS CENTRE_CPUS] [--switch-interval-ms MS]
 
 Issue 23's goal: SYNC -> command p99 at most 2 ms on the grasp scenes at a 100 Hz SYNC. The
 chapter's one-taxel grasp scenes (52 CANopen nodes a gripper) need 3.2 / 4.5 ms of wire a cycle
@@ -28,6 +29,12 @@ one of them runs, side by side. For each scene and transport, ``--runs`` times:
   (``node_sim.gripper.host.DriveHost``, in a process of its own, without the grasp world). The
   centre boots both and commands the drive as in ``udp``: what SYNC -> command would be against
   CAN nodes that answer within their TPDO's transmission time (docs/grip-control.md).
+
+Scheduling (udp, player; docs/grip-control.md "2026-11-30 (stop 31)"): ``--rt-priority N`` the
+centre's ``FusionService(rt_priority=N)`` (``fusion-center run --rt-priority``); ``--nodes-rt N``
+the node, drive and observer processes under SCHED_FIFO N from their start - CAN nodes are
+hardware, their answers do not wait for the host's other jobs; ``--pin`` their and this
+process's CPUs; ``--switch-interval-ms`` the interpreter's switch interval here, restored after.
 
 Latency of cycle k: the observer's stamp of the drive's RPDO1 (0x200 + node-ID) that carries
 cycle k's command minus its stamp of SYNC k (the k-th SYNC on the bus; the RPDO1s are matched
