@@ -11,8 +11,8 @@ otherwise waits for a core (docs/grip-control.md, "2026-11-30 (stop 31)"). The k
 throttling (``/proc/sys/kernel/sched_rt_runtime_us``, 0.95 s a second by default) still
 bounds what such threads can take.
 
-Not permitted (``EPERM``: neither root nor ``CAP_SYS_NICE`` nor an ``RLIMIT_RTPRIO`` of at
-least N - ``ulimit -r``) or not available (no ``sched_setscheduler`` on the platform): one
+Not permitted (``EPERM``: neither ``CAP_SYS_NICE`` - root usually has it - nor an
+``RLIMIT_RTPRIO`` of at least N - ``ulimit -r``) or not available (no ``sched_setscheduler`` on the platform): one
 warning line, once per process, and the threads keep their normal priority - never an error.
 Only the threads named are changed; the interpreter lock is still shared with the process's
 other threads.
@@ -74,8 +74,8 @@ def fifo_threads(threads: Iterable[threading.Thread], priority: int | None) -> l
         try:
             setter(tid, policy, os.sched_param(priority))
         except PermissionError:
-            _warn_once("--rt-priority %d: SCHED_FIFO not permitted (EPERM: needs root, CAP_SYS_NICE or "
-                       "`ulimit -r` >= %d); thread %r and the others keep the normal priority",
+            _warn_once("--rt-priority %d: SCHED_FIFO not permitted (EPERM: needs CAP_SYS_NICE, which root "
+                       "usually has, or `ulimit -r` >= %d); thread %r and the others keep the normal priority",
                        priority, priority, thread.name)
             return done
         except OSError as exc:  # ESRCH: the thread ended meanwhile; EINVAL: a kernel without RT
