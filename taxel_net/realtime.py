@@ -3,7 +3,7 @@
 ros2_control's controller manager and the usual CANopen master stacks run their cyclic thread
 under ``SCHED_FIFO`` when the host allows it and at the normal priority otherwise, with one line
 saying so. The same here: :func:`fifo_threads` puts the given threads (the centre's receive
-thread and its SYNC producer) under ``SCHED_FIFO`` at priority N (1-99, Linux's range) with
+thread, its SYNC producer and its heartbeat) under ``SCHED_FIFO`` at priority N (1-99, Linux's range) with
 ``SCHED_RESET_ON_FORK`` (a process or thread they start gets the normal policy back). Such a
 thread, once woken, runs before every ``SCHED_OTHER`` task of the host - the node twins, other
 jobs - instead of taking its turn with them: what matters on a loaded host, where a wake-up

@@ -24,6 +24,7 @@ cycles = 10
 [bus]
 channels = ["a"]
 sync_period_ms = 10.0
+heartbeat_producer_ms = 30
 [[taxels]]
 node_id = 1
 kind = "R"
@@ -123,11 +124,17 @@ def _run(tmp_path, rt_priority):
     path.write_text(SCENE)
     scene = load_scene(path)
     channel = f"rt-{uuid.uuid4().hex[:8]}"
-    seen = {"record": [], "sync": []}
+    seen = {"record": [], "sync": [], "heartbeat": []}
     rig = Rig(scene, channel=[channel])
+    holder = []
+
+    def on_record(record):
+        seen["record"].append(os.sched_getscheduler(0))
+        seen["heartbeat"].append(realtime.policy_of(holder[0].master._heartbeat_thread))
+
     try:
-        with FusionService(scene, channels=[channel], rt_priority=rt_priority,
-                           on_record=lambda r: seen["record"].append(os.sched_getscheduler(0))) as service:
+        with FusionService(scene, channels=[channel], rt_priority=rt_priority, on_record=on_record) as service:
+            holder.append(service)
             rig.start()
             service.boot(3.0)
             service.run(8, before_sync=lambda k: seen["sync"].append(os.sched_getscheduler(0)))
@@ -137,15 +144,17 @@ def _run(tmp_path, rt_priority):
 
 
 @linux_rt
-def test_the_receive_thread_and_the_sync_producer_run_under_sched_fifo_with_rt_priority(tmp_path):
+def test_the_receive_thread_sync_producer_and_heartbeat_run_under_sched_fifo_with_rt_priority(tmp_path):
     if not _fifo_permitted():
         pytest.skip("SCHED_FIFO not permitted for this user")
     flags = getattr(os, "SCHED_RESET_ON_FORK", 0)
     service, seen = _run(tmp_path, 20)
-    assert service.rt_threads == ["centre-receive", "sync-producer"]
+    assert service.rt_threads == ["centre-receive", "sync-producer", "master-heartbeat"]
     # the records are made in the receive thread; the first cycles' before_sync may come before
     # the SYNC producer was raised (it is raised once started)
     assert len(seen["record"]) == 8 and {p & ~flags for p in seen["record"][2:]} == {os.SCHED_FIFO}
     assert {p & ~flags for p in seen["sync"][2:]} == {os.SCHED_FIFO}
+    assert set(seen["heartbeat"][2:]) == {(os.SCHED_FIFO, 20)}
     service, seen = _run(tmp_path, None)                 # default: the normal policy
     assert service.rt_threads == [] and set(seen["record"]) == set(seen["sync"]) == {os.SCHED_OTHER}
+    assert {p for p, _ in seen["heartbeat"]} == {os.SCHED_OTHER}

@@ -76,7 +76,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "FUSION_CENTER_AUTHKEY on every host; on loopback without it a key of this run's, "
                              "in a file only this user can read; docs/service.md)")
     parser.add_argument("--rt-priority", type=int, default=None, metavar="N",
-                        help="run the centre's receive thread and SYNC producer under SCHED_FIFO at priority N "
+                        help="run the centre's receive thread, SYNC producer and heartbeat under SCHED_FIFO at priority N "
                              "(1-99; Linux, CAP_SYS_NICE (root) or `ulimit -r` >= N; not permitted: one warning, "
                              "normal priority). Default: the normal priority (docs/service.md)")
     from ..robotics.cli import add_arguments as add_robotics_arguments

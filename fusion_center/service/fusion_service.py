@@ -127,7 +127,7 @@ class FusionService:
                  eds_path=DEFAULT_EDS, truth: bool = True, keep_records: bool = True,
                  on_record: Callable[[dict], None] | None = None, rt_priority: int | None = None):
         self.scene = scene
-        # SCHED_FIFO for the receive thread(s) and the SYNC producer during run (--rt-priority;
+        # SCHED_FIFO for the receive thread(s), the SYNC producer and the heartbeat (--rt-priority;
         # taxel_net.realtime): None keeps the normal priority
         self.rt_priority = check_rt_priority(rt_priority)
         self.rt_threads: list[str] = []
@@ -363,7 +363,10 @@ class FusionService:
         return self.summary()
 
     def _critical_threads(self) -> list[threading.Thread]:
-        """The threads on the SYNC -> command path: the receive thread(s), the SYNC producer."""
+        """The threads on the SYNC -> command path: the receive thread(s), the SYNC producer, and
+        the master's heartbeat - it takes the stream lock the receive thread needs, and Python's
+        locks do not pass a waiter's priority on to their holder: a normal-priority holder
+        preempted by the host's other jobs would keep the real-time receive thread waiting."""
         threads = []
         for notifier in self.notifiers:
             owner = getattr(notifier, "owner", None)  # a handle of taxel_net.receiver's one thread
@@ -373,9 +376,10 @@ class FusionService:
                     threads.append(own)
             else:  # python-can's Notifier: a thread per bus
                 threads.extend(t for t in getattr(notifier, "_readers", []) if isinstance(t, threading.Thread))
-        sync = getattr(self.master, "_sync_thread", None)
-        if sync is not None:
-            threads.append(sync)
+        for name in ("_sync_thread", "_heartbeat_thread"):
+            thread = getattr(self.master, name, None)
+            if thread is not None:
+                threads.append(thread)
         return threads
 
     def drain(self, timeout: float = 5.0) -> None:
