@@ -413,7 +413,7 @@ def main(argv=None) -> int:
     ap.add_argument("--transports", nargs="+", default=list(TRANSPORTS), choices=TRANSPORTS)
     ap.add_argument("--echo", type=int, default=2000, help="echo samples (0: skip)")
     ap.add_argument("--rt-priority", type=int, default=None, metavar="N",
-                    help="the centre's receive thread and SYNC producer under SCHED_FIFO N (udp, player; "
+                    help="the centre's receive thread, SYNC producer and heartbeat under SCHED_FIFO N (udp, player; "
                          "fusion-center run --rt-priority)")
     ap.add_argument("--pin", nargs=2, metavar=("NODE_CPUS", "CENTRE_CPUS"), default=None,
                     help="CPU lists (e.g. 0 1): the node/drive/observer processes on NODE_CPUS, this process "
