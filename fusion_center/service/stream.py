@@ -59,6 +59,9 @@ if TYPE_CHECKING:
 logger = logging.getLogger("fusion_center.service")
 
 TRACE_BATCH = 256  # events queued for the trace before it is written even if no cycle closed
+# after a bus error that follows another with no frame between (_StreamListener.on_error): python-can's
+# Notifier calls recv again at once, so a bus that fails for good was read in a tight loop
+BUS_ERROR_BACKOFF_S = 0.05
 
 
 class RateLimitedLog:
@@ -460,8 +463,10 @@ class _StreamListener(can.Listener):
 
             self.canopen = MessageListener(network)
             self.subscribers = network.subscribers  # COB-ID -> callbacks, updated by canopen
+        self._failing = False  # the last thing the reader reported was a bus error (on_error)
 
     def on_message_received(self, msg: can.Message) -> None:
+        self._failing = False
         self.on_messages_received((msg,))
 
     def on_messages_received(self, msgs: Sequence[can.Message]) -> None:
@@ -500,7 +505,16 @@ class _StreamListener(can.Listener):
         self.stream.rate_log.warning("listener", "listener: %s: %s", type(exc).__name__, exc)
 
     def on_error(self, exc: Exception) -> None:
+        """A bus error, logged rate-limited. python-can's Notifier (interfaces without a socket:
+        pcan, kvaser, vector, socketcand, ...) calls ``recv`` again at once after it: a bus that
+        fails for good (adapter unplugged) was read in a tight loop - a core at 100 %, and under
+        ``--rt-priority`` a SCHED_FIFO thread that starves the host's normal tasks. A second error
+        with no frame between waits :data:`BUS_ERROR_BACKOFF_S` (the Notifier's own timeout) before
+        the next read; a single one (taxel_net.receiver ends that bus's reading) waits for nothing."""
         self.stream.rate_log.warning("bus_error", "bus error on channel %d: %s", self.channel, exc)
+        if self._failing:
+            time.sleep(BUS_ERROR_BACKOFF_S)
+        self._failing = True
 
     def stop(self) -> None:
         pass
