@@ -325,6 +325,61 @@ def _node_process_setup() -> None:
         os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(NODES_RT[0]))
 
 
+def _cpus(text: str) -> set[int]:
+    """--pin's CPU list ("0" or "0,1"), ValueError when not one."""
+    cpus = {int(c) for c in text.split(",")}
+    if not cpus or min(cpus) < 0:
+        raise ValueError
+    return cpus
+
+
+def _fifo_permitted(priority: int) -> bool:
+    """Whether SCHED_FIFO at ``priority`` is permitted here (tried on a short-lived thread)."""
+    result = []
+
+    def probe():
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO | getattr(os, "SCHED_RESET_ON_FORK", 0), os.sched_param(priority))
+            result.append(True)
+        except (OSError, AttributeError):
+            result.append(False)
+
+    t = threading.Thread(target=probe)
+    t.start()
+    t.join(5)
+    return bool(result and result[0])
+
+
+def scheduling_error(args) -> str | None:
+    """One line naming the option, the value and what is allowed, for a bad --rt-priority,
+    --nodes-rt, --pin or --switch-interval-ms (they ended in a traceback, --nodes-rt's inside the
+    node process's preexec_fn); None when all are usable."""
+    from taxel_net import realtime
+
+    for option, value in (("--rt-priority", args.rt_priority), ("--nodes-rt", args.nodes_rt)):
+        if value is None:
+            continue
+        try:
+            realtime.check_priority(value, option)
+        except ValueError as exc:
+            return str(exc)
+    if args.nodes_rt is not None and not _fifo_permitted(args.nodes_rt):
+        return (f"--nodes-rt {args.nodes_rt}: SCHED_FIFO not permitted or not available here "
+                "(needs Linux and CAP_SYS_NICE or `ulimit -r` >= N)")
+    if args.pin:
+        for name, text in zip(("NODE_CPUS", "CENTRE_CPUS"), args.pin):
+            try:
+                cpus = _cpus(text)
+            except ValueError:
+                return f"--pin {name} {text!r}: not a CPU list (allowed: e.g. 0 or 0,1)"
+            allowed = os.sched_getaffinity(0) if hasattr(os, "sched_getaffinity") else cpus
+            if not cpus <= allowed:
+                return f"--pin {name} {text!r}: CPU(s) {sorted(cpus - allowed)} not available (allowed: {sorted(allowed)})"
+    if args.switch_interval_ms is not None and not (args.switch_interval_ms > 0 and args.switch_interval_ms < 1e6):
+        return f"--switch-interval-ms {args.switch_interval_ms:g}: must be > 0 (ms)"
+    return None
+
+
 def _start(cmd: list[str], word: str) -> subprocess.Popen:
     proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             preexec_fn=_node_process_setup if NODE_CPUS or NODES_RT else None)
@@ -435,13 +490,17 @@ def main(argv=None) -> int:
     import logging
 
     logging.basicConfig(level=logging.ERROR)
+    bad = scheduling_error(args)
+    if bad:
+        print(f"grip_latency: error: {bad}", file=sys.stderr)
+        return 2
     if args.rt_priority is not None:
         CENTRE_OPTIONS["rt_priority"] = args.rt_priority
     if args.nodes_rt is not None:
         NODES_RT.append(args.nodes_rt)
     if args.pin:
-        NODE_CPUS.append({int(c) for c in args.pin[0].split(",")})
-        os.sched_setaffinity(0, {int(c) for c in args.pin[1].split(",")})  # this thread: the ones it starts inherit
+        NODE_CPUS.append(_cpus(args.pin[0]))
+        os.sched_setaffinity(0, _cpus(args.pin[1]))  # this thread: the ones it starts inherit
     switch_before = sys.getswitchinterval()
     if args.switch_interval_ms is not None:
         sys.setswitchinterval(args.switch_interval_ms / 1e3)
