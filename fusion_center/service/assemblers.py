@@ -290,7 +290,7 @@ class AssembledFusionService(FusionService):
         if cycles < 1:
             raise UsageError(f"--cycles {cycles}: must be >= 1")
         period = self.scene.bus.sync_period_ms / 1000.0
-        self.master.start_sync(cycles, before_sync)
+        self._start_sync(cycles, before_sync)  # --rt-priority too (it was ignored here without a word)
         self.master.wait_sync_done(timeout_s if timeout_s is not None else cycles * period * 3 + 10.0)
         self.master.stop()
         deadline = time.monotonic() + self.part_deadline_s + 1.0

@@ -349,9 +349,7 @@ class FusionService:
         # producer collects what is due half a period after each SYNC (taxel_net.gcfreeze.defer)
         gcfreeze.defer()
         try:
-            self.master.start_sync(cycles, before_sync)
-            if self.rt_priority is not None:
-                self.rt_threads = realtime.fifo_threads(self._critical_threads(), self.rt_priority)
+            self._start_sync(cycles, before_sync)
             if timeout_s is None:
                 timeout_s = cycles * period * 3 + 10.0
             self.master.wait_sync_done(timeout_s)
@@ -361,6 +359,13 @@ class FusionService:
             gcfreeze.resume()
             gcfreeze.release()
         return self.summary()
+
+    def _start_sync(self, cycles: int, before_sync) -> None:
+        """The SYNC producer started, then the threads of :meth:`_critical_threads` raised when
+        ``rt_priority`` asks for it (every ``run``: the assembled centre's too)."""
+        self.master.start_sync(cycles, before_sync)
+        if self.rt_priority is not None:
+            self.rt_threads = realtime.fifo_threads(self._critical_threads(), self.rt_priority)
 
     def _critical_threads(self) -> list[threading.Thread]:
         """The threads on the SYNC -> command path: the receive thread(s), the SYNC producer, and
