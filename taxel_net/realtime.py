@@ -35,10 +35,12 @@ _warned = False
 def check_priority(value, option: str = "--rt-priority") -> int:
     """``value`` as an int in 1..99, else ValueError with one line naming ``option``."""
     try:
+        if isinstance(value, bool):  # int(True) == 1: not a priority
+            raise ValueError
         priority = int(value)
         if priority != float(value):
             raise ValueError
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):  # OverflowError: int(inf)
         raise ValueError(f"{option} {value!r}: not an integer (allowed: {PRIORITY_MIN}-{PRIORITY_MAX}, "
                          "SCHED_FIFO's priorities)") from None
     if not PRIORITY_MIN <= priority <= PRIORITY_MAX:
