@@ -5,6 +5,7 @@ recorded, not made (taxel_net.realtime.fifo_threads replaced): the test needs no
 from __future__ import annotations
 
 import sys
+import threading
 import uuid
 from pathlib import Path
 
@@ -35,3 +36,31 @@ def test_an_assembled_run_raises_its_sync_producer_and_receive_thread(tmp_path, 
     names, priority = asked[0]
     assert priority == 20 and "sync-producer" in names and "centre-receive" in names, names
     assert service.rt_threads == names
+
+
+def test_the_threads_are_raised_before_the_first_sync(tmp_path, monkeypatch):
+    """FusionService.run raised them from the calling thread after the SYNC producer had started:
+    its first SYNC (and so the first cycle) went out at the normal priority, and later ones too
+    when the caller was late. Now the SYNC producer raises them before its first SYNC."""
+    import test_realtime
+
+    asked = []
+
+    def record(threads, priority):
+        threads = list(threads)
+        master = holder[0].master
+        asked.append((threading.current_thread() is master._sync_thread, master.sync_sent, priority))
+        return [t.name for t in threads]
+
+    holder: list = []
+    real_init = test_realtime.FusionService.__init__
+
+    def init(self, *args, **kwargs):
+        real_init(self, *args, **kwargs)
+        holder.append(self)
+
+    monkeypatch.setattr(test_realtime.FusionService, "__init__", init)
+    monkeypatch.setattr(realtime, "fifo_threads", record)
+    service, seen = test_realtime._run(tmp_path, 20)
+    assert asked == [(True, 0, 20)]                  # once, in the SYNC producer, before any SYNC
+    assert service.rt_threads == ["centre-receive", "sync-producer", "master-heartbeat"]

@@ -361,11 +361,15 @@ class FusionService:
         return self.summary()
 
     def _start_sync(self, cycles: int, before_sync) -> None:
-        """The SYNC producer started, then the threads of :meth:`_critical_threads` raised when
-        ``rt_priority`` asks for it (every ``run``: the assembled centre's too)."""
-        self.master.start_sync(cycles, before_sync)
+        """The SYNC producer started; the threads of :meth:`_critical_threads` raised when
+        ``rt_priority`` asks for it (every ``run``: the assembled centre's too) - by the SYNC
+        producer itself before its first SYNC (raised from here, after the start, the first
+        cycle or two ran at the normal priority, as far as this thread was late)."""
+        on_start = None
         if self.rt_priority is not None:
-            self.rt_threads = realtime.fifo_threads(self._critical_threads(), self.rt_priority)
+            def on_start():
+                self.rt_threads = realtime.fifo_threads(self._critical_threads(), self.rt_priority)
+        self.master.start_sync(cycles, before_sync, on_start)
 
     def _critical_threads(self) -> list[threading.Thread]:
         """The threads on the SYNC -> command path: the receive thread(s), the SYNC producer, and

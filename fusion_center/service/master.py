@@ -337,9 +337,12 @@ class Master:
             logger.exception("master heartbeat stopped")
 
     # ------------------------------------------------------------------ SYNC
-    def start_sync(self, cycles: int, before_sync: Callable[[int], None] | None = None) -> None:
+    def start_sync(self, cycles: int, before_sync: Callable[[int], None] | None = None,
+                   on_start: Callable[[], None] | None = None) -> None:
+        """The SYNC producer's thread started; ``on_start`` runs in it before its first SYNC
+        (FusionService: ``--rt-priority``'s raise, so that the first cycle is raised too)."""
         self._stop.clear()
-        self._sync_thread = threading.Thread(target=self._sync_loop, args=(cycles, before_sync),
+        self._sync_thread = threading.Thread(target=self._sync_loop, args=(cycles, before_sync, on_start),
                                              name="sync-producer", daemon=True)
         self._sync_thread.start()
 
@@ -354,7 +357,12 @@ class Master:
         if self._sync_thread is not None:
             _join(self._sync_thread, 5)
 
-    def _sync_loop(self, cycles: int, before_sync) -> None:
+    def _sync_loop(self, cycles: int, before_sync, on_start=None) -> None:
+        if on_start is not None:
+            try:
+                on_start()
+            except Exception:  # noqa: BLE001 - the run goes on as it would without it
+                logger.exception("SYNC producer: start hook failed")
         period = self.scene.bus.sync_period_ms / 1000.0
         overflow = self.scene.bus.sync_counter
         counter = 0
