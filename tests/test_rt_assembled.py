@@ -64,3 +64,46 @@ def test_the_threads_are_raised_before_the_first_sync(tmp_path, monkeypatch):
     service, seen = test_realtime._run(tmp_path, 20)
     assert asked == [(True, 0, 20)]                  # once, in the SYNC producer, before any SYNC
     assert service.rt_threads == ["centre-receive", "sync-producer", "master-heartbeat"]
+
+
+def test_a_node_reconfigured_mid_run_is_configured_at_the_raised_priority(tmp_path, monkeypatch):
+    """A node that boots again during a --rt-priority run is reconfigured by a recover thread,
+    whose every SDO request is sent under the stream lock the receive thread needs: at the normal
+    priority a holder preempted by the host's other jobs kept the SCHED_FIFO receive thread
+    waiting. It is raised too (recorded here, not made: no CAP_SYS_NICE needed)."""
+    import can
+
+    import test_realtime
+    from node_sim.rig import Rig
+
+    asked = []
+
+    def record(threads, priority):
+        names = [t.name for t in threads]
+        asked.append((names, priority))
+        return names
+
+    monkeypatch.setattr(realtime, "fifo_threads", record)
+    path = tmp_path / "rt1.toml"
+    path.write_text(test_realtime.SCENE.replace("cycles = 10", "cycles = 40"))
+    scene = load_scene(path)
+    channel = f"rr-{uuid.uuid4().hex[:8]}"
+    rig = Rig(scene, channel=[channel])
+    other = can.Bus(interface="virtual", channel=channel)
+
+    def reset_node_1(k):
+        if k == 5:  # NMT reset node (another master's): node 1 boots again, the centre reconfigures it
+            other.send(can.Message(arbitration_id=0x000, data=bytes((0x81, 1)), is_extended_id=False))
+
+    try:
+        with test_realtime.FusionService(scene, channels=[channel], rt_priority=30) as service:
+            rig.start()
+            service.boot(3.0)
+            at_boot = service.master.sdo_writes
+            service.run(30, before_sync=reset_node_1)
+            reconfigured = service.master.sdo_writes - at_boot
+    finally:
+        rig.stop()
+        other.shutdown()
+    assert reconfigured > 0                          # node 1's SDO configuration again, mid-run
+    assert (["recover-0"], 30) in asked, asked

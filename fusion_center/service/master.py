@@ -30,7 +30,7 @@ from typing import Callable
 
 import canopen
 
-from taxel_net import gcfreeze, patches
+from taxel_net import gcfreeze, patches, realtime
 from taxel_net.scene import Scene
 import numpy as np
 
@@ -279,6 +279,12 @@ class Master:
             self._reconfigure.add(index)
 
         def work():
+            # --rt-priority: at the receive thread's priority - each SDO request of the
+            # reconfiguration is sent under the stream lock, and Python's locks pass no priority on
+            # to a holder preempted by the host's other jobs (the heartbeat's reason, too)
+            priority = getattr(self.service, "rt_priority", None)
+            if priority is not None:
+                realtime.fifo_threads([threading.current_thread()], priority)
             try:
                 self.configure_node(index)
                 t = self.devices[index]
