@@ -1,5 +1,6 @@
-"""--rt-priority with --assemblers: the fuser's SYNC producer and receive thread are raised as in
-the plain centre (AssembledFusionService.run ignored rt_priority without a word). The raise is
+"""--rt-priority with --assemblers: the fuser's SYNC producer, receive thread and merge thread (it
+evaluates the merged cycles and sends the command) are raised as in the plain centre
+(AssembledFusionService.run ignored rt_priority without a word). The raise is
 recorded, not made (taxel_net.realtime.fifo_threads replaced): the test needs no CAP_SYS_NICE."""
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from test_node_shards import _scene_file  # noqa: E402 - the two-channel patch scene (2 x 40 taxels)
 
 
-def test_an_assembled_run_raises_its_sync_producer_and_receive_thread(tmp_path, monkeypatch):
+def test_an_assembled_run_raises_its_sync_producer_receive_and_merge_threads(tmp_path, monkeypatch):
     asked = []
 
     def record(threads, priority):
@@ -34,7 +35,7 @@ def test_an_assembled_run_raises_its_sync_producer_and_receive_thread(tmp_path, 
         service.run(2, timeout_s=10.0)
     assert len(asked) == 1
     names, priority = asked[0]
-    assert priority == 20 and "sync-producer" in names and "centre-receive" in names, names
+    assert priority == 20 and {"sync-producer", "centre-receive", "merge-deadline"} <= set(names), names
     assert service.rt_threads == names
 
 

@@ -286,6 +286,14 @@ class AssembledFusionService(FusionService):
                                  f"{group_name(lacking)} --fuser {where}`{why}")
             time.sleep(0.02)
 
+    def _critical_threads(self) -> list[threading.Thread]:
+        """The plain centre's (receive, SYNC producer, heartbeat) and the merge thread, which
+        evaluates the merged cycles and sends the grip command here (Zenoh's callback threads,
+        which take the parts, are the SDK's and keep the normal priority)."""
+        threads = super()._critical_threads()
+        threads.extend(t for t in self._threads if t.name == "merge-deadline")
+        return threads
+
     def run(self, cycles: int, *, before_sync=None, timeout_s: float | None = None):
         if cycles < 1:
             raise UsageError(f"--cycles {cycles}: must be >= 1")
