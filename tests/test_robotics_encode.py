@@ -157,8 +157,12 @@ def test_cached_cycles_decode_to_the_records_values(demo_records):
 
 
 def _exact_json(payload: bytes):
-    """A JSON text with its numbers as their texts: -0.0 and 0.0, 1 and 1.0 stay apart."""
-    return json.loads(payload, parse_float=str, parse_int=str)
+    """A JSON text with its numbers kept apart by kind and sign: 1 and 1.0, -0.0 and 0.0 (and
+    True) differ; two texts of one float - ``6.1e-06`` (json) and ``6.1e-6`` (orjson, the
+    decision log's encoder) - read as one (a test that compared the texts failed on a record
+    whose multiplicative U_G was that small)."""
+    return json.loads(payload, parse_float=lambda s: ("float", float(s), math.copysign(1.0, float(s))),
+                      parse_int=lambda s: ("int", int(s)))
 
 
 def test_numbers_equal_but_written_apart_keep_their_own_texts(demo_records):
