@@ -155,19 +155,14 @@ def run(args) -> int:
     drops = parse_drops(args.drop_node, scene)
     check_trace_target(args.log)
     robotics.check(args)
-    from .run import zenoh_publisher
+    from .run import zenoh_settings
 
-    publisher = zenoh_publisher(args, scene)
-    try:
-        _, summary = run_demo(scene, cycles, drops=drops, json_lines=args.json_lines, trace=args.log,
-                              live=not args.no_live, boot_timeout=args.boot_timeout, keep_records=False,
-                              on_record=[publisher] if publisher is not None else [],
-                              outputs=robotics.open_outputs(args, scene, threaded=True))
-    finally:
-        if publisher is not None:
-            publisher.close()
-    if publisher is not None:
-        summary["zenoh"] = publisher.summary()
+    # --zenoh and --foxglove: the robotics bridge process (docs/robotics.md, *The bridge process*)
+    outputs = robotics.open_outputs(args, scene, threaded=True, zenoh=zenoh_settings(args),
+                                    source={"scene": args.scene, "mode": args.mode, "slow_down": args.slow_down})
+    _, summary = run_demo(scene, cycles, drops=drops, json_lines=args.json_lines, trace=args.log,
+                          live=not args.no_live, boot_timeout=args.boot_timeout, keep_records=False,
+                          outputs=outputs)
     if args.slow_down != 1.0:
         summary["slow_down"] = (f"{args.slow_down:g}x: SYNC every {scene.bus.sync_period_ms:g} ms instead of "
                                 f"{nominal_ms:g} ms, every bus time likewise (per-cycle results unchanged)")

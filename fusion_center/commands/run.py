@@ -29,6 +29,20 @@ def add_common_outputs(parser: argparse.ArgumentParser) -> None:
     add_zenoh_arguments(parser, publication=True)
 
 
+def zenoh_settings(args) -> dict | None:
+    """The ``--zenoh`` publication's session settings for the robotics bridge (None without
+    ``--zenoh``); the session flags without ``--zenoh`` are a :class:`UsageError`."""
+    from taxel_net.errors import UsageError
+
+    if not getattr(args, "zenoh", False):
+        for flag in ("zenoh_listen", "zenoh_connect", "zenoh_mode"):
+            if getattr(args, flag, None):
+                raise UsageError(f"--{flag.replace('_', '-')}: only with --zenoh (the publication's session)")
+        return None
+    return {"config_file": args.zenoh_config, "listen": args.zenoh_listen, "connect": args.zenoh_connect,
+            "mode": args.zenoh_mode}
+
+
 def zenoh_publisher(args, scene):
     """The ``--zenoh`` publisher of a run, opened (None without ``--zenoh``); the session flags
     without ``--zenoh`` are a :class:`UsageError`."""
@@ -361,6 +375,8 @@ def run_with_outputs(service, outputs, body) -> dict:
         raise
     if outputs is not None:
         summary["robotics"] = outputs.close(ok=True)
+        if "zenoh" in summary["robotics"]:  # the bridge's publication (its own summary line)
+            summary["zenoh"] = summary["robotics"].pop("zenoh")
     # a full disk under --json-lines / --log: the run went on, the file is incomplete
     failed = [(label, text) for label, text in (("decision_log", service.writer_failure),
                                                  ("trace", service.trace_failure)) if text]
@@ -412,20 +428,14 @@ def run(args) -> int:
                                          zenoh_config=getattr(args, "zenoh_config", None), **options)
     else:
         service = FusionService(scene, **options)
-    publisher = zenoh_publisher(args, scene)
-    try:
-        if publisher is not None:
-            service.on_record.append(publisher)
-        summary = run_with_outputs(service, robotics.open_outputs(args, scene, threaded=True),
-                                   lambda: execute(service, cycles, live=not args.no_live,
-                                                   boot_timeout=args.boot_timeout,
-                                                   bus=bus.describe(service.channel_names)))
-    finally:
-        if publisher is not None:
-            publisher.close()
+    # --zenoh and --foxglove: the robotics bridge process (docs/robotics.md, *The bridge process*)
+    outputs = robotics.open_outputs(args, scene, threaded=True, zenoh=zenoh_settings(args),
+                                    source={"scene": args.scene, "mode": args.mode, "slow_down": 1.0})
+    summary = run_with_outputs(service, outputs,
+                               lambda: execute(service, cycles, live=not args.no_live,
+                                               boot_timeout=args.boot_timeout,
+                                               bus=bus.describe(service.channel_names)))
     merger = getattr(service, "merger", None)
     if merger is not None:
         summary["assemblers"] = merger.stats.as_dict()
-    if publisher is not None:
-        summary["zenoh"] = publisher.summary()
     return finish_summary(summary, "run")

@@ -74,7 +74,14 @@ class RoboticsOutputs:
         if self._live_only and not self.live.watched:
             self.live.unwatched += 1  # nobody to send it to, nothing else to write
             return
-        readings = self.topics.readings_of(closed)
+        self.publish(record, self.topics.readings_of(closed))
+
+    def publish(self, record: dict, readings=None) -> None:
+        """:meth:`on_cycle` with the readings given (``TopicMap.readings_of``; the robotics
+        bridge gets them from the centre)."""
+        if self._live_only and not self.live.watched:
+            self.live.unwatched += 1
+            return
         if self.threaded:
             self._queue.append((record, readings))
         else:
@@ -208,6 +215,10 @@ def summary_lines(stats: dict) -> list[tuple[str, str]]:
                                   f"client(s), {f['unwatched_cycles']} with none subscribed, {f['dropped_cycles']} "
                                   "dropped before the server (a stalled client's losses in the SDK's outbox are "
                                   "not counted by the SDK)"))
+    if "bridge" in stats:
+        from .bridge_link import bridge_lines
+
+        lines += bridge_lines(stats)
     if "errors" in stats:
         lines.append(("robotics_errors", f"{stats['errors']} cycles not published (see the log)"))
     return lines

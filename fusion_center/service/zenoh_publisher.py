@@ -142,20 +142,22 @@ class ZenohPublisher:
                 logger.warning("zenoh: %d put(s) failed, the last: %s", self.failed, exc)
             return False
 
-    def __call__(self, record: dict) -> None:
-        """Publish one record (an ``on_record`` callback: quick, never raises, never waits)."""
+    def __call__(self, record: dict, line: bytes | None = None) -> None:
+        """Publish one record (an ``on_record`` callback: quick, never raises, never waits);
+        ``line``: the record's decision-log line when the caller has it (the robotics bridge:
+        the centre's bytes), else :func:`.records.logged_line`."""
         if not self._publishers:
             return
         try:
-            self._publish(record)
+            self._publish(record, line)
         except Exception as exc:  # noqa: BLE001 - a record JSON cannot hold (NaN in a hand-made one)
             self.failed += 1
             logger.warning("zenoh: a record not published: %s: %s", type(exc).__name__, exc)
 
-    def _publish(self, record: dict) -> None:
+    def _publish(self, record: dict, line: bytes | None = None) -> None:
         matching = self._matching
         if matching["record"]:
-            self.records += self._put("record", logged_line(record))
+            self.records += self._put("record", logged_line(record) if line is None else line)
         else:
             self.unmatched += 1
         grip = grip_message(record) if matching["grip"] else None

@@ -1,0 +1,174 @@
+"""The robotics bridge process: ``python -m fusion_center.robotics.bridge --fd N --settings JSON``,
+started by the centre (:class:`.bridge_link.RoboticsBridge`; docs/robotics.md, *The bridge
+process*) - not a command of its own.
+
+It loads the centre's scene (the settings name it; its fingerprint must match), opens what the
+settings ask - the ``--zenoh`` publication (:class:`~fusion_center.service.zenoh_publisher.ZenohPublisher`)
+and the live Foxglove server (:class:`.outputs.RoboticsOutputs` with its publisher thread) - and
+prints ``{"ready": {...}}`` (or ``{"error": "one line"}`` and exits 2) on its stdout. Then it
+reads the link's frames (:func:`.bridge_link.parse_frame`: JSON, nothing unpickled or executed),
+publishes each exactly as the in-process outputs do (the record's payload the centre's line, the
+same grip and contact messages, the same Foxglove channels and messages), and when the link
+closes (the centre ended, or was killed) publishes what it holds, closes its outputs, prints
+``{"stats": {...}, "received": N, "bad": M}`` and exits 0. SIGINT is ignored (a Ctrl-C on the
+terminal is the centre's; this process is in a session of its own anyway).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import signal
+import socket
+import sys
+
+from taxel_net.errors import UsageError, one_line
+
+logger = logging.getLogger("fusion_center.robotics.bridge")
+RECV_BYTES = 16 << 20  # the largest frame read (the link's send buffer is far smaller)
+
+
+_REPORT = None  # the centre's reading end: this process's stdout as it started (fd 1 then goes to stderr)
+
+
+def _say(message: dict) -> None:
+    _REPORT.write(json.dumps(message) + "\n")
+    _REPORT.flush()
+
+
+def load_scene_of(settings: dict):
+    from taxel_net.scene import load_scene
+
+    from ..commands.run import apply_mode
+    from .bridge_link import scene_digest
+
+    source = settings["source"]
+    scene = apply_mode(load_scene(source["scene"]), source.get("mode"))
+    slow = source.get("slow_down", 1.0)
+    if slow != 1.0:
+        from ..commands.demo import slowed_down
+
+        scene = slowed_down(scene, slow)
+    if scene_digest(scene) != settings["digest"]:
+        raise UsageError(f"robotics bridge: the scene {source['scene']!r} loaded here differs from the centre's "
+                         "(the file changed since the run loaded it?)")
+    return scene
+
+
+class Bridge:
+    def __init__(self, settings: dict):
+        self.scene = load_scene_of(settings)
+        self.publisher = self.outputs = None
+        try:
+            zenoh = settings.get("zenoh")
+            if zenoh is not None:
+                from ..service.zenoh_publisher import ZenohPublisher
+
+                self.publisher = ZenohPublisher(self.scene.name, config_file=zenoh.get("config_file"),
+                                                listen=zenoh.get("listen"), connect=zenoh.get("connect"),
+                                                mode=zenoh.get("mode")).open()
+            foxglove = settings.get("foxglove")
+            if foxglove is not None:
+                from .outputs import RoboticsOutputs
+
+                self.outputs = RoboticsOutputs(self.scene, foxglove=(foxglove[0], int(foxglove[1])), threaded=True)
+        except BaseException:
+            self.close()
+            raise
+        self.received = 0
+        self.bad = 0
+
+    def ready(self) -> dict:
+        out: dict = {"pid": os.getpid()}
+        if self.publisher is not None:
+            out["zenoh"] = {"keys": self.publisher.keys, "session": self.publisher.description}
+        if self.outputs is not None:
+            out["foxglove"] = {"host": self.outputs.live.host, "port": self.outputs.live.port}
+        return out
+
+    def serve(self, sock: socket.socket) -> None:
+        from .bridge_link import parse_frame
+
+        buf = bytearray(RECV_BYTES)
+        view = memoryview(buf)
+        while True:
+            try:
+                n = sock.recv_into(buf)
+            except InterruptedError:
+                continue
+            except OSError as exc:  # the centre gone: ECONNRESET
+                logger.debug("link: %s", exc)
+                return
+            if n == 0:
+                return  # the centre closed the link
+            try:
+                record, line, readings = parse_frame(view[:n])
+            except ValueError as exc:
+                self.bad += 1
+                if self.bad <= 3:
+                    logger.error("robotics bridge: a frame refused: %s%s", one_line(exc),
+                                 " (further ones only counted)" if self.bad == 3 else "")
+                continue
+            self.received += 1
+            if self.publisher is not None:
+                self.publisher(record, line=line)
+            if self.outputs is not None:
+                self.outputs.publish(record, readings)
+
+    def stats(self) -> dict:
+        out: dict = {}
+        if self.publisher is not None:
+            out["zenoh"] = self.publisher.summary()
+        if self.outputs is not None:
+            out.update(self.outputs.close())
+            self.outputs = None
+        return out
+
+    def close(self) -> None:
+        if self.outputs is not None:
+            self.outputs.close()
+            self.outputs = None
+        if self.publisher is not None:
+            self.publisher.close()
+            self.publisher = None
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m fusion_center.robotics.bridge",
+                                     description="the centre's robotics bridge (started by run / demo)")
+    parser.add_argument("--fd", type=int, required=True, help="the link's descriptor (inherited)")
+    parser.add_argument("--settings", required=True, help="JSON: source, digest, zenoh, foxglove")
+    args = parser.parse_args(argv)
+    global _REPORT
+    # the report channel is ours alone: anything a library prints goes to stderr, not into it
+    _REPORT = os.fdopen(os.dup(1), "w")
+    os.dup2(2, 1)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    logging.basicConfig(level=logging.WARNING, stream=sys.stderr, format="%(levelname)s %(name)s: %(message)s")
+    sock = socket.socket(fileno=args.fd)
+    try:
+        settings = json.loads(args.settings)
+        bridge = Bridge(settings)
+    except UsageError as exc:
+        _say({"error": str(exc)})
+        return 2
+    except Exception as exc:  # noqa: BLE001 - one line to the centre
+        _say({"error": f"robotics bridge: cannot start: {type(exc).__name__}: {one_line(exc)}"})
+        return 2
+    try:
+        _say({"ready": bridge.ready()})
+        bridge.serve(sock)
+        sock.close()
+        stats = bridge.stats()
+        _say({"stats": stats, "received": bridge.received, "bad": bridge.bad})
+    except BrokenPipeError:  # the centre gone before reading the report
+        pass
+    finally:
+        bridge.close()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,267 @@
+"""The centre's side of the robotics bridge (``--zenoh`` / ``--foxglove`` on ``run`` and ``demo``;
+docs/robotics.md, *The bridge process*): :class:`RoboticsBridge` starts
+``python -m fusion_center.robotics.bridge`` (:mod:`.bridge`) beside the centre and hands it each
+cycle as one frame; Zenoh's and the Foxglove server's threads run in that process, not in the
+centre's.
+
+**The link**: an ``AF_UNIX`` ``SOCK_SEQPACKET`` socket pair made here; the bridge gets its end as
+an inherited descriptor (``pass_fds``, no other descriptor of the centre), the centre keeps the
+other. Its settings go as one JSON argument on the command line (nothing is pickled). The bridge
+says ``{"ready": {...}}`` or ``{"error": "one line"}`` on its stdout before the run starts (a
+bounded wait, :data:`READY_TIMEOUT_S`): an error is this process's :class:`UsageError` (exit 2).
+
+**A frame** (one datagram: the kernel delivers it whole or not at all): a 16-byte header
+``<4sIII`` (``b"TXB1"``, the JSON's length, the number of readings, 0), the record's JSON line
+as the decision log writes it (:func:`~fusion_center.service.records.logged_line`: with
+``--json-lines`` on, the line already made), then in raw mode the readings the taxel map needs
+(:meth:`.topics.TopicMap.readings_of`) as little-endian float64. The bridge parses the JSON
+with :mod:`json` - nothing from the link is unpickled or executed.
+
+**The cycle never waits**: the centre's end is non-blocking and a datagram is sent whole or not
+at all (no partial frame, no pending buffer): when the socket's buffer is full (a bridge behind -
+a slow viewer, a stalled Zenoh subscriber, a starved process) the cycle's frame is dropped and
+counted (:attr:`RoboticsBridge.dropped`, logged rate-limited). A frame larger than the socket
+can hold is counted apart (``too_large``). A bridge that ends mid-run (killed) is logged once;
+the frames after it are counted (``lost``), the run goes on.
+
+**Lifecycle**: the bridge runs in a session of its own (``start_new_session``: a Ctrl-C on the
+terminal reaches the centre only, which finishes its last records and then closes the link) and
+ignores SIGINT; it ends when the link closes - at :meth:`RoboticsBridge.close`, or when the
+centre ends in any way (killed: the kernel closes its end) - and prints its counters as one JSON
+line, which :meth:`close` returns with the link's own.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+import selectors
+import socket
+import struct
+import subprocess
+import sys
+import time
+
+import numpy as np
+
+from taxel_net.errors import UsageError
+
+logger = logging.getLogger("fusion_center.robotics.bridge")
+
+MAGIC = b"TXB1"
+HEADER = struct.Struct("<4sIII")
+READY_TIMEOUT_S = 60.0   # the bridge's start (imports, Zenoh session, server): a bound, not a budget
+CLOSE_TIMEOUT_S = 60.0   # the bridge's end (what it has queued published, outputs closed)
+SNDBUF = 4 << 20         # asked of the kernel (it caps it at net.core.wmem_max x 2)
+
+
+def scene_digest(scene) -> str:
+    """A fingerprint of a scene (the bridge checks it loaded the centre's scene)."""
+    return hashlib.sha256(repr(scene).encode()).hexdigest()[:16]
+
+
+def make_frame(line: bytes, readings) -> bytes:
+    """One frame: header, the record's JSON line, the readings (float64, or none)."""
+    if readings is None:
+        return HEADER.pack(MAGIC, len(line), 0, 0) + line
+    data = np.ascontiguousarray(readings, dtype="<f8")
+    return b"".join((HEADER.pack(MAGIC, len(line), data.size, 0), line, data.tobytes()))
+
+
+def parse_frame(frame) -> tuple[dict, bytes, np.ndarray | None]:
+    """``(record, line, readings)`` of a frame; ValueError (one line) for anything else."""
+    if len(frame) < HEADER.size:
+        raise ValueError(f"a frame of {len(frame)} bytes (the header alone is {HEADER.size})")
+    magic, n_json, n_readings, _ = HEADER.unpack_from(frame)
+    if magic != MAGIC:
+        raise ValueError(f"a frame that does not start with {MAGIC!r}")
+    if len(frame) != HEADER.size + n_json + 8 * n_readings:
+        raise ValueError(f"a frame of {len(frame)} bytes, its header says {HEADER.size + n_json + 8 * n_readings}")
+    line = bytes(frame[HEADER.size:HEADER.size + n_json])
+    record = json.loads(line)
+    if not isinstance(record, dict):
+        raise ValueError("a frame whose JSON is no object")
+    readings = None
+    if n_readings:
+        readings = np.frombuffer(frame, dtype="<f8", count=n_readings, offset=HEADER.size + n_json).astype(float)
+    return record, line, readings
+
+
+class RoboticsBridge:
+    """Starts the bridge process and hands it every cycle (module docstring).
+
+    ``scene``: the run's scene; ``source``: how the bridge loads the same scene -
+    ``{"scene": FILE_OR_NAME, "mode": None | "decision" | "raw", "slow_down": 1.0}`` (checked
+    against ``scene``'s fingerprint); ``zenoh``: None or the ``--zenoh-*`` settings
+    ``{"config_file", "listen", "connect", "mode"}``; ``foxglove``: None or ``(host, port)``.
+    :meth:`open` starts it (UsageError: one line), :meth:`attach` feeds it a ``FusionService``'s
+    cycles, :meth:`close` ends it and returns the figures."""
+
+    def __init__(self, scene, source: dict, *, zenoh: dict | None = None, foxglove=None):
+        from .topics import TopicMap
+
+        self.scene = scene
+        self.settings = {"source": dict(source), "digest": scene_digest(scene), "zenoh": zenoh,
+                         "foxglove": list(foxglove) if foxglove is not None else None}
+        # the taxel map's readings: only the live server draws them (raw mode)
+        self.topics = TopicMap(scene) if foxglove is not None else None
+        self.raw = self.topics is not None and self.topics.raw_mode
+        self.proc = None
+        self.sock = None
+        self.ready: dict = {}
+        self.frames = 0       # frames handed over
+        self.dropped = 0      # frames dropped: the link's buffer full (the bridge behind)
+        self.too_large = 0    # frames larger than the link can hold
+        self.lost = 0         # frames after the bridge ended
+        self.failed = 0       # records that could not be made a frame
+        self.died: str | None = None
+
+    def command(self) -> list[str]:
+        return [sys.executable, "-m", "fusion_center.robotics.bridge", "--fd", "{fd}",
+                "--settings", json.dumps(self.settings)]
+
+    def open(self) -> "RoboticsBridge":
+        ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
+        try:
+            ours.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, SNDBUF)
+            argv = [a.replace("{fd}", str(theirs.fileno())) for a in self.command()]
+            self.proc = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                                         pass_fds=(theirs.fileno(),), start_new_session=True)
+        except BaseException:
+            ours.close()
+            raise
+        finally:
+            theirs.close()  # the bridge's end lives in the bridge only
+        ours.setblocking(False)
+        self.sock = ours
+        try:
+            message = self._read_line(READY_TIMEOUT_S)
+        except BaseException:
+            self._kill()
+            raise
+        if message is None or "ready" not in message:
+            error = (message or {}).get("error") if isinstance(message, dict) else None
+            status = self._kill()
+            raise UsageError(error or f"the robotics bridge ended before it was ready (exit status {status}; "
+                                      "its log above)")
+        self.ready = message["ready"]
+        return self
+
+    def _read_line(self, timeout: float):
+        """The bridge's next JSON line on its stdout (None: it ended or said nothing within ``timeout``)."""
+        out = self.proc.stdout
+        fd = out.fileno()
+        data = b""
+        end = time.monotonic() + timeout
+        with selectors.DefaultSelector() as sel:
+            sel.register(fd, selectors.EVENT_READ)
+            while b"\n" not in data:
+                left = end - time.monotonic()
+                if left <= 0 or not sel.select(left):
+                    return None
+                chunk = os.read(fd, 65536)
+                if not chunk:
+                    return None
+                data += chunk
+        try:
+            message = json.loads(data.split(b"\n", 1)[0])
+        except ValueError:
+            return None
+        return message if isinstance(message, dict) else None
+
+    def attach(self, service) -> None:
+        """Hand over every cycle of ``service`` (a ``FusionService``)."""
+        service.on_cycle.append(self.on_cycle)
+
+    def on_cycle(self, record: dict, closed=None) -> None:
+        """The record callback: one non-blocking send; never raises, never waits."""
+        from ..service.records import logged_line
+
+        sock = self.sock
+        if sock is None:
+            return
+        if self.died is not None:
+            self.lost += 1
+            return
+        try:
+            frame = make_frame(logged_line(record), self.topics.readings_of(closed) if self.raw else None)
+        except Exception as exc:  # noqa: BLE001 - a hand-made record JSON cannot hold (NaN)
+            self.failed += 1
+            if self.failed == 1 or self.failed % 1000 == 0:
+                logger.warning("robotics bridge: %d record(s) not handed over, the last: %s: %s", self.failed,
+                               type(exc).__name__, exc)
+            return
+        try:
+            sock.send(frame)
+            self.frames += 1
+        except BlockingIOError:
+            self.dropped += 1
+            if self.dropped == 1 or self.dropped % 1000 == 0:
+                logger.warning("robotics bridge behind: %d cycle(s) dropped at the hand-over so far (cycle %s)",
+                               self.dropped, record.get("cycle"))
+        except OSError as exc:
+            if exc.errno == 90:  # EMSGSIZE
+                self.too_large += 1
+                if self.too_large == 1:
+                    logger.warning("robotics bridge: a cycle of %d bytes is larger than the link holds: not "
+                                   "handed over (counted)", len(frame))
+                return
+            self.died = f"{type(exc).__name__}: {exc}"
+            self.lost += 1
+            status = self.proc.poll() if self.proc is not None else None
+            logger.error("robotics bridge ended at cycle %s (exit status %s): no more Zenoh / Foxglove output "
+                         "for this run (counted; the run goes on)", record.get("cycle"), status)
+
+    def close(self) -> dict:
+        """Close the link (the bridge publishes what it has, closes its outputs and ends); the
+        figures: the bridge's own (``zenoh``, ``foxglove``) and the hand-over's (``bridge``)."""
+        if self.proc is None:
+            return {}
+        if self.sock is not None:
+            self.sock.close()
+            self.sock = None
+        report = None
+        if self.died is None:
+            report = self._read_line(CLOSE_TIMEOUT_S)
+        try:
+            status = self.proc.wait(CLOSE_TIMEOUT_S if report is not None else 5.0)
+        except subprocess.TimeoutExpired:
+            status = self._kill()
+        if report is None and self.died is None:
+            self.died = f"no report at its end (exit status {status})"
+        elif self.died is not None:
+            self.died += f" (exit status {status})"
+        self.proc.stdout.close()
+        self.proc = None
+        out = dict(report.get("stats", {})) if isinstance(report, dict) else {}
+        out["bridge"] = {"frames": self.frames, "dropped": self.dropped, "too_large": self.too_large,
+                         "lost": self.lost, "failed": self.failed, "died": self.died,
+                         "received": (report or {}).get("received"), "bad": (report or {}).get("bad", 0)}
+        return out
+
+    def _kill(self):
+        if self.sock is not None:
+            self.sock.close()
+            self.sock = None
+        if self.proc is None:
+            return None
+        if self.proc.poll() is None:
+            self.proc.kill()
+        status = self.proc.wait()
+        return status
+
+
+def bridge_lines(stats: dict) -> list[tuple[str, str]]:
+    """The summary's ``bridge`` line."""
+    b = stats.get("bridge")
+    if not b:
+        return []
+    text = (f"{b['frames']} cycles handed over, {b['dropped']} dropped at the hand-over (bridge behind)"
+            + (f", {b['too_large']} too large" if b["too_large"] else "")
+            + (f", {b['failed']} not encodable" if b["failed"] else "")
+            + (f", {b['bad']} refused by the bridge" if b.get("bad") else ""))
+    if b["died"]:
+        text += f"; the bridge ENDED mid-run ({b['died']}): {b['lost']} cycles after it not published"
+    return [("bridge", text)]
