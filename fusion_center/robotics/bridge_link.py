@@ -54,7 +54,8 @@ MAGIC = b"TXB1"
 HEADER = struct.Struct("<4sIII")
 READY_TIMEOUT_S = 60.0   # the bridge's start (imports, Zenoh session, server): a bound, not a budget
 CLOSE_TIMEOUT_S = 60.0   # the bridge's end (what it has queued published, outputs closed)
-SNDBUF = 4 << 20         # asked of the kernel (it caps it at net.core.wmem_max x 2)
+SNDBUF = 1 << 20         # the link's buffer asked of the kernel (it doubles it, capped at net.core.wmem_max x 2):
+# ~1,300 matrix57 frames (~13 s of cycles) where wmem_max allows, ~280 (3 s) at Linux's default 212992
 
 
 def scene_digest(scene) -> str:

@@ -1,0 +1,335 @@
+"""The robotics bridge process (``--zenoh`` / ``--foxglove`` on run and demo; docs/robotics.md,
+*The bridge process*): what goes through it equals the records (a Zenoh subscriber and a
+Foxglove WebSocket client of the test's own), a bridge that does not read loses whole frames,
+counted, and never holds the centre, and the bridge's life follows the centre's. Loopback only,
+Zenoh's multicast scouting off (the project's defaults)."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from fusion_center.robotics.bridge_link import RoboticsBridge, bridge_lines, make_frame, parse_frame
+from fusion_center.service.records import dumpb
+from taxel_net.errors import UsageError
+from taxel_net.scene import load_scene
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT / "tests"))
+from test_assemblers import zenoh_peer  # noqa: E402
+from test_robotics_live import SUBPROTOCOL, TIMEOUT, _advertised, _connect, _message_data, _subscribe  # noqa: E402
+from test_zenoh import _ports  # noqa: E402
+
+
+class _Collect:
+    """An outputs stand-in for run_demo: keeps every (record, closed cycle)."""
+
+    def __init__(self):
+        self.cycles = []
+
+    def attach(self, service):
+        service.on_cycle.append(lambda record, closed: self.cycles.append((record, closed)))
+
+    def close(self, ok=True):
+        return {}
+
+
+def _demo_cycles(scene_name: str, n: int):
+    from fusion_center.commands.demo import run_demo
+
+    scene = load_scene(scene_name)
+    collect = _Collect()
+    run_demo(scene, n, keep_records=False, outputs=collect)
+    return scene, collect.cycles
+
+
+def _wait(predicate, what: str) -> None:
+    end = time.monotonic() + TIMEOUT  # a safety bound, not a timing claim
+    while not predicate():
+        assert time.monotonic() < end, f"timed out waiting for {what}"
+        time.sleep(0.01)
+
+
+def test_a_frame_carries_the_line_and_the_readings_exactly():
+    import numpy as np
+
+    readings = np.array([1.5, np.nan, -0.0, 1e-300, 3.25])
+    record, line, back = parse_frame(make_frame(b'{"cycle": 3, "t": 0.03}', readings))
+    assert record == {"cycle": 3, "t": 0.03} and line == b'{"cycle": 3, "t": 0.03}'
+    assert back.tobytes() == readings.tobytes()  # bit for bit, NaN and -0.0 included
+    assert parse_frame(make_frame(b"{}", None))[2] is None
+    for bad in (b"", b"XXXX" + bytes(12), make_frame(b"{}", None)[:-1], make_frame(b"[1]", None)):
+        with pytest.raises(ValueError):
+            parse_frame(bad)
+
+
+def test_records_through_the_bridge_on_zenoh_are_the_decision_logs_lines():
+    """Every record's payload on taxel/<scene>/record is the centre's decision-log line, byte for
+    byte, in order; contact events as the in-process publisher makes them."""
+    from fusion_center.service.zenoh_publisher import contact_event
+
+    scene, cycles = _demo_cycles("matrix57", 30)
+    port, = _ports(1)
+    bridge = RoboticsBridge(scene, {"scene": "matrix57"}, zenoh={"listen": [f"tcp/127.0.0.1:{port}"]}).open()
+    assert bridge.ready["zenoh"]["keys"]["record"] == "taxel/matrix57/record"
+    peer = zenoh_peer(connect=port)
+    got: list = []
+    cond = threading.Condition()
+
+    def on_sample(sample):
+        with cond:
+            got.append((str(sample.key_expr), sample.payload.to_bytes()))
+            cond.notify_all()
+
+    sub = peer.declare_subscriber("taxel/matrix57/*", on_sample)
+    try:
+        first, closed0 = cycles[0]
+        # the first record again and again until the subscriber has one (Zenoh's matching is the
+        # bridge's to know), then the others once each
+        end = time.monotonic() + TIMEOUT
+        while not any(k.endswith("/record") for k, _ in got):
+            assert time.monotonic() < end, "no record reached the subscriber"
+            bridge.on_cycle(first, closed0)
+            time.sleep(0.05)
+        for record, closed in cycles[1:]:
+            bridge.on_cycle(record, closed)
+        with cond:
+            cond.wait_for(lambda: sum(k.endswith("/record") for k, _ in got) >= len(cycles)
+                          and [json.loads(p)["cycle"] for k, p in got if k.endswith("/record")][-1]
+                          == cycles[-1][0]["cycle"], TIMEOUT)
+    finally:
+        stats = bridge.close()
+        sub.undeclare()
+        peer.close()
+    records = [p for k, p in got if k.endswith("/record")]
+    first_line = dumpb(first)
+    rest = [p for p in records if p != first_line]
+    assert set(records[:len(records) - len(rest)]) == {first_line}
+    assert rest == [dumpb(r) for r, _ in cycles[1:]]
+    contacts = [json.loads(p) for k, p in got if k.endswith("/contact")]
+    expected, previous = [], None
+    for k, (record, _) in enumerate(cycles):
+        if k == 0 or record["decision"] != previous:
+            expected.append(json.loads(dumpb(contact_event(record, None if k == 0 else previous))))
+            previous = record["decision"]
+    # the first record's event went out with the first probe, before the subscriber matched (or not)
+    assert contacts in (expected, expected[1:]) and len(expected) >= 2
+    b = stats["bridge"]
+    assert b["frames"] == b["received"] and b["dropped"] == 0 and b["died"] is None and b["bad"] == 0
+    assert stats["zenoh"]["records"] == len(records) and stats["zenoh"]["failed"] == 0
+
+
+def test_the_foxglove_viewer_gets_the_in_process_messages_through_the_bridge():
+    """Raw mode: the bridge's live server sends each cycle's messages - the taxel map, the
+    readings image made from the readings the centre handed over, the JSON topics - byte for
+    byte what the in-process encode path makes of the record."""
+    from fusion_center.robotics.mcap_out import encode_plain
+    from fusion_center.robotics.topics import TopicMap
+
+    scene, cycles = _demo_cycles("matrix57_raw", 20)
+    topics = TopicMap(scene)
+    expected = {}
+    for record, closed in cycles:
+        t, messages = encode_plain(topics, record, topics.readings_of(closed))
+        for topic, _, payload in messages:
+            expected.setdefault(topic, []).append((t, payload))
+    assert any("readings" in topic for topic in expected)
+    bridge = RoboticsBridge(scene, {"scene": "matrix57_raw"}, foxglove=("127.0.0.1", 0)).open()
+    port = bridge.ready["foxglove"]["port"]
+    t0 = round(cycles[0][0]["t"] * 1e6) * 1000
+
+    async def viewer():
+        ws = await _connect(port)
+        try:
+            channels = await _advertised(ws)
+            assert set(channels) == set(expected)
+            subs = await _subscribe(ws, channels)
+            got: dict = {}
+            probing = True
+            while True:
+                if probing:  # the first cycle until the server sends it (the subscription arrived)
+                    bridge.on_cycle(*cycles[0])
+                try:
+                    frame = await asyncio.wait_for(ws.recv(), 0.05 if probing else TIMEOUT)
+                except asyncio.TimeoutError:
+                    continue
+                if not isinstance(frame, bytes):
+                    continue
+                sid, log_time, payload = _message_data(frame)
+                if probing:
+                    probing = False
+                    for record, closed in cycles[1:]:
+                        bridge.on_cycle(record, closed)
+                if log_time != t0:
+                    got.setdefault(subs[sid]["topic"], []).append((log_time, payload))
+                if sum(map(len, got.values())) == (len(cycles) - 1) * len(subs):
+                    return got
+        finally:
+            await ws.close()
+
+    try:
+        got = asyncio.run(asyncio.wait_for(viewer(), 4 * TIMEOUT))
+    finally:
+        stats = bridge.close()
+    for topic, messages in expected.items():
+        assert got[topic] == messages[1:], topic
+    assert stats["foxglove"]["clients"] == 1 and stats["bridge"]["dropped"] == 0
+
+
+class _SilentBridge(RoboticsBridge):
+    """A bridge process that says ready and reads nothing until ``go`` exists; then it reads
+    every frame left, parses each and reports how many it got."""
+
+    def __init__(self, scene, go: Path):
+        super().__init__(scene, {"scene": scene.name})
+        self.go = go
+
+    def command(self):
+        code = ("import json, os, socket, sys, time\n"
+                "from fusion_center.robotics.bridge_link import parse_frame\n"
+                "s = socket.socket(fileno=int(sys.argv[1]))\n"
+                "print(json.dumps({'ready': {}}), flush=True)\n"
+                "while not os.path.exists(sys.argv[2]): time.sleep(0.01)\n"
+                "n = bad = 0\n"
+                "while True:\n"
+                "    f = s.recv(1 << 24)\n"
+                "    if not f: break\n"
+                "    try: parse_frame(f); n += 1\n"
+                "    except ValueError: bad += 1\n"
+                "print(json.dumps({'stats': {}, 'received': n, 'bad': bad}), flush=True)\n")
+        return [sys.executable, "-c", code, "{fd}", str(self.go)]
+
+
+def test_a_bridge_that_does_not_read_loses_whole_frames_counted_and_never_holds_the_cycle(tmp_path):
+    scene, cycles = _demo_cycles("matrix57", 5)
+    bridge = _SilentBridge(scene, tmp_path / "go").open()
+    n = 0
+    try:
+        while bridge.dropped < 100 and n < 200_000:  # ~1.5 kB a frame: 200,000 far more than the link holds
+            record, closed = cycles[n % len(cycles)]
+            bridge.on_cycle(record, closed)  # returns at once: the bridge reads nothing yet
+            n += 1
+        assert bridge.dropped > 0 and bridge.frames > 0 and bridge.frames + bridge.dropped == n
+        (tmp_path / "go").touch()
+    finally:
+        stats = bridge.close()
+    b = stats["bridge"]
+    assert (b["received"], b["bad"], b["dropped"]) == (bridge.frames, 0, bridge.dropped)
+    line, = bridge_lines(stats)
+    assert f"{b['dropped']} dropped at the hand-over" in line[1]
+
+
+def test_a_bridge_killed_mid_run_is_counted_once_and_the_cycles_go_on(caplog):
+    scene, cycles = _demo_cycles("matrix57", 10)
+    port, = _ports(1)
+    bridge = RoboticsBridge(scene, {"scene": "matrix57"}, zenoh={"listen": [f"tcp/127.0.0.1:{port}"]}).open()
+    for record, closed in cycles[:5]:
+        bridge.on_cycle(record, closed)
+    bridge.proc.kill()
+    bridge.proc.wait(TIMEOUT)
+    for record, closed in cycles[5:]:
+        bridge.on_cycle(record, closed)  # never raises
+    stats = bridge.close()
+    b = stats["bridge"]
+    assert b["died"] and b["frames"] == 5 and b["lost"] == 5 and "zenoh" not in stats
+    assert len([r for r in caplog.records if "robotics bridge ended" in r.getMessage()]) == 1
+    assert "ENDED mid-run" in bridge_lines(stats)[0][1]
+
+
+def test_a_bridge_that_cannot_start_is_one_usage_error():
+    scene = load_scene("matrix57")
+
+    class Dies(RoboticsBridge):
+        def command(self):
+            return [sys.executable, "-c", "import sys; sys.exit(3)"]
+
+    with pytest.raises(UsageError, match=r"ended before it was ready \(exit status 3"):
+        Dies(scene, {"scene": "matrix57"}, zenoh={}).open()
+    # a scene the bridge loads differently from the centre's: refused with one line
+    with pytest.raises(UsageError, match="differs from the centre's") as err:
+        RoboticsBridge(scene, {"scene": "matrix57", "mode": "raw"}, zenoh={}).open()
+    assert "\n" not in str(err.value)
+
+
+def _cli(*argv, **kwargs):
+    return subprocess.Popen([sys.executable, "-c", "import sys; from fusion_center.cli import main; sys.exit(main())",
+                             *argv], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True, **kwargs)
+
+
+def _bridge_of(pid: int) -> int:
+    """The pid of the bridge process the centre ``pid`` started."""
+    found = []
+
+    def look():
+        try:
+            children = Path(f"/proc/{pid}/task/{pid}/children").read_text().split()
+        except OSError:
+            return False
+        for child in children:
+            try:
+                if "fusion_center.robotics.bridge" in Path(f"/proc/{child}/cmdline").read_text():
+                    found.append(int(child))
+                    return True
+            except OSError:
+                continue
+        return False
+
+    _wait(look, "the bridge process")
+    return found[0]
+
+
+def _alive(pid: int) -> bool:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().split(")")[-1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+def test_killing_the_centre_ends_the_bridge():
+    port, = _ports(1)
+    centre = _cli("demo", "--cycles", "100000", "--no-live", "--zenoh", "--zenoh-listen", f"tcp/127.0.0.1:{port}")
+    try:
+        bridge = _bridge_of(centre.pid)
+        assert _alive(bridge)
+        centre.kill()
+        centre.wait(TIMEOUT)
+        _wait(lambda: not _alive(bridge), "the bridge to end after the centre was killed")
+    finally:
+        if centre.poll() is None:
+            centre.kill()
+        centre.communicate()
+
+
+def test_ctrl_c_on_the_terminal_leaves_the_bridge_to_the_centres_last_record(tmp_path):
+    """SIGINT to the centre's whole process group (what a terminal's Ctrl-C does): the bridge is
+    in a session of its own and ignores SIGINT; the centre ends its run, then the bridge reports
+    every cycle it was handed."""
+    port, = _ports(1)
+    log = tmp_path / "run.jsonl"
+    centre = _cli("demo", "--cycles", "100000", "--no-live", "--zenoh", "--zenoh-listen", f"tcp/127.0.0.1:{port}",
+                  "--json-lines", str(log))
+    try:
+        bridge = _bridge_of(centre.pid)
+        _wait(lambda: log.exists() and log.read_text().count("\n") >= 5, "some cycles")
+        os.killpg(centre.pid, signal.SIGINT)
+        out, err = centre.communicate(timeout=4 * TIMEOUT)
+    finally:
+        if centre.poll() is None:
+            centre.kill()
+            centre.communicate()
+    assert centre.returncode == 130, err
+    lines = {line.split(":", 1)[0]: line for line in out.splitlines()}
+    records = int(lines["cycles"].split(",")[1].split()[0])
+    assert f"{records} cycles handed over, 0 dropped" in lines["bridge"] and "ENDED" not in lines["bridge"]
+    assert f"{records} with no subscriber" in lines["zenoh"]
+    assert not _alive(bridge)
