@@ -19,7 +19,8 @@ def add_arguments(parser: argparse.ArgumentParser, *, live: bool, bag: bool) -> 
         parser.add_argument("--foxglove", metavar="[HOST:]PORT", default=None,
                             help="a live Foxglove WebSocket server with the same channels (loopback 127.0.0.1 "
                                  "unless HOST is given; 0: any free port); a slow viewer loses messages, "
-                                 "never cycles")
+                                 "never cycles; served by the robotics bridge process beside the centre "
+                                 "(docs/robotics.md)")
     if bag:
         parser.add_argument("--ros2-bag", metavar="DIR", default=None,
                             help="a ROS 2 bag (rosbag2, MCAP storage, standard message types) in the new "

@@ -210,7 +210,8 @@ def add_arguments(parser, *, publication: bool = True) -> None:
         parser.add_argument("--zenoh", action="store_true",
                             help="publish every record (and the grip command, contact events) on Zenoh: keys "
                                  "taxel/<scene>/record, .../grip, .../contact (docs/robotics.md); loopback only "
-                                 f"unless configured (default listen {DEFAULT_LISTEN}, no multicast scouting)")
+                                 f"unless configured (default listen {DEFAULT_LISTEN}, no multicast scouting); "
+                                 "published by the robotics bridge process beside the centre")
         parser.add_argument("--zenoh-listen", action="append", default=None, metavar="ENDPOINT",
                             help=f"the publication's Zenoh listen endpoint(s) (default {DEFAULT_LISTEN}; "
                                  f"or ${ENV_LISTEN}, or the config file)")

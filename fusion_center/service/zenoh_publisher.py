@@ -17,6 +17,10 @@ JSON payloads, encoding ``application/json``; docs/robotics.md, *Zenoh*):
   "p_h1", "present_count", "present_nodes", "area", "contact_type"}``, ``event`` ``onset``
   (to H1), ``release`` (H1 to H0) or ``change`` (to or from undecided, the first record).
 
+**Where it runs**: ``run --zenoh`` and ``demo --zenoh`` call it in the robotics bridge process
+(:mod:`fusion_center.robotics.bridge`, with the centre's line as ``line``): Zenoh's threads are
+not the centre's. Called as an ``on_record`` callback (the API) it runs in the caller's process.
+
 **Never holds the cycle**: the callback runs on the thread that evaluated the record (a
 receive thread, :mod:`.fusion_service`); each put uses ``CongestionControl.DROP``: with the
 transmission queue full (a slow or stalled subscriber) a put waits at most Zenoh's
