@@ -240,9 +240,34 @@ def test_a_bridge_killed_mid_run_is_counted_once_and_the_cycles_go_on(caplog):
         bridge.on_cycle(record, closed)  # never raises
     stats = bridge.close()
     b = stats["bridge"]
-    assert b["died"] and b["frames"] == 5 and b["lost"] == 5 and "zenoh" not in stats
+    # before it was killed each cycle was handed over or (nobody subscribed: the bridge said so) not made
+    assert b["died"] and b["frames"] + b["unwanted"] == 5 and b["lost"] == 5 and "zenoh" not in stats
     assert len([r for r in caplog.records if "robotics bridge ended" in r.getMessage()]) == 1
     assert "ENDED mid-run" in bridge_lines(stats)[0][1]
+
+
+def test_with_nobody_watching_the_centre_makes_no_frame_and_counts_the_cycles():
+    """The bridge says nothing wants the cycles (no viewer): the centre makes no frame - the
+    cycles are counted as the in-process server counts them (``with none subscribed``)."""
+    scene, cycles = _demo_cycles("matrix57", 10)
+    bridge = RoboticsBridge(scene, {"scene": "matrix57"}, foxglove=("127.0.0.1", 0)).open()
+    n = 0
+    try:
+        end = time.monotonic() + TIMEOUT
+        while bridge.wanted:  # until the bridge's first word arrives (a bound, not a timing claim)
+            assert time.monotonic() < end, "the bridge never said whether anything is wanted"
+            bridge.on_cycle(*cycles[n % len(cycles)])
+            n += 1
+            time.sleep(0.01)
+        frames = bridge.frames
+        for k in range(50):
+            bridge.on_cycle(*cycles[k % len(cycles)])
+        n += 50
+        assert bridge.frames == frames and bridge.unwanted == n - frames
+    finally:
+        stats = bridge.close()
+    assert stats["foxglove"]["unwatched_cycles"] == n and stats["foxglove"]["cycles"] == 0
+    assert stats["bridge"]["unwanted"] == n - frames
 
 
 def test_a_bridge_that_cannot_start_is_one_usage_error():
@@ -330,6 +355,11 @@ def test_ctrl_c_on_the_terminal_leaves_the_bridge_to_the_centres_last_record(tmp
     assert centre.returncode == 130, err
     lines = {line.split(":", 1)[0]: line for line in out.splitlines()}
     records = int(lines["cycles"].split(",")[1].split()[0])
-    assert f"{records} cycles handed over, 0 dropped" in lines["bridge"] and "ENDED" not in lines["bridge"]
+    import re
+
+    handed, dropped = map(int, re.search(r"(\d+) cycles handed over, (\d+) dropped", lines["bridge"]).groups())
+    unwanted = re.search(r"(\d+) not made", lines["bridge"])
+    assert records > 0 and handed + dropped + int(unwanted.group(1) if unwanted else 0) == records
+    assert dropped == 0 and "ENDED" not in lines["bridge"]
     assert f"{records} with no subscriber" in lines["zenoh"]
     assert not _alive(bridge)

@@ -23,11 +23,13 @@ import os
 import signal
 import socket
 import sys
+import threading
 
 from taxel_net.errors import UsageError, one_line
 
 logger = logging.getLogger("fusion_center.robotics.bridge")
 RECV_BYTES = 16 << 20  # the largest frame read (the link's send buffer is far smaller)
+WATCH_S = 0.05         # how often the bridge checks whether anything wants the cycles
 
 
 _REPORT = None  # the centre's reading end: this process's stdout as it started (fd 1 then goes to stderr)
@@ -88,8 +90,30 @@ class Bridge:
             out["foxglove"] = {"host": self.outputs.live.host, "port": self.outputs.live.port}
         return out
 
+    def wanted(self) -> bool:
+        """Whether anything wants the cycles: a Zenoh subscriber matching any key, a viewer
+        subscribed to any channel."""
+        if self.publisher is not None and any(self.publisher._matching.values()):
+            return True
+        return self.outputs is not None and self.outputs.live.watched
+
+    def tell(self, sock: socket.socket, stop: threading.Event) -> None:
+        """Tells the centre ``W1`` / ``W0`` at each change of :meth:`wanted` (checked every
+        :data:`WATCH_S`; the first word at once)."""
+        said = None
+        while True:
+            now = self.wanted()
+            if now != said:
+                try:
+                    sock.send(b"W1" if now else b"W0")
+                except OSError:
+                    return
+                said = now
+            if stop.wait(WATCH_S):
+                return
+
     def serve(self, sock: socket.socket) -> None:
-        from .bridge_link import parse_frame
+        from .bridge_link import frame_gap, parse_frame
 
         buf = bytearray(RECV_BYTES)
         view = memoryview(buf)
@@ -113,6 +137,8 @@ class Bridge:
                 continue
             self.received += 1
             if self.publisher is not None:
+                if frame_gap(view) and not self.publisher._first:
+                    self.publisher._previous = record.get("decision")  # a gap: the new baseline, no event
                 self.publisher(record, line=line)
             if self.outputs is not None:
                 self.outputs.publish(record, readings)
@@ -159,7 +185,12 @@ def main(argv=None) -> int:
         return 2
     try:
         _say({"ready": bridge.ready()})
+        stop = threading.Event()
+        teller = threading.Thread(target=bridge.tell, args=(sock, stop), name="bridge-wanted", daemon=True)
+        teller.start()
         bridge.serve(sock)
+        stop.set()
+        teller.join()
         sock.close()
         stats = bridge.stats()
         _say({"stats": stats, "received": bridge.received, "bad": bridge.bad})

@@ -11,7 +11,8 @@ says ``{"ready": {...}}`` or ``{"error": "one line"}`` on its stdout before the 
 bounded wait, :data:`READY_TIMEOUT_S`): an error is this process's :class:`UsageError` (exit 2).
 
 **A frame** (one datagram: the kernel delivers it whole or not at all): a 16-byte header
-``<4sIII`` (``b"TXB1"``, the JSON's length, the number of readings, 0), the record's JSON line
+``<4sIII`` (``b"TXB1"``, the JSON's length, the number of readings, the cycles left out
+before it - nobody watching), the record's JSON line
 as the decision log writes it (:func:`~fusion_center.service.records.logged_line`: with
 ``--json-lines`` on, the line already made), then in raw mode the readings the taxel map needs
 (:meth:`.topics.TopicMap.readings_of`) as little-endian float64. The bridge parses the JSON
@@ -23,6 +24,15 @@ a slow viewer, a stalled Zenoh subscriber, a starved process) the cycle's frame 
 counted (:attr:`RoboticsBridge.dropped`, logged rate-limited). A frame larger than the socket
 can hold is counted apart (``too_large``). A bridge that ends mid-run (killed) is logged once;
 the frames after it are counted (``lost``), the run goes on.
+
+**Nobody watching, nothing made**: the bridge tells the centre over the same link (``W0`` /
+``W1``, on each change) whether anything wants the cycles - a Zenoh subscriber matching any of
+the keys, a Foxglove viewer subscribed to any channel. While nothing does, the centre makes no
+frame (the cycle costs one non-blocking ``recv``) and counts the cycle ``unwanted``; these count
+as ``with no subscriber`` / ``with none subscribed`` in the summary, as in process. The next
+frame's header says how many cycles were left out before it; the bridge then takes that record's
+decision as the contact events' baseline (no event for it: a subscriber that joins gets the
+changes from then on).
 
 **Lifecycle**: the bridge runs in a session of its own (``start_new_session``: a Ctrl-C on the
 terminal reaches the centre only, which finishes its last records and then closes the link) and
@@ -63,12 +73,19 @@ def scene_digest(scene) -> str:
     return hashlib.sha256(repr(scene).encode()).hexdigest()[:16]
 
 
-def make_frame(line: bytes, readings) -> bytes:
-    """One frame: header, the record's JSON line, the readings (float64, or none)."""
+def make_frame(line: bytes, readings, gap: int = 0) -> bytes:
+    """One frame: header, the record's JSON line, the readings (float64, or none); ``gap``: the
+    cycles left out before it."""
+    gap = min(gap, 0xFFFFFFFF)
     if readings is None:
-        return HEADER.pack(MAGIC, len(line), 0, 0) + line
+        return HEADER.pack(MAGIC, len(line), 0, gap) + line
     data = np.ascontiguousarray(readings, dtype="<f8")
-    return b"".join((HEADER.pack(MAGIC, len(line), data.size, 0), line, data.tobytes()))
+    return b"".join((HEADER.pack(MAGIC, len(line), data.size, gap), line, data.tobytes()))
+
+
+def frame_gap(frame) -> int:
+    """The cycles left out before a (parsed) frame."""
+    return HEADER.unpack_from(frame)[3]
 
 
 def parse_frame(frame) -> tuple[dict, bytes, np.ndarray | None]:
@@ -117,6 +134,9 @@ class RoboticsBridge:
         self.too_large = 0    # frames larger than the link can hold
         self.lost = 0         # frames after the bridge ended
         self.failed = 0       # records that could not be made a frame
+        self.unwanted = 0     # cycles nobody wanted (the bridge said so): no frame made
+        self.wanted = True    # the bridge's last word (W0 / W1)
+        self._gap = 0         # cycles left out since the last frame
         self.died: str | None = None
 
     def command(self) -> list[str]:
@@ -187,7 +207,23 @@ class RoboticsBridge:
             self.lost += 1
             return
         try:
-            frame = make_frame(logged_line(record), self.topics.readings_of(closed) if self.raw else None)
+            while True:  # the bridge's word on whether anything wants the cycles (W0 / W1)
+                said = sock.recv(64)
+                if not said:  # the bridge's end closed: it is gone
+                    self._gone(record, "the link closed")
+                    return
+                self.wanted = said[-1:] == b"1"
+        except (BlockingIOError, InterruptedError):
+            pass
+        except OSError as exc:
+            self._gone(record, f"{type(exc).__name__}: {exc}")
+            return
+        if not self.wanted:
+            self.unwanted += 1
+            self._gap += 1
+            return
+        try:
+            frame = make_frame(logged_line(record), self.topics.readings_of(closed) if self.raw else None, self._gap)
         except Exception as exc:  # noqa: BLE001 - a hand-made record JSON cannot hold (NaN)
             self.failed += 1
             if self.failed == 1 or self.failed % 1000 == 0:
@@ -197,6 +233,7 @@ class RoboticsBridge:
         try:
             sock.send(frame)
             self.frames += 1
+            self._gap = 0
         except BlockingIOError:
             self.dropped += 1
             if self.dropped == 1 or self.dropped % 1000 == 0:
@@ -209,11 +246,15 @@ class RoboticsBridge:
                     logger.warning("robotics bridge: a cycle of %d bytes is larger than the link holds: not "
                                    "handed over (counted)", len(frame))
                 return
-            self.died = f"{type(exc).__name__}: {exc}"
-            self.lost += 1
-            status = self.proc.poll() if self.proc is not None else None
-            logger.error("robotics bridge ended at cycle %s (exit status %s): no more Zenoh / Foxglove output "
-                         "for this run (counted; the run goes on)", record.get("cycle"), status)
+            self._gone(record, f"{type(exc).__name__}: {exc}")
+
+    def _gone(self, record: dict, why: str) -> None:
+        """The bridge ended mid-run: logged once, this cycle and the next ones counted ``lost``."""
+        self.died = why
+        self.lost += 1
+        status = self.proc.poll() if self.proc is not None else None
+        logger.error("robotics bridge ended at cycle %s (exit status %s): no more Zenoh / Foxglove output "
+                     "for this run (counted; the run goes on)", record.get("cycle"), status)
 
     def close(self) -> dict:
         """Close the link (the bridge publishes what it has, closes its outputs and ends); the
@@ -237,8 +278,13 @@ class RoboticsBridge:
         self.proc.stdout.close()
         self.proc = None
         out = dict(report.get("stats", {})) if isinstance(report, dict) else {}
+        if self.unwanted:  # nobody wanted them: as the in-process outputs count such cycles
+            if "zenoh" in out:
+                out["zenoh"]["unmatched"] += self.unwanted
+            if "foxglove" in out:
+                out["foxglove"]["unwatched_cycles"] += self.unwanted
         out["bridge"] = {"frames": self.frames, "dropped": self.dropped, "too_large": self.too_large,
-                         "lost": self.lost, "failed": self.failed, "died": self.died,
+                         "lost": self.lost, "failed": self.failed, "died": self.died, "unwanted": self.unwanted,
                          "received": (report or {}).get("received"), "bad": (report or {}).get("bad", 0)}
         return out
 
@@ -261,6 +307,7 @@ def bridge_lines(stats: dict) -> list[tuple[str, str]]:
         return []
     text = (f"{b['frames']} cycles handed over, {b['dropped']} dropped at the hand-over (bridge behind)"
             + (f", {b['too_large']} too large" if b["too_large"] else "")
+            + (f", {b['unwanted']} not made (nobody watching)" if b.get("unwanted") else "")
             + (f", {b['failed']} not encodable" if b["failed"] else "")
             + (f", {b['bad']} refused by the bridge" if b.get("bad") else ""))
     if b["died"]:
