@@ -21,8 +21,13 @@ Measured from the first cycle after every consumer has had a message (and 20 cyc
 the warm-up - matching, subscription - is left out) to the last cycle plus 0.3 s (the outputs'
 queues drained), per cycle: the centre's process CPU (``time.process_time``: every thread of it)
 and, with the bridge, the bridge process's CPU (its threads' ``/proc/PID/task/*/schedstat``).
-Printed per variant, medians of rounds: the centre's CPU, its excess over ``bare`` of the same
-round (paired, % of bare), the bridge's CPU and the total (centre + bridge) over ``bare``.
+Printed per variant, medians of rounds: first the outputs' own CPU in the centre - the thread
+time inside the record callbacks (the hand-over; in process the put or the queue append) plus
+the CPU of the process's other threads (Zenoh's, the publisher's, the SDK's) over ``bare``'s
+other threads - as % of ``bare``, the bridge process's CPU and their sum (the figure that
+holds on a loaded host); then the process totals: the centre's CPU, its excess over ``bare`` of
+the same round (paired, % of bare), the bridge's CPU and the total (centre + bridge) over
+``bare`` (on a shared 2-core host these move by 10-20 % from pass to pass whatever runs).
 ``--log``: every variant writes the decision log (to /dev/null), whose line the hand-over and the
 Zenoh publisher reuse. The host's load average is printed before and after.
 """
@@ -246,6 +251,18 @@ def main() -> None:
             print(f"{scene_name}{' (decision log on)' if args.log else ''}: ~{args.cycles} cycles x {args.rounds} "
                   f"rounds, CPU per cycle, median of rounds (load average 1/5/15 min "
                   f"{'/'.join(f'{x:.1f}' for x in load0)} -> {'/'.join(f'{x:.1f}' for x in load1)})")
+            # the outputs' own CPU in the centre: its calls in the cycle's thread plus its other threads'
+            # (the process's CPU but the cycle's thread) over bare's - less moved by the host's load
+            # than the process totals
+            others = {v: [c - m for c, m in zip(centre[v], main[v])] for v in args.variants}
+            own = {v: [k + o - ob for k, o, ob in zip(calls[v], others[v], others["bare"])] for v in args.variants}
+            print("  outputs' own CPU in the centre (its calls + its threads; % of bare), the bridge's, the sum:")
+            for variant in args.variants[1:]:
+                o = [100 * x / b for x, b in zip(own[variant], base)]
+                t = [100 * (x + y) / b for x, y, b in zip(own[variant], other[variant], base)]
+                print(f"    {variant:<20} centre {statistics.median(own[variant]):6.1f}us {statistics.median(o):+5.1f} % ("
+                      + ", ".join(f"{x:+.1f}" for x in o) + f"); bridge {statistics.median(other[variant]):6.1f}us; "
+                      f"total {statistics.median(t):+5.1f} % of bare", flush=True)
             print(f"  {'variant':<20} {'centre':>9} {'centre over bare (rounds)':<36} {'bridge':>9} "
                   f"{'total over bare':>16}")
             for variant in args.variants:
