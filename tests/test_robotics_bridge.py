@@ -198,7 +198,8 @@ class _SilentBridge(RoboticsBridge):
                 "from fusion_center.robotics.bridge_link import parse_frame\n"
                 "s = socket.socket(fileno=int(sys.argv[1]))\n"
                 "print(json.dumps({'ready': {}}), flush=True)\n"
-                "while not os.path.exists(sys.argv[2]): time.sleep(0.01)\n"
+                "parent = os.getppid()\n"
+                "while not os.path.exists(sys.argv[2]) and os.getppid() == parent: time.sleep(0.01)\n"
                 "n = bad = 0\n"
                 "while True:\n"
                 "    f = s.recv(1 << 24)\n"
@@ -206,7 +207,7 @@ class _SilentBridge(RoboticsBridge):
                 "    try: parse_frame(f); n += 1\n"
                 "    except ValueError: bad += 1\n"
                 "print(json.dumps({'stats': {}, 'received': n, 'bad': bad}), flush=True)\n")
-        return [sys.executable, "-c", code, "{fd}", str(self.go)]
+        return [sys.executable, "-c", code, "{fd}", str(self.go), "{flag}"]
 
 
 def test_a_bridge_that_does_not_read_loses_whole_frames_counted_and_never_holds_the_cycle(tmp_path):
@@ -219,8 +220,8 @@ def test_a_bridge_that_does_not_read_loses_whole_frames_counted_and_never_holds_
             bridge.on_cycle(record, closed)  # returns at once: the bridge reads nothing yet
             n += 1
         assert bridge.dropped > 0 and bridge.frames > 0 and bridge.frames + bridge.dropped == n
-        (tmp_path / "go").touch()
     finally:
+        (tmp_path / "go").touch()
         stats = bridge.close()
     b = stats["bridge"]
     assert (b["received"], b["bad"], b["dropped"]) == (bridge.frames, 0, bridge.dropped)

@@ -19,6 +19,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import mmap
 import os
 import signal
 import socket
@@ -97,18 +98,13 @@ class Bridge:
             return True
         return self.outputs is not None and self.outputs.live.watched
 
-    def tell(self, sock: socket.socket, stop: threading.Event) -> None:
-        """Tells the centre ``W1`` / ``W0`` at each change of :meth:`wanted` (checked every
-        :data:`WATCH_S`; the first word at once)."""
-        said = None
+    def tell(self, flag: mmap.mmap, stop: threading.Event) -> None:
+        """Keeps the shared flag's first byte :meth:`wanted` (1 / 0; checked every
+        :data:`WATCH_S`, the first time at once) for the centre to read."""
         while True:
-            now = self.wanted()
-            if now != said:
-                try:
-                    sock.send(b"W1" if now else b"W0")
-                except OSError:
-                    return
-                said = now
+            now = 1 if self.wanted() else 0
+            if flag[0] != now:
+                flag[0] = now
             if stop.wait(WATCH_S):
                 return
 
@@ -165,6 +161,7 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="python -m fusion_center.robotics.bridge",
                                      description="the centre's robotics bridge (started by run / demo)")
     parser.add_argument("--fd", type=int, required=True, help="the link's descriptor (inherited)")
+    parser.add_argument("--flag-fd", type=int, required=True, help="the shared flag's memfd (inherited)")
     parser.add_argument("--settings", required=True, help="JSON: source, digest, zenoh, foxglove")
     args = parser.parse_args(argv)
     global _REPORT
@@ -174,6 +171,8 @@ def main(argv=None) -> int:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     logging.basicConfig(level=logging.WARNING, stream=sys.stderr, format="%(levelname)s %(name)s: %(message)s")
     sock = socket.socket(fileno=args.fd)
+    flag = mmap.mmap(args.flag_fd, mmap.PAGESIZE)
+    os.close(args.flag_fd)
     try:
         settings = json.loads(args.settings)
         bridge = Bridge(settings)
@@ -186,7 +185,7 @@ def main(argv=None) -> int:
     try:
         _say({"ready": bridge.ready()})
         stop = threading.Event()
-        teller = threading.Thread(target=bridge.tell, args=(sock, stop), name="bridge-wanted", daemon=True)
+        teller = threading.Thread(target=bridge.tell, args=(flag, stop), name="bridge-wanted", daemon=True)
         teller.start()
         bridge.serve(sock)
         stop.set()

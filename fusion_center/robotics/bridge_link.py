@@ -25,10 +25,12 @@ counted (:attr:`RoboticsBridge.dropped`, logged rate-limited). A frame larger th
 can hold is counted apart (``too_large``). A bridge that ends mid-run (killed) is logged once;
 the frames after it are counted (``lost``), the run goes on.
 
-**Nobody watching, nothing made**: the bridge tells the centre over the same link (``W0`` /
-``W1``, on each change) whether anything wants the cycles - a Zenoh subscriber matching any of
-the keys, a Foxglove viewer subscribed to any channel. While nothing does, the centre makes no
-frame (the cycle costs one non-blocking ``recv``) and counts the cycle ``unwanted``; these count
+**Nobody watching, nothing made**: the bridge keeps a one-byte flag in a shared page (a
+``memfd`` the centre makes and passes with the link; 1 or 0, set at each change) saying whether
+anything wants the cycles - a Zenoh subscriber matching any of the keys, a Foxglove viewer
+subscribed to any channel. While nothing does, the centre makes no frame (the cycle costs a
+read of that byte and a ``waitpid`` to see the bridge still runs) and counts the cycle
+``unwanted`` (a non-blocking ``recv`` on the link for the same word cost 30-40 us a cycle); these count
 as ``with no subscriber`` / ``with none subscribed`` in the summary, as in process. The next
 frame's header says how many cycles were left out before it; the bridge then takes that record's
 decision as the contact events' baseline (no event for it: a subscriber that joins gets the
@@ -46,6 +48,7 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import mmap
 import os
 import selectors
 import socket
@@ -62,6 +65,7 @@ logger = logging.getLogger("fusion_center.robotics.bridge")
 
 MAGIC = b"TXB1"
 HEADER = struct.Struct("<4sIII")
+_pack = HEADER.pack
 READY_TIMEOUT_S = 60.0   # the bridge's start (imports, Zenoh session, server): a bound, not a budget
 CLOSE_TIMEOUT_S = 60.0   # the bridge's end (what it has queued published, outputs closed)
 SNDBUF = 1 << 20         # the link's buffer asked of the kernel (it doubles it, capped at net.core.wmem_max x 2):
@@ -135,26 +139,39 @@ class RoboticsBridge:
         self.lost = 0         # frames after the bridge ended
         self.failed = 0       # records that could not be made a frame
         self.unwanted = 0     # cycles nobody wanted (the bridge said so): no frame made
-        self.wanted = True    # the bridge's last word (W0 / W1)
+        self._flag = None     # the shared page whose first byte the bridge sets (1: wanted)
         self._gap = 0         # cycles left out since the last frame
         self.died: str | None = None
+        from ..service.records import logged_line
+
+        self._line = logged_line
+
+    @property
+    def wanted(self) -> bool:
+        """The bridge's word: whether anything wants the cycles now."""
+        return self._flag is None or self._flag[0] != 0
 
     def command(self) -> list[str]:
-        return [sys.executable, "-m", "fusion_center.robotics.bridge", "--fd", "{fd}",
+        return [sys.executable, "-m", "fusion_center.robotics.bridge", "--fd", "{fd}", "--flag-fd", "{flag}",
                 "--settings", json.dumps(self.settings)]
 
     def open(self) -> "RoboticsBridge":
         ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
+        flag_fd = os.memfd_create("taxel-bridge-wanted")
         try:
+            os.ftruncate(flag_fd, mmap.PAGESIZE)
+            self._flag = mmap.mmap(flag_fd, mmap.PAGESIZE)
+            self._flag[0] = 1  # wanted until the bridge says otherwise
             ours.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, SNDBUF)
-            argv = [a.replace("{fd}", str(theirs.fileno())) for a in self.command()]
+            argv = [a.replace("{fd}", str(theirs.fileno())).replace("{flag}", str(flag_fd)) for a in self.command()]
             self.proc = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
-                                         pass_fds=(theirs.fileno(),), start_new_session=True)
+                                         pass_fds=(theirs.fileno(), flag_fd), start_new_session=True)
         except BaseException:
             ours.close()
             raise
         finally:
             theirs.close()  # the bridge's end lives in the bridge only
+            os.close(flag_fd)
         ours.setblocking(False)
         self.sock = ours
         try:
@@ -198,32 +215,25 @@ class RoboticsBridge:
 
     def on_cycle(self, record: dict, closed=None) -> None:
         """The record callback: one non-blocking send; never raises, never waits."""
-        from ..service.records import logged_line
-
         sock = self.sock
         if sock is None:
             return
         if self.died is not None:
             self.lost += 1
             return
-        try:
-            while True:  # the bridge's word on whether anything wants the cycles (W0 / W1)
-                said = sock.recv(64)
-                if not said:  # the bridge's end closed: it is gone
-                    self._gone(record, "the link closed")
-                    return
-                self.wanted = said[-1:] == b"1"
-        except (BlockingIOError, InterruptedError):
-            pass
-        except OSError as exc:
-            self._gone(record, f"{type(exc).__name__}: {exc}")
-            return
-        if not self.wanted:
+        if not self._flag[0]:  # nothing wants the cycles (the bridge's word)
+            if self.proc.poll() is not None:
+                self._gone(record, "it exited")
+                return
             self.unwanted += 1
             self._gap += 1
             return
         try:
-            frame = make_frame(logged_line(record), self.topics.readings_of(closed) if self.raw else None, self._gap)
+            line = self._line(record)
+            if self.raw:
+                frame = make_frame(line, self.topics.readings_of(closed), self._gap)
+            else:
+                frame = _pack(MAGIC, len(line), 0, self._gap) + line
         except Exception as exc:  # noqa: BLE001 - a hand-made record JSON cannot hold (NaN)
             self.failed += 1
             if self.failed == 1 or self.failed % 1000 == 0:
@@ -277,6 +287,8 @@ class RoboticsBridge:
             self.died += f" (exit status {status})"
         self.proc.stdout.close()
         self.proc = None
+        self._flag.close()
+        self._flag = None
         out = dict(report.get("stats", {})) if isinstance(report, dict) else {}
         if self.unwanted:  # nobody wanted them: as the in-process outputs count such cycles
             if "zenoh" in out:
@@ -289,6 +301,9 @@ class RoboticsBridge:
         return out
 
     def _kill(self):
+        if self._flag is not None:
+            self._flag.close()
+            self._flag = None
         if self.sock is not None:
             self.sock.close()
             self.sock = None
