@@ -45,6 +45,7 @@ line, which :meth:`close` returns with the link's own.
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import json
 import logging
@@ -246,12 +247,14 @@ class RoboticsBridge:
             self._gap = 0
         except BlockingIOError:
             self.dropped += 1
+            self._gap += 1  # the bridge learns of it with the next frame (contact events' baseline)
             if self.dropped == 1 or self.dropped % 1000 == 0:
                 logger.warning("robotics bridge behind: %d cycle(s) dropped at the hand-over so far (cycle %s)",
                                self.dropped, record.get("cycle"))
         except OSError as exc:
-            if exc.errno == 90:  # EMSGSIZE
+            if exc.errno == errno.EMSGSIZE:
                 self.too_large += 1
+                self._gap += 1
                 if self.too_large == 1:
                     logger.warning("robotics bridge: a cycle of %d bytes is larger than the link holds: not "
                                    "handed over (counted)", len(frame))
