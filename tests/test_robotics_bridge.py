@@ -364,3 +364,82 @@ def test_ctrl_c_on_the_terminal_leaves_the_bridge_to_the_centres_last_record(tmp
     assert dropped == 0 and "ENDED" not in lines["bridge"]
     assert f"{records} with no subscriber" in lines["zenoh"]
     assert not _alive(bridge)
+
+
+class _DropNext:
+    """The centre's end of the link with one send made to fail as a full buffer does
+    (``BlockingIOError``: the bridge behind) when ``drop`` is set."""
+
+    def __init__(self, sock):
+        self.sock = sock
+        self.drop = False
+
+    def send(self, frame):
+        if self.drop:
+            self.drop = False
+            raise BlockingIOError(11, "Resource temporarily unavailable")
+        return self.sock.send(frame)
+
+    def close(self):
+        self.sock.close()
+
+
+def _in_process_events(records):
+    """The contact events the in-process publisher makes of ``records`` (zenoh_publisher's rule:
+    the first record, then each change of the decision against the record before)."""
+    from fusion_center.service.zenoh_publisher import contact_event
+
+    out, previous = [], None
+    for k, record in enumerate(records):
+        if k == 0 or record["decision"] != previous:
+            out.append(json.loads(dumpb(contact_event(record, None if k == 0 else previous))))
+            previous = record["decision"]
+    return out
+
+
+def test_a_change_whose_frame_was_dropped_still_reaches_the_contact_subscriber():
+    """The frame of a decision change is dropped at the hand-over (the bridge behind) while a
+    subscriber watches: the change is not lost - the next frame, whose decision is the same,
+    carries it (event against the last decision the subscriber was told), as if the dropped
+    cycle had not been there; the subscriber's view of the contact never stays stale."""
+    scene, cycles = _demo_cycles("matrix57", 30)
+    decisions = [r["decision"] for r, _ in cycles]
+    k = next((i for i in range(1, len(cycles) - 1)
+              if decisions[i] != decisions[i - 1] and decisions[i + 1] == decisions[i]), None)
+    assert k is not None, f"no change held for two cycles in {decisions}"
+    port, = _ports(1)
+    bridge = RoboticsBridge(scene, {"scene": "matrix57"}, zenoh={"listen": [f"tcp/127.0.0.1:{port}"]}).open()
+    peer = zenoh_peer(connect=port)
+    got: list = []
+    cond = threading.Condition()
+
+    def on_sample(sample):
+        with cond:
+            got.append((str(sample.key_expr), sample.payload.to_bytes()))
+            cond.notify_all()
+
+    sub = peer.declare_subscriber("taxel/matrix57/*", on_sample)
+    try:
+        end = time.monotonic() + TIMEOUT
+        while not any(key.endswith("/record") for key, _ in got):
+            assert time.monotonic() < end, "no record reached the subscriber"
+            bridge.on_cycle(*cycles[0])
+            time.sleep(0.05)
+        link = bridge.sock = _DropNext(bridge.sock)
+        for i, (record, closed) in enumerate(cycles[1:], start=1):
+            link.drop = i == k
+            bridge.on_cycle(record, closed)
+        with cond:
+            cond.wait_for(lambda: [json.loads(p)["cycle"] for key, p in got if key.endswith("/record")][-1]
+                          == cycles[-1][0]["cycle"], TIMEOUT)
+    finally:
+        stats = bridge.close()
+        sub.undeclare()
+        peer.close()
+    assert stats["bridge"]["dropped"] == 1 and stats["bridge"]["died"] is None
+    contacts = [json.loads(p) for key, p in got if key.endswith("/contact")]
+    # what the in-process publisher makes of the cycles the bridge got (all but the dropped one)
+    expected = _in_process_events([r for i, (r, _) in enumerate(cycles) if i != k])
+    assert contacts in (expected, expected[1:])
+    late = [e for e in contacts if e["cycle"] == cycles[k + 1][0]["cycle"]]
+    assert [(e["decision"], e["previous"]) for e in late] == [(decisions[k], decisions[k - 1])]

@@ -109,7 +109,7 @@ class Bridge:
                 return
 
     def serve(self, sock: socket.socket) -> None:
-        from .bridge_link import frame_gap, parse_frame
+        from .bridge_link import BASELINE_OF, FIRST, frame_gap, parse_frame
 
         buf = bytearray(RECV_BYTES)
         view = memoryview(buf)
@@ -133,8 +133,13 @@ class Bridge:
                 continue
             self.received += 1
             if self.publisher is not None:
-                if frame_gap(view) and not self.publisher._first:
-                    self.publisher._previous = record.get("decision")  # a gap: the new baseline, no event
+                gap, baseline = frame_gap(view)
+                if gap:  # cycles this process did not see: the centre says what to compare with
+                    if baseline == FIRST:
+                        self.publisher._first = True
+                    else:
+                        self.publisher._first = False
+                        self.publisher._previous = BASELINE_OF.get(baseline, record.get("decision"))
                 self.publisher(record, line=line)
             if self.outputs is not None:
                 self.outputs.publish(record, readings)

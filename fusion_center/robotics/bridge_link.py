@@ -10,9 +10,9 @@ other. Its settings go as one JSON argument on the command line (nothing is pick
 says ``{"ready": {...}}`` or ``{"error": "one line"}`` on its stdout before the run starts (a
 bounded wait, :data:`READY_TIMEOUT_S`): an error is this process's :class:`UsageError` (exit 2).
 
-**A frame** (one datagram: the kernel delivers it whole or not at all): a 16-byte header
-``<4sIII`` (``b"TXB1"``, the JSON's length, the number of readings, the cycles left out
-before it - nobody watching), the record's JSON line
+**A frame** (one datagram: the kernel delivers it whole or not at all): a 20-byte header
+``<4sIIIB3x`` (``b"TXB2"``, the JSON's length, the number of readings, the cycles left out
+before it, the contact events' baseline - :data:`BASELINE_CODES`), the record's JSON line
 as the decision log writes it (:func:`~fusion_center.service.records.logged_line`: with
 ``--json-lines`` on, the line already made), then in raw mode the readings the taxel map needs
 (:meth:`.topics.TopicMap.readings_of`) as little-endian float64. The bridge parses the JSON
@@ -32,9 +32,13 @@ subscribed to any channel. While nothing does, the centre makes no frame (the cy
 read of that byte and a ``waitpid`` to see the bridge still runs) and counts the cycle
 ``unwanted`` (a non-blocking ``recv`` on the link for the same word cost 30-40 us a cycle); these count
 as ``with no subscriber`` / ``with none subscribed`` in the summary, as in process. The next
-frame's header says how many cycles were left out before it; the bridge then takes that record's
-decision as the contact events' baseline (no event for it: a subscriber that joins gets the
-changes from then on).
+frame's header says how many cycles were left out before it and the decision the bridge's
+contact events compare the record with (its *baseline*): after cycles nobody wanted, the
+decision of the cycle before (what the in-process publisher, which sees every record, compares
+with: a subscriber that joins gets the changes from then on); after dropped frames (a subscriber
+watching, the bridge behind) the last decision handed over - a change whose frame was dropped
+reaches the subscriber with the next frame, one cycle or more late, never lost
+(``tests/test_robotics_bridge.py``).
 
 **Lifecycle**: the bridge runs in a session of its own (``start_new_session``: a Ctrl-C on the
 terminal reaches the centre only, which finishes its last records and then closes the link) and
@@ -64,8 +68,14 @@ from taxel_net.errors import UsageError
 
 logger = logging.getLogger("fusion_center.robotics.bridge")
 
-MAGIC = b"TXB1"
-HEADER = struct.Struct("<4sIII")
+MAGIC = b"TXB2"
+HEADER = struct.Struct("<4sIIIB3x")
+# the header's baseline byte: the decision the bridge's contact events compare the frame's record
+# with (``zenoh_publisher``'s ``previous``); FIRST: no record before it (the run's first: an
+# event of its own); OTHER: a decision not listed (the record's own becomes the baseline)
+BASELINE_CODES = {"H0": 0, "H1": 1, "undecided": 2, None: 3}
+BASELINE_OF = {code: decision for decision, code in BASELINE_CODES.items()}
+FIRST, OTHER = 0xFE, 0xFF
 _pack = HEADER.pack
 READY_TIMEOUT_S = 60.0   # the bridge's start (imports, Zenoh session, server): a bound, not a budget
 CLOSE_TIMEOUT_S = 60.0   # the bridge's end (what it has queued published, outputs closed)
@@ -78,26 +88,35 @@ def scene_digest(scene) -> str:
     return hashlib.sha256(repr(scene).encode()).hexdigest()[:16]
 
 
-def make_frame(line: bytes, readings, gap: int = 0) -> bytes:
+def baseline_code(decision) -> int:
+    """The header's baseline byte of a decision (:data:`BASELINE_CODES`, else :data:`OTHER`)."""
+    try:
+        return BASELINE_CODES.get(decision, OTHER)
+    except TypeError:  # unhashable: a hand-made record
+        return OTHER
+
+
+def make_frame(line: bytes, readings, gap: int = 0, baseline: int = FIRST) -> bytes:
     """One frame: header, the record's JSON line, the readings (float64, or none); ``gap``: the
-    cycles left out before it."""
+    cycles left out before it; ``baseline``: the contact events' baseline (:func:`baseline_code`,
+    :data:`FIRST`)."""
     gap = min(gap, 0xFFFFFFFF)
     if readings is None:
-        return HEADER.pack(MAGIC, len(line), 0, gap) + line
+        return HEADER.pack(MAGIC, len(line), 0, gap, baseline) + line
     data = np.ascontiguousarray(readings, dtype="<f8")
-    return b"".join((HEADER.pack(MAGIC, len(line), data.size, gap), line, data.tobytes()))
+    return b"".join((HEADER.pack(MAGIC, len(line), data.size, gap, baseline), line, data.tobytes()))
 
 
-def frame_gap(frame) -> int:
-    """The cycles left out before a (parsed) frame."""
-    return HEADER.unpack_from(frame)[3]
+def frame_gap(frame) -> tuple[int, int]:
+    """The cycles left out before a (parsed) frame and its baseline byte."""
+    return HEADER.unpack_from(frame)[3:5]
 
 
 def parse_frame(frame) -> tuple[dict, bytes, np.ndarray | None]:
     """``(record, line, readings)`` of a frame; ValueError (one line) for anything else."""
     if len(frame) < HEADER.size:
         raise ValueError(f"a frame of {len(frame)} bytes (the header alone is {HEADER.size})")
-    magic, n_json, n_readings, _ = HEADER.unpack_from(frame)
+    magic, n_json, n_readings, _, _ = HEADER.unpack_from(frame)
     if magic != MAGIC:
         raise ValueError(f"a frame that does not start with {MAGIC!r}")
     if len(frame) != HEADER.size + n_json + 8 * n_readings:
@@ -142,6 +161,7 @@ class RoboticsBridge:
         self.unwanted = 0     # cycles nobody wanted (the bridge said so): no frame made
         self._flag = None     # the shared page whose first byte the bridge sets (1: wanted)
         self._gap = 0         # cycles left out since the last frame
+        self._baseline = FIRST  # the contact events' baseline for the next frame (module docstring)
         self.died: str | None = None
         from ..service.records import logged_line
 
@@ -228,15 +248,17 @@ class RoboticsBridge:
                 return
             self.unwanted += 1
             self._gap += 1
+            self._baseline = baseline_code(record.get("decision"))  # as the in-process publisher tracks it
             return
         try:
             line = self._line(record)
             if self.raw:
-                frame = make_frame(line, self.topics.readings_of(closed), self._gap)
+                frame = make_frame(line, self.topics.readings_of(closed), self._gap, self._baseline)
             else:
-                frame = _pack(MAGIC, len(line), 0, self._gap) + line
+                frame = _pack(MAGIC, len(line), 0, self._gap, self._baseline) + line
         except Exception as exc:  # noqa: BLE001 - a hand-made record JSON cannot hold (NaN)
             self.failed += 1
+            self._gap += 1
             if self.failed == 1 or self.failed % 1000 == 0:
                 logger.warning("robotics bridge: %d record(s) not handed over, the last: %s: %s", self.failed,
                                type(exc).__name__, exc)
@@ -245,6 +267,7 @@ class RoboticsBridge:
             sock.send(frame)
             self.frames += 1
             self._gap = 0
+            self._baseline = baseline_code(record.get("decision"))
         except BlockingIOError:
             self.dropped += 1
             self._gap += 1  # the bridge learns of it with the next frame (contact events' baseline)
