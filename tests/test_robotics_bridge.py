@@ -286,6 +286,29 @@ def test_a_bridge_that_cannot_start_is_one_usage_error():
     assert "\n" not in str(err.value)
 
 
+def test_a_bridge_that_hangs_at_its_start_is_stopped_and_named_so(monkeypatch):
+    """No ready answer within the bound: the bridge is stopped (no process left) and the error
+    says it hung - not that it ended by itself."""
+    import fusion_center.robotics.bridge_link as link
+
+    monkeypatch.setattr(link, "READY_TIMEOUT_S", 0.5)
+    started = []
+
+    class Hangs(RoboticsBridge):
+        def command(self):
+            return [sys.executable, "-c", f"import time; time.sleep({4 * TIMEOUT})"]
+
+        def _read_line(self, timeout):
+            started.append(self.proc)
+            return super()._read_line(timeout)
+
+    with pytest.raises(UsageError, match=r"gave no ready answer \(waited up to 0.5 s; stopped it") as err:
+        Hangs(load_scene("matrix57"), {"scene": "matrix57"}, zenoh={}).open()
+    assert "ended before" not in str(err.value)
+    proc, = started
+    assert proc.returncode is not None  # stopped and reaped: no process, no zombie
+
+
 def _cli(*argv, **kwargs):
     return subprocess.Popen([sys.executable, "-c", "import sys; from fusion_center.cli import main; sys.exit(main())",
                              *argv], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,

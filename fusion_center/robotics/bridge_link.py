@@ -202,9 +202,14 @@ class RoboticsBridge:
             raise
         if message is None or "ready" not in message:
             error = (message or {}).get("error") if isinstance(message, dict) else None
+            running = self.proc.poll() is None
             status = self._kill()
-            raise UsageError(error or f"the robotics bridge ended before it was ready (exit status {status}; "
-                                      "its log above)")
+            if error:
+                raise UsageError(str(error))
+            if running:  # hung (or said something else): stopped here
+                raise UsageError(f"the robotics bridge gave no ready answer (waited up to {READY_TIMEOUT_S:g} s; "
+                                 "stopped it; its log above)")
+            raise UsageError(f"the robotics bridge ended before it was ready (exit status {status}; its log above)")
         self.ready = message["ready"]
         return self
 
