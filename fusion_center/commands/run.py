@@ -43,24 +43,6 @@ def zenoh_settings(args) -> dict | None:
             "mode": args.zenoh_mode}
 
 
-def zenoh_publisher(args, scene):
-    """The ``--zenoh`` publisher of a run, opened (None without ``--zenoh``); the session flags
-    without ``--zenoh`` are a :class:`UsageError`."""
-    from taxel_net.errors import UsageError
-
-    if not getattr(args, "zenoh", False):
-        for flag in ("zenoh_listen", "zenoh_connect", "zenoh_mode"):
-            if getattr(args, flag, None):
-                raise UsageError(f"--{flag.replace('_', '-')}: only with --zenoh (the publication's session)")
-        return None
-    from ..service.zenoh_publisher import ZenohPublisher
-
-    return ZenohPublisher(scene.name, config_file=args.zenoh_config, listen=args.zenoh_listen,
-                          connect=args.zenoh_connect, mode=args.zenoh_mode).open()
-
-
-
-
 def add_mode_argument(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--mode", choices=("decision", "raw"), default=None,
                         help="override the scene's [bus] mode: decision (TPDO1 u_i) or raw "
