@@ -309,6 +309,30 @@ def test_a_bridge_that_hangs_at_its_start_is_stopped_and_named_so(monkeypatch):
     assert proc.returncode is not None  # stopped and reaped: no process, no zombie
 
 
+def test_the_bridge_imports_nothing_from_the_current_directory(tmp_path, monkeypatch):
+    """A ``json.py`` in the directory the centre runs in (the user's data directory, a shared
+    one) is not run by the bridge: it imports the project's code from where the centre did."""
+    marker = tmp_path / "RAN"
+    (tmp_path / "json.py").write_text(f"open({str(marker)!r}, 'w').close()\n")
+    monkeypatch.chdir(tmp_path)
+    bridge = RoboticsBridge(load_scene("matrix57"), {"scene": "matrix57"}, foxglove=("127.0.0.1", 0)).open()
+    stats = bridge.close()
+    assert not marker.exists(), "the bridge ran json.py from the current directory"
+    assert stats["bridge"]["died"] is None and bridge.ready["foxglove"]["port"] > 0
+
+
+def test_a_bridge_that_ends_at_its_start_is_named_so_with_its_status():
+    """A bridge that exits before its ready line: 'ended before it was ready' with its status,
+    never 'gave no ready answer' (the line's end of file is not the bound running out)."""
+    for _ in range(5):  # the end of file may come before the process is reaped: each time the same
+        class Dies(RoboticsBridge):
+            def command(self):
+                return [sys.executable, "-c", "import os, sys; sys.stdout.close(); os._exit(3)"]
+
+        with pytest.raises(UsageError, match=r"ended before it was ready \(exit status 3"):
+            Dies(load_scene("matrix57"), {"scene": "matrix57"}, zenoh={}).open()
+
+
 def _cli(*argv, **kwargs):
     return subprocess.Popen([sys.executable, "-c", "import sys; from fusion_center.cli import main; sys.exit(main())",
                              *argv], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,

@@ -1,4 +1,5 @@
-"""The robotics bridge process: ``python -m fusion_center.robotics.bridge --fd N --settings JSON``,
+"""The robotics bridge process: :func:`main` (``--fd N --flag-fd M --settings JSON``; the centre
+runs it with ``python -c``, importing this package from where it did - :meth:`.bridge_link.RoboticsBridge.command`),
 started by the centre (:class:`.bridge_link.RoboticsBridge`; docs/robotics.md, *The bridge
 process*) - not a command of its own.
 

@@ -1,6 +1,6 @@
 """The centre's side of the robotics bridge (``--zenoh`` / ``--foxglove`` on ``run`` and ``demo``;
 docs/robotics.md, *The bridge process*): :class:`RoboticsBridge` starts
-``python -m fusion_center.robotics.bridge`` (:mod:`.bridge`) beside the centre and hands it each
+the bridge process (:mod:`.bridge`; nothing imported from the current directory) beside the centre and hands it each
 cycle as one frame; Zenoh's and the Foxglove server's threads run in that process, not in the
 centre's.
 
@@ -83,6 +83,13 @@ SNDBUF = 1 << 20         # the link's buffer asked of the kernel (it doubles it,
 # ~1,300 matrix57 frames (~13 s of cycles) where wmem_max allows, ~280 (3 s) at Linux's default 212992
 
 
+# the directory this process imported fusion_center from, and the bridge's entry point (``-c``: no
+# current directory on sys.path but the '' that -c adds, removed here before anything is imported)
+_CODE_ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+_BRIDGE_MAIN = ("import sys; root = sys.argv.pop(1); sys.path[:] = [root] + [p for p in sys.path if p != '']; "
+                "from fusion_center.robotics.bridge import main; sys.exit(main())")
+
+
 def scene_digest(scene) -> str:
     """A fingerprint of a scene (the bridge checks it loaded the centre's scene)."""
     return hashlib.sha256(repr(scene).encode()).hexdigest()[:16]
@@ -163,6 +170,7 @@ class RoboticsBridge:
         self._gap = 0         # cycles left out since the last frame
         self._baseline = FIRST  # the contact events' baseline for the next frame (module docstring)
         self.died: str | None = None
+        self._timed_out = False  # the last _read_line waited its whole bound
         from ..service.records import logged_line
 
         self._line = logged_line
@@ -173,7 +181,10 @@ class RoboticsBridge:
         return self._flag is None or self._flag[0] != 0
 
     def command(self) -> list[str]:
-        return [sys.executable, "-m", "fusion_center.robotics.bridge", "--fd", "{fd}", "--flag-fd", "{flag}",
+        """The bridge's command line: this interpreter, importing ``fusion_center`` from where this
+        process did - never from the current directory (``python -m`` would put it first on
+        ``sys.path``: a ``json.py`` or ``zenoh.py`` there would run in the bridge)."""
+        return [sys.executable, "-c", _BRIDGE_MAIN, _CODE_ROOT, "--fd", "{fd}", "--flag-fd", "{flag}",
                 "--settings", json.dumps(self.settings)]
 
     def open(self) -> "RoboticsBridge":
@@ -202,11 +213,11 @@ class RoboticsBridge:
             raise
         if message is None or "ready" not in message:
             error = (message or {}).get("error") if isinstance(message, dict) else None
-            running = self.proc.poll() is None
+            hung = self._timed_out
             status = self._kill()
             if error:
                 raise UsageError(str(error))
-            if running:  # hung (or said something else): stopped here
+            if hung:  # no line within the bound: stopped here
                 raise UsageError(f"the robotics bridge gave no ready answer (waited up to {READY_TIMEOUT_S:g} s; "
                                  "stopped it; its log above)")
             raise UsageError(f"the robotics bridge ended before it was ready (exit status {status}; its log above)")
@@ -219,11 +230,13 @@ class RoboticsBridge:
         fd = out.fileno()
         data = b""
         end = time.monotonic() + timeout
+        self._timed_out = False
         with selectors.DefaultSelector() as sel:
             sel.register(fd, selectors.EVENT_READ)
             while b"\n" not in data:
                 left = end - time.monotonic()
                 if left <= 0 or not sel.select(left):
+                    self._timed_out = True
                     return None
                 chunk = os.read(fd, 65536)
                 if not chunk:
