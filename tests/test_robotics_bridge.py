@@ -59,6 +59,20 @@ def _wait(predicate, what: str) -> None:
         time.sleep(0.01)
 
 
+
+def _zenoh_subscriber(peer, key: str):
+    """A Zenoh subscriber on ``key``: (subscriber, [(key, payload bytes), ...] as they come, the
+    condition notified at each)."""
+    got: list = []
+    cond = threading.Condition()
+
+    def on_sample(sample):
+        with cond:
+            got.append((str(sample.key_expr), sample.payload.to_bytes()))
+            cond.notify_all()
+
+    return peer.declare_subscriber(key, on_sample), got, cond
+
 def test_a_frame_carries_the_line_and_the_readings_exactly():
     import numpy as np
 
@@ -82,15 +96,7 @@ def test_records_through_the_bridge_on_zenoh_are_the_decision_logs_lines():
     bridge = RoboticsBridge(scene, {"scene": "matrix57"}, zenoh={"listen": [f"tcp/127.0.0.1:{port}"]}).open()
     assert bridge.ready["zenoh"]["keys"]["record"] == "taxel/matrix57/record"
     peer = zenoh_peer(connect=port)
-    got: list = []
-    cond = threading.Condition()
-
-    def on_sample(sample):
-        with cond:
-            got.append((str(sample.key_expr), sample.payload.to_bytes()))
-            cond.notify_all()
-
-    sub = peer.declare_subscriber("taxel/matrix57/*", on_sample)
+    sub, got, cond = _zenoh_subscriber(peer, "taxel/matrix57/*")
     try:
         first, closed0 = cycles[0]
         # the first record again and again until the subscriber has one (Zenoh's matching is the
@@ -457,15 +463,7 @@ def test_a_change_whose_frame_was_dropped_still_reaches_the_contact_subscriber()
     port, = _ports(1)
     bridge = RoboticsBridge(scene, {"scene": "matrix57"}, zenoh={"listen": [f"tcp/127.0.0.1:{port}"]}).open()
     peer = zenoh_peer(connect=port)
-    got: list = []
-    cond = threading.Condition()
-
-    def on_sample(sample):
-        with cond:
-            got.append((str(sample.key_expr), sample.payload.to_bytes()))
-            cond.notify_all()
-
-    sub = peer.declare_subscriber("taxel/matrix57/*", on_sample)
+    sub, got, cond = _zenoh_subscriber(peer, "taxel/matrix57/*")
     try:
         end = time.monotonic() + TIMEOUT
         while not any(key.endswith("/record") for key, _ in got):
