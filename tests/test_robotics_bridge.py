@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import math
 import os
 import signal
 import subprocess
@@ -16,9 +17,11 @@ import threading
 import time
 from pathlib import Path
 
+import msgpack
 import pytest
 
-from fusion_center.robotics.bridge_link import RoboticsBridge, bridge_lines, make_frame, parse_frame
+from fusion_center.robotics.bridge_link import (ENC_JSON, ENC_MSGPACK, RoboticsBridge, bridge_lines, make_frame,
+                                                parse_frame)
 from fusion_center.service.records import dumpb
 from taxel_net.errors import UsageError
 from taxel_net.scene import load_scene
@@ -81,9 +84,58 @@ def test_a_frame_carries_the_line_and_the_readings_exactly():
     assert record == {"cycle": 3, "t": 0.03} and line == b'{"cycle": 3, "t": 0.03}'
     assert back.tobytes() == readings.tobytes()  # bit for bit, NaN and -0.0 included
     assert parse_frame(make_frame(b"{}", None))[2] is None
-    for bad in (b"", b"XXXX" + bytes(12), make_frame(b"{}", None)[:-1], make_frame(b"[1]", None)):
+    # a msgpack record: read back as the same values (the line is the reader's to make)
+    value = {"cycle": 3, "p_h1": -0.0, "n": 57, "x": 57.0, "ok": True, "none": None, "rules": {"k": [1, 2.5]}}
+    packed = msgpack.packb(value, use_bin_type=True)
+    record, line, back = parse_frame(make_frame(packed, readings, encoding=ENC_MSGPACK))
+    assert line is None and back.tobytes() == readings.tobytes()
+    assert dumpb(record) == dumpb(value) and math.copysign(1.0, record["p_h1"]) == -1.0
+    assert type(record["n"]) is int and type(record["x"]) is float
+    for bad in (b"", b"XXXX" + bytes(12), make_frame(b"{}", None)[:-1], make_frame(b"[1]", None),
+                make_frame(b"{}", None, encoding=7), make_frame(packed[:-1], None, encoding=ENC_MSGPACK),
+                make_frame(msgpack.packb([1, 2]), None, encoding=ENC_MSGPACK),
+                make_frame(msgpack.packb({"a": msgpack.ExtType(5, b"x")}), None, encoding=ENC_MSGPACK),
+                make_frame(packed + b"\x00", None, encoding=ENC_MSGPACK)):
         with pytest.raises(ValueError):
             parse_frame(bad)
+
+
+def test_the_centre_hands_over_the_logs_line_else_a_msgpack_record_else_its_json(tmp_path):
+    """What ``on_cycle`` puts in a frame: the decision log's line where the run has just written
+    the record (no work), else the record as msgpack (plain types), else (a tuple, a numpy
+    scalar: what msgpack's strict types refuse) its JSON line."""
+    import socket
+
+    import numpy as np
+
+    from fusion_center.robotics.bridge_link import HEADER
+    from fusion_center.service.records import RecordWriter
+
+    scene = load_scene("matrix57")
+    bridge = RoboticsBridge(scene, {"scene": "matrix57"})
+    bridge.sock, peer = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
+    bridge._flag = bytearray([1])  # the bridge's word: wanted
+    plain = {"cycle": 1, "decision": "H1", "U_G": 6.14421235332821e-06, "p_h1": -0.0}
+    logged = dict(plain, cycle=2)
+    other = [dict(plain, cycle=3, rules=(1, 2)), dict(plain, cycle=4, U_G=np.float64(0.5))]
+    writer = RecordWriter(tmp_path / "log.jsonl")
+    try:
+        bridge.on_cycle(plain)
+        writer.write(logged)
+        bridge.on_cycle(logged)
+        for record in other:
+            bridge.on_cycle(record)
+        frames = [peer.recv(1 << 16) for _ in range(4)]
+    finally:
+        writer.close()
+        bridge.sock.close()
+        peer.close()
+    encodings = [HEADER.unpack_from(f)[5] for f in frames]
+    assert encodings == [ENC_MSGPACK, ENC_JSON, ENC_JSON, ENC_JSON]
+    assert frames[1][HEADER.size:] == (tmp_path / "log.jsonl").read_bytes().rstrip(b"\n")
+    assert msgpack.unpackb(frames[0][HEADER.size:]) == plain
+    assert [parse_frame(f)[1] for f in frames[2:]] == [dumpb(r) for r in other]
+    assert bridge.frames == 4 and bridge.failed == 0
 
 
 def test_records_through_the_bridge_on_zenoh_are_the_decision_logs_lines():

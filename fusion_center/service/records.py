@@ -117,6 +117,13 @@ def logged_line(record: dict) -> bytes:
     return text if last is record else dumpb(record)
 
 
+def made_line(record: dict) -> bytes | None:
+    """The decision-log line of ``record`` when a :class:`RecordWriter` has just written this
+    very dict (no work), else None."""
+    last, text = _logged
+    return text if last is record else None
+
+
 class RecordWriter(JsonLinesWriter):
     """Append records to a JSON-lines file (created or truncated at open) with :func:`dumpb`, one
     write a record: :class:`taxel_net.json_lines.JsonLinesWriter` (a failed write never raises,
