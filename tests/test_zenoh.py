@@ -366,3 +366,30 @@ def test_a_logged_record_is_published_as_the_logs_line_serialised_once(tmp_path,
     lines = log.read_bytes().splitlines()
     assert payloads == lines + [lines[-1]]
     assert made == [0, 1, 2, 2]  # three by the log, one by the publisher (the unlogged dict)
+
+
+def test_the_program_ends_without_finalization_once_zenoh_ran_and_only_then():
+    """Zenoh's Rust threads can call into a finalizing interpreter and abort the process
+    (SIGABRT, 'FATAL: exception not rethrown', after a complete run of an assembler): run as the
+    program after a command that used Zenoh, ``main`` ends the process itself - its output
+    flushed, the exit status kept, no finalization (atexit handlers do not run); without Zenoh, or
+    called with arguments (in a process that goes on), it returns as always."""
+    code = ("import atexit, sys\n"
+            "atexit.register(lambda: print('FINALIZED', flush=True))\n"
+            "{imports}"
+            "from fusion_center.cli import main\n"
+            "sys.argv = ['fusion-center', 'scenes']\n"
+            "print('status', main(), flush=True)\n"
+            "print('after main', flush=True)\n")
+    with_zenoh = subprocess.run([sys.executable, "-c", code.format(imports="import zenoh\n")], cwd=ROOT,
+                                capture_output=True, text=True, timeout=120)
+    assert with_zenoh.returncode == 0, with_zenoh.stderr
+    assert "matrix57" in with_zenoh.stdout                   # the command's output, flushed
+    assert "after main" not in with_zenoh.stdout and "FINALIZED" not in with_zenoh.stdout
+    plain = subprocess.run([sys.executable, "-c", code.format(imports="")], cwd=ROOT, capture_output=True, text=True,
+                           timeout=120)
+    assert plain.returncode == 0 and "status 0" in plain.stdout and "FINALIZED" in plain.stdout
+    import zenoh  # noqa: F401 - in this process too: main with arguments returns
+    from fusion_center.cli import main
+
+    assert main(["scenes"]) == 0
