@@ -100,6 +100,20 @@ def test_a_frame_carries_the_line_and_the_readings_exactly():
             parse_frame(bad)
 
 
+def test_a_msgpack_record_with_keys_other_than_str_reads_back_as_its_line():
+    """The centre's packer (strict types) takes a dict key of any plain type - int, bool, None,
+    float, as JSON does, which writes them as strings; the bridge reads such a record back
+    (msgpack's strict_map_key would refuse it: a whole frame lost for Zenoh and Foxglove, and
+    the contact events' baseline left behind) and its line is the decision log's."""
+    value = {"cycle": 5, "per_node": {1: 0.5, 2: -0.0}, "flags": {True: 1, None: 2, 1.5: 3}, "big": {2 ** 63: 1}}
+    packed = msgpack.Packer(use_bin_type=True, strict_types=True).pack(value)
+    record, line, _ = parse_frame(make_frame(packed, None, encoding=ENC_MSGPACK))
+    assert line is None and dumpb(record) == dumpb(value)
+    assert json.loads(dumpb(record))["per_node"] == {"1": 0.5, "2": -0.0}
+    with pytest.raises(ValueError):  # a key msgpack cannot hash (an array): refused, one line
+        parse_frame(make_frame(msgpack.packb({"a": {(1, 2): 3}}), None, encoding=ENC_MSGPACK))
+
+
 def test_the_centre_hands_over_the_logs_line_else_a_msgpack_record_else_its_json(tmp_path):
     """What ``on_cycle`` puts in a frame: the decision log's line where the run has just written
     the record (no work), else the record as msgpack (plain types), else (a tuple, a numpy

@@ -23,8 +23,8 @@ a loop, ~70 of the hand-over's ~110 us at matrix57 in place) - and the bridge ma
 (:func:`~fusion_center.service.records.dumpb`, the same bytes: a msgpack round trip keeps every
 such value, -0.0 and int / float apart included) only where a Zenoh subscriber wants records. A
 record of other types (a tuple, a numpy scalar) goes as its JSON line. The bridge reads the JSON
-with :mod:`json` and msgpack with ``msgpack.unpackb`` (no ext types: refused) - nothing from the
-link is unpickled or executed.
+with :mod:`json` and msgpack with ``msgpack.unpackb`` (no ext types: refused; map keys of any
+plain type, as the packer takes them) - nothing from the link is unpickled or executed.
 
 **The cycle never waits**: the centre's end is non-blocking and a datagram is sent whole or not
 at all (no partial frame, no pending buffer): when the socket's buffer is full (a bridge behind -
@@ -151,7 +151,10 @@ def parse_frame(frame) -> tuple[dict, bytes | None, np.ndarray | None]:
     elif encoding == ENC_MSGPACK:
         line = None
         try:
-            record = msgpack.unpackb(payload, raw=False, ext_hook=_no_ext)
+            # strict_map_key off: the centre's packer takes a key of any plain type (int, bool, None,
+            # float) as JSON does - refused here, the whole frame was lost; dumpb writes such a key as
+            # the decision log does. An array key cannot be hashed: TypeError, refused below.
+            record = msgpack.unpackb(payload, raw=False, ext_hook=_no_ext, strict_map_key=False)
         except (ValueError, TypeError, msgpack.ExtraData, msgpack.FormatError, msgpack.StackError) as exc:
             raise ValueError(f"a frame whose msgpack record cannot be read: {type(exc).__name__}") from None
     else:
