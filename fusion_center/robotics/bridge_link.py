@@ -309,7 +309,8 @@ class RoboticsBridge:
                 frame = make_frame(payload, self.topics.readings_of(closed), self._gap, self._baseline, encoding)
             else:
                 frame = _pack(MAGIC, len(payload), 0, self._gap, self._baseline, encoding) + payload
-        except Exception as exc:  # noqa: BLE001 - a hand-made record JSON cannot hold (NaN)
+        except Exception as exc:  # noqa: BLE001 - a record neither msgpack nor JSON holds (a set, a cycle);
+            # NaN, infinity and bytes go as msgpack: the bridge's dumpb refuses them (its zenoh ``failed``)
             self.failed += 1
             self._gap += 1
             if self.failed == 1 or self.failed % 1000 == 0:
