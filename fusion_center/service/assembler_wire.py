@@ -280,8 +280,9 @@ class PartCodec:
         self.labels = {node_label(full[i].channel, full[i].node_id) for i in layout.devices}
         self.taxels = {int(t) for t in layout.taxels}
         self.devices = {int(i) for i in layout.devices}
-        # per taxel: 5 flag / decision bytes, 2 state bytes, 16 reading bytes; per device 5 bytes and a
-        # duplicate (9); EMCY entries; bin / array headers, keys and scalars (under 1 kB)
+        # per taxel: 5 flag / decision bytes, 2 state bytes, 16 reading bytes; per device 5 bytes, a
+        # duplicate (9) and a bootups entry (16: array header, device, int64 t_us); EMCY entries; bin /
+        # array headers, keys and scalars (under 1 kB)
         self.max_bytes = 4096 + 23 * self.n + 30 * self.d + EMCY_PER_CYCLE * 128 + 9 * len(self.channels)
 
     def _array(self, key: str, data, dtype: np.dtype, count: int, *, nil: bool = False):
