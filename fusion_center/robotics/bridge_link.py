@@ -203,7 +203,9 @@ class RoboticsBridge:
         from ..service.records import dumpb, made_line
 
         self._made_line, self._dumpb = made_line, dumpb
-        self._packb = msgpack.Packer(use_bin_type=True, strict_types=True).pack  # one thread calls on_cycle
+        # a Packer is not thread-safe: on_cycle runs one call at a time (FusionService: under its evaluation
+        # lock, from the merge thread or the main thread with --assemblers; replay: one thread)
+        self._packb = msgpack.Packer(use_bin_type=True, strict_types=True).pack
 
     @property
     def wanted(self) -> bool:
