@@ -383,10 +383,6 @@ def test_a_boot_up_between_syncs_reaches_the_closed_cycle_and_clears_the_record_
     assert [r["over_range_nodes"] for r in records] == [[1], [1], [], []]
 
 
-@pytest.mark.xfail(strict=True, reason="review rev-lead: the tracker orders a node's EMCY and its boot-up by "
-                   "time stamp, not by stream order - an EMCY stamped the same microsecond as the boot-up "
-                   "after it (the assembler's clock is monotonic: an earlier stamp is raised to the last one) "
-                   "is applied after the restart; the fix needs the boot-up's place among the cycle's EMCYs")
 def test_an_emcy_before_a_boot_up_of_the_same_stamp_is_not_applied():
     """Bus order is the truth (cycles.py: a frame stamped before the previous one is taken at
     the previous one's time): the node's EMCY 0x3000, then its own boot-up, both at 20.003 ms

@@ -23,8 +23,9 @@ a loop, ~70 of the hand-over's ~110 us at matrix57 in place) - and the bridge ma
 (:func:`~fusion_center.service.records.dumpb`, the same bytes: a msgpack round trip keeps every
 such value, -0.0 and int / float apart included) only where a Zenoh subscriber wants records. A
 record of other types (a tuple, a numpy scalar) goes as its JSON line. The bridge reads the JSON
-with :mod:`json` and msgpack with ``msgpack.unpackb`` (no ext types: refused; map keys of any
-plain type, as the packer takes them) - nothing from the link is unpickled or executed.
+with :mod:`json` and msgpack with ``msgpack.unpackb`` (ext types refused, but msgpack's own
+timestamp, read as a ``msgpack.Timestamp`` that ``dumpb`` and the encoders refuse, counted; map
+keys of any plain type, as the packer takes them) - nothing from the link is unpickled or executed.
 
 **The cycle never waits**: the centre's end is non-blocking and a datagram is sent whole or not
 at all (no partial frame, no pending buffer): when the socket's buffer is full (a bridge behind -

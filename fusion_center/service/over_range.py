@@ -17,7 +17,10 @@ afresh), or until it boots by itself (its boot-up message, a closed cycle's ``bo
 node that restarted - a watchdog, a power cycle - starts its error state afresh too, and one
 that came back in range would never send the error reset of an EMCY it no longer remembers).
 An over-range EMCY of the same cycle after the boot-up flags it again; one before it is
-counted, not applied. A node that is lost (heartbeat consumer time expired) stays over range:
+counted, not applied - one stamped the same microsecond as the boot-up counts as before it (the
+stream's clock never goes back: a frame stamped earlier takes the last one's time, so an EMCY
+then its boot-up can share a stamp, while a node's next over-range EMCY needs an NMT start and a
+SYNC after its boot-up). A node that is lost (heartbeat consumer time expired) stays over range:
 a node heard again without a boot-up resumes in its NMT state with its error state as it was
 (it sends the EMCY 0x3000 on the rising edge only, so it says nothing more while still over
 range), and a missing node's records are degraded anyway. A record of a cycle in which some node is over range lists those
@@ -64,8 +67,8 @@ class OverRangeTracker:
         for e in closed.emcy:
             if e.code == EMCY_INPUT_OVER_RANGE:
                 self.emcy[e.node] += 1
-            if booted is not None and e.t_us < booted.get(e.node, -1 << 63):
-                continue  # sent before its restart: superseded
+            if booted is not None and e.t_us <= booted.get(e.node, -1 << 63):
+                continue  # sent before its restart (or at its stamp: below), superseded
             if e.code == EMCY_INPUT_OVER_RANGE:
                 active.add(e.node)
             elif not e.register & ERR_REG_VOLTAGE:
