@@ -356,18 +356,27 @@ def test_a_node_that_restarts_by_itself_starts_its_over_range_afresh_at_its_boot
     assert t.emcy == {1: 3}                                              # every 0x3000 heard, applied or not
 
 
-def test_a_boot_up_between_syncs_reaches_the_closed_cycle_and_clears_the_record_flag():
-    """The chain a live run and a replay take: the boot-up frame -> the closed cycle's
-    ``bootups`` -> ``over_range_nodes`` of the record (the pipeline as the centre runs it)."""
+def _booted_raw_node():
+    """A raw patch node of 3 INTEGER8 readings (node-ID 1), booted and started: the centre's
+    cycle assembler, its pipeline and the node's TPDO (hand-fed frames, no bus)."""
     from fusion_center.service.cycles import CycleAssembler
     from fusion_center.service.pipeline import CyclePipeline
     from taxel_net.patches import devices
-    from test_cycles_patch import MS, boot, patch_scene, sync
+    from test_cycles_patch import boot, patch_scene
 
     sc = patch_scene(sizes=(3,), mode="raw", raw_format="int8", lsb=0.1)
     a, pipeline = CycleAssembler(sc), CyclePipeline(sc, truth=False)
     boot(a, sc)
     (tpdo,) = devices(sc)[0].tpdos
+    return a, pipeline, tpdo
+
+
+def test_a_boot_up_between_syncs_reaches_the_closed_cycle_and_clears_the_record_flag():
+    """The chain a live run and a replay take: the boot-up frame -> the closed cycle's
+    ``bootups`` -> ``over_range_nodes`` of the record (the pipeline as the centre runs it)."""
+    from test_cycles_patch import MS, sync
+
+    a, pipeline, tpdo = _booted_raw_node()
     records = []
     for k in range(4):
         sync(a, (k + 1) * 10 * MS, k + 1)
@@ -387,15 +396,9 @@ def test_an_emcy_before_a_boot_up_of_the_same_stamp_is_not_applied():
     """Bus order is the truth (cycles.py: a frame stamped before the previous one is taken at
     the previous one's time): the node's EMCY 0x3000, then its own boot-up, both at 20.003 ms
     after the clamp - the node restarted after its EMCY, its flag starts afresh."""
-    from fusion_center.service.cycles import CycleAssembler
-    from fusion_center.service.pipeline import CyclePipeline
-    from taxel_net.patches import devices
-    from test_cycles_patch import MS, boot, patch_scene, sync
+    from test_cycles_patch import MS, sync
 
-    sc = patch_scene(sizes=(3,), mode="raw", raw_format="int8", lsb=0.1)
-    a, pipeline = CycleAssembler(sc), CyclePipeline(sc, truth=False)
-    boot(a, sc)
-    (tpdo,) = devices(sc)[0].tpdos
+    a, pipeline, tpdo = _booted_raw_node()
     over = []
     for k in range(3):
         sync(a, (k + 1) * 10 * MS, k + 1)
