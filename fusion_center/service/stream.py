@@ -466,10 +466,10 @@ class _StreamListener(can.Listener):
         self._failing = False  # the last thing the reader reported was a bus error (on_error)
 
     def on_message_received(self, msg: can.Message) -> None:
-        self._failing = False
         self.on_messages_received((msg,))
 
     def on_messages_received(self, msgs: Sequence[can.Message]) -> None:
+        self._failing = False  # a frame between two bus errors: no back-off (on_error)
         """The frames of one receive turn (taxel_net.receiver), in order: fed to the stream
         under one take of its lock; then the boot-ups they brought to the service and the SDO
         answers among them to canopen."""
