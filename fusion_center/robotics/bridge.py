@@ -110,6 +110,7 @@ class Bridge:
                 return
 
     def serve(self, sock: socket.socket) -> None:
+        from ..service.zenoh_publisher import FIRST_RECORD
         from .bridge_link import BASELINE_OF, FIRST, frame_gap, parse_frame
 
         buf = bytearray(RECV_BYTES)
@@ -136,11 +137,8 @@ class Bridge:
             if self.publisher is not None:
                 gap, baseline = frame_gap(view)
                 if gap:  # cycles this process did not see: the centre says what to compare with
-                    if baseline == FIRST:
-                        self.publisher._first = True
-                    else:
-                        self.publisher._first = False
-                        self.publisher._previous = BASELINE_OF.get(baseline, record.get("decision"))
+                    self.publisher.rebase(FIRST_RECORD if baseline == FIRST
+                                          else BASELINE_OF.get(baseline, record.get("decision")))
                 self.publisher(record, line=line)
             if self.outputs is not None:
                 self.outputs.publish(record, readings)

@@ -87,7 +87,6 @@ ENC_JSON, ENC_MSGPACK = 0, 1  # the header's encoding byte: the record as its JS
 BASELINE_CODES = {"H0": 0, "H1": 1, "undecided": 2, None: 3}
 BASELINE_OF = {code: decision for decision, code in BASELINE_CODES.items()}
 FIRST, OTHER = 0xFE, 0xFF
-_pack = HEADER.pack
 READY_TIMEOUT_S = 60.0   # the bridge's start (imports, Zenoh session, server): a bound, not a budget
 CLOSE_TIMEOUT_S = 60.0   # the bridge's end (what it has queued published, outputs closed)
 SNDBUF = 1 << 20         # the link's buffer asked of the kernel (it doubles it, capped at net.core.wmem_max x 2):
@@ -308,10 +307,8 @@ class RoboticsBridge:
                     payload, encoding = self._packb(record), ENC_MSGPACK
                 except (TypeError, ValueError, OverflowError):  # a tuple, a numpy scalar: its JSON line
                     payload = self._dumpb(record)
-            if self.raw:
-                frame = make_frame(payload, self.topics.readings_of(closed), self._gap, self._baseline, encoding)
-            else:
-                frame = _pack(MAGIC, len(payload), 0, self._gap, self._baseline, encoding) + payload
+            frame = make_frame(payload, self.topics.readings_of(closed) if self.raw else None, self._gap,
+                               self._baseline, encoding)
         except Exception as exc:  # noqa: BLE001 - a record neither msgpack nor JSON holds (a set, a cycle);
             # NaN, infinity and bytes go as msgpack: the bridge's dumpb refuses them (its zenoh ``failed``)
             self.failed += 1

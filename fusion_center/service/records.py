@@ -108,20 +108,20 @@ def dumps(value) -> str:
 _logged: tuple = (None, b"")
 
 
-def logged_line(record: dict) -> bytes:
-    """The decision-log line of ``record`` (bytes, no newline) when a :class:`RecordWriter` has
-    just written this very dict, else :func:`dumpb` of it now - the same bytes either way,
-    computed once per record where the run writes a decision log and publishes it
-    (``--json-lines`` with ``--zenoh``)."""
-    last, text = _logged
-    return text if last is record else dumpb(record)
-
-
 def made_line(record: dict) -> bytes | None:
     """The decision-log line of ``record`` when a :class:`RecordWriter` has just written this
     very dict (no work), else None."""
     last, text = _logged
     return text if last is record else None
+
+
+def logged_line(record: dict) -> bytes:
+    """The decision-log line of ``record`` (bytes, no newline) when a :class:`RecordWriter` has
+    just written this very dict, else :func:`dumpb` of it now - the same bytes either way,
+    computed once per record where the run writes a decision log and publishes it
+    (``--json-lines`` with ``--zenoh``)."""
+    line = made_line(record)
+    return dumpb(record) if line is None else line
 
 
 class RecordWriter(JsonLinesWriter):

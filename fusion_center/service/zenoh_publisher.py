@@ -52,6 +52,8 @@ GRIP_FIELDS = ("command_n", "actual_n", "drive_state", "grip_state", "slip")
 CONTACT_FIELDS = ("p_h1", "present_count", "present_nodes", "area", "contact_type")
 
 
+FIRST_RECORD = object()  # ZenohPublisher.rebase: no record before the next one
+
 def keys(scene_name: str) -> dict[str, str]:
     """The publication's key expressions for a scene."""
     p = f"taxel/{key_segment(scene_name)}"
@@ -174,6 +176,14 @@ class ZenohPublisher:
                                                                           self._previous)))
             self._first = False
             self._previous = decision
+
+    def rebase(self, previous=FIRST_RECORD) -> None:
+        """Compare the next record's decision with ``previous`` (the contact events' baseline),
+        not with the last record this publisher saw - for a caller that knows of records it was
+        not given (the robotics bridge after cycles left out); :data:`FIRST_RECORD`: the next
+        record is the run's first (an event of its own)."""
+        self._first = previous is FIRST_RECORD
+        self._previous = None if self._first else previous
 
     def summary(self) -> dict:
         return {"keys": dict(self.keys), "records": self.records, "grip": self.grips, "contact": self.contacts,
