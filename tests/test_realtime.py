@@ -117,6 +117,71 @@ def test_fifo_threads_puts_a_running_thread_under_sched_fifo():
         t.join(5)
 
 
+_RLIMIT_CHILD = """
+import importlib.util, logging, resource, sys, threading
+spec = importlib.util.spec_from_file_location("realtime", sys.argv[1])   # stdlib only: any python3 runs it
+realtime = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(realtime)
+logging.basicConfig(level=logging.WARNING, format="%(message)s", stream=sys.stdout)
+limit = resource.getrlimit(resource.RLIMIT_RTPRIO)[0]
+stop = threading.Event()
+threads = [threading.Thread(target=stop.wait, args=(10,), name=f"rt-{p}") for p in (1, 2)]
+for t in threads:
+    t.start()
+print("limit", limit)
+if limit >= 1:
+    print("within", realtime.fifo_threads([threads[0]], limit), realtime.policy_of(threads[0]))
+print("above", realtime.fifo_threads([threads[1]], limit + 1), realtime.policy_of(threads[1]))
+stop.set()
+"""
+
+
+@linux_rt
+@pytest.mark.skipif(not hasattr(os, "geteuid") or os.geteuid() != 0,
+                    reason="needs root to start a child as an unprivileged user (nobody)")
+def test_an_unprivileged_user_gets_sched_fifo_up_to_its_rlimit_rtprio_and_one_warning_above():
+    """The path without CAP_SYS_NICE, against the kernel (not a patched setter): a child run as
+    nobody gets SCHED_FIFO for a thread up to its ``RLIMIT_RTPRIO`` (``ulimit -r``; 40 where this
+    host lets the test raise the hard limit, else the limit it has - often 0, then only the
+    refusal is checked), and one more is refused (EPERM) with the one warning line naming
+    ``ulimit -r``: the thread keeps SCHED_OTHER, the process goes on."""
+    import resource
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    def demote():
+        try:
+            resource.setrlimit(resource.RLIMIT_RTPRIO, (40, 40))
+        except (ValueError, OSError):   # no CAP_SYS_RESOURCE (a container): the inherited limit
+            pass
+        os.setgroups([])
+        os.setgid(65534)
+        os.setuid(65534)
+
+    module = Path(realtime.__file__).resolve()
+    out = None
+    for python in dict.fromkeys((sys.executable, "/usr/bin/python3")):  # the venv's may lie under /root
+        try:
+            out = subprocess.run([python, "-c", _RLIMIT_CHILD, str(module)], capture_output=True, text=True,
+                                 timeout=60, preexec_fn=demote, cwd="/", env={"PATH": os.environ.get("PATH", "")})
+        except (PermissionError, FileNotFoundError):
+            continue
+        if "Permission denied" not in out.stderr:
+            break
+    if out is None or "Permission denied" in out.stderr:
+        pytest.skip("no python3 and project file here that the user nobody may run / read")
+    assert out.returncode == 0, out.stderr
+    lines = out.stdout.splitlines()
+    limit = int(lines[0].split()[1])
+    if limit >= 1:
+        assert f"within ['rt-1'] ({os.SCHED_FIFO}, {limit})" in lines
+    assert f"above [] ({os.SCHED_OTHER}, 0)" in lines
+    warnings = [line for line in lines if "SCHED_FIFO not permitted" in line]
+    assert len(warnings) == 1
+    assert f"--rt-priority {limit + 1}" in warnings[0] and f"`ulimit -r` >= {limit + 1}" in warnings[0]
+
+
 def _run(tmp_path, rt_priority):
     """A short run on a virtual bus; the scheduling policy seen by the receive thread (where the
     records are made) and by the SYNC producer (before_sync) in each cycle."""
