@@ -144,10 +144,11 @@ def drive_max_n() -> float:
     return g.rated_force_n * DRIVE_MAX_TORQUE / 1000.0
 
 
-def case_scene(base, case: Case, mode: str, drive: tuple[float, float] | None = None):
+def case_scene(base, case: Case, mode: str, drive: tuple[float, ...] | None = None):
     """The base scene with the case's object, contact position, task, pad layout and law (raw: the bus
-    in raw mode); ``drive`` ``(torque slope N/s per jaw, jaws' force lag ms)`` replaces the base
-    scene's (0x6087 and ``[grasp] force_lag_ms``; ``bench/grasp_drive.py``)."""
+    in raw mode); ``drive`` ``(torque slope N/s per jaw, jaws' force lag ms[, SYNC period ms])``
+    replaces the base scene's (0x6087, ``[grasp] force_lag_ms`` and ``[bus] sync_period_ms``: the
+    world, the drive and the centre all step by the SYNC period; ``bench/grasp_drive.py``)."""
     kinds = {t.kind: t for t in base.taxels}
     taxels = []
     for r in pad_rows(case.pitch_mm):
@@ -170,15 +171,17 @@ def case_scene(base, case: Case, mode: str, drive: tuple[float, float] | None = 
                                 grip_at_mm=base.grasp.grip_at + case.contact_offset_mm)
     gripper = dataclasses.replace(base.gripper, max_torque_permille=DRIVE_MAX_TORQUE)
     if drive is not None:
-        slope_n_s, lag_ms = drive
+        slope_n_s, lag_ms = drive[:2]
         gripper = dataclasses.replace(gripper, torque_slope_permille_s=int(round(slope_n_s * 1000.0
                                                                                   / gripper.rated_force_n)))
         grasp = dataclasses.replace(grasp, force_lag_ms=float(lag_ms))
+    bus = dataclasses.replace(base.bus, mode="raw" if mode == "raw" else "decision")
+    if drive is not None and len(drive) > 2:
+        bus = dataclasses.replace(bus, sync_period_ms=float(drive[2]))
     top = drive_max_n()
     max_n = min(top, 0.9 * case.max_force_n) if case.fragile else top
     grip = dataclasses.replace(base.grip, grasp_n=case.grasp_n, max_n=max_n, min_n=min(base.grip.min_n, case.grasp_n),
                                mu=case.mu_s)
-    bus = dataclasses.replace(base.bus, mode="raw" if mode == "raw" else "decision")
     forces = dataclasses.replace(base.forces, mu=case.mu_s)
     return dataclasses.replace(base, taxels=tuple(taxels), grasp=grasp, grip=grip, bus=bus, forces=forces,
                                gripper=gripper)
@@ -320,8 +323,8 @@ def run_jobs(jobs: list, processes: int, *, every: int, unit: str) -> tuple[list
 
 def _run_case(args) -> dict:
     """``(case, want_bits, overrides[, modes[, drive]])``: the case in each of ``modes`` (default
-    all four), with the law's ``overrides`` and the drive ``(slope N/s, lag ms)`` (default the
-    base scene's)."""
+    all four), with the law's ``overrides`` and the drive ``(slope N/s, lag ms[, SYNC ms])`` (default
+    the base scene's)."""
     case, want_bits, overrides = args[:3]
     modes = args[3] if len(args) > 3 and args[3] else MODES
     drive = args[4] if len(args) > 4 else None
@@ -329,7 +332,7 @@ def _run_case(args) -> dict:
     if overrides:
         base = dataclasses.replace(base, grip=dataclasses.replace(base.grip, **overrides))
     out = {"case": dataclasses.asdict(case)}
-    dt = base.bus.sync_period_ms / 1000.0
+    dt = (drive[2] if drive is not None and len(drive) > 2 else base.bus.sync_period_ms) / 1000.0
     for mode in modes:
         if mode in ("decision", "raw"):
             scene = case_scene(base, case, mode, drive)
@@ -361,10 +364,11 @@ def _base():
 
 def _pipeline(scene, pitch: float, mode: str):
     """One CyclePipeline per (pad pitch, mode) and process: its thresholds and centralised tests
-    depend on the layout only (the grasp's own state, the slip stage, is renewed per grasp)."""
+    depend on the layout and the SYNC period only (the grasp's own state, the slip stage, is renewed
+    per grasp)."""
     from fusion_center.service.pipeline import CyclePipeline
 
-    key = (pitch, mode)
+    key = (pitch, mode, scene.bus.sync_period_ms)
     if key not in _PIPELINES:
         _PIPELINES[key] = CyclePipeline(scene, truth=False)
     return _PIPELINES[key]
@@ -552,7 +556,7 @@ def main(argv=None) -> int:
                                                   "elapsed_s": round(elapsed, 1), "jobs": args.jobs},
                                          "table": table,
                                          "grasps": results}, indent=None, default=float))
-    return 0
+    return 1 if errors else 0   # a table with grasps left out is not a complete run
 
 
 if __name__ == "__main__":

@@ -12,7 +12,7 @@ detection and the parts after it (``bench/grasp.py``'s "stuck in parts"), the sl
 and the holding force within 1.3x.
 
 Usage: python bench/grasp_drive.py [--grasps 300] [--seed 23] [--slopes 500,1000,2000] [--lags 20]
-       [--modes decision] [--contact random|centred] [--jobs N] [--json out.json]
+       [--syncs 10] [--modes decision] [--contact random|centred] [--jobs N] [--json out.json]
 
 The bundled scenes' drive is not changed: this is what a faster drive or a finer pitch would buy.
 """
@@ -76,9 +76,15 @@ def _f(v, fmt="{:.0f}"):
     return "-" if v is None or (isinstance(v, float) and np.isnan(v)) else fmt.format(v)
 
 
-def render(stats: dict, variants: list[tuple[float, float]], mode: str) -> str:
+def variant_name(variant: tuple[float, float, float]) -> str:
+    """``(slope N/s, lag ms, SYNC ms)`` -> its column head."""
+    slope, lag, sync = variant
+    return f"{slope:g} N/s, {lag:g} ms, SYNC {sync:g}"
+
+
+def render(stats: dict, variants: list[tuple[float, float, float]], mode: str) -> str:
     """``stats[(variant, pitch or "all")]`` -> the side-by-side table."""
-    heads = [f"{s:g} N/s, {lag:g} ms" for s, lag in variants]
+    heads = [variant_name(v) for v in variants]
     width = max(22, max(len(h) for h in heads) + 2)
     lines = [f"{mode}: onset -> stuck again, ms median/p95 [share of episodes <= {GOAL_MS:g} ms] (episodes)",
              f"{'pitch':28s}" + "".join(f"{h:>{width}s}" for h in heads)]
@@ -112,6 +118,9 @@ def main(argv=None) -> int:
                     help="torque slopes, N/s per jaw (0x6087 x rated force; default 500,1000,2000)")
     ap.add_argument("--lags", type=lambda t: _floats(t, "--lags"), default=[20.0],
                     help="the jaws' force lags, ms ([grasp] force_lag_ms; default 20)")
+    ap.add_argument("--syncs", type=lambda t: _floats(t, "--syncs"), default=None,
+                    help="SYNC periods, ms ([bus] sync_period_ms: the world, the drive and the centre "
+                         "step by it; default the base scene's, 10)")
     ap.add_argument("--modes", default="decision", help="centre modes, comma-separated: decision, raw (default decision)")
     ap.add_argument("--contact", choices=("random", "centred"), default="random")
     ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
@@ -131,15 +140,18 @@ def main(argv=None) -> int:
         if abs(s * 1000.0 / rated - round(s * 1000.0 / rated)) > 1e-9:
             ap.error(f"--slopes {s:g}: must be a whole number of ‰/s of the rated force ({rated:g} N: "
                      f"steps of {rated / 1000.0:g} N/s)")
-    variants = list(itertools.product(args.slopes, args.lags))
+    syncs = args.syncs or [_base().bus.sync_period_ms]
+    for sync in syncs:   # the scene's own rule ([bus] sync_period_ms), and the slowest bus answer must fit
+        if not 1.0 <= sync <= 1000.0:
+            ap.error(f"--syncs {sync:g}: every SYNC period must be 1-1000 ms")
+    variants = list(itertools.product(args.slopes, args.lags, syncs))
     rng = np.random.default_rng(args.seed)
     cases = place_contacts([make_case(rng, i) for i in range(args.grasps)], args.seed, args.contact)
     jobs = [(c, False, {}, modes, v) for v in variants for c in cases]
     results, elapsed, errors = run_jobs(jobs, args.jobs, every=100, unit="runs")
-    dt_ms = _base().bus.sync_period_ms
     by_variant = {v: results[i * len(cases):(i + 1) * len(cases)] for i, v in enumerate(variants)}
     print(f"bench/grasp_drive.py --grasps {args.grasps} --seed {args.seed} --contact {args.contact}: "
-          f"{len(variants)} drive(s) x {len(modes)} mode(s) in {elapsed:.0f} s ({args.jobs} job(s)); SYNC {dt_ms:g} ms"
+          f"{len(variants)} variant(s) x {len(modes)} mode(s) in {elapsed:.0f} s ({args.jobs} job(s))"
           + (f"; {len(errors)} grasp(s) failed (above), left out" if errors else ""))
     out = {}
     for mode in modes:
@@ -148,16 +160,17 @@ def main(argv=None) -> int:
             ok = [r for r in res if "error" not in r]
             for pitch in (*PITCHES, "all"):
                 sel = ok if pitch == "all" else [r for r in ok if r["case"]["pitch_mm"] == pitch]
-                stats[(v, pitch)] = cell_stats(sel, mode, dt_ms)
+                stats[(v, pitch)] = cell_stats(sel, mode, v[2])
         print(render(stats, variants, mode))
-        out[mode] = {f"{v[0]:g} N/s, {v[1]:g} ms|{p}": st for (v, p), st in stats.items()}
+        out[mode] = {f"{variant_name(v)}|{p}": st for (v, p), st in stats.items()}
     if args.json:
         args.json.write_text(json.dumps({"args": {"grasps": args.grasps, "seed": args.seed, "contact": args.contact,
-                                                  "slopes": args.slopes, "lags": args.lags, "modes": modes,
+                                                  "slopes": args.slopes, "lags": args.lags, "syncs": syncs,
+                                                  "modes": modes,
                                                   "elapsed_s": round(elapsed, 1),
                                                   "date": time.strftime("%Y-%m-%d", time.gmtime())},
                                          "tables": out}, default=float))
-    return 0
+    return 1 if errors else 0   # a table with grasps left out is not a complete run
 
 
 if __name__ == "__main__":

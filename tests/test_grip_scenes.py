@@ -190,3 +190,27 @@ def test_bench_contacts_lie_within_one_pitch_and_leave_the_other_draws_alone():
     assert scene.gripper.torque_slope_permille_s == 2000 * 1000 / base.gripper.rated_force_n == 20000
     assert scene.grasp.force_lag_ms == 5.0
     assert case_scene(base, centred[0], "decision").grasp.grip_at == base.grasp.grip_at == 20.0
+    assert scene.bus.sync_period_ms == base.bus.sync_period_ms == 10.0   # no SYNC given: the base scene's
+    fast = case_scene(base, moved[0], "raw", drive=(500.0, 20.0, 5.0))
+    assert (fast.bus.sync_period_ms, fast.bus.mode) == (5.0, "raw")
+
+
+def test_bench_variant_sync_period_steps_world_drive_and_centre_by_it():
+    """bench/grasp_drive.py --syncs: a case's scene at a 5 ms SYNC runs the same task (its phases'
+    seconds) in twice the cycles, and the drive's communication cycle period 0x1006 is 5,000 us."""
+    import numpy as np
+
+    from grasp import _base, case_scene, make_case
+    from grasp_sim import OfflineDrive, run_grasp
+
+    case = make_case(np.random.default_rng(23), 0)
+    runs = {}
+    for sync in (10.0, 5.0):
+        scene = case_scene(_base(), case, "decision", drive=(500.0, 20.0, sync))
+        assert OfflineDrive(scene).drive.objects.read(0x1006) == int(sync * 1000)
+        runs[sync] = run_grasp(scene, "decision")["rows"]
+    assert not any(r[6] for r in runs[10.0] + runs[5.0])          # neither dropped the object
+    # each timed phase of the task: the same seconds, twice the cycles (up to a phase edge's cycle)
+    for phase in ("approach", "close", "lift", "hold", "place"):
+        cycles = {sync: sum(1 for r in rows if r[1] == phase) for sync, rows in runs.items()}
+        assert cycles[10.0] > 10 and abs(cycles[5.0] - 2 * cycles[10.0]) <= 1, (phase, cycles)
