@@ -41,7 +41,8 @@ finding = st.builds(
     degraded=st.booleans(),
     least_hold_n=st.one_of(st.none(), st.floats(0.0, 300.0), st.just(float("nan")), st.just(float("inf"))),
     dt_s=st.just(DT),
-    actual_n=st.one_of(st.none(), st.floats(0.0, 300.0), st.just(float("nan"))))
+    actual_n=st.one_of(st.none(), st.floats(0.0, 300.0), st.just(float("nan"))),
+    slip_new=st.sampled_from((None, True, False)))
 
 
 def run(p: GripParams, seq, state: GripState | None = None):
@@ -73,13 +74,18 @@ def test_safety_rules_hold_on_any_sequence(p, seq):
             if f.degraded or not f.present:
                 assert cmd.force_n >= min(before.command_n, p.max_n)
             assert cmd.force_n >= min(p.min_n, p.max_n) - 1e-12
-            # a slip never lowers the command; one whose last raise has settled raises it
+            # a slip never lowers the command; an episode's first raises it, and a later one whose
+            # last raise has settled raises it on new evidence only (not on a flag held from before)
             if f.slip:
                 assert cmd.force_n >= min(before.command_n, p.max_n)
-                if before.raise_pending_n == 0 and before.since_raise_s + f.dt_s >= p.settle_s:
+                onset = math.isinf(before.since_raise_s) or before.quiet_s >= p.return_delay_s
+                settled = before.raise_pending_n == 0 and before.since_raise_s + f.dt_s >= p.settle_s
+                if settled and (onset or f.slip_new is not False):
                     want = max(before.command_n * (1 + p.raise_fraction), before.command_n + p.raise_n)
                     assert cmd.force_n >= min(want, p.max_n) - 1e-9
                     assert "slip_raise" in cmd.flags
+                if f.slip_new is False and not onset:
+                    assert "slip_raise" not in cmd.flags
                 # no raise while the last one is on its way: the drive's force still rising toward it
                 a = f.actual_n
                 if (before.raise_pending_n > 0 and a is not None and math.isfinite(a) and before.actual_n is not None
@@ -241,6 +247,25 @@ def test_a_raise_settles_from_when_the_drive_delivered_it():
     cmd, state = grip_step(P, replace(start, actual_n=None), close(slip=True))
     assert state.raise_pending_n == 0.0
     assert _raises_after(state, [None] * 9)[0] == (6, 32.0)
+
+
+def test_after_an_episodes_first_raise_only_new_evidence_raises_again():
+    """A slip at 8 N raises to 16 N (the episode's first raise: taken whether the flag is new or
+    held). Past the settle (60 ms) flags the caller holds from before (slip_new False: the motion
+    they stood for was seen while the raise was arriving) raise nothing; the first new one does
+    (32 N); a caller that cannot tell (None) raises as before."""
+    start = GripState(phase="hold", command_n=8.0, quiet_s=5.0)
+    cmd, state = grip_step(P, start, replace(close(slip=True), slip_new=False))
+    assert cmd.force_n == 16.0 and "slip_raise" in cmd.flags and "slip_onset" in cmd.flags
+    for _ in range(10):                                                  # 10..100 ms: held flags only
+        cmd, state = grip_step(P, state, replace(close(slip=True), slip_new=False))
+        assert cmd.force_n == 16.0 and "slip_raise" not in cmd.flags
+    cmd, state = grip_step(P, state, replace(close(slip=True), slip_new=True))
+    assert cmd.force_n == 32.0 and "slip_raise" in cmd.flags
+    unknown = grip_step(P, start, close(slip=True))[1]
+    for k in range(1, 7):
+        cmd, unknown = grip_step(P, unknown, close(slip=True))
+    assert cmd.force_n == 32.0 and "slip_raise" in cmd.flags           # 60 ms after the first: as before
 
 
 def test_slip_raise_is_capped_at_max_n():

@@ -356,6 +356,23 @@ def test_slip_now_edge_cue_flags_the_contacts_first_edge_before_a_full_pitch():
             for k, d in enumerate([0.625, 0.625])] == [False, True]
 
 
+def test_slip_now_says_which_flags_are_new_evidence_and_which_are_held():
+    """GripFindings.slip_new (the law raises after an episode's first raise only on new evidence):
+    True in the cycle of a new farthest displacement (the edge cue's confirming cycle included),
+    False while the flag is only held for slip_hold cycles after it, and False for a flag held
+    through a cycle that saw nothing of the contact (frames lost or late)."""
+    stage = GripStage(load_scene("grasp_scripted"), noise_band=1.0, slip_hold=3)
+    news = []
+    for k, d in enumerate([0.0, 0.0, 0.0, 0.625, 0.625, 0.625, 0.625, 1.875, 1.875, 2.5, 2.5, 2.5, 2.5]):
+        flag = stage.slip_now({"cycle": k, "slip": {"contact": True, "displacement": d}})
+        news.append((flag, stage.slip_new))
+    assert news == [(False, False)] * 4 + [(True, True), (True, False), (True, False), (True, True), (True, False),
+                                           (True, True), (True, False), (True, False), (False, False)]
+    held = stage.slip_now({"cycle": 13, "slip": {"contact": True, "displacement": 3.5}})
+    assert (held, stage.slip_new) == (True, True)
+    assert (stage.slip_now({"cycle": 14, "slip": {"contact": True, "observed": False}}), stage.slip_new) == (True, False)
+
+
 def _edge_stage(**fields):
     """grasp_scripted's stage (no [grip]: the defaults) with the scene's [grip] edge fields set."""
     from dataclasses import replace

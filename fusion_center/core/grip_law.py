@@ -35,7 +35,11 @@ Phases (``GripState.phase``):
      the send. The drive's torque slope delivers a large raise over several cycles and the jaws'
      force lag and the slide's stop take ``settle_s`` more, while the centre's slip flags trail the
      slide (the taxels see it a cycle late, the grip stage holds a flag ``slip_hold`` cycles):
-     raising on that tail compounded - 3 x 3 = 9 times the force a slip began under. The first
+     raising on that tail compounded - 3 x 3 = 9 times the force a slip began under. A raise after
+     an episode's first also needs **new** evidence (``f.slip_new``: a new farthest displacement of
+     the contact this cycle, not a flag the caller holds from the cycles before): a flag held past
+     the settle stands for motion seen while the raised force was still arriving, which may have
+     stopped since - a slide that goes on shows a new displacement. The first
      slipping cycle of an episode (no slip for ``relax_delay_s`` before it) teaches the floor
      ``(1 + margin) * command``: the command it began under, plus the margin. A new episode is the
      grasp's first slip or one ``return_delay_s`` after the last slipping cycle. In decision mode
@@ -104,6 +108,7 @@ class GripFindings:
     least_hold_n: float | None = None  # raw mode: eq 26a per jaw, T / mu (None: decision mode)
     dt_s: float = 0.01              # the SYNC period
     actual_n: float | None = None   # the drive's force per jaw at this SYNC (0x2101; None: not known)
+    slip_new: bool | None = None    # the slip is new evidence this cycle (False: a flag held from before; None: not known)
 
 
 @dataclass(frozen=True)
@@ -152,12 +157,14 @@ def grip_step(p: GripParams, state: GripState, f: GripFindings) -> tuple[GripCom
     carried = least is not None and math.isfinite(least) and least > 0   # raw mode: the pads carry a load
     target = max(p.min_n, p.safety_factor * least) if carried else p.min_n
     if f.slip:
-        if math.isinf(state.since_raise_s) or state.quiet_s >= p.return_delay_s - TIME_EPS_S:
+        onset = math.isinf(state.since_raise_s) or state.quiet_s >= p.return_delay_s - TIME_EPS_S
+        if onset:
             # a new slip episode (the first of the grasp, or return_delay_s after the last): the command failed
             learned = max(learned, (1.0 + p.margin) * before)
             flags.append("slip_onset")
         quiet = 0.0
-        if pending == 0 and since_raise >= p.settle_s - TIME_EPS_S:
+        # a raise: the episode's first, or on new evidence once the last raise arrived and settled
+        if pending == 0 and since_raise >= p.settle_s - TIME_EPS_S and (onset or f.slip_new is not False):
             command = max(command * (1.0 + p.raise_fraction), command + p.raise_n)
             since_raise = 0.0
             pending = min(command, p.max_n) if actual is not None else 0.0

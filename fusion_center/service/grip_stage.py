@@ -140,6 +140,7 @@ class GripStage:
         self.edge_band = self.band * self.params.edge_fraction  # slip_now's edge cue (sub-pitch), before the first slip flag
         self.edge_cycles = self.params.edge_cycles              # ... that many cycles in a row (a flicker is no slip)
         self.edge_run = 0                           # cycles in a row beyond edge_band
+        self.slip_new = False                       # slip_now's flag is a new farthest displacement this cycle
         self.rebase = rebase                        # the slip tracker's reset: its reference taken again
         self.pressed_t: float | None = None         # SYNC time the jaws first pressed on this contact
         self.rebased = False                        # ... and its reference was taken again settle_s later
@@ -151,6 +152,7 @@ class GripStage:
         """The centre's slip this cycle (module docstring) from the slip stage's record; ``pressing``:
         the drive reports a force on the part (0x2101 > 0: its jaws press on it), False a force of
         0, None not known."""
+        self.slip_new = False
         slip = record.get("slip")
         if not slip or not slip.get("contact"):
             self.peak = self.peak_cycle = None
@@ -193,9 +195,10 @@ class GripStage:
             # (unobserved: nothing measured - the flag of the last new farthest displacement held as
             # long as it would have been: the motion it stood for is not known to have stopped)
             now = self.peak_cycle is not None and record["cycle"] - self.peak_cycle < self.slip_hold
+            self.slip_new = now and displacement is not None and self.peak_cycle == record["cycle"]
         ratio = slip.get("force_ratio")
         if self.raw and ratio is not None and ratio > 1.0:
-            now = True
+            now = self.slip_new = True
         return now
 
     def least_hold_n(self, record: dict) -> float | None:
@@ -271,7 +274,7 @@ class GripStage:
                             or record.get("over_range_nodes"))
             findings = GripFindings(task=task, present=present, slip=slip, degraded=degraded,
                                     least_hold_n=self.least_hold_n(record) if self.raw else None,
-                                    dt_s=self.period_s, actual_n=actual)
+                                    dt_s=self.period_s, actual_n=actual, slip_new=self.slip_new)
             out, self.law = grip_step(self.params, self.law, findings)
             command_n = out.force_n
             flags.extend(out.flags)
