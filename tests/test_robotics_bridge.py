@@ -554,3 +554,112 @@ def test_a_change_whose_frame_was_dropped_still_reaches_the_contact_subscriber()
     assert contacts in (expected, expected[1:])
     late = [e for e in contacts if e["cycle"] == cycles[k + 1][0]["cycle"]]
     assert [(e["decision"], e["previous"]) for e in late] == [(decisions[k], decisions[k - 1])]
+
+
+# a centre of the test's own (a process the test can SIGKILL) whose bridge is slow to start: the real
+# bridge's main(), with the scene's loading made to wait (a marker file says the bridge got there)
+_SLOW_CENTRE = """
+import sys
+sys.path.insert(0, {root!r})
+from fusion_center.robotics.bridge_link import RoboticsBridge
+from taxel_net.scene import load_scene
+
+SLOW = ("import time, fusion_center.robotics.bridge as b; load = b.load_scene_of; "
+        "b.load_scene_of = lambda s: (open({marker!r}, 'w').close(), time.sleep({sleep!r}), load(s))[2]; main = b.main")
+
+
+class SlowStart(RoboticsBridge):
+    def command(self):
+        argv = super().command()
+        argv[2] = argv[2].replace("from fusion_center.robotics.bridge import main", SLOW)
+        return argv
+
+
+SlowStart(load_scene("matrix57"), {{"scene": "matrix57"}}, foxglove=("127.0.0.1", 0)).open()
+"""
+
+
+def _slow_centre(tmp_path):
+    marker = tmp_path / "bridge-starting"
+    script = tmp_path / "centre.py"
+    script.write_text(_SLOW_CENTRE.format(root=str(ROOT), marker=str(marker), sleep=4 * TIMEOUT))
+    centre = subprocess.Popen([sys.executable, str(script)], cwd=tmp_path, stdout=subprocess.DEVNULL,
+                              stderr=subprocess.PIPE, text=True, start_new_session=True)
+    return centre, marker
+
+
+def test_killing_the_centre_while_its_bridge_starts_ends_the_bridge(tmp_path):
+    """SIGKILL to the centre while the bridge is still starting (its link is not read yet): the
+    bridge ends with it (the parent-death signal, SIGTERM) - not when its start is over."""
+    centre, marker = _slow_centre(tmp_path)
+    bridge = None
+    try:
+        bridge = _bridge_of(centre.pid)
+        _wait(marker.exists, "the bridge to be starting")
+        assert _alive(bridge)
+        centre.kill()
+        centre.wait(TIMEOUT)
+        _wait(lambda: not _alive(bridge), "the bridge to end after the centre was killed in its start")
+    finally:
+        if centre.poll() is None:
+            centre.kill()
+        if bridge is not None and _alive(bridge):  # it holds the centre's stderr
+            os.kill(bridge, signal.SIGKILL)
+        centre.communicate()
+
+
+def test_a_bridge_whose_centre_is_gone_before_it_asks_for_the_signal_exits_at_once():
+    """The race: the centre ends before the bridge's first act - its parent is no longer the pid
+    it was given, so it exits (143, as SIGTERM's) instead of starting."""
+
+    class Orphan(RoboticsBridge):
+        def command(self):
+            argv = super().command()
+            argv[argv.index("--parent-pid") + 1] = "1"  # not this process: as if the centre had ended
+            return argv
+
+    with pytest.raises(UsageError, match=r"ended before it was ready \(exit status 143"):
+        Orphan(load_scene("matrix57"), {"scene": "matrix57"}, foxglove=("127.0.0.1", 0)).open()
+
+
+def test_sigterm_ends_a_ready_bridge_cleanly_at_a_frames_boundary():
+    """SIGTERM (the parent-death signal, a user's kill) after the ready line: the bridge publishes
+    the frames it was handed, closes its outputs and prints its counters - as when the link closes."""
+    scene, cycles = _demo_cycles("matrix57", 3)
+    bridge = RoboticsBridge(scene, {"scene": "matrix57"}, foxglove=("127.0.0.1", 0)).open()
+    try:
+        for record, closed in cycles:
+            bridge._flag[0] = 1  # as if a viewer were subscribed (the bridge may say otherwise any time)
+            bridge.on_cycle(record, closed)
+        bridge.proc.send_signal(signal.SIGTERM)
+        bridge.proc.wait(TIMEOUT)
+    finally:
+        stats = bridge.close()
+    b = stats["bridge"]
+    assert b["died"] is None and b["frames"] + b["unwanted"] == 3 and b["frames"] > 0
+    assert b["received"] == b["frames"] and b["bad"] == 0 and "foxglove" in stats
+
+
+def test_a_bridge_started_from_a_thread_that_ends_lives_on():
+    """The parent-death signal follows the thread that started the bridge: from a thread other
+    than the main one the centre does not ask for it (no ``--parent-pid``), so the bridge outlives
+    that thread and takes the cycles handed after it ended."""
+    scene, cycles = _demo_cycles("matrix57", 2)
+    opened = []
+    starter = threading.Thread(target=lambda: opened.append(
+        RoboticsBridge(scene, {"scene": "matrix57"}, foxglove=("127.0.0.1", 0)).open()))
+    starter.start()
+    starter.join()
+    _wait(lambda: not Path(f"/proc/self/task/{starter.native_id}").exists(), "the starting thread's end")
+    bridge, = opened
+    try:
+        args = bridge.proc.args
+        for record, closed in cycles:
+            bridge._flag[0] = 1
+            bridge.on_cycle(record, closed)
+    finally:
+        stats = bridge.close()
+    b = stats["bridge"]
+    assert b["died"] is None and b["frames"] > 0 and b["received"] == b["frames"] and b["lost"] == 0
+    assert "--parent-pid" not in args
+    assert "--parent-pid" in RoboticsBridge(scene, {"scene": "matrix57"}, foxglove=("127.0.0.1", 0)).command()

@@ -13,6 +13,19 @@ same grip and contact messages, the same Foxglove channels and messages), and wh
 closes (the centre ended, or was killed) publishes what it holds, closes its outputs, prints
 ``{"stats": {...}, "received": N, "bad": M}`` and exits 0. SIGINT is ignored (a Ctrl-C on the
 terminal is the centre's; this process is in a session of its own anyway).
+
+**It dies with the centre** (:func:`die_with_parent`, its first act; Linux): with ``--parent-pid``
+it asks the kernel for SIGTERM when the thread that started it ends (``prctl(PR_SET_PDEATHSIG)``)
+and, the centre possibly gone already, exits at once if its parent is no longer that pid. So a
+centre killed while the bridge is still starting (a Zenoh session being opened, the scene being
+loaded) leaves no bridge behind; later the link's end (above) ends it too. SIGTERM before the
+ready line has its default action (nothing is written yet, and a handler would wait for a C call
+- the Zenoh session's opening - to return); from the ready line on it shuts the link down, so the
+bridge ends at a frame's boundary exactly as when the link closes (its outputs closed, its
+counters printed). The centre passes ``--parent-pid`` only when it starts the bridge from its main
+thread (the parent-death signal follows the *thread* that forked: from another thread the bridge
+would die when that thread ends); where ``prctl`` is missing (not Linux) this is a no-op, logged
+at debug level, and the link's end is what ends the bridge.
 """
 
 from __future__ import annotations
@@ -40,6 +53,32 @@ _REPORT = None  # the centre's reading end: this process's stdout as it started 
 def _say(message: dict) -> None:
     _REPORT.write(json.dumps(message) + "\n")
     _REPORT.flush()
+
+
+PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
+
+
+def die_with_parent(parent_pid: int) -> bool:
+    """Ask for SIGTERM when the thread that started this process ends (module docstring); False
+    where that cannot be asked (not Linux: logged at debug level). Exits this process (status
+    143, as the signal's) when its parent is no longer ``parent_pid`` (it ended before this call)."""
+    asked = False
+    if sys.platform.startswith("linux"):
+        import ctypes
+
+        try:
+            libc = ctypes.CDLL(None, use_errno=True)
+            asked = libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0) == 0
+            if not asked:
+                logger.debug("robotics bridge: prctl(PR_SET_PDEATHSIG): %s", os.strerror(ctypes.get_errno()))
+        except (OSError, AttributeError) as exc:
+            logger.debug("robotics bridge: no prctl: %s", exc)
+    else:
+        logger.debug("robotics bridge: no parent-death signal on %s: the link's end ends this process", sys.platform)
+    if os.getppid() != parent_pid:  # the centre gone before the signal was asked for (reparented)
+        logger.debug("robotics bridge: the centre (pid %d) ended before the bridge started: exiting", parent_pid)
+        sys.exit(128 + signal.SIGTERM)
+    return asked
 
 
 def load_scene_of(settings: dict):
@@ -161,13 +200,23 @@ class Bridge:
             self.publisher = None
 
 
+def _shut(sock: socket.socket) -> None:
+    try:
+        sock.shutdown(socket.SHUT_RDWR)
+    except OSError:  # closed already
+        pass
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="python -m fusion_center.robotics.bridge",
                                      description="the centre's robotics bridge (started by run / demo)")
     parser.add_argument("--fd", type=int, required=True, help="the link's descriptor (inherited)")
     parser.add_argument("--flag-fd", type=int, required=True, help="the shared flag's memfd (inherited)")
     parser.add_argument("--settings", required=True, help="JSON: source, digest, zenoh, foxglove")
+    parser.add_argument("--parent-pid", type=int, help="the centre's pid: die with it (SIGTERM; Linux)")
     args = parser.parse_args(argv)
+    if args.parent_pid is not None:
+        die_with_parent(args.parent_pid)
     global _REPORT
     # the report channel is ours alone: anything a library prints goes to stderr, not into it
     _REPORT = os.fdopen(os.dup(1), "w")
@@ -186,6 +235,9 @@ def main(argv=None) -> int:
     except Exception as exc:  # noqa: BLE001 - one line to the centre
         _say({"error": f"robotics bridge: cannot start: {type(exc).__name__}: {one_line(exc)}"})
         return 2
+    # SIGTERM (the centre's death, a user's kill) from here on: the link shut down, the bridge ends at
+    # a frame's boundary as when the centre closes the link - outputs closed, counters printed
+    signal.signal(signal.SIGTERM, lambda signum, frame: _shut(sock))
     try:
         _say({"ready": bridge.ready()})
         stop = threading.Event()

@@ -53,7 +53,10 @@ reaches the subscriber with the next frame, one cycle or more late, never lost
 terminal reaches the centre only, which finishes its last records and then closes the link) and
 ignores SIGINT; it ends when the link closes - at :meth:`RoboticsBridge.close`, or when the
 centre ends in any way (killed: the kernel closes its end) - and prints its counters as one JSON
-line, which :meth:`close` returns with the link's own.
+line, which :meth:`close` returns with the link's own. On Linux it also dies with the centre while it
+is still starting (before it reads the link): ``--parent-pid`` asks it for the parent-death signal
+(:func:`.bridge.die_with_parent`) - only when :meth:`RoboticsBridge.open` runs on the main thread, as
+the signal follows the thread that started the bridge.
 """
 
 from __future__ import annotations
@@ -69,6 +72,7 @@ import socket
 import struct
 import subprocess
 import sys
+import threading
 import time
 
 import msgpack
@@ -216,8 +220,16 @@ class RoboticsBridge:
         """The bridge's command line: this interpreter, importing ``fusion_center`` from where this
         process did - never from the current directory (``python -m`` would put it first on
         ``sys.path``: a ``json.py`` or ``zenoh.py`` there would run in the bridge)."""
-        return [sys.executable, "-c", _BRIDGE_MAIN, _CODE_ROOT, "--fd", "{fd}", "--flag-fd", "{flag}",
+        argv = [sys.executable, "-c", _BRIDGE_MAIN, _CODE_ROOT, "--fd", "{fd}", "--flag-fd", "{flag}",
                 "--settings", json.dumps(self.settings)]
+        # the bridge dies with the centre (its parent-death signal) - which follows the thread that starts it:
+        # asked for from the main thread only (from another, the bridge would die when that thread ends)
+        if threading.current_thread() is threading.main_thread():
+            argv += ["--parent-pid", str(os.getpid())]
+        else:
+            logger.debug("robotics bridge started from thread %s: no parent-death signal (the link's end ends it)",
+                         threading.current_thread().name)
+        return argv
 
     def open(self) -> "RoboticsBridge":
         ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
