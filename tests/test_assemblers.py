@@ -35,13 +35,14 @@ ASSEMBLE = "fusion-center assemble"  # the program whose ready line the tests wa
 RECONNECT_S = 120.0  # an assembler's reconnect after its fuser broke the link: seconds on a loaded host
 
 
-def _parts(scene, k, counter, *, decisions=(1, -1), bootups=((), ())):
+def _parts(scene, k, counter, *, decisions=(1, -1), bootups=((), ()), emcy=((), ())):
     """Parts of both groups for cycle k, built through GroupAssembler.part from a ClosedCycle;
-    ``bootups``: each group's closed cycle's (sub-scene device, t_us) pairs."""
-    from fusion_center.service.cycle_records import ClosedCycle, DeviceCycle
+    ``bootups``: each group's closed cycle's (sub-scene device, t_us) pairs; ``emcy``: each
+    group's (code, register, t_us) EMCYs of its first node."""
+    from fusion_center.service.cycle_records import ClosedCycle, DeviceCycle, EmcyEvent
 
     out = {}
-    for g, value, booted in zip((0, 1), decisions, bootups):
+    for g, value, booted, emcys in zip((0, 1), decisions, bootups, emcy):
         ga = GroupAssembler(scene, [g])
         n, nd = ga.layout.sub.n, len(ga.layout.devices)
         closed = ClosedCycle(
@@ -49,7 +50,9 @@ def _parts(scene, k, counter, *, decisions=(1, -1), bootups=((), ())):
             decisions=np.full(n, value, dtype=np.int8), readings=np.full(n, np.nan),
             received=np.ones(n, dtype=bool), expected=np.ones(n, dtype=bool), missing=np.zeros(n, dtype=bool),
             held_decisions=np.full(n, value, dtype=np.int8), held_readings=np.full(n, np.nan),
-            late_frames=0, bad_frames=0, emcy=(), states=np.full(n, 5, dtype=np.int16),
+            late_frames=0, bad_frames=0, states=np.full(n, 5, dtype=np.int16),
+            emcy=tuple(EmcyEvent(ga.assembler.labels[0], 0, code, register, "0000000000", t_us)
+                       for code, register, t_us in emcys),
             devices=DeviceCycle(np.ones(nd, dtype=bool), np.zeros(nd, dtype=bool), np.full(nd, 5, dtype=np.int16),
                                 np.ones(nd, dtype=bool)), bootups=tuple(booted))
         out[ga.layout.name] = ga.part(closed)
@@ -130,6 +133,122 @@ def test_a_groups_boot_ups_reach_the_merged_cycle_as_scene_devices(tmp_path):
         merger.add_part(name, part)
     (closed,) = merger.emit(100.0)
     assert closed.bootups == ((0, 700), (int(lay1.devices[1]), 500)) and int(lay1.devices[1]) == 3
+
+
+def test_a_late_parts_boot_up_reaches_the_next_cycle_and_clears_the_over_range_flag(tmp_path):
+    """A boot-up is an event, not cycle data: group 1's part of cycle 1 comes after the merge
+    closed that cycle (part_missing) - the part is counted late, never mixed in, but its boot-up
+    goes into the next cycle closed with its t_us, so the node that restarted by itself is not
+    flagged over range for good; an over-range EMCY after the boot-up flags it again."""
+    from fusion_center.service.over_range import OverRangeTracker
+    from fusion_center.service.pipeline import node_labels
+
+    scene = load_scene(_scene_file(tmp_path))
+    merger = CycleMerger(scene, part_deadline_s=0.5)
+    for g in (0, 1):
+        merger.add_group(group_layout(scene, [g]))
+    device = int(group_layout(scene, [1]).devices[0])  # group 1's first node, as the scene's device
+    label = node_labels(scene)[device]
+    tracker = OverRangeTracker(node_labels(scene))
+    t = 100.0
+    for k in range(2):
+        merger.opened(k + 1, 10_000 * k, t)
+    parts = [_parts(scene, 0, 1, emcy=((), ((0x3000, 0x05, 500),))),   # group 1's node over range
+             _parts(scene, 1, 2, bootups=((), ((0, 15_000),))),        # ... then it restarts by itself
+             _parts(scene, 2, 3), _parts(scene, 3, 4),
+             _parts(scene, 4, 5, emcy=((), ((0x3000, 0x05, 45_000),)))]
+    for name in ("0", "1"):
+        merger.add_part(name, parts[0][name])
+    merger.add_part("0", parts[1]["0"])
+    closed = merger.emit(t) + merger.emit(t + 1.0)  # cycle 1: group 1's part missing at the deadline
+    merger.add_part("1", parts[1]["1"])              # ... and then it comes: late
+    for k in (2, 3, 4):
+        merger.opened(k + 1, 10_000 * k, t + 1.0)
+        for name in ("0", "1"):
+            merger.add_part(name, parts[k][name])
+        closed += merger.emit(t + 1.0)
+    assert [c.cycle for c in closed] == [0, 1, 2, 3, 4] and closed[1].closed_by == "part_missing"
+    over = [tracker.update(c) for c in closed]
+    assert over == [[label], [label], [], [], [label]]
+    assert [c.bootups for c in closed] == [(), (), ((device, 15_000),), (), ()]  # once, its t_us kept
+    assert merger.stats.late_parts == 1 and merger.stats.late_bootups == 1
+    assert merger.emit(t + 2.0, final=True) == []
+    from fusion_center.commands.run import format_summary
+    from test_assembler_wire import _summary_stub
+
+    line, = [line for line in format_summary({**_summary_stub(), "assemblers": merger.stats.as_dict()})
+             if line.startswith("assemblers:")]
+    assert "late parts 1 (1 boot-ups carried on), unmatched 0;" in line, line
+
+
+def test_a_late_boot_up_merged_with_a_later_one_of_the_same_node_keeps_the_later(tmp_path):
+    """Carried on, a late part's boot-up meets the next cycle's own boot-up of the same node: the
+    later one counts (an EMCY between them came before the restart: counted, not applied)."""
+    from fusion_center.service.over_range import OverRangeTracker
+    from fusion_center.service.pipeline import node_labels
+
+    scene = load_scene(_scene_file(tmp_path))
+    merger = CycleMerger(scene, part_deadline_s=0.5)
+    for g in (0, 1):
+        merger.add_group(group_layout(scene, [g]))
+    device = int(group_layout(scene, [1]).devices[0])
+    tracker = OverRangeTracker(node_labels(scene))
+    for k in range(2):
+        merger.opened(k + 1, 10_000 * k, 100.0)
+    p0, p1 = _parts(scene, 0, 1), _parts(scene, 1, 2, bootups=((), ((0, 12_000),)))
+    p2 = _parts(scene, 2, 3, bootups=((), ((0, 25_000),)), emcy=((), ((0x3000, 0x05, 21_000),)))
+    for name in ("0", "1"):
+        merger.add_part(name, p0[name])
+    merger.add_part("0", p1["0"])
+    closed = merger.emit(100.0) + merger.emit(101.0)
+    merger.add_part("1", p1["1"])  # late
+    merger.opened(3, 20_000, 101.0)
+    for name in ("0", "1"):
+        merger.add_part(name, p2[name])
+    closed += merger.emit(101.0)
+    assert closed[2].bootups == ((device, 25_000),)
+    assert [tracker.update(c) for c in closed] == [[], [], []] and sum(tracker.emcy.values()) == 1
+
+
+class _Publisher:
+    def __init__(self, fail: bool = False):
+        self.fail, self.sent = fail, []
+
+    def put(self, data, attachment=None):
+        if self.fail:
+            raise RuntimeError("session closed")
+        self.sent.append(data)
+
+
+def test_an_assembler_keeps_the_boot_ups_of_a_part_it_could_not_send_for_the_next_part(tmp_path):
+    """Disconnected (no link) or a failed put: the part is counted not sent, its boot-ups go
+    with the next part that is sent (the latest per device), as the fuser decodes it."""
+    from fusion_center.service.assembler_link import mac_key
+    from fusion_center.service.assembler_process import AssemblerProcess, _Link
+    from fusion_center.service.assembler_wire import PartCodec
+
+    scene = load_scene(_scene_file(tmp_path))
+    process = AssemblerProcess(scene, [1], fuser=("127.0.0.1", 9), interface="virtual", authkey=b"k" * 32)
+    layout = process.layout
+    d0, d1 = (int(d) for d in layout.devices)
+    parts = [_parts(scene, k, k + 1, bootups=((), booted))["1"]
+             for k, booted in enumerate((((0, 1_000),), ((1, 12_000),), ((0, 21_000),), (), ()))]
+    process._outbox.append(parts[0])
+    process._send()                                  # no link: not sent
+    link = _Link(process, "test", mac_key(b"k" * 32))
+    link.publisher = _Publisher(fail=True)
+    process.link = link
+    process._outbox.append(parts[1])
+    process._send()                                  # the put fails: not sent (the link given up)
+    assert process.parts_unsent == 2 and process.link is None
+    link.publisher = _Publisher()
+    process.link = link
+    process._outbox.extend(parts[2:])
+    process._send()
+    codec = PartCodec(scene, layout)
+    sent = [codec.decode(data) for data in link.publisher.sent]
+    assert [p.bootups for p in sent] == [((d0, 21_000), (d1, 12_000)), (), ()]
+    assert process.parts_sent == 3 and process.parts_unsent == 2
 
 
 def test_counter_maps_a_part_to_its_sync_and_numbers_jump_over_lost_syncs(tmp_path):

@@ -238,8 +238,9 @@ def format_summary(summary: dict) -> list[str]:
         a = summary["assemblers"]
         lines.append(("assemblers", f"{a['parts']} parts ({', '.join(f'{k} {v}' for k, v in a['by_group'].items())}); "
                                     f"cycles complete {a['complete']}, degraded {a['degraded']} "
-                                    f"({a['parts_missing']} parts missing), late parts {a['late_parts']}, "
-                                    f"unmatched {a['unmatched_parts']}; reconnects {_reconnects(a)}; "
+                                    f"({a['parts_missing']} parts missing), late parts {a['late_parts']}"
+                                    + (f" ({a['late_bootups']} boot-ups carried on)" if a.get("late_bootups") else "")
+                                    + f", unmatched {a['unmatched_parts']}; reconnects {_reconnects(a)}; "
                                     f"refused {_by_kind(a.get('refused'))}; SYNC -> part sent p50 "
                                     f"{_fmt_ms(a['to_send_ms']['p50'])}, p99 {_fmt_ms(a['to_send_ms']['p99'])}; "
                                     f"part transport p50 {_fmt_ms(a['transport_ms']['p50'])}, "

@@ -120,7 +120,7 @@ class AssemblerProcess:
 
     When the link breaks without the fuser's ``bye`` (the fuser's liveliness token gone, or
     the fuser dropped the link) it keeps assembling (the parts closed meanwhile count as not
-    sent) and says hello again, waiting 0.1 s doubling to 2 s between tries, for up to
+    sent; their boot-ups go with the next part sent) and says hello again, waiting 0.1 s doubling to 2 s between tries, for up to
     ``reconnect_timeout_s``; then :attr:`closed` is set with :attr:`gave_up` saying why.
 
     ``fuser``: the Zenoh endpoint of the fuser's link session (``tcp/127.0.0.1:47400``; a
@@ -165,6 +165,9 @@ class AssemblerProcess:
         self._outbox: deque[CyclePart] = deque()
         self.parts_sent = 0
         self.parts_unsent = 0
+        # scene device -> t_us of a boot-up whose part was not sent: an event the fuser still needs (its
+        # over-range tracker forgets the node's flag on it) - carried by the next part sent (_send)
+        self._unsent_bootups: dict[int, int] = {}
         self.events = 0
         self.closed = threading.Event()    # the fuser said bye, or went away and did not come back
         self.bye = False
@@ -504,26 +507,40 @@ class AssemblerProcess:
         if closed_any:
             self._send()
 
+    def _unsent(self, part: CyclePart) -> None:
+        """A part not sent (send lock held): counted; its boot-ups kept for the next part sent."""
+        self.parts_unsent += 1
+        kept = self._unsent_bootups
+        for device, t_us in part.bootups:
+            kept[device] = max(t_us, kept.get(device, t_us))
+
     def _send(self) -> None:
         with self._send_lock:  # parts leave in the order they closed
             while self._outbox:
                 part = self._outbox.popleft()
                 link = self.link
                 if link is None or self.closed.is_set():  # disconnected: not sent, never queued
-                    self.parts_unsent += 1
+                    self._unsent(part)
                     continue
+                if self._unsent_bootups:  # boot-ups of parts not sent: events, they go with this one (if it
+                    # is not sent either, _unsent keeps them again), a device's latest boot-up the one that counts
+                    latest = self._unsent_bootups
+                    for device, t_us in part.bootups:
+                        latest[device] = max(t_us, latest.get(device, t_us))
+                    part.bootups = tuple(sorted(latest.items()))
+                    self._unsent_bootups = {}
                 part.sent_at = time.time()
                 try:
                     data = encode_part(part)
                 except Exception as exc:  # noqa: BLE001 - a part that cannot be encoded: not sent, the rest go on
-                    self.parts_unsent += 1
+                    self._unsent(part)
                     self._log.warning("encode", f"a part not sent: {type(exc).__name__}: {exc}")
                     continue
                 try:
                     link.publisher.put(data, attachment=link_keys.mac(link.mac_key, link.part_key, data))
                     self.parts_sent += 1
                 except Exception as exc:  # noqa: BLE001 - a closed session: the watcher says hello again
-                    self.parts_unsent += 1
+                    self._unsent(part)
                     self._log.warning("send", f"a part not sent: {type(exc).__name__}: {exc}")
                     self.link = None
                     self._dead.append(link)

@@ -28,6 +28,7 @@ class MergeStats:
     degraded: int = 0         # cycles with a missing part
     parts_missing: int = 0    # (cycle, group) pairs without a part
     late_parts: int = 0       # parts for a cycle already evaluated
+    late_bootups: int = 0     # boot-ups of late parts carried on to the next cycle closed (CycleMerger.add_part)
     unmatched_parts: int = 0  # parts for no SYNC this fuser sent
     duplicate_parts: int = 0
     by_group: dict = field(default_factory=dict)  # group -> parts received
@@ -75,6 +76,9 @@ class CycleMerger:
         self.held_readings = np.full(self.n, np.nan)
         self.stats = MergeStats()
         self.info: dict[int, dict] = {}  # k -> record fields of the merge (parts_missing, ...)
+        # scene device -> t_us of its boot-up heard in a late part: an event, not the late cycle's data -
+        # merged into the next cycle closed (the over-range tracker orders it by t_us against the EMCYs)
+        self.carried_bootups: dict[int, int] = {}
 
     # -- groups
     def add_group(self, layout: GroupLayout) -> str | None:
@@ -159,12 +163,12 @@ class CycleMerger:
                     stats.to_send.add((part.sent_at - wall) * 1e3)
             if k is None or k not in self.syncs:
                 if k is not None and self.next_k is not None and k < self.next_k:
-                    stats.late_parts += 1
+                    self._late(part)
                 else:
                     stats.unmatched_parts += 1
                 return
             if self.next_k is not None and k < self.next_k:
-                stats.late_parts += 1
+                self._late(part)
                 return
             got = self.parts.setdefault(k, {})
             if name in got:
@@ -172,6 +176,15 @@ class CycleMerger:
                 return
             got[name] = part
             self.last_k[name] = max(k, self.last_k.get(name, -1))
+
+    def _late(self, part: CyclePart) -> None:
+        """A part for a cycle already evaluated (lock held): counted, never mixed in - but its
+        boot-ups are events the cycle's record did not get (a node that restarted by itself would
+        stay flagged over range for good): they go into the next cycle closed, with their t_us."""
+        self.stats.late_parts += 1
+        for device, t_us in part.bootups:
+            self.stats.late_bootups += 1
+            self.carried_bootups[device] = max(t_us, self.carried_bootups.get(device, t_us))
 
     def emit(self, now: float, *, final: bool = False) -> list[ClosedCycle]:
         """The cycles now decided, in SYNC order (``final``: every cycle sent, missing parts missing)."""
@@ -249,6 +262,14 @@ class CycleMerger:
             bootups.extend(part.bootups)
             close_after = max(close_after, part.closed_after_us)
             by.append(part.closed_by)
+        if self.carried_bootups:  # a late part's (add_part): a device's latest boot-up is the one that counts
+            bootups.extend(self.carried_bootups.items())
+            self.carried_bootups = {}
+        if len(bootups) > 1:
+            latest: dict[int, int] = {}
+            for device, t_us in bootups:
+                latest[device] = max(t_us, latest.get(device, t_us))
+            bootups = list(latest.items())
         if len(emcy) > EMCY_PER_CYCLE:
             dropped += len(emcy) - EMCY_PER_CYCLE
             emcy = sorted(emcy, key=lambda e: e.t_us)[:EMCY_PER_CYCLE]
