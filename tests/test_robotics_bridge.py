@@ -114,6 +114,53 @@ def test_a_msgpack_record_with_keys_other_than_str_reads_back_as_its_line():
         parse_frame(make_frame(msgpack.packb({"a": {(1, 2): 3}}), None, encoding=ENC_MSGPACK))
 
 
+def _timestamp_frames():
+    """msgpack records holding msgpack's timestamp (ext -1) every way it is read: 32, 64 and 96-bit
+    (fixext 4, fixext 8, ext 8), a non-minimal ext 16 / ext 32 of 8 bytes, in a list, as a map key."""
+    import struct
+
+    ts64 = msgpack.packb(msgpack.Timestamp(1, 5))[2:]
+    raw = [msgpack.packb({"t": msgpack.Timestamp(1, 0)}), msgpack.packb({"t": msgpack.Timestamp(1, 5)}),
+           msgpack.packb({"t": msgpack.Timestamp(2 ** 40, 5)}),
+           b"\x81\xa1t\xc8\x00\x08\xff" + ts64, b"\x81\xa1t\xc9" + struct.pack(">I", 8) + b"\xff" + ts64,
+           msgpack.packb({"cycle": 1, "rules": {"k": [1, msgpack.Timestamp(3, 0)]}}),
+           msgpack.packb({"cycle": 1, "per_node": {msgpack.Timestamp(3, 0): 1}})]
+    return [make_frame(packed, None, encoding=ENC_MSGPACK) for packed in raw]
+
+
+def test_a_msgpack_timestamp_is_refused_at_decode():
+    """msgpack's timestamp bypasses ext_hook (read as a msgpack.Timestamp whatever ``timestamp=``
+    says): parse_frame refuses it as any other ext type - before, the record went on to dumpb and
+    the encoders, which refused it later. Values whose bytes look like a timestamp's lead
+    (0x04 0xff in a float, 0xd7 0xff in a string) still read back."""
+    for frame in _timestamp_frames():
+        with pytest.raises(ValueError, match="msgpack timestamp"):
+            parse_frame(frame)
+    import struct
+
+    lookalike = {"x": struct.unpack(">d", b"\x3f\x04\xff\xd6\xff\x0c\xff\x01")[0], "s": "\u05ff", "b": -1,
+                 "l": [-1, 4, -1, 8, -1, 12, -1], 4: -1}
+    packed = msgpack.packb(lookalike, use_bin_type=True)
+    assert b"\x04\xff" in packed and b"\x0c\xff" in packed  # the walk runs and finds nothing
+    record, _, _ = parse_frame(make_frame(packed, None, encoding=ENC_MSGPACK))
+    assert record == lookalike
+
+
+def test_a_bridge_counts_a_timestamp_frame_bad_and_takes_the_next(tmp_path):
+    """Through the bridge process: a frame holding a msgpack timestamp is counted ``bad`` (not
+    received), the good frame after it goes through."""
+    bridge = RoboticsBridge(load_scene("matrix57"), {"scene": "matrix57"}, foxglove=("127.0.0.1", 0)).open()
+    try:
+        bad = _timestamp_frames()[1]
+        good = make_frame(msgpack.packb({"cycle": 2, "decision": "H0"}), None, encoding=ENC_MSGPACK)
+        bridge.sock.send(bad)
+        bridge.sock.send(good)
+    finally:
+        stats = bridge.close()
+    b = stats["bridge"]
+    assert (b["bad"], b["received"], b["died"]) == (1, 1, None)
+
+
 def test_the_centre_hands_over_the_logs_line_else_a_msgpack_record_else_its_json(tmp_path):
     """What ``on_cycle`` puts in a frame: the decision log's line where the run has just written
     the record (no work), else the record as msgpack (plain types), else (a tuple, a numpy

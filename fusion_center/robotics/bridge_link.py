@@ -23,9 +23,10 @@ a loop, ~70 of the hand-over's ~110 us at matrix57 in place) - and the bridge ma
 (:func:`~fusion_center.service.records.dumpb`, the same bytes: a msgpack round trip keeps every
 such value, -0.0 and int / float apart included) only where a Zenoh subscriber wants records. A
 record of other types (a tuple, a numpy scalar) goes as its JSON line. The bridge reads the JSON
-with :mod:`json` and msgpack with ``msgpack.unpackb`` (ext types refused, but msgpack's own
-timestamp, read as a ``msgpack.Timestamp`` that ``dumpb`` and the encoders refuse, counted; map
-keys of any plain type, as the packer takes them) - nothing from the link is unpickled or executed.
+with :mod:`json` and msgpack with ``msgpack.unpackb`` (ext types refused - msgpack's own timestamp,
+ext -1, too: ``unpackb`` reads it as a ``msgpack.Timestamp`` without asking ``ext_hook``, so a record
+holding one is refused after it, the frame counted ``bad`` as any other; map keys of any plain type,
+as the packer takes them) - nothing from the link is unpickled or executed.
 
 **The cycle never waits**: the centre's end is non-blocking and a datagram is sent whole or not
 at all (no partial frame, no pending buffer): when the socket's buffer is full (a bridge behind -
@@ -133,6 +134,37 @@ def _no_ext(code, data):
     raise ValueError(f"msgpack ext type {code}")
 
 
+# the bytes before a msgpack timestamp's type byte 0xff (ext -1, which ``unpackb`` reads as a
+# ``msgpack.Timestamp`` without asking ext_hook, whatever its ``timestamp=`` option - 0 to 3 all
+# accept it): fixext 4 (0xd6), fixext 8 (0xd7), or ext 8 / 16 / 32 whose length ends in 4, 8 or 12
+# (its only valid lengths: any other, unpackb raises ValueError)
+_TIMESTAMP_LEAD = frozenset((0xD6, 0xD7, 4, 8, 12))
+
+
+def _may_hold_timestamp(payload: bytes) -> bool:
+    """Whether a msgpack payload may hold a timestamp: a byte 0xff after one of
+    :data:`_TIMESTAMP_LEAD` - never false for one that does; a record's floats make it true at
+    times, which only costs :func:`_holds_timestamp`'s walk (0xff is rare in a record: memchr)."""
+    i = payload.find(b"\xff", 1)
+    while i > 0:
+        if payload[i - 1] in _TIMESTAMP_LEAD:
+            return True
+        i = payload.find(b"\xff", i + 1)
+    return False
+
+
+def _holds_timestamp(value) -> bool:
+    """Whether a decoded msgpack value holds a ``msgpack.Timestamp`` (a value or a map key, at any depth)."""
+    kind = type(value)
+    if kind is msgpack.Timestamp:
+        return True
+    if kind is dict:
+        return any(_holds_timestamp(k) or _holds_timestamp(v) for k, v in value.items())
+    if kind is list:
+        return any(_holds_timestamp(v) for v in value)
+    return False
+
+
 def frame_gap(frame) -> tuple[int, int]:
     """The cycles left out before a (parsed) frame and its baseline byte."""
     return HEADER.unpack_from(frame)[3:5]
@@ -161,6 +193,10 @@ def parse_frame(frame) -> tuple[dict, bytes | None, np.ndarray | None]:
             record = msgpack.unpackb(payload, raw=False, ext_hook=_no_ext, strict_map_key=False)
         except (ValueError, TypeError, msgpack.ExtraData, msgpack.FormatError, msgpack.StackError) as exc:
             raise ValueError(f"a frame whose msgpack record cannot be read: {type(exc).__name__}") from None
+        # msgpack's own timestamp (ext -1) bypasses ext_hook: refused here as any other ext type - no
+        # record holds one (the centre's strict packer makes none), and dumpb and the encoders cannot
+        if _may_hold_timestamp(payload) and _holds_timestamp(record):
+            raise ValueError("a frame whose msgpack record holds a msgpack timestamp (ext type -1)")
     else:
         raise ValueError(f"a frame of encoding {encoding} (known: {ENC_JSON} JSON, {ENC_MSGPACK} msgpack)")
     if not isinstance(record, dict):
