@@ -144,6 +144,12 @@ def test_a_msgpack_timestamp_is_refused_at_decode():
     assert b"\x04\xff" in packed and b"\x0c\xff" in packed  # the walk runs and finds nothing
     record, _, _ = parse_frame(make_frame(packed, None, encoding=ENC_MSGPACK))
     assert record == lookalike
+    # as deep as unpackb reads (deeper than Python's recursion): walked all the same, no RecursionError
+    deep = b"\x81\xa1d" + b"\x91" * 1000 + b"\x92\x04\xff"
+    assert parse_frame(make_frame(deep, None, encoding=ENC_MSGPACK))[0]["d"] is not None
+    with pytest.raises(ValueError, match="msgpack timestamp"):
+        parse_frame(make_frame(b"\x81\xa1d" + b"\x91" * 1000 + msgpack.packb(msgpack.Timestamp(1, 0)), None,
+                               encoding=ENC_MSGPACK))
 
 
 def test_a_bridge_counts_a_timestamp_frame_bad_and_takes_the_next(tmp_path):

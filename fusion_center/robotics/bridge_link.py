@@ -154,14 +154,19 @@ def _may_hold_timestamp(payload: bytes) -> bool:
 
 
 def _holds_timestamp(value) -> bool:
-    """Whether a decoded msgpack value holds a ``msgpack.Timestamp`` (a value or a map key, at any depth)."""
-    kind = type(value)
-    if kind is msgpack.Timestamp:
-        return True
-    if kind is dict:
-        return any(_holds_timestamp(k) or _holds_timestamp(v) for k, v in value.items())
-    if kind is list:
-        return any(_holds_timestamp(v) for v in value)
+    """Whether a decoded msgpack value holds a ``msgpack.Timestamp`` (a value or a map key, at any
+    depth: a loop, not recursion - unpackb nests up to 1024 levels, deeper than Python's recursion)."""
+    stack = [value]
+    while stack:
+        value = stack.pop()
+        kind = type(value)
+        if kind is msgpack.Timestamp:
+            return True
+        if kind is dict:
+            stack.extend(value)
+            stack.extend(value.values())
+        elif kind is list:
+            stack.extend(value)
     return False
 
 
