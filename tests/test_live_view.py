@@ -23,7 +23,7 @@ def service(scene_name: str, counters: dict | None = None):
     counters = counters or {"sync": 40, "tpdo1": 2203, "late": 3, "heartbeat": 406, "bootup": 114, "nmt": 3,
                             "sdo": 1890}
     return SimpleNamespace(scene=scene, bitrate=None, labels=labels,
-                           stream=SimpleNamespace(counters=lambda: counters))
+                           stream=SimpleNamespace(counters_snapshot=lambda: counters))
 
 
 def record(cycle=39, **extra):
@@ -124,3 +124,90 @@ def test_before_the_first_record_and_malformed_frames():
     text = "\n".join(render(view))
     assert "waiting for the first record" in text
     assert "malformed: 11, bad_dlc 4, unknown_cob_id 7" in text
+
+
+class _RecordingLock:
+    """A stream lock that records every acquisition by the thread that asks (the test's own)."""
+
+    def __init__(self, lock):
+        self.lock = lock
+        self.taken = 0
+
+    def acquire(self, *args, **kwargs):
+        self.taken += 1
+        return self.lock.acquire(*args, **kwargs)
+
+    def release(self):
+        self.lock.release()
+
+    def __enter__(self):
+        self.acquire()
+        return self
+
+    def __exit__(self, *exc):
+        self.release()
+
+
+def _view_counters(view) -> dict:
+    """The counters a render of ``view`` shows (what its header and counters lines are made from)."""
+    shown = []
+    counters_line = view._counters
+    view._counters = lambda counters, width: (shown.append(dict(counters)), counters_line(counters, width))[1]
+    render(view)
+    (counters,) = shown
+    return counters
+
+
+def test_after_a_run_the_view_shows_the_streams_counters_and_its_refresh_takes_no_lock():
+    """The view reads the counters the stream published at its last closed cycle (and at its
+    end) - never the stream lock, which the receive thread may need under SCHED_FIFO
+    (--rt-priority): the numbers are those of ``stream.counters()`` all the same."""
+    from fusion_center.commands.demo import run_demo
+
+    service_, _ = run_demo(load_scene("matrix57"), 20, keep_records=False)
+    view = LiveView(service_, cycles=20)
+    view.update(record())
+    stream = service_.stream
+    stream.lock = _RecordingLock(stream.lock)
+    shown = _view_counters(view)
+    assert stream.lock.taken == 0  # the refresh took no stream lock
+    assert shown == stream.counters() and shown["sync"] >= 20 and shown["tpdo1"] > 0
+    assert stream.lock.taken == 1
+
+
+def test_the_counters_snapshot_follows_the_closed_cycles_not_every_frame():
+    """Published under the lock by the thread that feeds: at every turn before the first closed
+    cycle (the boot's frames as they come), then at each turn that closes a cycle; a frame
+    between two closes is shown at the next (or at counters(), which publishes what it returns)."""
+    import can
+
+    from fusion_center.service.cycles import CycleAssembler
+    from fusion_center.service.stream import EventStream
+
+    scene = load_scene(ROOT / "scenes" / "matrix57.toml")
+    closed = []
+    stream = EventStream(CycleAssembler(scene), on_closed=closed.append)
+    assert stream.counters_snapshot() == stream.counters()
+
+    def frame(t, can_id, data=b""):
+        stream.receive(can.Message(timestamp=t, arbitration_id=can_id, data=data, is_extended_id=False), 0)
+
+    frame(0.001, 0x700 + 1, b"\x00")  # a boot-up: no cycle closed yet, shown at once
+    assert stream.counters_snapshot()["bootup"] == 1
+    frame(0.010, 0x80, b"\x01")       # SYNC 1 opens cycle 0
+    frame(0.011, 0x700 + 1, b"\x05")
+    assert stream.counters_snapshot()["heartbeat"] == 1  # still no cycle closed: every turn
+    frame(0.020, 0x80, b"\x02")       # SYNC 2 (held until the window's end) ...
+    frame(0.021, 0x700 + 1, b"\x05")  # ... the next frame closes cycle 0
+    assert len(closed) == 1
+    at_close = stream.counters_snapshot()
+    assert at_close["heartbeat"] == 2 and at_close["sync"] == 2
+    frame(0.022, 0x700 + 1, b"\x05")  # between two closes: not published
+    frame(0.030, 0x80, b"\x03")
+    assert len(closed) == 1 and stream.counters_snapshot() == at_close
+    frame(0.031, 0x700 + 1, b"\x05")  # closes cycle 1: published
+    assert len(closed) == 2
+    assert stream.counters_snapshot()["heartbeat"] == 4 and stream.counters_snapshot()["sync"] == 3
+    assert stream.counters_snapshot() == stream.counters()
+    frame(0.032, 0x700 + 1, b"\x05")
+    assert stream.counters() == stream.counters_snapshot()  # counters() publishes what it gives

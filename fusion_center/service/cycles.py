@@ -122,6 +122,15 @@ NODE_KINDS = frozenset({K_TPDO1, K_TPDO2, K_PATCH, K_HEARTBEAT, K_EMCY, K_SDO_RE
 HOLD_MAX = 4096  # master / other frames held at most while a window is open (then released)
 
 
+
+def counters_of(counts, held: int) -> dict[str, int]:
+    """:meth:`CycleAssembler.counters` of its ``counts`` (in :data:`COUNTER_NAMES` order) and the
+    number of events it holds (``held``, only while nonzero)."""
+    counters = dict(zip(COUNTER_NAMES, counts))
+    if held:
+        counters["held"] = held
+    return counters
+
 class CycleAssembler(CycleFrames):
     """Pure state machine: ``feed`` events in stream order, get closed cycles back (what each
     frame says: :class:`~.cycle_frames.CycleFrames`; the SYNC cycles: here)."""
@@ -207,10 +216,7 @@ class CycleAssembler(CycleFrames):
 
     def counters(self) -> dict[str, int]:
         """Events per disposition; ``held`` (only while nonzero): fed, not yet handled."""
-        counters = dict(zip(COUNTER_NAMES, self.counts))
-        if self.held:
-            counters["held"] = len(self.held)
-        return counters
+        return counters_of(self.counts, len(self.held))
 
     def malformed(self) -> int:
         return sum(self.counts[i] for i in _MALFORMED_IDX)

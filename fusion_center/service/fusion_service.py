@@ -284,6 +284,7 @@ class FusionService:
                 logger.exception("notifier stop failed")
         self.notifiers = []
         self.drain(timeout=10.0)
+        self.stream.counters()  # published as they end (the stream's counters_snapshot: a live view after the run)
         for bus in self.buses:
             try:
                 bus.shutdown()

@@ -4,7 +4,10 @@ quantities, every rule, the nodes by NMT state, the recent decisions, the frame 
 For humans only: nothing shown here goes into the decision log. Off with ``--no-live`` or
 when stdout is not a terminal. The worker thread only stores the latest record
 (:meth:`LiveView.update`); the view is built when rich refreshes it (a few times per second),
-so a 100 Hz SYNC costs the fusion centre nothing but a reference assignment.
+so a 100 Hz SYNC costs the fusion centre nothing but a reference assignment. The frame counters
+are the stream's as of its last closed cycle (``EventStream.counters_snapshot``): the refresh
+never takes the stream lock, which the receive thread may need under ``SCHED_FIFO``
+(``--rt-priority``; docs/service.md).
 
 Every line fits the terminal's width down to 80 columns: label-value pairs are wrapped whole
 (never cut to ``cyc…``), tables have few, labelled columns (``tests/test_live_view.py``
@@ -121,7 +124,9 @@ class LiveView:
             history = list(self._history)
             decided, agree = self._decided, self._agree
             slips = list(self._slips)
-        counters = self.service.stream.counters()
+        # as of the last closed cycle, without the stream lock: this refresh thread runs at the normal
+        # priority, the receive thread that needs the lock maybe under SCHED_FIFO (--rt-priority)
+        counters = self.service.stream.counters_snapshot()
         parts = [self._header(record, counters, width), self._cycle_table(record), self._rules_table(record)]
         if record is not None and "grip" in record:
             parts.append(self._grip(record, slips, width))

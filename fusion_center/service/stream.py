@@ -50,7 +50,7 @@ from .cycle_records import (
     ClosedCycle,
     quantise_timestamp,
 )
-from .cycles import CycleAssembler
+from .cycles import CycleAssembler, counters_of
 
 if TYPE_CHECKING:
     from .echo_filter import EchoFilter
@@ -138,6 +138,11 @@ class EventStream:
         # SYNCs received (not sent by this centre) once it has sent a frame: another SYNC
         # producer on the bus; counted ``foreign_sync``, traced, never a cycle (see _feed_locked)
         self.foreign_syncs = 0
+        # the counters as of the last closed cycle - (counts, held, foreign SYNCs), one tuple replaced whole
+        # under the lock, read without it (counters_snapshot: the live view; its refresh never waits for the
+        # lock a real-time receive thread needs); before the first closed cycle, as of every receive turn
+        self._published: tuple = self._snapshot_locked()
+        self._publish_each_turn = True
         self._sent_any = False
         self._senders: dict[int, Callable[[list[tuple]], None] | None] = {}  # channel -> _direct_sender
         # channel -> its direct sender tags the datagrams its socket's kernel filter drops on their
@@ -243,6 +248,7 @@ class EventStream:
                 if solicited[channel]:
                     solicited[channel] = False
                     answers.append(msg)
+            self._publish_locked(closed)
         if closed or len(self._trace_queue) >= TRACE_BATCH:
             self._after_feed(closed)
         return answers
@@ -287,6 +293,7 @@ class EventStream:
                 sent.append((msg, channel))
             for msg, channel in sent:
                 closed |= self._feed_locked(msg, channel)
+            self._publish_locked(closed)
         if closed or len(self._trace_queue) >= TRACE_BATCH:
             self._after_feed(closed)
 
@@ -313,6 +320,7 @@ class EventStream:
             elif self.echoes is not None:  # before the send: its echo can come back at once
                 self.echoes.sent(channel, can_id, data, False)
             closed = self._feed_locked(fed, channel)
+            self._publish_locked(closed)
         try:
             if direct is None:  # a Message of its own: the fed one is the stream's (time stamp, channel)
                 self.buses[channel].send(TxMessage(arbitration_id=can_id, data=bytearray(data),
@@ -437,12 +445,41 @@ class EventStream:
         with self.lock:
             return self.assembler.is_open
 
+    def _snapshot_locked(self) -> tuple:
+        """The counters' figures now (stream lock held): a tuple of plain values, cheap to make."""
+        assembler = self.assembler
+        return tuple(assembler.counts), len(assembler.held), self.foreign_syncs
+
+    def _publish_locked(self, closed: bool) -> None:
+        """After a turn that closed a cycle (before the first, after every turn; stream lock held):
+        the counters for :meth:`counters_snapshot`."""
+        if closed or self._publish_each_turn:
+            self._published = self._snapshot_locked()
+            if closed:
+                self._publish_each_turn = False
+
+    @staticmethod
+    def _counters_of(snapshot: tuple) -> dict[str, int]:
+        counts, held, foreign_syncs = snapshot
+        counters = counters_of(counts, held)
+        if foreign_syncs:
+            counters["foreign_sync"] = foreign_syncs
+        return counters
+
     def counters(self) -> dict[str, int]:
+        """The counters now (takes the stream lock; publishes them for :meth:`counters_snapshot` too)."""
         with self.lock:
-            counters = self.assembler.counters()
-            if self.foreign_syncs:
-                counters["foreign_sync"] = self.foreign_syncs
-            return counters
+            snapshot = self._published = self._snapshot_locked()
+        return self._counters_of(snapshot)
+
+    def counters_snapshot(self) -> dict[str, int]:
+        """The counters as :meth:`counters` gave them at the last closed cycle (or at the last
+        :meth:`counters` call, or before the first closed cycle at the last receive turn) - without
+        the stream lock: one reference read (atomic in CPython). The live view's, whose refresh
+        runs at the normal priority while the receive thread may run under ``SCHED_FIFO``
+        (``--rt-priority``): taking the lock there would be a priority inversion on the SYNC ->
+        command path."""
+        return self._counters_of(self._published)
 
 
 class _StreamListener(can.Listener):
