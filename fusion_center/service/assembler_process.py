@@ -120,8 +120,9 @@ class AssemblerProcess:
 
     When the link breaks without the fuser's ``bye`` (the fuser's liveliness token gone, or
     the fuser dropped the link) it keeps assembling (the parts closed meanwhile count as not
-    sent; their boot-ups go with the next part sent) and says hello again, waiting 0.1 s doubling to 2 s between tries, for up to
-    ``reconnect_timeout_s``; then :attr:`closed` is set with :attr:`gave_up` saying why.
+    sent; their boot-ups go with the next part sent) and says hello again, waiting 0.1 s
+    doubling to 2 s between tries, for up to ``reconnect_timeout_s``; then :attr:`closed` is
+    set with :attr:`gave_up` saying why.
 
     ``fuser``: the Zenoh endpoint of the fuser's link session (``tcp/127.0.0.1:47400``; a
     (host, port) pair or ``HOST:PORT`` mean tcp); ``zenoh_config``: a Zenoh configuration file
