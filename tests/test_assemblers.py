@@ -210,6 +210,114 @@ def test_a_late_boot_up_merged_with_a_later_one_of_the_same_node_keeps_the_later
     assert [tracker.update(c) for c in closed] == [[], [], []] and sum(tracker.emcy.values()) == 1
 
 
+def _two_group_merger(scene):
+    from fusion_center.service.over_range import OverRangeTracker
+    from fusion_center.service.pipeline import node_labels
+
+    merger = CycleMerger(scene, part_deadline_s=0.5)
+    for g in (0, 1):
+        merger.add_group(group_layout(scene, [g]))
+    device = int(group_layout(scene, [1]).devices[0])  # group 1's first node, as the scene's device
+    return merger, OverRangeTracker(node_labels(scene)), device, node_labels(scene)[device]
+
+
+def test_a_late_parts_emcy_goes_on_with_its_boot_up_so_a_node_over_range_after_its_restart_stays_flagged(tmp_path):
+    """Group 1's parts of cycles 1 and 2 both come late: the first holds its node's boot-up,
+    the second its EMCY 0x3000 after that restart. The node sends 0x3000 on the rising edge only,
+    so the EMCY must go on with the boot-up (into the next cycle closed, bus order): the node
+    stays flagged while clipped. Before, the boot-up cleared the flag and the EMCY was lost."""
+    scene = load_scene(_scene_file(tmp_path))
+    merger, tracker, device, label = _two_group_merger(scene)
+    t = 100.0
+    parts = [_parts(scene, 0, 1, emcy=((), ((0x3000, 0x05, 500),))),      # over range
+             _parts(scene, 1, 2, bootups=((), ((0, 15_000),))),           # restarts by itself ...
+             _parts(scene, 2, 3, emcy=((), ((0x3000, 0x05, 21_000),))),   # ... over range again after its start
+             _parts(scene, 3, 4), _parts(scene, 4, 5)]
+    for k in range(3):
+        merger.opened(k + 1, 10_000 * k, t)
+    for name in ("0", "1"):
+        merger.add_part(name, parts[0][name])
+    merger.add_part("0", parts[1]["0"])
+    merger.add_part("0", parts[2]["0"])
+    closed = merger.emit(t) + merger.emit(t + 1.0)  # cycles 1 and 2: group 1's parts missing (deadline)
+    merger.add_part("1", parts[1]["1"])              # late: the boot-up
+    merger.add_part("1", parts[2]["1"])              # late: the EMCY after it
+    for k in (3, 4):
+        merger.opened(k + 1, 10_000 * k, t + 1.0)
+        for name in ("0", "1"):
+            merger.add_part(name, parts[k][name])
+        closed += merger.emit(t + 1.0)
+    assert [c.closed_by for c in closed] == ["complete", "part_missing", "part_missing", "complete", "complete"]
+    assert [tracker.update(c) for c in closed] == [[label]] * 5
+    assert closed[3].bootups == ((device, 15_000),) and [e.t_us for e in closed[3].emcy] == [21_000]
+    assert closed[4].emcy == () and closed[3].emcy_dropped == 0
+    assert (merger.stats.late_parts, merger.stats.late_bootups, merger.stats.late_emcy) == (2, 1, 1)
+    assert tracker.emcy[label] == 2
+    from fusion_center.commands.run import format_summary
+    from test_assembler_wire import _summary_stub
+
+    line, = [line for line in format_summary({**_summary_stub(), "assemblers": merger.stats.as_dict()})
+             if line.startswith("assemblers:")]
+    assert "late parts 2 (1 boot-ups, 1 EMCYs carried on), unmatched 0;" in line, line
+
+
+def test_late_parts_carry_at_most_emcy_per_cycle_emcys_the_rest_counted_dropped(tmp_path):
+    """Carried EMCYs are bounded as a cycle's own (EMCY_PER_CYCLE, the earliest kept): the rest,
+    and a late part's own emcy_dropped, are counted in the next cycle's emcy_dropped."""
+    from fusion_center.service.cycle_records import EMCY_PER_CYCLE
+
+    scene = load_scene(_scene_file(tmp_path))
+    merger, _, _, _ = _two_group_merger(scene)
+    many = tuple((0x8130, 0x11, 10_000 + i) for i in range(EMCY_PER_CYCLE - 2))
+    more = tuple((0x8130, 0x11, 20_000 + i) for i in range(5))
+    parts = [_parts(scene, 0, 1), _parts(scene, 1, 2, emcy=((), many)), _parts(scene, 2, 3, emcy=((), more)),
+             _parts(scene, 3, 4, emcy=((), ((0x3000, 0x05, 31_000),)))]
+    parts[2]["1"].emcy_dropped = 7
+    for k in range(3):
+        merger.opened(k + 1, 10_000 * k, 100.0)
+    for name in ("0", "1"):
+        merger.add_part(name, parts[0][name])
+    merger.add_part("0", parts[1]["0"])
+    merger.add_part("0", parts[2]["0"])
+    closed = merger.emit(100.0) + merger.emit(101.0)
+    merger.add_part("1", parts[1]["1"])
+    merger.add_part("1", parts[2]["1"])
+    merger.opened(4, 30_000, 101.0)
+    for name in ("0", "1"):
+        merger.add_part(name, parts[3][name])
+    closed += merger.emit(101.0)
+    last = closed[-1]
+    assert len(last.emcy) == EMCY_PER_CYCLE
+    assert [e.t_us for e in last.emcy] == [t for _, _, t in many] + [20_000, 20_001]
+    # 3 of the second late part not carried + its own 7 + the cycle's own EMCY (the latest) beyond the bound
+    assert last.emcy_dropped == 3 + 7 + 1
+    assert merger.stats.late_emcy == EMCY_PER_CYCLE
+
+
+def test_a_duplicate_part_after_its_cycle_closed_does_not_reapply_its_boot_up(tmp_path):
+    """The same part again (a duplicate, a replayed signed message) after its cycle closed: counted
+    late, its boot-up NOT carried on - it would clear the over-range flag an EMCY 0x3000 after that
+    boot-up set. Only a late part newer than the group's last part carries its events."""
+    scene = load_scene(_scene_file(tmp_path))
+    merger, tracker, device, label = _two_group_merger(scene)
+    parts = [_parts(scene, 0, 1, bootups=((), ((0, 500),))),              # the node restarts ...
+             _parts(scene, 1, 2, emcy=((), ((0x3000, 0x05, 12_000),))),  # ... and is over range after it
+             _parts(scene, 2, 3), _parts(scene, 3, 4)]
+    closed = []
+    for k in range(4):
+        merger.opened(k + 1, 10_000 * k, 100.0)
+        for name in ("0", "1"):
+            merger.add_part(name, parts[k][name])
+        if k == 2:
+            merger.add_part("1", parts[0]["1"])  # the cycle-0 part again
+            merger.add_part("1", parts[1]["1"])  # the cycle-1 part again (its EMCY not doubled either)
+        closed += merger.emit(100.0)
+    assert [c.bootups for c in closed] == [((device, 500),), (), (), ()]
+    assert [len(c.emcy) for c in closed] == [0, 1, 0, 0]
+    assert [tracker.update(c) for c in closed] == [[], [label], [label], [label]]
+    assert (merger.stats.late_parts, merger.stats.late_bootups, merger.stats.late_emcy) == (2, 0, 0)
+
+
 class _Publisher:
     def __init__(self, fail: bool = False):
         self.fail, self.sent = fail, []

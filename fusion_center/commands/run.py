@@ -239,7 +239,7 @@ def format_summary(summary: dict) -> list[str]:
         lines.append(("assemblers", f"{a['parts']} parts ({', '.join(f'{k} {v}' for k, v in a['by_group'].items())}); "
                                     f"cycles complete {a['complete']}, degraded {a['degraded']} "
                                     f"({a['parts_missing']} parts missing), late parts {a['late_parts']}"
-                                    + (f" ({a['late_bootups']} boot-ups carried on)" if a.get("late_bootups") else "")
+                                    + _carried_on(a)
                                     + f", unmatched {a['unmatched_parts']}; reconnects {_reconnects(a)}; "
                                     f"refused {_by_kind(a.get('refused'))}; SYNC -> part sent p50 "
                                     f"{_fmt_ms(a['to_send_ms']['p50'])}, p99 {_fmt_ms(a['to_send_ms']['p99'])}; "
@@ -293,6 +293,12 @@ def grip_lines(g: dict) -> list[tuple[str, str]]:
 
 def _fmt_n(x):
     return "-" if x is None else f"{x:.2f} N"
+
+
+def _carried_on(a: dict) -> str:
+    """The events of late parts carried on to the next cycle (CycleMerger._late), "" when none."""
+    carried = [f"{a[key]} {what}" for key, what in (("late_bootups", "boot-ups"), ("late_emcy", "EMCYs")) if a.get(key)]
+    return f" ({', '.join(carried)} carried on)" if carried else ""
 
 
 def _reconnects(a: dict) -> str:

@@ -29,6 +29,7 @@ class MergeStats:
     parts_missing: int = 0    # (cycle, group) pairs without a part
     late_parts: int = 0       # parts for a cycle already evaluated
     late_bootups: int = 0     # boot-ups of late parts carried on to the next cycle closed (CycleMerger.add_part)
+    late_emcy: int = 0        # EMCYs of late parts carried on likewise (beyond EMCY_PER_CYCLE: counted in emcy_dropped)
     unmatched_parts: int = 0  # parts for no SYNC this fuser sent
     duplicate_parts: int = 0
     by_group: dict = field(default_factory=dict)  # group -> parts received
@@ -79,6 +80,10 @@ class CycleMerger:
         # scene device -> t_us of its boot-up heard in a late part: an event, not the late cycle's data -
         # merged into the next cycle closed (the over-range tracker orders it by t_us against the EMCYs)
         self.carried_bootups: dict[int, int] = {}
+        # a late part's EMCYs (in bus order, at most EMCY_PER_CYCLE) and the EMCYs it could not carry
+        # (its own emcy_dropped and those beyond the bound): into the next cycle closed with the boot-ups
+        self.carried_emcy: list[EmcyEvent] = []
+        self.carried_emcy_dropped = 0
 
     # -- groups
     def add_group(self, layout: GroupLayout) -> str | None:
@@ -163,12 +168,12 @@ class CycleMerger:
                     stats.to_send.add((part.sent_at - wall) * 1e3)
             if k is None or k not in self.syncs:
                 if k is not None and self.next_k is not None and k < self.next_k:
-                    self._late(part)
+                    self._late(name, k, part)
                 else:
                     stats.unmatched_parts += 1
                 return
             if self.next_k is not None and k < self.next_k:
-                self._late(part)
+                self._late(name, k, part)
                 return
             got = self.parts.setdefault(k, {})
             if name in got:
@@ -177,14 +182,25 @@ class CycleMerger:
             got[name] = part
             self.last_k[name] = max(k, self.last_k.get(name, -1))
 
-    def _late(self, part: CyclePart) -> None:
+    def _late(self, name: str, k: int, part: CyclePart) -> None:
         """A part for a cycle already evaluated (lock held): counted, never mixed in - but its
-        boot-ups are events the cycle's record did not get (a node that restarted by itself would
-        stay flagged over range for good): they go into the next cycle closed, with their t_us."""
+        boot-ups and EMCYs are events the cycle's record did not get (a node that restarted by
+        itself would stay flagged over range for good; one over range again after its restart
+        would be cleared while clipped: it sends EMCY 0x3000 on the rising edge only): they go
+        into the next cycle closed, with their t_us. Only a part newer than every part this group
+        sent before (``k`` above ``last_k``: a part held up on an in-order link) - a duplicate or a
+        replayed part would re-apply an old boot-up after the EMCY that came since."""
         self.stats.late_parts += 1
+        if k <= self.last_k.get(name, -1):
+            return
+        self.last_k[name] = k
         for device, t_us in part.bootups:
             self.stats.late_bootups += 1
             self.carried_bootups[device] = max(t_us, self.carried_bootups.get(device, t_us))
+        kept = part.emcy[:max(EMCY_PER_CYCLE - len(self.carried_emcy), 0)]
+        self.carried_emcy.extend(kept)
+        self.stats.late_emcy += len(kept)
+        self.carried_emcy_dropped += part.emcy_dropped + len(part.emcy) - len(kept)
 
     def emit(self, now: float, *, final: bool = False) -> list[ClosedCycle]:
         """The cycles now decided, in SYNC order (``final``: every cycle sent, missing parts missing)."""
@@ -230,8 +246,11 @@ class CycleMerger:
             nd = self.n_devices
             d_exp, d_miss = np.ones(nd, dtype=bool), np.zeros(nd, dtype=bool)
             d_states, d_complete = np.full(nd, STATE_UNKNOWN, dtype=np.int16), np.zeros(nd, dtype=bool)
-        late = bad = dropped = 0
-        emcy: list[EmcyEvent] = []
+        late = bad = 0
+        # a late part's EMCYs (_late) first: they came before every EMCY of this cycle's parts
+        emcy: list[EmcyEvent] = self.carried_emcy
+        dropped = self.carried_emcy_dropped
+        self.carried_emcy, self.carried_emcy_dropped = [], 0
         duplicates: set[int] = set()
         bootups: list = []
         close_after = 0
@@ -270,7 +289,7 @@ class CycleMerger:
             for device, t_us in bootups:
                 latest[device] = max(t_us, latest.get(device, t_us))
             bootups = list(latest.items())
-        if len(emcy) > EMCY_PER_CYCLE:
+        if len(emcy) > EMCY_PER_CYCLE:  # the earliest kept (stable: a node's own keep their bus order)
             dropped += len(emcy) - EMCY_PER_CYCLE
             emcy = sorted(emcy, key=lambda e: e.t_us)[:EMCY_PER_CYCLE]
         if self.patch:
