@@ -359,6 +359,53 @@ def test_an_assembler_keeps_the_boot_ups_of_a_part_it_could_not_send_for_the_nex
     assert process.parts_sent == 3 and process.parts_unsent == 2
 
 
+def test_an_assembler_sends_the_emcys_of_parts_it_could_not_send_with_its_next_part(tmp_path):
+    """A part with a node's boot-up and the next with its EMCY 0x3000 after it, both not sent
+    (disconnected): the next part sent carries both, the EMCYs ahead of its own in bus order, at
+    most EMCY_PER_CYCLE (the rest and the parts' own emcy_dropped counted), so the fuser keeps the
+    node flagged. Before, the boot-up went on and the EMCY was lost: the node was unflagged."""
+    from fusion_center.service.assembler_link import mac_key
+    from fusion_center.service.assembler_process import AssemblerProcess, _Link
+    from fusion_center.service.assembler_wire import PartCodec
+    from fusion_center.service.cycle_records import EMCY_PER_CYCLE
+
+    scene = load_scene(_scene_file(tmp_path))
+    process = AssemblerProcess(scene, [1], fuser=("127.0.0.1", 9), interface="virtual", authkey=b"k" * 32)
+    layout = process.layout
+    d0 = int(layout.devices[0])
+    filler = tuple((0x8130, 0x11, 30_000 + i) for i in range(EMCY_PER_CYCLE))
+    parts = [_parts(scene, 0, 1, bootups=((), ((0, 1_000),)))["1"],
+             _parts(scene, 1, 2, emcy=((), ((0x3000, 0x05, 12_000),)))["1"],
+             _parts(scene, 2, 3)["1"],
+             _parts(scene, 3, 4, emcy=((), filler[:EMCY_PER_CYCLE - 1]))["1"],
+             _parts(scene, 4, 5, emcy=((), filler[EMCY_PER_CYCLE - 1:] + ((0x3000, 0x05, 41_000),)))["1"],
+             _parts(scene, 5, 6, emcy=((), ((0x0000, 0x00, 51_000),)))["1"]]
+    parts[4].emcy_dropped = 2
+    process._outbox.extend(parts[:2])
+    process._send()                                   # disconnected: neither sent
+    link = _Link(process, "test", mac_key(b"k" * 32))
+    link.publisher = _Publisher()
+    process.link = link
+    process._outbox.append(parts[2])
+    process._send()
+    codec = PartCodec(scene, layout)
+    sent = codec.decode(link.publisher.sent[0])
+    assert sent.bootups == ((d0, 1_000),) and [(e.code, e.t_us) for e in sent.emcy] == [(0x3000, 12_000)]
+    assert sent.emcy_dropped == 0
+    # over many parts not sent the kept EMCYs stay bounded: 15 + 2 (the 16th kept) and the part's own
+    process.link = None
+    process._outbox.extend(parts[3:5])
+    process._send()
+    assert len(process._unsent_emcy) == EMCY_PER_CYCLE and process._unsent_emcy_dropped == 1 + 2
+    process.link = link
+    process._outbox.append(parts[5])
+    process._send()
+    sent = codec.decode(link.publisher.sent[1])
+    assert [e.t_us for e in sent.emcy] == [t for _, _, t in filler]  # the earliest kept: the wire's bound
+    assert sent.emcy_dropped == 1 + 2 + 1                             # the over-range one, 2 of its part, the reset
+    assert process.parts_sent == 2 and process.parts_unsent == 4
+
+
 def test_counter_maps_a_part_to_its_sync_and_numbers_jump_over_lost_syncs(tmp_path):
     scene = load_scene(_scene_file(tmp_path))
     merger = CycleMerger(scene, part_deadline_s=0.5)

@@ -26,7 +26,7 @@ from .assembler_wire import (ANSWER_MAX, HANDSHAKE_TIMEOUT_S, PROTOCOL, BadMessa
                              encode_part)
 from .zenoh_config import endpoint, endpoint_host
 from .common_frames import CommonFrames
-from .cycle_records import ClosedCycle, EmcyEvent, quantise_timestamp
+from .cycle_records import EMCY_PER_CYCLE, ClosedCycle, EmcyEvent, quantise_timestamp
 
 logger = logging.getLogger("fusion_center.service.assemblers")
 
@@ -120,7 +120,7 @@ class AssemblerProcess:
 
     When the link breaks without the fuser's ``bye`` (the fuser's liveliness token gone, or
     the fuser dropped the link) it keeps assembling (the parts closed meanwhile count as not
-    sent; their boot-ups go with the next part sent) and says hello again, waiting 0.1 s
+    sent; their boot-ups and EMCYs go with the next part sent) and says hello again, waiting 0.1 s
     doubling to 2 s between tries, for up to ``reconnect_timeout_s``; then :attr:`closed` is
     set with :attr:`gave_up` saying why.
 
@@ -169,6 +169,10 @@ class AssemblerProcess:
         # scene device -> t_us of a boot-up whose part was not sent: an event the fuser still needs (its
         # over-range tracker forgets the node's flag on it) - carried by the next part sent (_send)
         self._unsent_bootups: dict[int, int] = {}
+        # likewise its EMCYs (bus order, at most EMCY_PER_CYCLE: an over-range EMCY is sent on the rising
+        # edge only) and the EMCYs not kept (the part's own emcy_dropped, those beyond the bound)
+        self._unsent_emcy: list[EmcyEvent] = []
+        self._unsent_emcy_dropped = 0
         self.events = 0
         self.closed = threading.Event()    # the fuser said bye, or went away and did not come back
         self.bye = False
@@ -509,11 +513,31 @@ class AssemblerProcess:
             self._send()
 
     def _unsent(self, part: CyclePart) -> None:
-        """A part not sent (send lock held): counted; its boot-ups kept for the next part sent."""
+        """A part not sent (send lock held): counted; its boot-ups and EMCYs kept for the next part sent."""
         self.parts_unsent += 1
         kept = self._unsent_bootups
         for device, t_us in part.bootups:
             kept[device] = max(t_us, kept.get(device, t_us))
+        emcy = part.emcy[:max(EMCY_PER_CYCLE - len(self._unsent_emcy), 0)]
+        self._unsent_emcy.extend(emcy)
+        self._unsent_emcy_dropped += part.emcy_dropped + len(part.emcy) - len(emcy)
+
+    def _carry_unsent(self, part: CyclePart) -> None:
+        """The boot-ups and EMCYs of parts not sent go with ``part`` (send lock held; if it is not
+        sent either, _unsent keeps them again): a device's latest boot-up the one that counts, the
+        kept EMCYs ahead of the part's own (bus order), at most EMCY_PER_CYCLE (the wire's bound; the
+        earliest kept, the rest counted in emcy_dropped)."""
+        if self._unsent_bootups:
+            latest = self._unsent_bootups
+            for device, t_us in part.bootups:
+                latest[device] = max(t_us, latest.get(device, t_us))
+            part.bootups = tuple(sorted(latest.items()))
+            self._unsent_bootups = {}
+        if self._unsent_emcy or self._unsent_emcy_dropped:
+            emcy = self._unsent_emcy + list(part.emcy)
+            part.emcy = tuple(emcy[:EMCY_PER_CYCLE])
+            part.emcy_dropped += self._unsent_emcy_dropped + len(emcy) - len(part.emcy)
+            self._unsent_emcy, self._unsent_emcy_dropped = [], 0
 
     def _send(self) -> None:
         with self._send_lock:  # parts leave in the order they closed
@@ -523,13 +547,7 @@ class AssemblerProcess:
                 if link is None or self.closed.is_set():  # disconnected: not sent, never queued
                     self._unsent(part)
                     continue
-                if self._unsent_bootups:  # boot-ups of parts not sent: events, they go with this one (if it
-                    # is not sent either, _unsent keeps them again), a device's latest boot-up the one that counts
-                    latest = self._unsent_bootups
-                    for device, t_us in part.bootups:
-                        latest[device] = max(t_us, latest.get(device, t_us))
-                    part.bootups = tuple(sorted(latest.items()))
-                    self._unsent_bootups = {}
+                self._carry_unsent(part)  # events of parts not sent go with this one
                 part.sent_at = time.time()
                 try:
                     data = encode_part(part)

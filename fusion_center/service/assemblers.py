@@ -44,9 +44,11 @@ evaluates them with the usual pipeline, writing the same records as
   by the fuser's merge thread (woken by each merged part, and every tick for the deadlines) -
   not by Zenoh's callback thread, which takes every link's parts one after the other and only
   checks, decodes and merges them; a part for a cycle already evaluated is counted
-  (``late_parts``), never mixed in - but its boot-ups (events, not cycle data) go into the next
-  cycle closed, with their t_us (``late_bootups``; an assembler likewise sends the boot-ups of a
-  part it could not send with its next part).
+  (``late_parts``), never mixed in - but its boot-ups and EMCYs (events, not cycle data) go into
+  the next cycle closed, with their t_us (``late_bootups``, ``late_emcy``; at most
+  ``EMCY_PER_CYCLE`` EMCYs, the rest in ``emcy_dropped``) when the part is newer than the group's
+  last one (a duplicate or replayed part carries nothing); an assembler likewise sends the
+  boot-ups and EMCYs of a part it could not send with its next part.
 * **Reconnects**: an assembler whose link breaks without the fuser's ``bye`` (the fuser's
   liveliness token gone, or the fuser dropped the link) keeps
   assembling its buses (the parts closed meanwhile are counted as not sent, never queued) and
