@@ -152,6 +152,29 @@ def test_a_msgpack_timestamp_is_refused_at_decode():
                                encoding=ENC_MSGPACK))
 
 
+def test_a_json_frame_nested_deeper_than_the_recursion_limit_is_a_bad_frame():
+    """json.loads raises RecursionError on a record nested deep enough: refused as ValueError (the
+    serve loop counts it bad and goes on) - before, it escaped the loop and ended the bridge."""
+    deep = b"[" * 100_000 + b"]" * 100_000
+    with pytest.raises(ValueError, match="nested too deep"):
+        parse_frame(make_frame(deep, None, encoding=ENC_JSON))
+    deep_object = b'{"a":' + b"[" * 100_000 + b"]" * 100_000 + b"}"
+    with pytest.raises(ValueError, match="nested too deep"):
+        parse_frame(make_frame(deep_object, None, encoding=ENC_JSON))
+    assert parse_frame(make_frame(b'{"a": ' + b"[" * 100 + b"]" * 100 + b"}", None, encoding=ENC_JSON))[0]["a"]
+
+
+def test_a_bridge_counts_a_deeply_nested_json_frame_bad_and_takes_the_next():
+    bridge = RoboticsBridge(load_scene("matrix57"), {"scene": "matrix57"}, foxglove=("127.0.0.1", 0)).open()
+    try:
+        bridge.sock.send(make_frame(b'{"a":' + b"[" * 100_000 + b"]" * 100_000 + b"}", None, encoding=ENC_JSON))
+        bridge.sock.send(make_frame(json.dumps({"cycle": 2, "decision": "H0"}).encode(), None, encoding=ENC_JSON))
+    finally:
+        stats = bridge.close()
+    b = stats["bridge"]
+    assert (b["bad"], b["received"], b["died"]) == (1, 1, None)
+
+
 def test_a_bridge_counts_a_timestamp_frame_bad_and_takes_the_next(tmp_path):
     """Through the bridge process: a frame holding a msgpack timestamp is counted ``bad`` (not
     received), the good frame after it goes through."""
@@ -716,3 +739,4 @@ def test_a_bridge_started_from_a_thread_that_ends_lives_on():
     assert b["died"] is None and b["frames"] > 0 and b["received"] == b["frames"] and b["lost"] == 0
     assert "--parent-pid" not in args
     assert "--parent-pid" in RoboticsBridge(scene, {"scene": "matrix57"}, foxglove=("127.0.0.1", 0)).command()
+

@@ -188,7 +188,10 @@ def parse_frame(frame) -> tuple[dict, bytes | None, np.ndarray | None]:
     payload = bytes(frame[HEADER.size:HEADER.size + n_json])
     if encoding == ENC_JSON:
         line = payload
-        record = json.loads(line)
+        try:
+            record = json.loads(line)
+        except RecursionError:  # nested deeper than the interpreter's recursion limit: a bad frame, not the end
+            raise ValueError("a frame whose JSON record is nested too deep to read") from None
     elif encoding == ENC_MSGPACK:
         line = None
         try:
