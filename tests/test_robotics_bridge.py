@@ -688,10 +688,13 @@ def test_a_bridge_whose_centre_is_gone_before_it_asks_for_the_signal_exits_at_on
     """The race: the centre ends before the bridge's first act - its parent is no longer the pid
     it was given, so it exits (143, as SIGTERM's) instead of starting."""
 
+    ended = subprocess.Popen([sys.executable, "-c", ""])  # a pid that is not the test's (pid 1 may be: docker)
+    ended.wait()
+
     class Orphan(RoboticsBridge):
         def command(self):
             argv = super().command()
-            argv[argv.index("--parent-pid") + 1] = "1"  # not this process: as if the centre had ended
+            argv[argv.index("--parent-pid") + 1] = str(ended.pid)  # not its parent: as if the centre had ended
             return argv
 
     with pytest.raises(UsageError, match=r"ended before it was ready \(exit status 143"):
