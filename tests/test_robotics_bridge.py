@@ -743,3 +743,42 @@ def test_a_bridge_started_from_a_thread_that_ends_lives_on():
     assert "--parent-pid" not in args
     assert "--parent-pid" in RoboticsBridge(scene, {"scene": "matrix57"}, foxglove=("127.0.0.1", 0)).command()
 
+
+@pytest.mark.parametrize("value", ["0", "-1", " 123 ", "1_0", "\u0661\u0662", "+12", "99999999999999999999",
+                                   "4194305", "abc", ""])
+def test_a_parent_pid_that_is_no_pid_is_refused_in_one_line(value, capsys):
+    """``--parent-pid``: ASCII digits, 1 .. pid_max - 1 - not what int() also takes (blanks, ``_``,
+    other scripts' digits, a sign); one line naming the option, the value and what is allowed, exit 2."""
+    from fusion_center.robotics.bridge import main, pid_max
+
+    assert main(["--fd", "99", "--flag-fd", "98", "--settings", "{}", "--parent-pid", value]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith(f"robotics bridge: --parent-pid {value!r}: expected a process id, "
+                                                   f"ASCII digits 1..{pid_max() - 1}"), err
+
+
+def test_the_bridges_options_are_not_abbreviated(capsys):
+    from fusion_center.robotics.bridge import main, parent_pid_of, pid_max
+
+    with pytest.raises(SystemExit) as exited:
+        main(["--fd", "99", "--flag-fd", "98", "--settings", "{}", f"--parent={os.getpid()}"])
+    assert exited.value.code == 2 and "unrecognized arguments: --parent=" in capsys.readouterr().err
+    assert parent_pid_of(str(os.getpid())) == os.getpid() and parent_pid_of(str(pid_max() - 1)) == pid_max() - 1
+    assert parent_pid_of(str(pid_max())) is None
+
+
+def test_pid_max_falls_back_where_proc_cannot_say(monkeypatch):
+    import builtins
+
+    from fusion_center.robotics import bridge
+
+    real_open = builtins.open
+
+    def no_proc(path, *args, **kwargs):
+        if str(path).startswith("/proc/sys/kernel/pid_max"):
+            raise FileNotFoundError(path)
+        return real_open(path, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "open", no_proc)
+    assert bridge.pid_max() == bridge.PID_MAX_FALLBACK == 4194304
+

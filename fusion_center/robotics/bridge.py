@@ -16,7 +16,8 @@ terminal is the centre's; this process is in a session of its own anyway).
 
 **It dies with the centre** (:func:`die_with_parent`, its first act; Linux): with ``--parent-pid``
 it asks the kernel for SIGTERM when the thread that started it ends (``prctl(PR_SET_PDEATHSIG)``)
-and, the centre possibly gone already, exits at once if its parent is no longer that pid. So a
+and, the centre possibly gone already, exits at once if its parent is no longer that pid
+(:func:`parent_pid_of`: ASCII digits, 1 .. pid_max - 1; else one line and exit 2). So a
 centre killed while the bridge is still starting (a Zenoh session being opened, the scene being
 loaded) leaves no bridge behind; later the link's end (above) ends it too. SIGTERM before the
 ready line has its default action (nothing is written yet, and a handler would wait for a C call
@@ -79,6 +80,28 @@ def die_with_parent(parent_pid: int) -> bool:
         logger.debug("robotics bridge: the centre (pid %d) ended before the bridge started: exiting", parent_pid)
         sys.exit(128 + signal.SIGTERM)
     return asked
+
+
+PID_MAX_FALLBACK = 4194304  # the kernel's largest pid_max (PID_MAX_LIMIT on 64-bit), where /proc cannot say
+
+
+def pid_max() -> int:
+    """The kernel's ``pid_max`` (pids are 1 .. pid_max - 1); :data:`PID_MAX_FALLBACK` where it cannot be read."""
+    try:
+        with open("/proc/sys/kernel/pid_max", "rb") as f:
+            value = int(f.read(32))
+        return value if value > 1 else PID_MAX_FALLBACK
+    except (OSError, ValueError):
+        return PID_MAX_FALLBACK
+
+
+def parent_pid_of(text: str) -> int | None:
+    """``--parent-pid``'s value as a pid, or None when it is none: ASCII digits only (no sign,
+    blank, ``_`` or other script's digits, which ``int`` takes), 1 .. pid_max - 1."""
+    if not (0 < len(text) <= 10 and text.isascii() and text.isdigit()):
+        return None
+    value = int(text)
+    return value if 1 <= value < pid_max() else None
 
 
 def load_scene_of(settings: dict):
@@ -208,15 +231,20 @@ def _shut(sock: socket.socket) -> None:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m fusion_center.robotics.bridge",
+    parser = argparse.ArgumentParser(prog="python -m fusion_center.robotics.bridge", allow_abbrev=False,
                                      description="the centre's robotics bridge (started by run / demo)")
     parser.add_argument("--fd", type=int, required=True, help="the link's descriptor (inherited)")
     parser.add_argument("--flag-fd", type=int, required=True, help="the shared flag's memfd (inherited)")
     parser.add_argument("--settings", required=True, help="JSON: source, digest, zenoh, foxglove")
-    parser.add_argument("--parent-pid", type=int, help="the centre's pid: die with it (SIGTERM; Linux)")
+    parser.add_argument("--parent-pid", help="the centre's pid: die with it (SIGTERM; Linux)")
     args = parser.parse_args(argv)
     if args.parent_pid is not None:
-        die_with_parent(args.parent_pid)
+        parent_pid = parent_pid_of(args.parent_pid)
+        if parent_pid is None:
+            sys.stderr.write(f"robotics bridge: --parent-pid {args.parent_pid!r}: expected a process id, "
+                             f"ASCII digits 1..{pid_max() - 1} (/proc/sys/kernel/pid_max)\n")
+            return 2
+        die_with_parent(parent_pid)
     global _REPORT
     # the report channel is ours alone: anything a library prints goes to stderr, not into it
     _REPORT = os.fdopen(os.dup(1), "w")
