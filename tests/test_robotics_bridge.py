@@ -782,3 +782,62 @@ def test_pid_max_falls_back_where_proc_cannot_say(monkeypatch):
     monkeypatch.setattr(builtins, "open", no_proc)
     assert bridge.pid_max() == bridge.PID_MAX_FALLBACK == 4194304
 
+
+# the real bridge's main(), a blocking C call patched in (a default pthread mutex locked twice: ctypes lets
+# the interpreter lock go, and Python's signal handlers cannot run on the main thread meanwhile); a marker
+# file says the bridge got there
+_BLOCKED = ("import ctypes, time, fusion_center.robotics.bridge as b; b.TERM_GRACE_S = {grace!r}; "
+            "libc = ctypes.CDLL(None); mutex = ctypes.create_string_buffer(64); "
+            "blocked = lambda *a: (open({marker!r}, 'w').close(), libc.pthread_mutex_lock(mutex), "
+            "libc.pthread_mutex_lock(mutex)); b.Bridge.{method} = blocked; main = b.main")
+
+
+def _blocked_bridge(tmp_path, method: str, grace: float):
+    marker = tmp_path / "blocked"
+
+    class Blocked(RoboticsBridge):
+        def command(self):
+            argv = super().command()
+            argv[2] = argv[2].replace("from fusion_center.robotics.bridge import main",
+                                      _BLOCKED.format(grace=grace, marker=str(marker), method=method))
+            return argv
+
+    return Blocked(load_scene("matrix57"), {"scene": "matrix57"}, foxglove=("127.0.0.1", 0)).open(), marker
+
+
+def test_a_second_sigterm_ends_a_bridge_blocked_in_a_c_call(tmp_path):
+    """After the ready line, the main thread blocked in a C call (serving: a Zenoh put held up):
+    Python's handler cannot run - before, SIGTERM then did nothing, a second one neither. Now the
+    watcher thread woken by the signal's wakeup fd shuts the link down at the first, and a second
+    SIGTERM exits the bridge (143) at once."""
+    bridge, marker = _blocked_bridge(tmp_path, "serve", grace=1e6)
+    try:
+        _wait(marker.exists, "the bridge to block in its serve loop")
+        bridge.proc.send_signal(signal.SIGTERM)
+        _wait(lambda: bridge.sock.recv(1) == b"" if _readable(bridge.sock) else False,
+              "the bridge to shut its end of the link down")
+        assert bridge.proc.poll() is None  # the grace (here a long one) goes on
+        bridge.proc.send_signal(signal.SIGTERM)
+        assert bridge.proc.wait(TIMEOUT) == 128 + signal.SIGTERM
+    finally:
+        stats = bridge.close()
+    assert "no report at its end (exit status 143)" in stats["bridge"]["died"]
+
+
+def test_a_bridge_whose_clean_end_blocks_after_sigterm_exits_after_the_grace(tmp_path):
+    """SIGTERM, the link shut down, the clean end blocked in a C call (an output's close): the
+    bridge exits 143 once TERM_GRACE_S (here 0.2 s) is over, without a second signal."""
+    bridge, marker = _blocked_bridge(tmp_path, "stats", grace=0.2)
+    try:
+        bridge.proc.send_signal(signal.SIGTERM)
+        assert bridge.proc.wait(TIMEOUT) == 128 + signal.SIGTERM
+        assert marker.exists()  # it got to its clean end
+    finally:
+        stats = bridge.close()
+    assert "no report at its end (exit status 143)" in stats["bridge"]["died"]
+
+
+def _readable(sock) -> bool:
+    import select
+
+    return bool(select.select([sock], [], [], 0)[0])

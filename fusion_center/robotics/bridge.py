@@ -23,10 +23,13 @@ loaded) leaves no bridge behind; later the link's end (above) ends it too. SIGTE
 ready line has its default action (nothing is written yet, and a handler would wait for a C call
 - the Zenoh session's opening - to return); from the ready line on it shuts the link down, so the
 bridge ends at a frame's boundary exactly as when the link closes (its outputs closed, its
-counters printed). The centre passes ``--parent-pid`` only when it starts the bridge from its main
-thread (the parent-death signal follows the *thread* that forked: from another thread the bridge
-would die when that thread ends); where ``prctl`` is missing (not Linux) this is a no-op, logged
-at debug level, and the link's end is what ends the bridge.
+counters printed) - from a watcher thread woken by the signal's wakeup fd, so also while the
+main thread is blocked in a C call; an end not over within :data:`TERM_GRACE_S` (5 s) exits 143,
+and so does a second SIGTERM at once (:class:`_TermWatch`). The centre passes ``--parent-pid``
+only when it starts the bridge from its main thread (the parent-death signal follows the
+*thread* that forked: from another thread the bridge would die when that thread ends); where
+``prctl`` is missing (not Linux) this is a no-op, logged at debug level, and the link's end is
+what ends the bridge.
 """
 
 from __future__ import annotations
@@ -40,6 +43,7 @@ import signal
 import socket
 import sys
 import threading
+import time
 
 from taxel_net.errors import UsageError, one_line
 
@@ -102,6 +106,58 @@ def parent_pid_of(text: str) -> int | None:
         return None
     value = int(text)
     return value if 1 <= value < pid_max() else None
+
+
+TERM_GRACE_S = 5.0  # after SIGTERM: the clean end's bound, then the bridge exits 143 all the same
+
+
+class _TermWatch:
+    """SIGTERM from the ready line on (module docstring). Python runs a signal handler only on the
+    main thread between bytecodes - never while it is blocked in a C call (a Zenoh close, a put
+    held up) - so the handler acts through a watcher thread instead: the interpreter's C-level
+    handler writes the signal's number to a wakeup socket (``signal.set_wakeup_fd``) at once, and
+    the watcher shuts the link down (the clean end) and starts the grace: not over within
+    :data:`TERM_GRACE_S`, ``os._exit(143)``; a second SIGTERM exits 143 at once. The Python handler,
+    when it gets to run, only gives SIGTERM its default action back (a further one kills, even with
+    the interpreter lock held)."""
+
+    def __init__(self, sock: socket.socket):
+        self.sock = sock
+        self._read, self._write = socket.socketpair()
+        self._write.setblocking(False)
+        self.terms = 0
+        signal.signal(signal.SIGTERM, self._handler)
+        signal.set_wakeup_fd(self._write.fileno(), warn_on_full_buffer=False)
+        threading.Thread(target=self._watch, name="bridge-sigterm", daemon=True).start()
+
+    @staticmethod
+    def _handler(signum, frame) -> None:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+    def _watch(self) -> None:
+        while True:
+            try:
+                data = self._read.recv(64)
+            except InterruptedError:
+                continue
+            except OSError:
+                return
+            if not data:
+                return
+            for number in data:
+                if number != signal.SIGTERM:
+                    continue
+                self.terms += 1
+                if self.terms > 1:
+                    os._exit(128 + signal.SIGTERM)
+                _shut(self.sock)
+                threading.Thread(target=self._grace, name="bridge-sigterm-grace", daemon=True).start()
+
+    @staticmethod
+    def _grace() -> None:
+        time.sleep(TERM_GRACE_S)
+        os.write(2, f"robotics bridge: its end took more than {TERM_GRACE_S:g} s after SIGTERM: exiting\n".encode())
+        os._exit(128 + signal.SIGTERM)
 
 
 def load_scene_of(settings: dict):
@@ -264,8 +320,9 @@ def main(argv=None) -> int:
         _say({"error": f"robotics bridge: cannot start: {type(exc).__name__}: {one_line(exc)}"})
         return 2
     # SIGTERM (the centre's death, a user's kill) from here on: the link shut down, the bridge ends at
-    # a frame's boundary as when the centre closes the link - outputs closed, counters printed
-    signal.signal(signal.SIGTERM, lambda signum, frame: _shut(sock))
+    # a frame's boundary as when the centre closes the link - outputs closed, counters printed - within
+    # TERM_GRACE_S, even while blocked in a C call; a second SIGTERM ends it at once (_TermWatch)
+    _TermWatch(sock)
     try:
         _say({"ready": bridge.ready()})
         stop = threading.Event()
