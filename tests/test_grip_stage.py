@@ -224,7 +224,7 @@ def test_the_live_view_shows_the_grasp_in_80_columns(grasp):
 
     scene, service, *_ = grasp
     fake = SimpleNamespace(scene=scene, bitrate=None, labels=service.labels,
-                           stream=SimpleNamespace(counters=lambda: {"sync": 500, "drive": 1500}))
+                           stream=SimpleNamespace(counters_snapshot=lambda: {"sync": 500, "drive": 1500}))
     view = LiveView(fake, cycles=500)
     slips = [r for r in service.records if r["grip"]["slip"]]
     for r in service.records[: slips[0]["cycle"] + 1]:
