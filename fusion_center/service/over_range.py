@@ -28,8 +28,8 @@ range), and a missing node's records are degraded anyway. A boot-up stamped befo
 a duplicate or a replayed part of the assemblers' merge, :mod:`.cycle_merger`), leaves the flag
 as it is - that EMCY came after the restart. A boot-up new to it clears the flag whatever its
 stamp: the parts of a restarted assembler process count their t_us from its own first frame, so
-stamps of different groups' processes are not comparable. A record of a cycle in which some node is over range lists those
-nodes in ``over_range_nodes``: its raw-mode results (the nodes'
+stamps of different assembler processes are not comparable. A record of a cycle in which some
+node is over range lists those nodes in ``over_range_nodes``: its raw-mode results (the nodes'
 decisions computed centrally, the centralised tests, the forces) came from clipped readings.
 The EMCYs are counted per node (the run summary's ``over_range``). Pure: a function of the
 closed cycles, so a replay gives the same records.
