@@ -23,21 +23,22 @@ then its boot-up can share a stamp, while a node's next over-range EMCY needs an
 SYNC after its boot-up). A node that is lost (heartbeat consumer time expired) stays over range:
 a node heard again without a boot-up resumes in its NMT state with its error state as it was
 (it sends the EMCY 0x3000 on the rising edge only, so it says nothing more while still over
-range), and a missing node's records are degraded anyway. A boot-up stamped before the EMCY
-0x3000 that set a node's flag, and one the tracker applied to that node before (the same t_us:
-a duplicate or a replayed part of the assemblers' merge, :mod:`.cycle_merger`), leaves the flag
-as it is - that EMCY came after the restart. A boot-up new to it clears the flag whatever its
-stamp: the parts of a restarted assembler process count their t_us from its own first frame, so
-stamps of different assembler processes are not comparable. A record of a cycle in which some
-node is over range lists those nodes in ``over_range_nodes``: its raw-mode results (the nodes'
-decisions computed centrally, the centralised tests, the forces) came from clipped readings.
+range), and a missing node's records are degraded anyway. A boot-up clears the flag whatever its
+stamp, even one stamped before the EMCY 0x3000 that set it: each assembler process of
+``run --assemblers`` counts t_us from its own first frame (a node's boot-up that is a process's
+first frame is t_us 0 in every process), so stamps of different processes are not comparable;
+a duplicate or replayed part never brings an old boot-up here (:mod:`.cycle_merger` carries a
+late part's events only when its cycle is newer than its group's last part). A record of a
+cycle in which some node is over range lists those nodes in ``over_range_nodes``: its raw-mode
+results (the nodes' decisions computed centrally, the centralised tests, the forces) came from
+clipped readings.
 The EMCYs are counted per node (the run summary's ``over_range``). Pure: a function of the
 closed cycles, so a replay gives the same records.
 """
 
 from __future__ import annotations
 
-from collections import Counter, deque
+from collections import Counter
 
 from taxel_net.patches import EMCY_INPUT_OVER_RANGE, ERR_REG_VOLTAGE
 
@@ -45,7 +46,6 @@ from .cycle_records import STATE_RESETTING, ClosedCycle
 from .decoder import STATE_BOOTUP
 
 _RESTARTED = (STATE_RESETTING, STATE_BOOTUP)
-BOOTUPS_KEPT = 8  # boot-up stamps remembered per node (a repeated one is told from a new one: module docstring)
 
 
 class OverRangeTracker:
@@ -57,50 +57,28 @@ class OverRangeTracker:
         self.index = {label: i for i, label in enumerate(labels)}
         self.active: set = set()          # node labels over range now
         self.emcy: Counter = Counter()    # node label -> over-range EMCYs (rising edges) heard
-        self.flagged_at: dict = {}        # node label over range -> t_us of the EMCY 0x3000 that flagged it
-        self.booted_at: dict = {}         # node label -> t_us of its latest boot-ups applied (BOOTUPS_KEPT)
-        self.repeated_bootups = 0         # boot-ups applied before, stamped before a flag's EMCY: left out
 
     def reset(self) -> None:
         self.active.clear()
         self.emcy.clear()
-        self.flagged_at.clear()
-        self.booted_at.clear()
 
     def update(self, closed: ClosedCycle) -> list:
         """The cycle's boot-ups and EMCYs applied, restarted nodes forgotten (not lost ones:
         module docstring): the labels of the nodes over range in this cycle (device order)."""
         active = self.active
-        flagged_at = self.flagged_at
         booted = None
         if closed.bootups:  # restarted by itself: its error state starts afresh at its boot-up
-            booted = {}
-            for d, t_us in closed.bootups:
-                if d >= len(self.labels):
-                    continue
-                label = self.labels[d]
-                seen = self.booted_at.get(label)
-                if label in active and t_us < flagged_at[label] and seen is not None and t_us in seen:
-                    self.repeated_bootups += 1  # a boot-up applied before, repeated: the EMCY came after it
-                    continue
-                if seen is None:
-                    seen = self.booted_at[label] = deque(maxlen=BOOTUPS_KEPT)
-                seen.append(t_us)
-                booted[label] = t_us
-                active.discard(label)
-                flagged_at.pop(label, None)
+            booted = {self.labels[d]: t_us for d, t_us in closed.bootups if d < len(self.labels)}
+            active.difference_update(booted)
         for e in closed.emcy:
             if e.code == EMCY_INPUT_OVER_RANGE:
                 self.emcy[e.node] += 1
-            if booted and e.t_us <= booted.get(e.node, -1 << 63):
+            if booted is not None and e.t_us <= booted.get(e.node, -1 << 63):
                 continue  # sent before its restart (or at its stamp: below), superseded
             if e.code == EMCY_INPUT_OVER_RANGE:
-                if e.node not in active:
-                    active.add(e.node)
-                    flagged_at[e.node] = e.t_us
+                active.add(e.node)
             elif not e.register & ERR_REG_VOLTAGE:
                 active.discard(e.node)
-                flagged_at.pop(e.node, None)
         if not active:
             return []
         devices = closed.devices
@@ -109,6 +87,5 @@ class OverRangeTracker:
                 i = self.index.get(label)
                 if i is not None and int(devices.states[i]) in _RESTARTED:
                     active.discard(label)
-                    flagged_at.pop(label, None)
         index = self.index
         return sorted(active, key=lambda label: index.get(label, len(index)))
