@@ -837,6 +837,39 @@ def test_a_bridge_whose_clean_end_blocks_after_sigterm_exits_after_the_grace(tmp
     assert "no report at its end (exit status 143)" in stats["bridge"]["died"]
 
 
+# the watcher of the real bridge, a SIGTERM sent to the process the moment the Python handler is installed
+# (the latest it may come once signal.signal returned); the link's far end says whether it was shut down
+_TERM_AT_HANDLER = """
+import os, signal, socket
+import fusion_center.robotics.bridge as b
+real = signal.signal
+def installed_then_term(signum, handler):
+    old = real(signum, handler)
+    if signum == signal.SIGTERM and callable(handler):
+        os.kill(os.getpid(), signal.SIGTERM)
+    return old
+signal.signal = installed_then_term
+ours, theirs = socket.socketpair()
+watch = b._TermWatch(theirs)
+print("shut" if ours.recv(1) == b"" else "data", watch.terms, flush=True)
+"""
+
+
+def test_a_sigterm_as_soon_as_the_handler_is_installed_wakes_the_watcher():
+    """_TermWatch sets the wakeup fd and starts its watcher before it installs the Python handler:
+    a SIGTERM once the handler is in place (the C handler writes its number to the wakeup fd,
+    the Python handler gives SIGTERM its default action back) shuts the link down. Before, the
+    handler came first: a SIGTERM between it and set_wakeup_fd woke nobody, the link was never
+    shut, the bridge went on as if no SIGTERM had come (the subprocess blocked in its recv: the
+    timeout only guards against that hang)."""
+    try:
+        out = subprocess.run([sys.executable, "-c", _TERM_AT_HANDLER], capture_output=True, text=True,
+                             timeout=TIMEOUT, cwd=Path(__file__).resolve().parents[1])
+    except subprocess.TimeoutExpired:
+        pytest.fail("the SIGTERM woke no watcher: the link was never shut down")
+    assert (out.returncode, out.stdout.split()) == (0, ["shut", "1"]), out.stderr
+
+
 def _readable(sock) -> bool:
     import select
 

@@ -126,9 +126,12 @@ class _TermWatch:
         self._read, self._write = socket.socketpair()
         self._write.setblocking(False)
         self.terms = 0
-        signal.signal(signal.SIGTERM, self._handler)
+        # the wakeup fd and the watcher first, the handler last: a SIGTERM before the handler is in
+        # place has its default action; one after it always wakes the watcher (handler first, one in
+        # between ran the Python handler - SIG_DFL back - and woke nobody: the link never shut)
         signal.set_wakeup_fd(self._write.fileno(), warn_on_full_buffer=False)
         threading.Thread(target=self._watch, name="bridge-sigterm", daemon=True).start()
+        signal.signal(signal.SIGTERM, self._handler)
 
     @staticmethod
     def _handler(signum, frame) -> None:
