@@ -294,6 +294,37 @@ def test_late_parts_carry_at_most_emcy_per_cycle_emcys_the_rest_counted_dropped(
     assert merger.stats.late_emcy == EMCY_PER_CYCLE
 
 
+def test_carried_emcys_are_kept_first_over_the_bound_whatever_the_groups_stamps(tmp_path):
+    """Each assembler process stamps t_us from its own first frame: stamps of different groups are
+    not comparable. Group 1's late part carries 10 EMCYs stamped 9 s into its process, the next
+    cycle's own part of group 0 (a process started lately) 10 stamped 1 ms: over EMCY_PER_CYCLE,
+    the carried EMCYs (bus order: before every EMCY of the cycle's parts) are kept whole and the
+    cycle's own cut, and ``late_emcy`` counts what landed in the record. Before, the merge sorted
+    by t_us across groups: 4 carried EMCYs dropped, yet all 10 counted as carried on."""
+    from fusion_center.service.cycle_records import EMCY_PER_CYCLE
+
+    scene = load_scene(_scene_file(tmp_path))
+    merger, *_ = _two_group_merger(scene)
+    late = tuple((0x8130, 0x11, 9_000_000 + i) for i in range(10))
+    own = tuple((0x8130, 0x11, 1_000 + i) for i in range(10))
+    parts = [_parts(scene, 0, 1), _parts(scene, 1, 2, emcy=((), late)), _parts(scene, 2, 3, emcy=(own, ()))]
+    for k in range(2):
+        merger.opened(k + 1, 10_000 * k, 100.0)
+    for name in ("0", "1"):
+        merger.add_part(name, parts[0][name])
+    merger.add_part("0", parts[1]["0"])
+    closed = merger.emit(100.0) + merger.emit(101.0)   # cycle 1 closes without group 1
+    merger.add_part("1", parts[1]["1"])                 # late: its 10 EMCYs go on
+    merger.opened(3, 20_000, 101.0)
+    for name in ("0", "1"):
+        merger.add_part(name, parts[2][name])
+    closed += merger.emit(101.0)
+    last = closed[-1]
+    assert [e.t_us for e in last.emcy] == [t for _, _, t in late] + [t for _, _, t in own[:EMCY_PER_CYCLE - 10]]
+    assert last.emcy_dropped == 10 - (EMCY_PER_CYCLE - 10)
+    assert merger.stats.late_emcy == 10
+
+
 def test_a_duplicate_part_after_its_cycle_closed_does_not_reapply_its_boot_up(tmp_path):
     """The same part again (a duplicate, a replayed signed message) after its cycle closed: counted
     late, its boot-up NOT carried on - it would clear the over-range flag an EMCY 0x3000 after that

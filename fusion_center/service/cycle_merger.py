@@ -29,7 +29,7 @@ class MergeStats:
     parts_missing: int = 0    # (cycle, group) pairs without a part
     late_parts: int = 0       # parts for a cycle already evaluated
     late_bootups: int = 0     # boot-ups of late parts carried on to the next cycle closed (CycleMerger.add_part)
-    late_emcy: int = 0        # EMCYs of late parts carried on likewise (beyond EMCY_PER_CYCLE: counted in emcy_dropped)
+    late_emcy: int = 0        # EMCYs of late parts carried on likewise, counted as they land in a record (first in it)
     unmatched_parts: int = 0  # parts for no SYNC this fuser sent
     duplicate_parts: int = 0
     by_group: dict = field(default_factory=dict)  # group -> parts received
@@ -198,8 +198,7 @@ class CycleMerger:
             self.stats.late_bootups += 1
             self.carried_bootups[device] = max(t_us, self.carried_bootups.get(device, t_us))
         kept = part.emcy[:max(EMCY_PER_CYCLE - len(self.carried_emcy), 0)]
-        self.carried_emcy.extend(kept)
-        self.stats.late_emcy += len(kept)
+        self.carried_emcy.extend(kept)  # counted late_emcy when they land in a record (_merge)
         self.carried_emcy_dropped += part.emcy_dropped + len(part.emcy) - len(kept)
 
     def emit(self, now: float, *, final: bool = False) -> list[ClosedCycle]:
@@ -248,7 +247,8 @@ class CycleMerger:
             d_states, d_complete = np.full(nd, STATE_UNKNOWN, dtype=np.int16), np.zeros(nd, dtype=bool)
         late = bad = 0
         # a late part's EMCYs (_late) first: they came before every EMCY of this cycle's parts
-        emcy: list[EmcyEvent] = self.carried_emcy
+        carried = self.carried_emcy
+        emcy: list[EmcyEvent] = list(carried)
         dropped = self.carried_emcy_dropped
         self.carried_emcy, self.carried_emcy_dropped = [], 0
         duplicates: set[int] = set()
@@ -289,9 +289,13 @@ class CycleMerger:
             for device, t_us in bootups:
                 latest[device] = max(t_us, latest.get(device, t_us))
             bootups = list(latest.items())
-        if len(emcy) > EMCY_PER_CYCLE:  # the earliest kept (stable: a node's own keep their bus order)
+        if len(emcy) > EMCY_PER_CYCLE:
+            # the carried ones (at most EMCY_PER_CYCLE: _late) kept whole, the cycle's own cut from the end;
+            # never sorted by t_us: each assembler process stamps from its own first frame, so stamps of
+            # different groups are not comparable (a group's own EMCYs keep their bus order)
             dropped += len(emcy) - EMCY_PER_CYCLE
-            emcy = sorted(emcy, key=lambda e: e.t_us)[:EMCY_PER_CYCLE]
+            emcy = emcy[:EMCY_PER_CYCLE]
+        self.stats.late_emcy += min(len(carried), EMCY_PER_CYCLE)  # the carried EMCYs that landed here
         if self.patch:
             device = DeviceCycle.make(expected=d_exp, missing=d_miss, states=d_states, complete=d_complete)
         if missing:
