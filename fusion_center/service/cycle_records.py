@@ -136,7 +136,9 @@ class ClosedCycle:
     held_readings: np.ndarray   # float64: last X_i ever received (NaN = never)
     late_frames: int           # late PDOs counted since the previous closed cycle
     bad_frames: int            # malformed frames since the previous closed cycle
-    emcy: tuple[EmcyEvent, ...]  # EMCY frames since the previous closed cycle (at most EMCY_PER_CYCLE)
+    # EMCY frames since the previous closed cycle (at most EMCY_PER_CYCLE); with --assemblers it may begin with
+    # a late / unsent part's EMCYs carried from an earlier cycle (their own t_us, from their process's first frame)
+    emcy: tuple[EmcyEvent, ...]
     states: np.ndarray = None  # int16 per taxel: NMT state at the SYNC (STATE_*, -1 unknown, -2 resetting)
     duplicates: tuple[int, ...] = ()  # node (device) indexes with duplicate node-ID evidence since the previous cycle
     emcy_dropped: int = 0      # EMCY frames since the previous cycle beyond EMCY_PER_CYCLE (counted only)
