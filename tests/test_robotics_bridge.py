@@ -784,35 +784,73 @@ def test_pid_max_falls_back_where_proc_cannot_say(monkeypatch):
 
 
 # the real bridge's main(), a blocking C call patched in (a default pthread mutex locked twice: ctypes lets
-# the interpreter lock go, and Python's signal handlers cannot run on the main thread meanwhile); a marker
-# file says the bridge got there
-_BLOCKED = ("import ctypes, time, fusion_center.robotics.bridge as b; b.TERM_GRACE_S = {grace!r}; "
-            "libc = ctypes.CDLL(None); mutex = ctypes.create_string_buffer(64); "
-            "blocked = lambda *a: (open({marker!r}, 'w').close(), libc.pthread_mutex_lock(mutex), "
-            "libc.pthread_mutex_lock(mutex)); b.Bridge.{method} = blocked; main = b.main")
+# the interpreter lock go, and Python's signal handlers cannot run on the main thread meanwhile); the marker
+# file (written whole, by a rename) names the mutex's address: the futex word the main thread then waits on.
+# With grace_on_marker the grace (TERM_GRACE_S, its sleep) waits for the marker instead of a time: the
+# grace's end (its line, os._exit(143)) comes only once the main thread reached the blocking call
+_BLOCKED = """
+import ctypes, os, time
+import fusion_center.robotics.bridge as b
+libc = ctypes.CDLL(None)
+mutex = ctypes.create_string_buffer(64)
+marker = {marker!r}
+
+def blocked(*args):
+    with open(marker + ".tmp", "w") as f:
+        f.write(str(ctypes.addressof(mutex)))
+    os.replace(marker + ".tmp", marker)
+    libc.pthread_mutex_lock(mutex)
+    libc.pthread_mutex_lock(mutex)
+
+b.Bridge.{method} = blocked
+b.TERM_GRACE_S = {grace!r}
+if {grace_on_marker!r}:
+    real_grace = b._TermWatch._grace
+
+    def grace_on_marker():
+        while not os.path.exists(marker):
+            time.sleep(0.01)
+        b.TERM_GRACE_S = 0.0
+        real_grace()
+
+    b._TermWatch._grace = staticmethod(grace_on_marker)
+main = b.main
+"""
 
 
-def _blocked_bridge(tmp_path, method: str, grace: float):
+def _blocked_bridge(tmp_path, method: str, grace: float, grace_on_marker: bool = False):
     marker = tmp_path / "blocked"
+    code = "exec(" + repr(_BLOCKED.format(grace=grace, marker=str(marker), method=method,
+                                          grace_on_marker=grace_on_marker)) + ")"
 
     class Blocked(RoboticsBridge):
         def command(self):
             argv = super().command()
-            argv[2] = argv[2].replace("from fusion_center.robotics.bridge import main",
-                                      _BLOCKED.format(grace=grace, marker=str(marker), method=method))
+            argv[2] = argv[2].replace("from fusion_center.robotics.bridge import main", code)
             return argv
 
     return Blocked(load_scene("matrix57"), {"scene": "matrix57"}, foxglove=("127.0.0.1", 0)).open(), marker
+
+
+def _blocked_in_the_c_call(pid: int, marker) -> bool:
+    """The main thread of ``pid`` waits in a system call on the mutex named by ``marker`` (its futex
+    word: the syscall's first argument; /proc/PID/task/PID/syscall, 'running' when not in one)."""
+    if not marker.exists():
+        return False
+    fields = Path(f"/proc/{pid}/task/{pid}/syscall").read_text().split()
+    return len(fields) > 1 and fields[0] != "running" and int(fields[1], 16) == int(marker.read_text())
 
 
 def test_a_second_sigterm_ends_a_bridge_blocked_in_a_c_call(tmp_path):
     """After the ready line, the main thread blocked in a C call (serving: a Zenoh put held up):
     Python's handler cannot run - before, SIGTERM then did nothing, a second one neither. Now the
     watcher thread woken by the signal's wakeup fd shuts the link down at the first, and a second
-    SIGTERM exits the bridge (143) at once."""
+    SIGTERM exits the bridge (143) at once. The first SIGTERM goes only once the main thread waits
+    on the mutex (a SIGTERM before, between the marker and the call, lets the Python handler run:
+    SIGTERM's default action back, a second one kills by signal, status -15 - see the docs)."""
     bridge, marker = _blocked_bridge(tmp_path, "serve", grace=1e6)
     try:
-        _wait(marker.exists, "the bridge to block in its serve loop")
+        _wait(lambda: _blocked_in_the_c_call(bridge.proc.pid, marker), "the bridge to block in its serve loop")
         bridge.proc.send_signal(signal.SIGTERM)
         _wait(lambda: bridge.sock.recv(1) == b"" if _readable(bridge.sock) else False,
               "the bridge to shut its end of the link down")
@@ -826,8 +864,10 @@ def test_a_second_sigterm_ends_a_bridge_blocked_in_a_c_call(tmp_path):
 
 def test_a_bridge_whose_clean_end_blocks_after_sigterm_exits_after_the_grace(tmp_path):
     """SIGTERM, the link shut down, the clean end blocked in a C call (an output's close): the
-    bridge exits 143 once TERM_GRACE_S (here 0.2 s) is over, without a second signal."""
-    bridge, marker = _blocked_bridge(tmp_path, "stats", grace=0.2)
+    bridge exits 143 once TERM_GRACE_S is over, without a second signal. The grace's sleep is
+    patched to wait for the marker (the clean end got to ``Bridge.stats``) - no time bound decides
+    the outcome (before, a 0.2 s grace: a main thread slower than that to reach stats failed it)."""
+    bridge, marker = _blocked_bridge(tmp_path, "stats", grace=1e6, grace_on_marker=True)
     try:
         bridge.proc.send_signal(signal.SIGTERM)
         assert bridge.proc.wait(TIMEOUT) == 128 + signal.SIGTERM

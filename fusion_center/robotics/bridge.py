@@ -25,7 +25,9 @@ ready line has its default action (nothing is written yet, and a handler would w
 bridge ends at a frame's boundary exactly as when the link closes (its outputs closed, its
 counters printed) - from a watcher thread woken by the signal's wakeup fd, so also while the
 main thread is blocked in a C call; an end not over within :data:`TERM_GRACE_S` (5 s) exits 143,
-and so does a second SIGTERM at once (:class:`_TermWatch`). The centre passes ``--parent-pid``
+and so does a second SIGTERM at once while the main thread is still in that C call - once it got
+to run the Python handler, SIGTERM has its default action back and a second one kills the bridge
+by signal (status -15, no report) (:class:`_TermWatch`). The centre passes ``--parent-pid``
 only when it starts the bridge from its main thread (the parent-death signal follows the
 *thread* that forked: from another thread the bridge would die when that thread ends); where
 ``prctl`` is missing (not Linux) this is a no-op, logged at debug level, and the link's end is
@@ -117,9 +119,10 @@ class _TermWatch:
     held up) - so the handler acts through a watcher thread instead: the interpreter's C-level
     handler writes the signal's number to a wakeup socket (``signal.set_wakeup_fd``) at once, and
     the watcher shuts the link down (the clean end) and starts the grace: not over within
-    :data:`TERM_GRACE_S`, ``os._exit(143)``; a second SIGTERM exits 143 at once. The Python handler,
-    when it gets to run, only gives SIGTERM its default action back (a further one kills, even with
-    the interpreter lock held)."""
+    :data:`TERM_GRACE_S`, ``os._exit(143)``; a second SIGTERM the watcher sees exits 143 at once. The
+    Python handler, when it gets to run (the main thread between bytecodes), only gives SIGTERM its
+    default action back: a further one then kills by signal (status -15, no report), even with the
+    interpreter lock held - so 143 at a second SIGTERM holds while the main thread is still blocked."""
 
     def __init__(self, sock: socket.socket):
         self.sock = sock
