@@ -931,3 +931,28 @@ def test_the_link_sessions_are_loopback_unless_configured(tmp_path, monkeypatch)
     with pytest.raises(UsageError) as info:
         fuser_config("tcp/127.0.0.1:47400", str(user))
     assert str(user) in str(info.value) and "\n" not in str(info.value)
+
+
+def test_a_one_taxel_node_scenes_merged_cycle_with_two_boot_ups_keeps_no_device_view(tmp_path):
+    """A one-taxel-node scene (no patch nodes: a merged cycle's ``devices`` is None) whose part
+    brings two nodes' boot-ups: the merge keeps both and ``devices`` stays None - the boot-ups'
+    merge named its loop variable like the merge's device view and left a node index there
+    (the fuser's pipeline then failed the cycle: "'int' object has no attribute 'missing'",
+    tests/test_grip_assemblers.py's first record)."""
+    from fusion_center.service.cycle_records import ClosedCycle
+
+    scene = load_scene(ROOT / "tests" / "data" / "grasp_light.toml")
+    ga = GroupAssembler(scene, [0])
+    n = ga.layout.sub.n
+    closed = ClosedCycle(
+        cycle=0, sync_us=0, close_us=1000, sync_counter=1, closed_by="complete",
+        decisions=np.ones(n, dtype=np.int8), readings=np.full(n, np.nan), received=np.ones(n, dtype=bool),
+        expected=np.ones(n, dtype=bool), missing=np.zeros(n, dtype=bool), held_decisions=np.ones(n, dtype=np.int8),
+        held_readings=np.full(n, np.nan), late_frames=0, bad_frames=0, states=np.full(n, 5, dtype=np.int16),
+        emcy=(), bootups=((0, 100), (1, 200)))
+    merger = CycleMerger(scene, part_deadline_s=0.5)
+    merger.add_group(group_layout(scene, [0]))
+    merger.opened(1, 0, 100.0)
+    merger.add_part(ga.layout.name, ga.part(closed))
+    (merged,) = merger.emit(100.0)
+    assert merged.devices is None and merged.bootups == ((0, 100), (1, 200)), merged.devices

@@ -286,8 +286,8 @@ class CycleMerger:
             self.carried_bootups = {}
         if len(bootups) > 1:
             latest: dict[int, int] = {}
-            for device, t_us in bootups:
-                latest[device] = max(t_us, latest.get(device, t_us))
+            for booted, t_us in bootups:   # (not `device`: this function's DeviceCycle)
+                latest[booted] = max(t_us, latest.get(booted, t_us))
             bootups = list(latest.items())
         if len(emcy) > EMCY_PER_CYCLE:
             # the carried ones (at most EMCY_PER_CYCLE: _late) kept whole, the cycle's own cut from the end;
