@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from fusion_center.core.grip_law import GripCommand, GripFindings, GripParams, GripState, grip_step
+from fusion_center.core.grip_law import TIME_EPS_S, GripCommand, GripFindings, GripParams, GripState, grip_step
 from taxel_net.errors import ParameterError
 
 DT = 0.01
@@ -78,13 +78,14 @@ def test_safety_rules_hold_on_any_sequence(p, seq):
             # last raise has settled raises it on new evidence only (not on a flag held from before)
             if f.slip:
                 assert cmd.force_n >= min(before.command_n, p.max_n)
-                onset = math.isinf(before.since_raise_s) or before.quiet_s >= p.return_delay_s
-                settled = before.raise_pending_n == 0 and before.since_raise_s + f.dt_s >= p.settle_s
-                if settled and (onset or f.slip_new is not False):
+                onset = math.isinf(before.since_raise_s) or before.quiet_s >= p.return_delay_s - TIME_EPS_S
+                first = onset or not before.episode_raised          # the episode's first raise is still to come
+                settled = before.raise_pending_n == 0 and before.since_raise_s + f.dt_s >= p.settle_s - TIME_EPS_S
+                if settled and (first or f.slip_new is not False):
                     want = max(before.command_n * (1 + p.raise_fraction), before.command_n + p.raise_n)
                     assert cmd.force_n >= min(want, p.max_n) - 1e-9
-                    assert "slip_raise" in cmd.flags
-                if f.slip_new is False and not onset:
+                    assert "slip_raise" in cmd.flags and after.episode_raised
+                if f.slip_new is False and not first:
                     assert "slip_raise" not in cmd.flags
                 # no raise while the last one is on its way: the drive's force still rising toward it
                 a = f.actual_n
@@ -266,6 +267,27 @@ def test_after_an_episodes_first_raise_only_new_evidence_raises_again():
     for k in range(1, 7):
         cmd, unknown = grip_step(P, unknown, close(slip=True))
     assert cmd.force_n == 32.0 and "slip_raise" in cmd.flags           # 60 ms after the first: as before
+
+
+def test_an_episodes_first_raise_deferred_at_its_onset_needs_no_new_evidence():
+    """The exemption is the episode's first raise, not its onset cycle: with settle_s (0.25 s)
+    longer than return_delay_s (0.2 s), a new episode can begin while the last raise is still
+    settling - its onset cycle raises nothing; its first raise comes once settled, on a held
+    flag too (slip_new False); the raise after that needs new evidence again."""
+    p = replace(P, settle_s=0.25)
+    cmd, state = grip_step(p, GripState(phase="hold", command_n=8.0, quiet_s=5.0), close(slip=True))
+    assert cmd.force_n == 16.0 and state.episode_raised
+    for _ in range(21):                                                   # 0.21 s quiet: the next slip is an onset
+        cmd, state = grip_step(p, state, close())
+    cmd, state = grip_step(p, state, replace(close(slip=True), slip_new=True))
+    assert "slip_onset" in cmd.flags and "slip_raise" not in cmd.flags and not state.episode_raised  # 0.22 s < settle
+    onset_n = cmd.force_n                 # the onset's floor, 1.2 x the command it began under
+    raised = []
+    for k in range(1, 12):
+        cmd, state = grip_step(p, state, replace(close(slip=True), slip_new=False))
+        if "slip_raise" in cmd.flags:
+            raised.append((k, cmd.force_n))
+    assert raised == [(3, pytest.approx(2 * onset_n))]   # 0.25 s after the last raise, on held flags: the first
 
 
 def test_slip_raise_is_capped_at_max_n():

@@ -95,6 +95,7 @@ class GripState:
     since_raise_s: float = math.inf  # time since the last raise on slip arrived (sent, without the drive's force)
     raise_pending_n: float = 0.0     # the last raise's command while the drive's force is on its way to it (0: none)
     actual_n: float | None = None    # the drive's force of the previous cycle (findings.actual_n)
+    episode_raised: bool = False     # the current slip episode has had its first raise (later ones need new evidence)
 
 
 @dataclass(frozen=True)
@@ -164,13 +165,16 @@ def grip_step(p: GripParams, state: GripState, f: GripFindings) -> tuple[GripCom
             flags.append("slip_onset")
         quiet = 0.0
         # a raise: the episode's first, or on new evidence once the last raise arrived and settled
-        if pending == 0 and since_raise >= p.settle_s - TIME_EPS_S and (onset or f.slip_new is not False):
+        episode_raised = state.episode_raised and not onset
+        if pending == 0 and since_raise >= p.settle_s - TIME_EPS_S and (not episode_raised or f.slip_new is not False):
+            episode_raised = True
             command = max(command * (1.0 + p.raise_fraction), command + p.raise_n)
             since_raise = 0.0
             pending = min(command, p.max_n) if actual is not None else 0.0
             flags.append("slip_raise")
         command = max(command, target, learned)
     else:
+        episode_raised = state.episode_raised
         if state.slipping:
             flags.append("stuck")
         if carried and learned > target and quiet >= p.relax_delay_s - TIME_EPS_S:
@@ -201,4 +205,4 @@ def grip_step(p: GripParams, state: GripState, f: GripFindings) -> tuple[GripCom
     return (GripCommand(command, tuple(flags)),
             GripState(phase=phase, command_n=command, learned_n=learned, present_run=present_run,
                       slipping=bool(f.slip), quiet_s=quiet, since_raise_s=since_raise, raise_pending_n=pending,
-                      actual_n=actual))
+                      actual_n=actual, episode_raised=episode_raised))
