@@ -15,6 +15,9 @@ Usage: python bench/grasp_drive.py [--grasps 300] [--seed 23] [--slopes 500,1000
        [--syncs 10] [--modes decision] [--contact random|centred] [--jobs N] [--json out.json]
 
 The bundled scenes' drive is not changed: this is what a faster drive or a finer pitch would buy.
+After each mode's table: each pad layout's bus per cycle at each SYNC period (worst-case stuffing,
+the loop's frames included) and a WARNING line for a layout whose frames do not fit the cycle -
+the bench skips the bus, so such a variant's figures assume a bus that is not there.
 """
 
 from __future__ import annotations
@@ -33,6 +36,9 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
 from grasp import PARTS, PITCHES, make_case, place_contacts, run_jobs  # noqa: E402
+from grasp_layout import pad_rows  # noqa: E402
+from grasp_sim import BitCounter  # noqa: E402
+from fusion_center.core.bus_timing import bus_load, worst_case_frame_bits  # noqa: E402
 
 GOAL_MS = 50.0
 
@@ -74,6 +80,40 @@ def _pct(values, q):
 
 def _f(v, fmt="{:.0f}"):
     return "-" if v is None or (isinstance(v, float) and np.isnan(v)) else fmt.format(v)
+
+
+PDO_BYTES = {"decision": 1, "raw": 4}   # a one-taxel node's TPDO1 (u_i) / TPDO2 (X_i, REAL32)
+
+
+def layout_bus_share(pitch_mm: float, mode: str, sync_ms: float, bitrate: float, drive_node: int) -> float:
+    """The bus time one cycle of a pad layout needs, as a share of the SYNC period: every
+    one-taxel node's PDO with worst-case stuffing (``worst_case_frame_bits``: a cycle fits for
+    sure at <= 1) plus the loop's own frames (SYNC, the drive's TPDOs, the centre's RPDO1:
+    ``BitCounter.loop_bits``). The bench skips the bus, so a layout over 1 runs here on a bus that
+    could not carry it: its figures are flagged, not left to look valid."""
+    nodes = len(pad_rows(pitch_mm))
+    bits = [worst_case_frame_bits(PDO_BYTES[mode])] * nodes + [BitCounter.loop_bits(drive_node)]
+    return bus_load(bits, sync_ms / 1000.0, bitrate)
+
+
+def render_bus(variants, mode: str, bitrate: float, drive_node: int) -> tuple[str, list[str]]:
+    """Per pad pitch and SYNC period: the layout's bus share (``layout_bus_share``); and a line per
+    (pitch, SYNC) whose frames do not fit."""
+    syncs = sorted({v[2] for v in variants}, reverse=True)
+    lines = [f"{mode}: bus per cycle, worst-case stuffing and the loop's frames, % of {bitrate / 1e6:g} Mbit/s "
+             f"(over 100 %: the frames do not fit the cycle)",
+             f"{'pitch':28s}" + "".join(f"{f'SYNC {s:g} ms':>14s}" for s in syncs)]
+    over = []
+    for pitch in PITCHES:
+        cells = []
+        for sync in syncs:
+            share = layout_bus_share(pitch, mode, sync, bitrate, drive_node)
+            cells.append(f"{100 * share:.0f} %" + (" !" if share > 1 else "  "))
+            if share > 1:
+                over.append(f"{mode}: the {pitch:g} mm pads at a {sync:g} ms SYNC need {100 * share:.0f} % of the bus: "
+                            "their figures assume frames a real bus could not carry in the cycle")
+        lines.append(f"{f'{pitch:g} mm ({len(pad_rows(pitch))} nodes)':28s}" + "".join(f"{c:>14s}" for c in cells))
+    return "\n".join(lines), over
 
 
 def variant_name(variant: tuple[float, float, float]) -> str:
@@ -162,7 +202,14 @@ def main(argv=None) -> int:
                 sel = ok if pitch == "all" else [r for r in ok if r["case"]["pitch_mm"] == pitch]
                 stats[(v, pitch)] = cell_stats(sel, mode, v[2])
         print(render(stats, variants, mode))
+        bus_table, over = render_bus(variants, mode, _base().bus.bitrate, _base().gripper.node_id)
+        print(bus_table)
+        for line in over:
+            print(f"WARNING {line}")
         out[mode] = {f"{variant_name(v)}|{p}": st for (v, p), st in stats.items()}
+        out[f"{mode} bus"] = {f"{p:g} mm|SYNC {sync:g}": layout_bus_share(p, mode, sync, _base().bus.bitrate,
+                                                                          _base().gripper.node_id)
+                              for p in PITCHES for sync in sorted({v[2] for v in variants})}
     if args.json:
         args.json.write_text(json.dumps({"args": {"grasps": args.grasps, "seed": args.seed, "contact": args.contact,
                                                   "slopes": args.slopes, "lags": args.lags, "syncs": syncs,

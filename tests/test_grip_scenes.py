@@ -214,3 +214,27 @@ def test_bench_variant_sync_period_steps_world_drive_and_centre_by_it():
     for phase in ("approach", "close", "lift", "hold", "place"):
         cycles = {sync: sum(1 for r in rows if r[1] == phase) for sync, rows in runs.items()}
         assert cycles[10.0] > 10 and abs(cycles[5.0] - 2 * cycles[10.0]) <= 1, (phase, cycles)
+
+
+def test_grasp_drive_prices_each_pad_layouts_bus_and_flags_a_cycle_that_does_not_fit():
+    """bench/grasp_drive.py's bus table: per pad layout and SYNC period, every one-taxel node's PDO
+    at its worst-case stuffed length (Davis et al. 2007, eq. 2, 11-bit identifier:
+    8n + 47 + floor((34 + 8n - 1) / 4) bits with the 3-bit intermission) plus the loop's own
+    frames, over the period's bits at the scene's bit rate; the raw 1.5 mm pads at a 5 ms SYNC do
+    not fit (flagged), at 10 ms they do."""
+    from grasp import _base
+    from grasp_drive import layout_bus_share, render_bus
+    from grasp_layout import pad_rows
+    from grasp_sim import BitCounter
+
+    base = _base()
+    node, bitrate = base.gripper.node_id, base.bus.bitrate
+    for pitch, mode, n_bytes, sync in ((1.5, "raw", 4, 5.0), (2.0, "decision", 1, 10.0), (4.0, "raw", 4, 5.0)):
+        frame = 8 * n_bytes + 47 + (34 + 8 * n_bytes - 1) // 4
+        want = (len(pad_rows(pitch)) * frame + BitCounter.loop_bits(node)) / (sync * 1e-3 * bitrate)
+        assert layout_bus_share(pitch, mode, sync, bitrate, node) == pytest.approx(want, rel=1e-12)
+    assert len(pad_rows(1.5)) == 68 and layout_bus_share(1.5, "raw", 5.0, bitrate, node) > 1
+    assert layout_bus_share(1.5, "raw", 10.0, bitrate, node) < 1
+    table, over = render_bus([(500.0, 20.0, 10.0), (500.0, 20.0, 5.0)], "raw", bitrate, node)
+    assert any(line.startswith("raw: the 1.5 mm pads at a 5 ms SYNC need") for line in over)
+    assert not any("10 ms SYNC" in line for line in over)
