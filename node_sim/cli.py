@@ -52,6 +52,16 @@ from taxel_net.errors import ParameterError, SceneError, UsageError
 from . import od as odx
 
 
+SEED_MAX = 2**63 - 1   # the scene's [scene] seed range (taxel_net.scene)
+
+
+def parse_seed(text: str) -> int:
+    """``--seed``: ASCII digits, 0..2^63-1 (the scene's rule; numpy's generators refuse a negative seed)."""
+    if not (text.isascii() and text.isdigit()) or int(text) > SEED_MAX:
+        raise argparse.ArgumentTypeError(f"{text!r}: an integer 0..2^63-1 (the scene's [scene] seed range)")
+    return int(text)
+
+
 def _version() -> str:
     from importlib.metadata import PackageNotFoundError, version
 
@@ -85,7 +95,8 @@ def build_parser() -> argparse.ArgumentParser:
                                "800k, 1M or a number (default: python-can's configuration, else the interface's)")
     p.add_argument("--bus-option", action="append", default=[], metavar="KEY=VALUE",
                    help="one can.Bus keyword argument (repeatable): the older spelling of --bus-kwargs")
-    p.add_argument("--seed", type=int, default=None, help="noise seed (default: the scene's)")
+    p.add_argument("--seed", type=parse_seed, default=None,
+                   help="noise seed, an integer 0..2^63-1 as the scene's [scene] seed (default: the scene's)")
     p.add_argument("--serve", type=parse_channel_indices, default=None, metavar="CHANNELS",
                    help="run only the nodes of these scene channels (indices into bus.channels: 0-3 or 0,2,5); "
                         "shards one scene over several node-sim processes (default: every channel)")

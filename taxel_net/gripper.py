@@ -19,6 +19,8 @@ Shared by the twins and the centre (neither imports the other): no CAN library h
 
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass
 from types import SimpleNamespace
 
@@ -82,8 +84,11 @@ class GripperSpec:
 
 def _exact(w: Where, key: str, value: float, unit: float, what: str, lo: int, hi: int) -> int:
     """``value`` (scene unit) in steps of ``unit``: an integer lo..hi, or a one-line error."""
-    steps = round(value / unit)
-    if abs(value / unit - steps) > 1e-6:
+    ratio = value / unit
+    if not math.isfinite(ratio) or not lo - 1 <= ratio <= hi + 1:   # 1e308 / 0.001 is inf: no round()
+        w.fail(key, value, f"must lie in {lo * unit:g}..{hi * unit:g} ({what})")
+    steps = round(ratio)
+    if abs(ratio - steps) > 1e-6:
         w.fail(key, value, f"must be a multiple of {unit:g} ({what})")
     if not lo <= steps <= hi:
         w.fail(key, value, f"must lie in {lo * unit:g}..{hi * unit:g} ({what})")

@@ -50,7 +50,15 @@ def integer(w: Where, key: str, v, lo: int | None = None, hi: int | None = None,
     if not is_int(v):
         w.fail(key, v, "must be an integer")
     if (lo is not None and v < lo) or (hi is not None and v > hi):
-        w.fail(key, v, allowed or f"must lie in {lo}..{hi}")
+        w.fail(key, shown_number(v), allowed or f"must lie in {lo}..{hi}")
+    return v
+
+
+def shown_number(v):
+    """``v`` for a one-line message: an integer of more than 20 digits as its first digits and length."""
+    if is_int(v) and len(str(abs(v))) > 20:
+        text = str(v)
+        return f"{text[:12]}... ({len(text.lstrip('-'))} digits)"
     return v
 
 
@@ -58,7 +66,10 @@ def number(w: Where, key: str, v, lo: float | None = None, hi: float | None = No
            lo_open: bool = False, hi_open: bool = False) -> float:
     if not is_num(v):
         w.fail(key, v, "must be a number")
-    v = float(v)
+    try:
+        v = float(v)
+    except OverflowError:  # an integer beyond any float (TOML integers are unbounded)
+        w.fail(key, shown_number(v), "must be finite")
     if not math.isfinite(v):
         w.fail(key, v, "must be finite")
     bad = ((lo is not None and (v <= lo if lo_open else v < lo))

@@ -353,3 +353,27 @@ def test_ctrl_c_during_boot_exits_130_with_an_empty_summary(scenes, no_config, c
     assert line(out, "cycles") == "0 SYNC, 0 records"
     assert line(out, "interrupted").startswith("Ctrl-C after 0 of 10 SYNC cycles")
     assert (tmp_path / "r.jsonl").read_text() == ""
+
+
+@pytest.mark.parametrize("value", ["-1", "1_0", "５", " 5", str(2**63), "x"])
+def test_node_sim_seed_is_the_scenes_range_in_one_line(capsys, value):
+    """node-sim --seed: an integer 0..2^63-1 as the scene's [scene] seed, else exit 2 in one line -
+    a negative one was taken, the world thread died on it (numpy: "expected non-negative
+    integer") and the twins served on without a world (2026-11-30, stop 32)."""
+    from node_sim.cli import main as node_main
+
+    with pytest.raises(SystemExit) as info:
+        node_main(["--scene", "grasp_lift", "-i", "virtual", "-c", "seed-test", "--seed", value])
+    assert info.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert "argument --seed" in err[-1] and "0..2^63-1" in err[-1]
+
+
+def test_a_rig_refuses_a_seed_outside_the_scenes_range():
+    from node_sim.rig import Rig
+    from taxel_net.errors import ParameterError
+    from taxel_net.scene import load_scene
+
+    for seed in (-1, 2**63, True, 1.5):
+        with pytest.raises(ParameterError, match="seed"):
+            Rig(load_scene("grasp_lift"), channel=["seed-test"], seed=seed)

@@ -98,6 +98,13 @@ def test_a_grasp_demo_agrees_with_the_worlds_truth():
     (json.dumps(step(-1)), "line 2: cycle -1"),
     (json.dumps(step(4, normal_n="5")), "line 2: normal_n '5' must be a finite number"),
     ('{"cycle": 1, "phase": "hold", "normal_n": NaN}', "line 2: not a JSON object"),
+    (json.dumps(step(4, slipping="false")), "line 2: slipping 'false' must be true or false"),
+    (json.dumps(step(4, dropped=0)), "line 2: dropped 0 must be true or false"),
+    (json.dumps(step(4, crushed=None)), "line 2: crushed None must be true or false"),
+    (json.dumps(step(4, phase={"x": [1, 2]})), "line 2: phase {'x': [1, 2]} must be one of idle, approach"),
+    (json.dumps(step(4, phase="hover")), "line 2: phase 'hover' must be one of"),
+    (json.dumps(step(4, in_grip="yes")), "line 2: in_grip 'yes' must be true, false or null"),
+    (json.dumps(step(4, mode=3)), "line 2: mode 3 must be a string"),
 ])
 def test_a_bad_truth_log_is_one_line(tmp_path, line, what):
     path = tmp_path / "truth.jsonl"
@@ -132,3 +139,21 @@ def test_replay_truth_log_needs_a_grasp_world(tmp_path, capsys):
     bad.write_text("{}\n")
     assert main(["replay", "--scene", "grasp_scripted", str(tmp_path / "run.log"), "--truth-log", str(bad)]) == 2
     assert "line 1: missing phase" in capsys.readouterr().err
+
+
+def test_an_object_the_pads_slid_off_on_the_table_is_dropped_in_the_record_and_the_verdict():
+    """The world's mode ``left`` (the pads slid off the object while it stood on the table: lost from
+    the grip, not fallen - its own ``dropped`` stays false) is ``dropped`` in the record's
+    ``grasp_truth``, as bench/grasp.py counts it, and the summary's verdict says so (it said
+    "caught: held after the slip" for such a run)."""
+    from fusion_center.service.grasp_outcome import GraspOutcome
+
+    t = TruthTable()
+    t.add(step(0, slipping=True, slid_mm=10.0, mode="slip"))
+    t.add(step(1, slipping=False, slid_mm=30.0, mode="left", in_grip=False, phase="lift"))
+    assert t.for_cycle(1)["dropped"] is False and t.for_cycle(2)["dropped"] is True
+    outcome = GraspOutcome()
+    for k in (1, 2):
+        outcome.add({"grip": {"slip": k == 1, "grip_state": "HOLDING" if k == 1 else "PART_LOST", "command_n": 5.0},
+                     "grasp_truth": t.for_cycle(k)})
+    assert outcome.verdict().startswith("dropped (lost from the grip") and outcome.as_dict()["held"] is False

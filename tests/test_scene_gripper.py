@@ -134,6 +134,12 @@ ERRORS = [
     ("node_id = 20\nmaster_timeout_ms = 40\n", "gripper.master_timeout_ms", 40),    # = the period
     ("node_id = 20\nmaster_timeout_ms = 70000\n", "gripper.master_timeout_ms", 70000),
     ("node_id = 20\nforce = 3\n", "gripper.force", 3),                              # unknown key
+    # beyond any float / beyond round(): one line, no OverflowError (2026-11-30, stop 32)
+    ("node_id = 20\nrated_force_n = 1e308\n", "gripper.rated_force_n", 1e308),
+    ("node_id = 20\nvelocity_mm_s = 1e308\n", "gripper.velocity_mm_s", 1e308),
+    ("node_id = 20\nrated_force_n = " + "9" * 400 + "\n", "gripper.rated_force_n", "999999999999... (400 digits)"),
+    ("node_id = 20\nmax_torque_permille = " + "9" * 400 + "\n", "gripper.max_torque_permille",
+     "999999999999... (400 digits)"),
 ]
 
 

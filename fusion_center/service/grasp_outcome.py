@@ -65,7 +65,7 @@ class GraspOutcome:
     def verdict(self) -> str:
         if self.truth_records:
             if self.dropped:
-                what = "dropped"
+                what = "dropped (lost from the grip: it fell, or the pads slid off it)"
             elif not self.holding_seen:
                 what = "never held"
             elif self.truth_slip_events:

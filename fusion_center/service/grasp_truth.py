@@ -23,8 +23,10 @@ import math
 import threading
 
 from taxel_net.json_lines import iter_log
+from taxel_net.scene_grasp import PHASES as TASK_PHASES
 
 FIELDS = ("phase", "normal_n", "min_hold_n", "slipping", "slid_mm", "dropped", "crushed")
+PHASES = ("idle", *TASK_PHASES, "done")  # a step's phase: before the task, the task's phases, after it
 LOOK_BACK = 3
 KEEP = 4096  # cycles of truth kept while running (memory does not grow with the run)
 
@@ -44,6 +46,9 @@ class TruthTable:
         if cycle is None:
             return
         entry = {k: step.get(k) for k in FIELDS}
+        # lost from the grip: it fell (the world's ``dropped``) or the pads slid off it while it stood
+        # on the table (the world's mode ``left``) - bench/grasp.py counts both as dropped
+        entry["dropped"] = bool(entry["dropped"]) or step.get("mode") == "left"
         in_grip = step.get("in_grip")
         entry["in_grip"] = in_grip if isinstance(in_grip, bool) else None  # the record's "truth" (H1 / H0)
         with self._lock:
@@ -102,4 +107,14 @@ def _not_a_step(step) -> str | None:
         v = step[k]
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
             return f"{k} {v!r} must be a finite number"
+    for k in ("slipping", "dropped", "crushed"):
+        if not isinstance(step[k], bool):
+            return f"{k} {step[k]!r} must be true or false"
+    if step.get("in_grip") is not None and not isinstance(step["in_grip"], bool):
+        return f"in_grip {step['in_grip']!r} must be true, false or null"
+    phase = step["phase"]
+    if not isinstance(phase, str) or phase not in PHASES:
+        return f"phase {phase!r} must be one of {', '.join(PHASES)}"
+    if step.get("mode") is not None and not isinstance(step["mode"], str):
+        return f"mode {step['mode']!r} must be a string"
     return None

@@ -67,7 +67,9 @@ class Rig(ChannelBuses, SceneDevices, ReadingFeed, DriveAndWorld):
             raise ParameterError("scene", type(scene).__name__, "must be a taxel_net.scene.Scene")
         if scene.n == 0:
             raise ParameterError("scene.taxels", (), "a rig needs at least one taxel")
-        self.scene = scene if seed is None else dataclasses.replace(scene, seed=int(seed))
+        if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed <= 2**63 - 1):
+            raise ParameterError("seed", seed, "must be an integer 0..2^63-1 (the scene's [scene] seed range)")
+        self.scene = scene if seed is None else dataclasses.replace(scene, seed=seed)
         self.interface = interface
         names = list(scene.bus.channels)
         if channel is None:
