@@ -50,6 +50,10 @@ def load_grip(sp: str, raw, gripper, forces_mu: float) -> GripParams:
     top = drive_max_force_n(gripper)
     vals.setdefault("mu", forces_mu)
     vals.setdefault("max_n", top)
+    # the default opening force (10 N) on a drive that cannot give it: the drive's largest, not an error
+    # the scene never asked for (2026-11-30, stop 32: it was taken unchecked)
+    if "open_n" not in vals and GripParams().open_n > top:
+        vals["open_n"] = top
     for k in ("max_n", "open_n"):
         if k in vals and vals[k] > top * (1 + 1e-12):
             w.fail(k, vals[k], f"must not exceed the drive's largest force per jaw, {top:g} N (gripper.rated_force_n "

@@ -187,3 +187,28 @@ def test_clis_exit_2_with_the_one_line(tmp_path, capsys, cli, body, field):
     assert done.returncode == 2, done.stderr
     lines = [line for line in done.stderr.splitlines() if line.strip()]
     assert len(lines) == 1 and field in lines[0] and str(path) in lines[0], lines
+
+
+def test_the_default_opening_force_follows_a_drive_that_cannot_give_it(tmp_path):
+    """[grip] without open_n on a drive whose largest force per jaw is below the default 10 N: the
+    opening force is the drive's largest (it was taken unchecked, 10 N the drive cannot give);
+    given explicitly above it, it is still refused naming the field."""
+    import re
+
+    from taxel_net.errors import SceneError
+    from taxel_net.scene import load_scene
+
+    text = (Path(load_scene("grasp_lift").path).read_text())
+    small = re.sub(r"(?m)^max_torque_permille = .*$", "max_torque_permille = 100", text)
+    small = re.sub(r"(?m)^rated_force_n = .*$", "rated_force_n = 40.0", small)
+    small = re.sub(r"(?m)^(max_n|open_n) = .*\n", "", small)
+    small = re.sub(r"(?m)^grasp_n = .*$", "grasp_n = 2.0", small)
+    path = tmp_path / "small.toml"
+    path.write_text(small.replace("data/", str(Path(load_scene("grasp_lift").path).parent / "data") + "/"))
+    scene = load_scene(path)
+    top = scene.gripper.rated_force_n * scene.gripper.max_torque_permille / 1000
+    assert top == pytest.approx(4.0) and scene.grip.open_n == pytest.approx(top)
+    path.write_text(path.read_text().replace("[grip]\n", "[grip]\nopen_n = 10.0\n", 1))
+    with pytest.raises(SceneError) as info:
+        load_scene(path)
+    assert info.value.field == "grip.open_n"

@@ -9,6 +9,18 @@ import sys
 HELP = "run the fusion centre (CANopen master, SYNC, fusion, decision log) on a python-can bus"
 
 
+
+def _rt_priority(text: str) -> int:
+    """``--rt-priority``: ASCII digits, 1-99 (argparse's int took ' 5', '1_0' and other scripts' digits)."""
+    from taxel_net.realtime import PRIORITY_MAX, PRIORITY_MIN, check_priority
+
+    if not (text.isascii() and text.isdigit()):
+        raise argparse.ArgumentTypeError(f"{text!r}: an integer {PRIORITY_MIN}-{PRIORITY_MAX} (SCHED_FIFO's priorities)")
+    try:
+        return check_priority(int(text))
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc).removeprefix("--rt-priority ")) from None
+
 def add_common_outputs(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--cycles", type=int, default=None, metavar="N",
                         help="SYNC cycles to run (default: the scene's [scene] cycles)")
@@ -71,7 +83,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "and fuse their cycles instead of assembling them here (beyond loopback: the same "
                              "FUSION_CENTER_AUTHKEY on every host; on loopback without it a key of this run's, "
                              "in a file only this user can read; docs/service.md)")
-    parser.add_argument("--rt-priority", type=int, default=None, metavar="N",
+    parser.add_argument("--rt-priority", type=_rt_priority, default=None, metavar="N",
                         help="run the centre's receive thread, SYNC producer and heartbeat under SCHED_FIFO at priority N "
                              "(1-99; Linux, CAP_SYS_NICE (root) or `ulimit -r` >= N; not permitted: one warning, "
                              "normal priority). Default: the normal priority (docs/service.md)")
