@@ -442,3 +442,24 @@ def test_a_run_whose_bus_cannot_be_opened_leaves_no_output(tmp_path, capsys):
                  "--mcap", str(out), "--ros2-bag", str(tmp_path / "bag"), "--no-live"]) == 2
     assert "--channel" in capsys.readouterr().err
     assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+def test_a_run_whose_mcap_lacks_cycles_exits_2_naming_it(tmp_path, capsys, monkeypatch):
+    """A record the MCAP encoder refuses (a scene value that overflows to inf did so): the cycle is
+    counted and logged and the run goes on, but the file lacks it - the run says INCOMPLETE and
+    exits 2 as for the decision log (2026-11-30, stop 32; it exited 0 with the file complete-looking)."""
+    from fusion_center.robotics import mcap_out
+
+    real = mcap_out.encode
+
+    def encode(topics, record, readings):
+        if record.get("cycle") == 5:
+            raise ValueError("a number the encoder refuses")
+        return real(topics, record, readings)
+
+    monkeypatch.setattr(mcap_out, "encode", encode)
+    target = tmp_path / "out.mcap"
+    assert main(["demo", "--cycles", "12", "--no-live", "--mcap", str(target)]) == 2
+    out = capsys.readouterr()
+    assert "mcap:                      INCOMPLETE: --mcap" in out.out and "1 cycle(s) not published" in out.err
+    assert len(read_mcap(target)) > 0            # the other cycles are kept (the run's figures are worth having)
