@@ -3,6 +3,7 @@ the world steps the twins tagged k - 1 (the taxels answer SYNC k with those), sl
 them slipped; a bad truth log is one line naming the file and the line (exit 2)."""
 
 import json
+import re
 
 import pytest
 
@@ -157,3 +158,26 @@ def test_an_object_the_pads_slid_off_on_the_table_is_dropped_in_the_record_and_t
         outcome.add({"grip": {"slip": k == 1, "grip_state": "HOLDING" if k == 1 else "PART_LOST", "command_n": 5.0},
                      "grasp_truth": t.for_cycle(k)})
     assert outcome.verdict().startswith("dropped (lost from the grip") and outcome.as_dict()["held"] is False
+
+
+def test_replay_says_how_many_records_met_the_truth_log_and_fails_when_none_did(tmp_path, capsys):
+    """replay --truth-log: the records' match with the log is reported ("N of M records matched");
+    a log none of whose steps any record's cycle meets (another run's, shifted) is an error, exit
+    2 - it was taken silently and the records had no grasp_truth (2026-11-30, stop 32)."""
+    from fusion_center.cli import main
+
+    trace = tmp_path / "d.log"
+    assert main(["demo", "--scene", "grasp_lift", "--cycles", "30", "--no-live", "--log", str(trace)]) == 0
+    good, shifted = tmp_path / "good.jsonl", tmp_path / "shifted.jsonl"
+    good.write_text("".join(json.dumps(step(k)) + "\n" for k in range(40)))
+    shifted.write_text("".join(json.dumps(step(k + 10**6)) + "\n" for k in range(40)))
+    capsys.readouterr()
+    assert main(["replay", "--scene", "grasp_lift", str(trace), "--truth-log", str(good),
+                 "--json-lines", str(tmp_path / "a.jsonl")]) == 0
+    out = capsys.readouterr().out
+    matched, total = map(int, re.search(r"grasp_truth: (\d+) of (\d+) records matched", out).groups())
+    assert total >= 25 and matched >= total - 1, out     # record 0 meets no step (steps tagged k - 1)
+    assert main(["replay", "--scene", "grasp_lift", str(trace), "--truth-log", str(shifted),
+                 "--json-lines", str(tmp_path / "b.jsonl")]) == 2
+    captured = capsys.readouterr()
+    assert "grasp_truth: 0 of" in captured.out and "no record's cycle matched" in captured.err

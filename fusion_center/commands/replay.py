@@ -74,4 +74,21 @@ def run(args) -> int:
 
     for label, text in summary_lines(robotics_stats):
         print(f"{label}: {text}", file=out)
-    return 0
+    status = 0
+    if grasp_truth is not None:
+        # how much of the truth log the records met (a log of another run, cut or shifted, matches
+        # few or none: said, never silent - 2026-11-30, stop 32)
+        matched = sum(1 for r in records if r.get("grasp_truth") is not None)
+        print(f"grasp_truth: {matched} of {len(records)} records matched to {args.truth_log!r} "
+              f"({grasp_truth.steps} world steps)", file=out)
+        if records and not matched:
+            print(f"fusion-center replay: error: --truth-log {args.truth_log!r}: no record's cycle matched "
+                  "a world step of it (a truth log of another run?)", file=sys.stderr)
+            status = 2
+    for label, option in (("mcap", "--mcap"), ("ros2_bag", "--ros2-bag")):
+        if robotics_stats.get("errors") and label in robotics_stats:
+            print(f"fusion-center replay: error: {option} {robotics_stats[label]['path']!r}: "
+                  f"{robotics_stats['errors']} cycle(s) not published (see the log): the file lacks them",
+                  file=sys.stderr)
+            status = 2
+    return status
