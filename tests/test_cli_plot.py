@@ -133,6 +133,13 @@ def test_plot_cli_exit_code(tmp_path):
     ('{"scene": "x"}\n', "line 1: not a decision record"),
     (b"\xff\xfe\x00garbage", "not a UTF-8 text file"),
     ('{"cycle": 0}\n' + "[" * 200_000 + "\n", "line 2: not a JSON record (nested too deeply)"),  # was a RecursionError
+    # fields the figures read, of the wrong type (2026-11-30, stop 32: tracebacks, or an empty figure and exit 0)
+    ('{"cycle": 0, "t": 0.0}\n{"cycle": 1, "t": 0.01, "nodes_by_state": [1]}\n', "line 2: nodes_by_state [1]"),
+    ('{"cycle": 0, "t": 0.0, "missing_nodes": 3}\n', "line 1: missing_nodes 3: must be a list"),
+    ('{"cycle": 0, "t": "0.0"}\n', "line 1: t '0.0': the record's SYNC time must be a finite number"),
+    ('{"cycle": 0, "t": 0.0, "grip": {"command_n": 1}, "grasp_truth": {"phase": {"x": [1, 2]}}}\n',
+     "line 1: grasp_truth.phase {'x': [1, 2]}: must be a phase name"),
+    ('{"cycle": 0, "t": 0.0, "grip": [1]}\n', "line 1: grip [1]: must be an object"),
 ])
 def test_bad_logs_exit_2_with_one_line(tmp_path, capsys, content, needle):
     log = tmp_path / "bad.jsonl"

@@ -87,9 +87,34 @@ def read_log(path: Path) -> dict:
 
 
 def _not_a_record(record) -> str | None:
+    """What keeps ``record`` from being plotted (the fields the figures read, by type), None if nothing."""
     if not isinstance(record, dict) or not isinstance(record.get("cycle"), int):
         return "not a decision record (no integer 'cycle'); expected the --json-lines of run, demo or replay"
+    t = record.get("t")
+    if t is not None and (isinstance(t, bool) or not isinstance(t, (int, float)) or not math.isfinite(t)):
+        return f"t {t!r}: the record's SYNC time must be a finite number (seconds)"
+    by_state = record.get("nodes_by_state")
+    if by_state is not None and (not isinstance(by_state, dict)
+                                 or any(not isinstance(v, list) for v in by_state.values())):
+        return f"nodes_by_state {_short(by_state)}: must be an object of lists (state -> nodes)"
+    for key in ("missing_nodes", "silent_nodes"):
+        if record.get(key) is not None and not isinstance(record[key], list):
+            return f"{key} {_short(record[key])}: must be a list of nodes"
+    for key in ("grip", "grasp_truth"):
+        if record.get(key) is not None and not isinstance(record[key], dict):
+            return f"{key} {_short(record[key])}: must be an object"
+    truth = record.get("grasp_truth") or {}
+    if truth.get("phase") is not None and not isinstance(truth["phase"], str):
+        return f"grasp_truth.phase {_short(truth['phase'])}: must be a phase name"
+    state = (record.get("grip") or {}).get("drive_state")
+    if state is not None and not isinstance(state, str):
+        return f"grip.drive_state {_short(state)}: must be a CiA 402 state name"
     return None
+
+
+def _short(value) -> str:
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
 
 
 def _legend(ax, ncol: int) -> None:
