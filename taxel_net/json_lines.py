@@ -15,6 +15,9 @@ from pathlib import Path
 from .errors import UsageError, one_line
 
 
+LINE_MAX = 64 * 2**20   # bytes: a decision record of the largest scenes is ~0.2 MiB (skin4096 raw)
+
+
 def iter_log(path, label: str = "decision log", *, check: Callable[[object], str | None] | None = None,
              not_json: str = "not JSON ({why})", allow_nan: bool = True) -> Iterator[tuple[int, object]]:
     """``(line number, value)`` of every non-blank line of a JSON-lines file, read as it goes.
@@ -26,7 +29,8 @@ def iter_log(path, label: str = "decision log", *, check: Callable[[object], str
     byte that is not UTF-8 names its line and column; a file that cannot be opened or read says
     why. ``allow_nan=False`` refuses ``NaN`` / ``Infinity`` (not JSON; Python's json reads them).
     A last line cut short (a run killed mid-write: no newline, not JSON) is refused like any other
-    bad line, naming it. An empty file yields nothing: the caller says what it needs.
+    bad line, naming it. A line longer than :data:`LINE_MAX` is refused when that much is read
+    (``/dev/zero``: never a whole line). An empty file yields nothing: the caller says what it needs.
     """
     name = str(path)
     check = _a_json_object if check is None else check
@@ -37,7 +41,17 @@ def iter_log(path, label: str = "decision log", *, check: Callable[[object], str
         raise UsageError(f"{label} {name!r}: cannot be read: {exc.strerror or exc}") from None
     with f:
         try:
-            for number, raw in enumerate(f, 1):
+            number = 0
+            while True:
+                # a line read at most LINE_MAX bytes at a time: /dev/zero or a file without newlines
+                # is one endless line, which a plain read would hold in memory without bound
+                raw = f.readline(LINE_MAX + 1)
+                if not raw:
+                    break
+                number += 1
+                if len(raw) > LINE_MAX and not raw.endswith(b"\n"):
+                    raise UsageError(f"{label} {name!r}, line {number}: longer than {LINE_MAX // 2**20} MiB "
+                                     "(not a JSON-lines file of this project?)")
                 try:
                     line = raw.decode("utf-8")
                 except UnicodeDecodeError as exc:

@@ -161,3 +161,20 @@ def test_node_sims_truth_log_leaves_a_bad_line_out_and_says_so(tmp_path, capsys)
                       "ValueError: Out of range float values are not JSON compliant); 2 records written (the file "
                       "is incomplete)")
     assert [v["cycle"] for _, v in iter_log(path, "--truth-log", allow_nan=False)] == [0, 2]
+
+
+def test_an_endless_line_is_refused_once_it_is_longer_than_any_record(monkeypatch, tmp_path):
+    """/dev/zero (or a file without newlines) is one endless line: read LINE_MAX bytes at a time
+    and refused in one line - it was read whole, memory growing without bound (2026-11-30, stop 32)."""
+    from taxel_net import json_lines
+    from taxel_net.errors import UsageError
+
+    monkeypatch.setattr(json_lines, "LINE_MAX", 2**20)
+    for path in ("/dev/zero", tmp_path / "no-newline.jsonl"):
+        if path != "/dev/zero":
+            path.write_bytes(b'{"cycle": 0}\n' + b" " * (2**20 + 10))
+        with pytest.raises(UsageError, match=r"line \d: longer than 1 MiB"):
+            list(json_lines.iter_log(path, "--truth-log"))
+    ok = tmp_path / "ok.jsonl"
+    ok.write_bytes(b'{"cycle": 0, "x": "' + b"a" * (2**20 - 40) + b'"}\n')   # just under the bound: read
+    assert [v["cycle"] for _, v in json_lines.iter_log(ok)] == [0]
