@@ -59,3 +59,36 @@ def test_a_malformed_drive_frame_changes_nothing():
 def test_state_names_are_canopens():
     assert state_name(0x0250) == "SWITCH ON DISABLED" and state_name(0x0008) == "FAULT"
     assert state_name(0x0007) == "QUICK STOP ACTIVE" and state_name(0x0021) == "READY TO SWITCH ON"
+
+
+def test_a_drive_not_nmt_operational_has_no_present_cia402_state():
+    """A drive reset (boot-up) or NMT-stopped mid-hold sends no PDO (CiA 301): its last statusword is
+    not its state. Before stop 32 the snapshot kept OPERATION ENABLED / HOLDING for ever."""
+    a = CycleAssembler(_scene())
+    a.feed(0, 0, 0x700 + ID, b"\x00")
+    a.feed(500, 0, 0x000, bytes([0x01, 0]))          # NMT start all
+    a.feed(1000, 0, 0x080, b"")
+    a.feed(2000, 0, 0x180 + ID, _tpdo1(0x8027 | 0x0400, 50, 40000))
+    a.feed(2100, 0, 0x280 + ID, _tpdo2(4, 4, 70, 400, 0))
+    d = a.feed(11000, 0, 0x080, b"").drive
+    assert d.operational and d.state == "OPERATION ENABLED"
+    a.feed(12000, 0, 0x700 + ID, b"\x00")            # the drive resets: boot-up, then pre-operational
+    d = a.feed(21000, 0, 0x080, b"").drive
+    assert d.bootups == 1 and not d.operational and d.state is None and d.force_n is None
+    a.feed(22000, 0, 0x700 + ID, b"\x7f")
+    d = a.feed(31000, 0, 0x080, b"").drive
+    assert d.bootups == 0 and not d.operational and d.state is None
+    a.feed(31500, 0, 0x000, bytes([0x01, ID]))       # the centre's NMT start to the drive
+    a.feed(32000, 0, 0x180 + ID, _tpdo1(0x0040, 0, 40000))  # SWITCH ON DISABLED after the reset
+    d = a.feed(41000, 0, 0x080, b"").drive
+    assert d.operational and d.state == "SWITCH ON DISABLED"
+    # an NMT stop: heartbeat 4 (or the stop command itself in the stream), the last TPDO1 stale
+    a.feed(42000, 0, 0x180 + ID, _tpdo1(0x8027 | 0x0400, 50, 40000))
+    d = a.feed(51000, 0, 0x080, b"").drive
+    assert d.state == "OPERATION ENABLED"
+    a.feed(52000, 0, 0x000, bytes([0x02, ID]))
+    d = a.feed(61000, 0, 0x080, b"").drive
+    assert not d.operational and d.nmt_state == 4 and d.state is None
+    a.feed(62000, 0, 0x700 + ID, b"\x05")            # started by someone: operational again
+    d = a.feed(71000, 0, 0x080, b"").drive
+    assert d.operational and d.state == "OPERATION ENABLED"

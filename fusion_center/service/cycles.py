@@ -381,13 +381,18 @@ class CycleAssembler(CycleFrames):
             if is_reset:  # a boot-up fed after this point answers it (the master waits for that)
                 self.reset_seq[members] = sum(self.counts) - 1
             if command != NMT_START and self.is_open:
-                return self._close("nmt", t)
+                closed = self._close("nmt", t)  # the drive's new state after the cycle it ends
+                if self.drive is not None:
+                    self.drive.nmt_command(channel, command, node_id)
+                return closed
         else:
             idx = self.layout.index_by_node[channel].get(node_id) if 0 <= channel < len(self.layout.index_by_node) else None
             if idx is not None:
                 self.state[idx] = new_state
                 if is_reset:
                     self.reset_seq[idx] = sum(self.counts) - 1
+        if self.drive is not None:
+            self.drive.nmt_command(channel, command, node_id)
         return None
 
     def _close(self, closed_by: str, t: int) -> ClosedCycle:

@@ -22,6 +22,11 @@ SDO        0x580+id /  8 bytes; an answer to an outstanding request of the centr
            0x600+id    SDO client (the assembler's ``solicited``)
 =========  ==========  ===================================================================
 
+A drive whose NMT state is not OPERATIONAL (a boot-up - its TPDO values are then dropped -, or a
+heartbeat saying pre-operational or stopped) sends no PDO: :attr:`DriveCycle.state` is None until
+a PDO or an operational heartbeat says it runs again (:attr:`DriveCycle.operational`; 2026-11-30
+(stop 32): before, the last statusword stayed the drive's state for ever).
+
 A frame of the wrong length or an unknown NMT state is counted in :attr:`DriveTracker.bad` and
 changes nothing. Liveness: the drive is ``lost`` at a cycle's close when nothing valid was heard
 from it for more than ``[bus] heartbeat_consumer_ms`` (0: only a drive never heard), the same
@@ -112,9 +117,17 @@ class DriveCycle:
             "command": command, "emcy": emcy, "emcy_dropped": emcy_dropped, "bootups": bootups})
 
     @property
+    def operational(self) -> bool:
+        """The drive's NMT state is OPERATIONAL (or not known yet: nothing heard): a drive
+        PRE-OPERATIONAL (after its boot-up) or STOPPED sends no PDO (CiA 301), so its last
+        TPDO1 / TPDO2 are not its present state."""
+        return self.nmt_state is None or self.nmt_state == 5
+
+    @property
     def state(self) -> str | None:
-        """CiA 402 state name (canopen's spelling), None before a statusword."""
-        return state_name(self.statusword)
+        """CiA 402 state name (canopen's spelling), None before a statusword and while the drive
+        is not NMT OPERATIONAL (its last statusword is stale: :attr:`operational`)."""
+        return state_name(self.statusword) if self.operational else None
 
     @property
     def grip_state_name(self) -> str | None:
@@ -128,8 +141,9 @@ class DriveCycle:
 class DriveTracker:
     """Decodes the drive's frames (module docstring); pure: no clock, only the stream's times."""
 
-    def __init__(self, consumer_ms: int):
+    def __init__(self, consumer_ms: int, node_id: int | None = None, channel: int = 0):
         self.consumer_us = int(consumer_ms) * 1000
+        self.node_id, self.channel = node_id, channel
         self.last_heard = -1
         self.nmt_state: int | None = None
         self.tpdo1: tuple | None = None
@@ -145,7 +159,19 @@ class DriveTracker:
 
     @classmethod
     def for_scene(cls, scene) -> "DriveTracker | None":
-        return None if scene.gripper is None else cls(scene.bus.heartbeat_consumer_ms)
+        g = scene.gripper
+        return None if g is None else cls(scene.bus.heartbeat_consumer_ms, g.node_id, g.channel)
+
+    def nmt_command(self, channel: int, command: int, node_id: int) -> None:
+        """An NMT command in the stream (the master's or another's) to the drive (its node-ID or
+        all on its channel): its NMT state until the drive's own frames say otherwise - a start
+        (0x01) makes it operational before its first PDO, a stop (0x02) stopped, enter
+        pre-operational (0x80) and the resets (0x81, 0x82; a boot-up follows) pre-operational."""
+        if channel != self.channel or node_id not in (0, self.node_id) or self.nmt_state is None:
+            return
+        state = {0x01: 5, 0x02: 4, 0x80: 127, 0x81: 127, 0x82: 127}.get(command)
+        if state is not None:
+            self.nmt_state = state
 
     def feed(self, code: int, t_us: int, data: bytes) -> bool:
         """One frame of the drive (``code``: ``F_*``) at stream time ``t_us``; True when it is the
@@ -166,8 +192,10 @@ class DriveTracker:
             if size != 1 or data[0] not in NMT_NAMES:
                 return self._bad()
             if data[0] == 0:
+                # a reset drive: its PDO values are gone with it (and it sends none until started)
                 self.bootups_since += 1
                 self.nmt_state = 127
+                self.tpdo1 = self.tpdo1_us = self.tpdo2 = None
             else:
                 self.nmt_state = data[0]
         elif code == F_EMCY:
