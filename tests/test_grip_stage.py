@@ -447,3 +447,100 @@ def test_the_footprint_forming_as_the_jaws_press_is_no_slip_and_the_reference_is
     unknown = GripStage(scene, noise_band=1.0, slip_hold=3, rebase=lambda: resets.append(1))
     assert _pressed_flags(unknown, [(0.0, None)] * 3 + [(0.625, None)] * 2) == [False] * 4 + [True]
     assert len(resets) == 2
+
+
+def _off_drive(nmt, bootups=0, **kw):
+    """A drive whose last TPDO1 / TPDO2 said OPERATION ENABLED, HOLDING, 30 N, now NMT ``nmt``."""
+    return DriveCycle(True, False, nmt, 0x8027 | 0x0400, 214, 40000, 4, 4, 300, 400, 0, 0, None, bootups=bootups, **kw)
+
+
+@pytest.mark.parametrize("nmt, bootups", [(127, 1), (127, 0), (4, 0)])
+def test_a_drive_not_nmt_operational_is_flagged_counted_and_the_command_held(nmt, bootups):
+    """Stop 32: a drive reset (boot-up, pre-operational) or NMT-stopped mid-hold sends no PDO; before,
+    its stale OPERATION ENABLED / HOLDING went on in the records, nothing flagged nor counted."""
+    from fusion_center.core.grip_law import GripState
+
+    stage = GripStage(load_scene("grasp_scripted"))
+    record = {"decision": "H1", "degraded": False, "slip": {"contact": True, "displacement": 0.0}}
+    stage.evaluate(dict(record, cycle=0, t=0.0), _off_drive(5))
+    stage.law = GripState(phase="hold", command_n=30.0, quiet_s=100.0)  # a hold that may relax
+    flagged = []
+    for k in range(1, 200):
+        r = dict(record, cycle=k, t=k * 0.01)
+        stage.evaluate(r, _off_drive(nmt, bootups=bootups if k == 1 else 0))
+        flagged.append(r["grip_flags"])
+        assert r["grip"]["drive_state"] is None and r["grip"]["actual_n"] is None
+        assert r["grip"]["command_n"] == 30.0 and stage.command is None  # held, nothing sent
+    assert all("drive_not_operational" in f for f in flagged)
+    assert ("drive_booted" in flagged[0]) == bool(bootups) and not any("drive_booted" in f for f in flagged[1:])
+    assert stage.counts["drive_not_operational"] == 1 and stage.counts["drive_bootups"] == bootups
+    r = dict(record, cycle=200, t=2.0)
+    stage.evaluate(r, _off_drive(5))  # started again (still OPERATION ENABLED after a stop)
+    assert "drive_not_operational" not in r["grip_flags"] and r["grip"]["drive_state"] == "OPERATION ENABLED"
+    stage.evaluate(dict(record, cycle=201, t=2.01), _off_drive(4))
+    assert stage.counts["drive_not_operational"] == 2  # a second episode
+
+
+@pytest.mark.parametrize("restart", [True, False])
+def test_a_drive_not_operational_gets_an_nmt_start_at_most_once_a_second(restart, monkeypatch):
+    """Stop 32: nobody started a reset / stopped drive again (Master._supervise / on_bootup are the
+    taxel nodes'). An NMT start (0x01, never a reset) to its node-ID, at most once a second,
+    under ``[master] restart = "always"`` only."""
+    import logging
+    import types
+
+    from fusion_center.service import drive_link
+    from fusion_center.service.drive_link import DriveLink
+    from fusion_center.service.grasp_outcome import GraspOutcome
+    from fusion_center.service.stream import RateLimitedLog
+
+    sent, clock = [], [100.0]
+    monkeypatch.setattr(drive_link.time, "monotonic", lambda: clock[0])
+    link = object.__new__(DriveLink)
+    link._log = RateLimitedLog(logging.getLogger("fusion_center.grip"), 2.0)
+    link.outcome = GraspOutcome()
+    link.service = types.SimpleNamespace(master=types.SimpleNamespace(restart=restart))
+    link.stream = types.SimpleNamespace(transmit=lambda ch, cob, data: sent.append((ch, cob, bytes(data))))
+    link.channel, link.spec = 0, types.SimpleNamespace(node_id=DRIVE)
+    link.starts, link._last_start = 0, None
+    stage = GripStage(load_scene("grasp_scripted"))
+    for k in range(300):  # 3 s of 10 ms records, the drive pre-operational throughout
+        clock[0] = 100.0 + k * 0.01
+        r = {"cycle": k, "t": k * 0.01, "decision": "H1", "degraded": False}
+        stage.evaluate(r, _off_drive(127, bootups=int(k == 0)))
+        link.after_record(k, r)
+    if restart:
+        assert sent == [(0, 0x000, bytes((0x01, DRIVE)))] * 3 and link.starts == 3
+    else:
+        assert sent == [] and link.starts == 0
+
+
+def test_a_drive_reset_mid_hold_is_flagged_started_again_and_re_enabled():
+    """Stop 32 (hunt-b f_bootup_e2e.py): the drive reset (NMT reset node, as a power glitch) mid-hold
+    at cycle 300. Before, nobody started it again (PRE-OPERATIONAL, RPDO1 dropped), the world
+    dropped the part and the records said OPERATION ENABLED / HOLDING without a flag."""
+    scene = load_scene("grasp_scripted")
+
+    def reset_at_300(k, rig, service):
+        if k == 300:
+            with rig.gripper.lock:
+                rig.gripper._dispatch(0x000, bytes((0x81, rig.gripper.node_id)))
+        if k == 410:
+            with rig.gripper.lock:
+                seen.update(nmt=rig.gripper.drive.state_name, cia402=rig.gripper.drive.cia402_state)
+
+    seen = {}
+    service, summary, *_ = run_grasp(scene, 420, hook=reset_at_300)
+    records = list(service.records)
+    off = [r["cycle"] for r in records if "drive_not_operational" in r["grip_flags"]]
+    booted = [r["cycle"] for r in records if "drive_booted" in r["grip_flags"]]
+    assert len(booted) == 1 and 300 <= booted[0] <= 310 and off and off[0] == booted[0]
+    assert all(records[k]["grip"]["drive_state"] is None for k in off)
+    assert summary["grip"]["drive_bootups"] == 1 and summary["grip"]["nmt_starts"] >= 1
+    # started and walked back: OPERATION ENABLED within a second (the twin's own state), commanded
+    # the held force (whether the world kept the part depends on how far it slid in the meantime)
+    back = next(r["cycle"] for r in records[off[-1]:] if r["grip"]["drive_state"] == "OPERATION ENABLED")
+    assert back - booted[0] <= 1.0 / (scene.bus.sync_period_ms / 1000.0)
+    assert seen == {"nmt": "OPERATIONAL", "cia402": "OPERATION ENABLED"}
+    held = records[booted[0] - 1]["grip"]["command_n"]
+    assert held > 0 and records[back]["grip"]["command_n"] >= held

@@ -23,8 +23,16 @@ made, in the thread that evaluated it; :meth:`DriveLink.after_record` once the r
 goes out in RPDO1 (0x200 + node-ID: 0x6040 U16, 0x6071 I16, 0x607A I32 = 0), through the event
 stream (so it is in the trace); SYNC -> command on the bus is measured (perf_counter at the SYNC's
 send to perf_counter after this send) into :attr:`latency` (a histogram like SYNC -> record's).
-Drive faults, quick stops and a lost drive heartbeat are logged rate-limited (the service's
+Drive faults, quick stops, a lost drive heartbeat, and a drive not NMT operational are logged rate-limited (the service's
 ``RateLimitedLog``; counted by the grip stage).
+
+**A drive not NMT operational** (2026-11-30 (stop 32): reset - a boot-up -, or stopped by someone
+mid-run; it sends no PDO and drops its RPDO1): :meth:`DriveLink.start_again` sends it an NMT start
+(0x01 to its node-ID; never a reset) at most once every :data:`START_EVERY_S` s, under the scene's
+``[master] restart = "always"`` (the rule the master applies to the taxel nodes; ``"never"``: only
+flagged and logged); counted ``nmt_starts``. The grip stage's re-enable walk then takes it back to
+OPERATION ENABLED. A drive that was reset runs with its stored start-up values afterwards (the
+master's part, above, is not written again).
 """
 
 from __future__ import annotations
@@ -45,6 +53,8 @@ STATUSWORD, TORQUE_ACTUAL, MODE = 0x6041, 0x6077, 0x6060
 PROFILE_TORQUE = 4
 _RPDO1 = struct.Struct("<Hhi")
 LATENCY_SAMPLES = 4096
+COB_NMT, NMT_START = 0x000, 0x01
+START_EVERY_S = 1.0   # at most one NMT start of the drive per this many seconds
 # what the master writes of the drive's start-up values (the rest are the drive's stored parameters)
 MASTER_OWNS = ((tg.HEARTBEAT_PRODUCER, 0), (tg.CONSUMER_HEARTBEAT, 1), (tg.SYNC_OVERFLOW, 0),
                (tg.COMM_CYCLE_PERIOD, 0))
@@ -77,6 +87,8 @@ class DriveLink:
         self.commands_sent = 0
         self.found: dict | None = None             # what the boot found: statusword, torque, takeover
         self.sdo_failures = 0
+        self.starts = 0                            # NMT starts sent to the drive found not operational
+        self._last_start: float | None = None      # monotonic time of the last one
         self._log = RateLimitedLog(logger, 2.0)
         from .grasp_outcome import GraspOutcome
 
@@ -156,6 +168,26 @@ class DriveLink:
                 self._log.warning("drive_quick_stop", "cycle %d: gripper drive in QUICK STOP ACTIVE", cycle)
             if "drive_lost" in flags:
                 self._log.warning("drive_lost", "cycle %d: gripper drive's heartbeat lost", cycle)
+            if "drive_not_operational" in flags:
+                self._log.warning("drive_not_operational", "cycle %d: gripper drive %s: not NMT operational, "
+                                  "command held", cycle, "booted again" if "drive_booted" in flags else "stopped "
+                                  "or pre-operational")
+                self.start_again()
+
+    def start_again(self) -> None:
+        """The drive is not NMT operational (a reset, an NMT stop): an NMT start to its node-ID
+        (never a reset: the centre never resets the drive) under ``[master] restart = "always"``,
+        at most once every :data:`START_EVERY_S` s; the grip stage's re-enable walk then takes
+        it back to OPERATION ENABLED. ``"never"``: flagged and logged only."""
+        master = getattr(self.service, "master", None)
+        if master is None or not master.restart:
+            return
+        now = time.monotonic()
+        if self._last_start is not None and now - self._last_start < START_EVERY_S:
+            return
+        self._last_start = now
+        self.starts += 1
+        self.stream.transmit(self.channel, COB_NMT, bytes((NMT_START, self.spec.node_id)))
 
     def summary(self) -> dict:
         grip = self.service.pipeline.grip
@@ -167,6 +199,8 @@ class DriveLink:
             out.update({k: v for k, v in grip.counts.items() if v})
         if self.found is not None and self.found["holding"]:
             out["found_holding"] = True
+        if self.starts:
+            out["nmt_starts"] = self.starts
         if self.sdo_failures:
             out["sdo_failures"] = self.sdo_failures
         out["grasp"] = self.outcome.as_dict()

@@ -51,9 +51,15 @@ Per cycle (``docs/service.md``, "The grip stage"; the law: ``docs/grip-control.m
   drive's present force (0x2101), also as its learned force (this centre does not know what the
   part needs, so it does not relax below what held it; a slip still raises it), the task is
   ``close`` (the task clock is unknown) - the part stays held and this centre commands it.
-* **safety**: the law never lowers the command on a degraded cycle; while the drive is not
-  OPERATION ENABLED the law is not stepped (its command kept). A drive fault, a quick stop, a
-  disable and a lost drive heartbeat are flagged (``grip_flags``) and counted (:attr:`counts`).
+* **safety**: the law never lowers the command on a degraded cycle; while the drive is not OPERATION ENABLED
+  the law is not stepped (its command kept). A drive not NMT operational (a boot-up: flagged
+  ``drive_booted`` too, pre-operational or stopped: it sends no PDO and drops its RPDO) has no
+  present state (``drive_state`` None): the law is not stepped, nothing is sent, the record is
+  flagged ``drive_not_operational``, and the service sends the drive an NMT start
+  (:meth:`.drive_link.DriveLink.start_again`); its re-enable walk follows once its TPDO1 is seen
+  again. A drive fault, a quick stop, a disable, a lost drive heartbeat, a drive not NMT
+  operational are flagged (``grip_flags``) and counted per
+  episode (:attr:`counts`); boot-ups counted each.
 """
 
 from __future__ import annotations
@@ -134,6 +140,7 @@ class GripStage:
         self.last_cw = 0
         self.last_state: str | None = None
         self.lost = False
+        self.not_operational = False         # the drive's NMT state was not OPERATIONAL last cycle
         self.peak: float | None = None       # slip_now: farthest displacement reached in this contact
         self.peak_cycle: int | None = None   # the cycle it was reached
         self.slip_hold = slip_hold
@@ -145,7 +152,8 @@ class GripStage:
         self.pressed_t: float | None = None         # SYNC time the jaws first pressed on this contact
         self.rebased = False                        # ... and its reference was taken again settle_s later
         self.counts = {"drive_faults": 0, "quick_stops": 0, "drive_disabled": 0, "drive_lost": 0,
-                       "fault_resets": 0, "enable_walks": 0, "takeovers": 0, "degraded_holds": 0}
+                       "fault_resets": 0, "enable_walks": 0, "takeovers": 0, "degraded_holds": 0,
+                       "drive_bootups": 0, "drive_not_operational": 0}
 
     # ------------------------------------------------------------------ findings
     def slip_now(self, record: dict, pressing: bool | None = None) -> bool:
@@ -237,7 +245,7 @@ class GripStage:
         self._defer = defer_record
         cycle = record["cycle"]
         flags: list[str] = []
-        force = drive.force_n if drive is not None else None
+        force = drive.force_n if drive is not None and drive.operational else None
         slip = self.slip_now(record, pressing=None if force is None else force > 0)
         state = drive.state if drive is not None else None
         if drive is not None and drive.lost:
@@ -246,6 +254,23 @@ class GripStage:
                 self.counts["drive_lost"] += 1
         self.lost = bool(drive is not None and drive.lost)
         actual = drive.force_n if drive is not None else None
+        if drive is not None and drive.bootups and self.seen:  # (before its state was seen: its start)
+            flags.append("drive_booted")
+            self.counts["drive_bootups"] += drive.bootups
+        off = drive is not None and drive.heard and not drive.operational
+        if off != self.not_operational and off:
+            self.counts["drive_not_operational"] += 1
+        self.not_operational = off
+        if off:
+            # PRE-OPERATIONAL (booted) or STOPPED: no PDO in either direction (CiA 301), its last
+            # statusword / force are stale. The law is not stepped (its command held); nothing is
+            # sent (an RPDO would be dropped); the service starts the drive again (DriveLink)
+            self.command = None
+            flags.append("drive_not_operational")
+            held = self.law.command_n if self.seen else None
+            self._record(record, held, None, None, drive, slip, flags, self.task(record["t"]) if self.seen else None,
+                         None)
+            return
         if state is None:
             self.command = None
             flags.append("no_drive_state")
@@ -345,7 +370,7 @@ class GripStage:
             "command_n": None if command_n is None else jsonable(round(command_n, 4)),
             "actual_n": actual,
             "drive_state": state,
-            "grip_state": grip_state_name(drive.grip_state) if drive is not None else None,
+            "grip_state": grip_state_name(drive.grip_state) if drive is not None and drive.operational else None,
             "slip": bool(slip),
         }
         record["grip_flags"] = flags
