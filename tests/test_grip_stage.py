@@ -481,6 +481,21 @@ def test_a_drive_not_nmt_operational_is_flagged_counted_and_the_command_held(nmt
     assert stage.counts["drive_not_operational"] == 2  # a second episode
 
 
+def test_a_lost_drive_is_degraded_the_law_does_not_relax():
+    """Stop 32 (hunt-b f_lost_relax.py): the law relaxed 14 -> 5.2 N in 2 s with the drive lost."""
+    from fusion_center.core.grip_law import GripState
+
+    stage = GripStage(load_scene("grasp_scripted"))
+    record = {"decision": "H1", "degraded": False, "slip": {"contact": True, "displacement": 0.0}}
+    stage.evaluate(dict(record, cycle=0, t=0.0), _drive(0x8027 | 0x0400, torque=100, force=140, grip=4))
+    stage.law = GripState(phase="hold", command_n=14.0, quiet_s=100.0)
+    for k in range(1, 200):
+        r = dict(record, cycle=k, t=k * 0.01)
+        stage.evaluate(r, _drive(0x8027 | 0x0400, torque=100, force=140, grip=4, lost=True))
+        assert r["grip"]["command_n"] == 14.0 and "held_degraded" in r["grip_flags"]
+    assert stage.counts["degraded_holds"] == 199 and stage.counts["drive_lost"] == 1
+
+
 @pytest.mark.parametrize("restart", [True, False])
 def test_a_drive_not_operational_gets_an_nmt_start_at_most_once_a_second(restart, monkeypatch):
     """Stop 32: nobody started a reset / stopped drive again (Master._supervise / on_bootup are the

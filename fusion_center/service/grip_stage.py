@@ -51,7 +51,8 @@ Per cycle (``docs/service.md``, "The grip stage"; the law: ``docs/grip-control.m
   drive's present force (0x2101), also as its learned force (this centre does not know what the
   part needs, so it does not relax below what held it; a slip still raises it), the task is
   ``close`` (the task clock is unknown) - the part stays held and this centre commands it.
-* **safety**: the law never lowers the command on a degraded cycle; while the drive is not OPERATION ENABLED
+* **safety**: the law never lowers the command on a degraded cycle - a lost drive heartbeat is a
+  degraded cycle too (its state and force may be stale); while the drive is not OPERATION ENABLED
   the law is not stepped (its command kept). A drive not NMT operational (a boot-up: flagged
   ``drive_booted`` too, pre-operational or stopped: it sends no PDO and drops its RPDO) has no
   present state (``drive_state`` None): the law is not stepped, nothing is sent, the record is
@@ -295,8 +296,9 @@ class GripStage:
         if state == OE:
             present = {"H1": True, "H0": False}.get(record.get("decision"))
             # readings clipped at a packed limit code (over_range_nodes) under-state the load: degraded too
+            # and a lost drive (its heartbeat expired: the state and force are its last, maybe stale)
             degraded = bool(record.get("degraded") or record.get("late_frames") or record.get("missing_nodes")
-                            or record.get("over_range_nodes"))
+                            or record.get("over_range_nodes") or drive.lost)
             findings = GripFindings(task=task, present=present, slip=slip, degraded=degraded,
                                     least_hold_n=self.least_hold_n(record) if self.raw else None,
                                     dt_s=self.period_s, actual_n=actual, slip_new=self.slip_new)
