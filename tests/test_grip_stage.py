@@ -496,6 +496,26 @@ def test_a_lost_drive_is_degraded_the_law_does_not_relax():
     assert stage.counts["degraded_holds"] == 199 and stage.counts["drive_lost"] == 1
 
 
+@pytest.mark.parametrize("force_01n, expected_n, implausible", [
+    (300, 30.0, False),        # 0x2101 agrees with 214 permille x 140 N / 1000 = 29.96 N
+    (310, 31.0, False),        # within 10 % / 1 N
+    (32767, 29.96, True),      # 3276.7 N: beyond max_n (crush risk)
+    (-300, 29.96, True),       # negative: the part let go
+    (0, 29.96, True),          # 0 with a positive torque
+    (200, 29.96, True),        # 20 N: a third off the torque's
+])
+def test_a_takeover_cross_checks_the_drives_force_with_its_torque(force_01n, expected_n, implausible):
+    """Stop 32 (hunt-b f_takeover_force.py): 0x2101 was trusted blindly - 32767 made the command
+    max_n, a negative one a negative learned floor."""
+    stage = GripStage(load_scene("grasp_scripted"))
+    r = {"cycle": 0, "t": 0.0, "decision": "H1", "degraded": False, "slip": {"contact": True, "displacement": 0.0}}
+    stage.evaluate(r, _drive(0x8027 | 0x0400, torque=214, force=force_01n, grip=4))
+    assert stage.takeover and stage.law.phase == "hold"
+    assert stage.law.command_n == pytest.approx(expected_n) and stage.law.learned_n == pytest.approx(expected_n)
+    assert ("drive_force_implausible" in r["grip_flags"]) == implausible
+    assert stage.counts["drive_force_implausible"] == int(implausible)
+
+
 @pytest.mark.parametrize("restart", [True, False])
 def test_a_drive_not_operational_gets_an_nmt_start_at_most_once_a_second(restart, monkeypatch):
     """Stop 32: nobody started a reset / stopped drive again (Master._supervise / on_bootup are the

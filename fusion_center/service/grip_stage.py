@@ -50,7 +50,11 @@ Per cycle (``docs/service.md``, "The grip stage"; the law: ``docs/grip-control.m
   again while it holds a part) is not walked nor opened: the law starts in ``hold`` with the
   drive's present force (0x2101), also as its learned force (this centre does not know what the
   part needs, so it does not relax below what held it; a slip still raises it), the task is
-  ``close`` (the task clock is unknown) - the part stays held and this centre commands it.
+  ``close`` (the task clock is unknown) - the part stays held and this centre commands it. The
+  force is cross-checked (:meth:`GripStage.takeover_force`, 2026-11-30 (stop 32)): 0x2101 outside
+  ``[0, max_n]`` or off the torque-derived force ``0x6077 x rated / 1000`` by more than
+  :data:`TAKEOVER_TOLERANCE` of it (or :data:`TAKEOVER_TOLERANCE_N`) is not trusted - the
+  torque's force is used, flagged ``drive_force_implausible`` and counted.
 * **safety**: the law never lowers the command on a degraded cycle - a lost drive heartbeat is a
   degraded cycle too (its state and force may be stale); while the drive is not OPERATION ENABLED
   the law is not stepped (its command kept). A drive not NMT operational (a boot-up: flagged
@@ -74,6 +78,9 @@ from .records import jsonable
 RECOVER_EVERY_S = 1.0   # at most one fault reset / re-enable attempt per this many seconds
 WALK_CYCLES = 10        # cycles a re-enable walk may take (SWITCH ON DISABLED -> OPERATION ENABLED: 2-4)
 PROFILE_TORQUE = 4      # 0x6060 / 0x6061
+# a takeover's 0x2101 must agree with the torque-derived force within this fraction of it, or this many N
+TAKEOVER_TOLERANCE = 0.1
+TAKEOVER_TOLERANCE_N = 1.0
 
 OE = "OPERATION ENABLED"
 # the controlword that keeps the drive in its state (no transition), and the next step toward OE
@@ -154,7 +161,7 @@ class GripStage:
         self.rebased = False                        # ... and its reference was taken again settle_s later
         self.counts = {"drive_faults": 0, "quick_stops": 0, "drive_disabled": 0, "drive_lost": 0,
                        "fault_resets": 0, "enable_walks": 0, "takeovers": 0, "degraded_holds": 0,
-                       "drive_bootups": 0, "drive_not_operational": 0}
+                       "drive_bootups": 0, "drive_not_operational": 0, "drive_force_implausible": 0}
 
     # ------------------------------------------------------------------ findings
     def slip_now(self, record: dict, pressing: bool | None = None) -> bool:
@@ -283,7 +290,7 @@ class GripStage:
                 # a centre started again while the drive holds: take the grasp over as it is
                 self.takeover = True
                 self.enabled_at, self.enabled_t = cycle, record["t"]
-                force = actual if actual is not None else drive.torque_permille * self.rated_n / 1000.0
+                force = self.takeover_force(actual, drive.torque_permille, flags)
                 self.law = GripState(phase="hold", command_n=force, learned_n=force)
                 self.counts["takeovers"] += 1
                 flags.append("takeover")
@@ -314,6 +321,21 @@ class GripStage:
         self.command = (cw, permille)
         self.last_cw = cw
         self._record(record, command_n, actual, state, drive, slip, flags, task, (cw, permille))
+
+    def takeover_force(self, actual: float | None, torque_permille: int, flags: list[str]) -> float:
+        """The force a takeover starts the law with: the drive's 0x2101 when it is within
+        ``[0, max_n]`` and agrees with the torque-derived force ``0x6077 x rated / 1000`` (the
+        drive's own rule, docs/gripper-drive.md) within :data:`TAKEOVER_TOLERANCE` of it or
+        :data:`TAKEOVER_TOLERANCE_N`, whichever is larger; else the torque-derived force (clamped
+        to ``[0, max_n]``), flagged ``drive_force_implausible`` and counted."""
+        from_torque = min(max(torque_permille * self.rated_n / 1000.0, 0.0), self.params.max_n)
+        tolerance = max(TAKEOVER_TOLERANCE * from_torque, TAKEOVER_TOLERANCE_N)
+        if (actual is not None and math.isfinite(actual) and 0.0 <= actual <= self.params.max_n
+                and abs(actual - from_torque) <= tolerance):
+            return actual
+        flags.append("drive_force_implausible")
+        self.counts["drive_force_implausible"] += 1
+        return from_torque
 
     def _count_transition(self, state: str, flags: list[str]) -> None:
         before = self.last_state
