@@ -516,6 +516,31 @@ def test_a_takeover_cross_checks_the_drives_force_with_its_torque(force_01n, exp
     assert stage.counts["drive_force_implausible"] == int(implausible)
 
 
+def test_a_drive_in_the_wrong_mode_is_counted_per_episode_and_logged(caplog):
+    """Stop 32 (hunt-b f_mode.py): drive_mode was flagged every record, never counted nor logged."""
+    import logging
+
+    from fusion_center.service.drive_link import DriveLink
+    from fusion_center.service.grasp_outcome import GraspOutcome
+    from fusion_center.service.stream import RateLimitedLog
+
+    stage = GripStage(load_scene("grasp_scripted"))
+    link = object.__new__(DriveLink)
+    link._log = RateLimitedLog(logging.getLogger("fusion_center.grip"), 2.0)
+    link.outcome = GraspOutcome()
+    link.service = None
+    modes = [1] * 100 + [4] * 10 + [1] * 100
+    with caplog.at_level(logging.WARNING, logger="fusion_center.grip"):
+        for k, mode in enumerate(modes):
+            r = {"cycle": k, "t": k * 0.01, "decision": "H1", "degraded": False}
+            stage.evaluate(r, DriveCycle(True, False, 5, 0x0027, 0, 40000, mode, 0, 0, 400, 0, 0, None))
+            link.after_record(k, r)
+            assert ("drive_mode" in r["grip_flags"]) == (mode != 4)
+    assert stage.counts["drive_mode"] == 2
+    lines = [m for m in caplog.messages if "profile torque" in m]
+    assert 1 <= len(lines) <= 2  # rate-limited (2 s): not one a record
+
+
 @pytest.mark.parametrize("restart", [True, False])
 def test_a_drive_not_operational_gets_an_nmt_start_at_most_once_a_second(restart, monkeypatch):
     """Stop 32: nobody started a reset / stopped drive again (Master._supervise / on_bootup are the

@@ -23,8 +23,8 @@ made, in the thread that evaluated it; :meth:`DriveLink.after_record` once the r
 goes out in RPDO1 (0x200 + node-ID: 0x6040 U16, 0x6071 I16, 0x607A I32 = 0), through the event
 stream (so it is in the trace); SYNC -> command on the bus is measured (perf_counter at the SYNC's
 send to perf_counter after this send) into :attr:`latency` (a histogram like SYNC -> record's).
-Drive faults, quick stops, a lost drive heartbeat, a drive not NMT operational and a
-takeover's implausible force are logged rate-limited (the service's
+Drive faults, quick stops, a lost drive heartbeat, a drive not NMT operational, a mode other than
+profile torque and a takeover's implausible force are logged rate-limited (the service's
 ``RateLimitedLog``; counted by the grip stage).
 
 **A drive not NMT operational** (2026-11-30 (stop 32): reset - a boot-up -, or stopped by someone
@@ -169,6 +169,9 @@ class DriveLink:
                 self._log.warning("drive_quick_stop", "cycle %d: gripper drive in QUICK STOP ACTIVE", cycle)
             if "drive_lost" in flags:
                 self._log.warning("drive_lost", "cycle %d: gripper drive's heartbeat lost", cycle)
+            if "drive_mode" in flags:
+                self._log.warning("drive_mode", "cycle %d: gripper drive not in profile torque (0x6061 is not %d): "
+                                  "its target torque is ignored", cycle, PROFILE_TORQUE)
             if "drive_force_implausible" in flags:
                 self._log.warning("drive_force", "cycle %d: gripper drive's force 0x2101 (%s N) disagrees with its "
                                   "torque: the takeover starts from the torque's force", cycle,

@@ -63,7 +63,7 @@ Per cycle (``docs/service.md``, "The grip stage"; the law: ``docs/grip-control.m
   flagged ``drive_not_operational``, and the service sends the drive an NMT start
   (:meth:`.drive_link.DriveLink.start_again`); its re-enable walk follows once its TPDO1 is seen
   again. A drive fault, a quick stop, a disable, a lost drive heartbeat, a drive not NMT
-  operational are flagged (``grip_flags``) and counted per
+  operational, a mode other than profile torque are flagged (``grip_flags``) and counted per
   episode (:attr:`counts`); boot-ups counted each.
 """
 
@@ -149,6 +149,7 @@ class GripStage:
         self.last_state: str | None = None
         self.lost = False
         self.not_operational = False         # the drive's NMT state was not OPERATIONAL last cycle
+        self.wrong_mode = False              # 0x6061 was not profile torque last cycle
         self.peak: float | None = None       # slip_now: farthest displacement reached in this contact
         self.peak_cycle: int | None = None   # the cycle it was reached
         self.slip_hold = slip_hold
@@ -161,7 +162,7 @@ class GripStage:
         self.rebased = False                        # ... and its reference was taken again settle_s later
         self.counts = {"drive_faults": 0, "quick_stops": 0, "drive_disabled": 0, "drive_lost": 0,
                        "fault_resets": 0, "enable_walks": 0, "takeovers": 0, "degraded_holds": 0,
-                       "drive_bootups": 0, "drive_not_operational": 0, "drive_force_implausible": 0}
+                       "drive_bootups": 0, "drive_not_operational": 0, "drive_mode": 0, "drive_force_implausible": 0}
 
     # ------------------------------------------------------------------ findings
     def slip_now(self, record: dict, pressing: bool | None = None) -> bool:
@@ -297,8 +298,12 @@ class GripStage:
         if state == OE and self.enabled_at is None:
             self.enabled_at, self.enabled_t = cycle, record["t"]
         self._count_transition(state, flags)
-        if drive.mode is not None and drive.mode != PROFILE_TORQUE:
+        wrong_mode = drive.mode is not None and drive.mode != PROFILE_TORQUE
+        if wrong_mode:
             flags.append("drive_mode")
+            if not self.wrong_mode:
+                self.counts["drive_mode"] += 1
+        self.wrong_mode = wrong_mode
         task = self.task(record["t"])
         if state == OE:
             present = {"H1": True, "H0": False}.get(record.get("decision"))
