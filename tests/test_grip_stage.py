@@ -96,6 +96,14 @@ def test_the_command_on_the_bus_is_the_records(grasp):
     assert r["grip_detail"]["target_permille"] == round(r["grip"]["command_n"] * 1000 / 140.0)
 
 
+def test_a_normal_start_is_not_a_drive_not_operational(grasp):
+    """The drive's boot-up before the run and the NMT start of all nodes are its start: no record
+    flagged drive_booted / drive_not_operational, nothing counted, no NMT start of the drive."""
+    _, service, summary, *_ = grasp
+    assert not any({"drive_booted", "drive_not_operational"} & set(r["grip_flags"]) for r in service.records)
+    assert not {"drive_bootups", "drive_not_operational", "nmt_starts"} & set(summary["grip"])
+
+
 def test_replay_gives_the_live_records(grasp, tmp_path):
     scene, service, _, table, _, trace, live = grasp
     out = tmp_path / "replay.jsonl"
@@ -204,6 +212,9 @@ def test_a_new_centre_takes_a_held_part_over_without_opening_the_jaws():
         assert "takeover" in seen[0]["grip_flags"] and summary["grip"]["takeovers"] == 1
         assert summary["grip"].get("found_holding") is True
         assert abs(seen[0]["grip"]["command_n"] - force_before) <= 0.1  # the drive's own force, not 0
+        # its 0x2101 agrees with its torque; the drive was never found not operational (never reset)
+        assert not any({"drive_force_implausible", "drive_not_operational", "drive_booted"} & set(r["grip_flags"])
+                       for r in records)
         # the world in between and after: never opened, never dropped, held all along
         later = steps[n_before:]
         assert later and all(s["in_grip"] and not s["dropped"] and s["normal_n"] > 0 for s in later)
