@@ -552,6 +552,20 @@ def test_a_drive_in_the_wrong_mode_is_counted_per_episode_and_logged(caplog):
     assert 1 <= len(lines) <= 2  # rate-limited (2 s): not one a record
 
 
+def test_a_drive_started_again_before_its_first_tpdo1_keeps_the_held_command_in_the_record():
+    """After its boot-up the drive's TPDO values are gone; started again (heartbeat operational) it
+    has no state until its first TPDO1: nothing sent, the record's command the law's (held), not null."""
+    stage = GripStage(load_scene("grasp_scripted"))
+    record = {"decision": "H1", "degraded": False, "slip": {"contact": True, "displacement": 0.0}}
+    stage.evaluate(dict(record, cycle=0, t=0.0), _off_drive(5))
+    held = stage.law.command_n
+    no_state = DriveCycle(True, False, 5, None, None, None, None, None, None, None, None, None, None)
+    r = dict(record, cycle=1, t=0.01)
+    stage.evaluate(r, no_state)
+    assert "no_drive_state" in r["grip_flags"] and stage.command is None
+    assert held > 0 and r["grip"]["command_n"] == held and r["grip_detail"]["task"] == "close"
+
+
 @pytest.mark.parametrize("restart", [True, False])
 def test_a_drive_not_operational_gets_an_nmt_start_at_most_once_a_second(restart, monkeypatch):
     """Stop 32: nobody started a reset / stopped drive again (Master._supervise / on_bootup are the

@@ -283,7 +283,9 @@ class GripStage:
         if state is None:
             self.command = None
             flags.append("no_drive_state")
-            self._record(record, None, actual, None, drive, slip, flags, None, None)
+            # (once seen: the drive started again, its first TPDO1 still to come - the law's command held)
+            self._record(record, self.law.command_n if self.seen else None, actual, None, drive, slip, flags,
+                         self.task(record["t"]) if self.seen else None, None)
             return
         if not self.seen:
             self.seen = True
