@@ -445,7 +445,9 @@ class Master:
         heartbeat, or by an NMT command of another master seen in the stream) at every SYNC for
         1.2 heartbeat periods is started again (``[master] restart = "always"``), at most once per heartbeat
         period; a node being reconfigured after its boot-up is left to that. ``"never"``: the
-        record names it (``nodes_by_state``) and nothing is sent."""
+        record names it (``nodes_by_state``) and nothing is sent. The taxel nodes only: the
+        gripper drive, under the same setting, is started again by
+        :meth:`.drive_link.DriveLink.start_again` from its records (2026-11-30 (stop 32))."""
         if not self.restart:
             return
         assembler = self.stream.assembler
