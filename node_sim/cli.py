@@ -207,8 +207,12 @@ def main(argv: list[str] | None = None) -> int:
     try:
         from taxel_net.scene import load_scene
 
+        from taxel_net.outputs import check_distinct_paths, scene_inputs
+
         from .rig import Rig
 
+        # a truth log over the scene or the EDS: one line, before anything is opened
+        check_distinct_paths([*scene_inputs(args.scene), ("--eds", args.eds)], [("--truth-log", args.truth_log)])
         scene = load_scene(args.scene)
         odx.check_eds(args.eds, "taxel node")
         interface, channels, bitrate, bus_kwargs = resolve_bus(args, scene)

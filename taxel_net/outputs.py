@@ -99,6 +99,9 @@ def discard_stale(path) -> bool:
     mode = _mode(p)
     if mode is None or not stat.S_ISREG(mode):
         return False
+    if _identity(str(p)) in _INPUTS:  # the command's own input, never a stale output (stop 32)
+        log.warning("%r is an input of this command: not removed", str(path))
+        return False
     return _remove(Path(os.path.realpath(p)), "an earlier file at")
 
 
@@ -112,3 +115,101 @@ def _remove(path: Path, what: str) -> bool:
                     type(exc).__name__, exc.strerror or exc)
         return False
     return True
+
+
+# -- inputs and outputs that name one file (stop 32) ---------------------------------------------
+
+_INPUTS: set = set()  # identities (_identity) of the running command's inputs (check_distinct_paths)
+
+SAME_FILE_ALLOWED = ("each output needs a path of its own, neither an input's nor another output's "
+                     "(only a character device or FIFO such as /dev/null may be named twice)")
+
+
+def _identity(path: str):
+    """What ``path`` names, for comparing paths: None for a character device, FIFO or socket
+    (may be named twice: ``/dev/null``), ``("file", dev, inode)`` for something that exists
+    (``os.path.samefile``'s test: a hard link or a symbolic link is the same file), else
+    ``("path", realpath)`` (a file not yet written: two spellings of one path are one file)."""
+    try:
+        st = os.stat(path)
+    except (FileNotFoundError, NotADirectoryError):
+        return ("path", os.path.realpath(path))
+    except OSError:  # a loop of links, a path too long...: compare what it spells
+        return ("path", os.path.realpath(path))
+    if stat.S_ISCHR(st.st_mode) or stat.S_ISFIFO(st.st_mode) or stat.S_ISSOCK(st.st_mode):
+        return None
+    return ("file", st.st_dev, st.st_ino)
+
+
+def _partials(path: str) -> list[str]:
+    """The partial files an output at ``path`` is written as before its rename (``OUT.partial``,
+    ``plot``'s ``OUT.partial.png``, a bag's ``DIR.partial``): an input there would be truncated."""
+    real = Path(os.path.realpath(path))
+    return [str(real.with_name(real.name + PARTIAL)),
+            str(real.with_name(real.stem + PARTIAL + real.suffix))]
+
+
+def check_distinct_paths(inputs, outputs) -> None:
+    """Refuse, before anything is opened for writing, an output that names an input or another
+    output (``replay --scene S c.log --json-lines c.log`` truncated its own trace; ``demo
+    --json-lines x.log --log x.log`` wrote both into one file; a failed replay then deleted the
+    trace as a stale output). ``inputs`` and ``outputs`` are ``(option, path)`` pairs (a path of
+    None or ``-``, stdout, is skipped); paths are compared resolved (``os.path.realpath``) and,
+    where both exist, as ``os.path.samefile`` does. A character device, FIFO or socket may be
+    named any number of times (``--json-lines /dev/null --mcap /dev/null``). An input that is an
+    output's partial file (``OUT.partial``) is refused too. Raises :class:`UsageError` in one
+    line naming both options and the path."""
+    _INPUTS.clear()  # this command's inputs: discard_stale never removes one of them
+    _INPUTS.update(key for key in (_identity(str(path)) for _, path in inputs
+                                   if path is not None and str(path) != "-") if key is not None)
+    seen: dict = {}  # identity -> (option, path, is_output)
+    for is_output, pairs in ((False, inputs), (True, outputs)):
+        for option, path in pairs:
+            if path is None or str(path) == "-":
+                continue
+            path = str(path)
+            key = _identity(path)
+            if key is None:
+                continue
+            if key in seen:
+                first_option, first_path, first_is_output = seen[key]
+                what = "another output" if first_is_output else "an input"
+                raise UsageError(f"{option} {path!r}: is {what}, {first_option} {first_path!r}; "
+                                 f"{SAME_FILE_ALLOWED}")
+            seen[key] = (option, path, is_output)
+    named = [(option, str(path), False) for option, path in inputs] + [(option, str(path), True)
+                                                                       for option, path in outputs]
+    named = [(o, p, out) for o, p, out in named if p not in ("None", "-")]
+    for out_option, out_path, is_output in named:
+        if not is_output or _identity(out_path) is None:
+            continue
+        partials = set(_partials(out_path))
+        for option, path, other_is_output in named:
+            if path != out_path and os.path.realpath(path) in partials and _identity(path) is not None:
+                what = "another output" if other_is_output else "an input"
+                raise UsageError(f"{out_option} {out_path!r}: is written first as {path!r}, which is {what}, "
+                                 f"{option} {path!r}; {SAME_FILE_ALLOWED}")
+
+
+def scene_inputs(text, option: str = "--scene") -> list[tuple[str, str]]:
+    """The files a scene argument reads, as ``(option, path)`` pairs for
+    :func:`check_distinct_paths`: the scene file (a bundled name resolved to its file) and its
+    ``taxels_file`` CSV, if any. A scene that cannot be resolved or read gives its text alone
+    (the loader reports it)."""
+    from .resources import resolve_scene
+
+    try:
+        path = resolve_scene(text)
+    except Exception:  # noqa: BLE001 - the loader's error is the one to report
+        return [(option, str(text))]
+    found = [(option, str(path))]
+    try:
+        import tomllib
+
+        with open(path, "rb") as fh:
+            rel = tomllib.load(fh).get("taxels_file")
+    except Exception:  # noqa: BLE001 - unreadable or not TOML: the loader says so
+        return found
+    if isinstance(rel, str) and rel:
+        found.append((f"{option}'s taxels_file", str(Path(path).parent / rel)))
+    return found

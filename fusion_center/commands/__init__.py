@@ -192,3 +192,19 @@ def resolve_bus(args, scene, *, required: bool = True) -> BusChoice | None:
                              f"(channel from {_config_source('channel', given)[1]})")
     return BusChoice(interface=interface, channels=channels, bitrate=bitrate, kwargs=config,
                      source="python-can config file" if source == CONFIG_FILES else source)
+
+
+def check_output_paths(args, inputs=(), outputs=()) -> None:
+    """Refuse an output that names an input or another output (one line, exit 2), before
+    anything is written: :func:`taxel_net.outputs.check_distinct_paths` over the command's
+    ``--scene`` (its file and taxels_file), ``--zenoh-config`` and the given ``inputs``, and its
+    ``--json-lines``, ``--log``, ``--mcap``, ``--ros2-bag`` and the given ``outputs`` (each an
+    ``(option, path)`` pair; options the command does not have are skipped)."""
+    from taxel_net.outputs import check_distinct_paths, scene_inputs
+
+    found_inputs = list(scene_inputs(args.scene)) if getattr(args, "scene", None) else []
+    found_inputs += [(option, getattr(args, name, None)) for option, name in (("--zenoh-config", "zenoh_config"),)]
+    found_inputs += list(inputs)
+    found_outputs = [(option, getattr(args, name, None)) for option, name in
+                     (("--json-lines", "json_lines"), ("--log", "log"), ("--mcap", "mcap"), ("--ros2-bag", "ros2_bag"))]
+    check_distinct_paths(found_inputs, found_outputs + list(outputs))

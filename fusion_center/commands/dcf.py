@@ -281,6 +281,26 @@ def is_drive(scene, text: str) -> bool:
         return False
 
 
+def _check_paths(args, scene, drive: bool, out: Path) -> None:
+    """Refuse a DCF that would be written over the scene (its file, its taxels_file) or ``--eds``
+    (:func:`taxel_net.outputs.check_distinct_paths`): ``-o`` itself, and with ``--all`` or a
+    directory every file it would hold."""
+    from taxel_net.outputs import check_distinct_paths, scene_inputs
+
+    inputs = [*scene_inputs(args.scene), ("--eds", args.eds)]
+    if args.output == "-":
+        return
+    if args.all or out.is_dir():
+        names = ([file_name(scene, i) for i in range(len(_devices(scene)))] if args.all
+                 else [drive_file_name(scene) if drive else file_name(scene, node_index(scene, args.node))])
+        if args.all and scene.gripper is not None:
+            names.append(drive_file_name(scene))
+        outputs = [("-o", str(out / name)) for name in names]
+    else:
+        outputs = [("-o", args.output)]
+    check_distinct_paths(inputs, outputs)
+
+
 def run(args) -> int:
     import sys
 
@@ -303,6 +323,7 @@ def run(args) -> int:
     except (OSError, UnicodeDecodeError) as exc:
         raise UsageError(f"EDS file {str(source)!r} cannot be read: {exc}") from None
     out = Path(args.output)
+    _check_paths(args, scene, drive, out)  # an output naming the scene or the EDS: one line, nothing written
     try:
         if args.all:
             if out.exists() and not out.is_dir():

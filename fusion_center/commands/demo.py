@@ -148,7 +148,10 @@ def run(args) -> int:
 
     from ..robotics import cli as robotics
 
+    from . import check_output_paths
+
     setup_logging()
+    check_output_paths(args)  # an output naming an input or another output: one line, nothing written
     scene, cycles = load_run_scene(args)
     nominal_ms = scene.bus.sync_period_ms
     scene = slowed_down(scene, args.slow_down)

@@ -53,6 +53,10 @@ def run(args) -> int:
     if not args.ros2 and not args.mcap:
         raise UsageError("nothing to export: give --ros2 OUT_DIR and/or --mcap FILE")
     bag = args.out if args.ros2 else None
+    from taxel_net.outputs import check_distinct_paths, scene_inputs
+
+    check_distinct_paths([("RUN.jsonl", args.log), *scene_inputs(args.scene)],
+                         [("--mcap", args.mcap), ("OUT_DIR", bag)])  # one line, before anything is written
     robotics.check(argparse.Namespace(mcap=args.mcap))
     if bag is not None:
         from ..robotics.ros2_bag import check_bag_target

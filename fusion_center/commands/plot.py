@@ -264,8 +264,9 @@ def run(args) -> int:
         raise UsageError(f"--out {str(out)!r}: unknown figure format {out.suffix!r} (use {', '.join(FORMATS)})")
     if not out.parent.is_dir():
         raise UsageError(f"--out {str(out)!r}: directory {str(out.parent)!r} does not exist")
-    if out.resolve() == log.resolve():
-        raise UsageError(f"--out {str(out)!r}: is the decision log itself")
+    from taxel_net.outputs import check_distinct_paths
+
+    check_distinct_paths([("RUN.jsonl", args.log)], [("--out", str(out))])  # the log itself: one line
     series = read_log(log)
     meta = series["meta"]
     title = f"{log.name} ({meta.get('mode') or '?'} mode)"

@@ -38,7 +38,12 @@ def run(args) -> int:
 
     from ..robotics import cli as robotics
 
+    from . import check_output_paths
+
     setup_logging()
+    # before anything is read or written: an output naming the trace, the truth log, the scene or
+    # another output is refused (a failed check below would else delete it as a stale output)
+    check_output_paths(args, inputs=[("TRACE", args.trace), ("--truth-log", args.truth_log)])
     scene = apply_mode(load_scene(args.scene), args.mode)  # the mode of the recorded run
     grasp_truth = None
     if args.truth_log is not None:
@@ -52,8 +57,9 @@ def run(args) -> int:
         try:
             check_trace(scene, args.trace)  # before anything is written
         except UsageError:
+            inputs = [args.trace, args.truth_log, scene.path]
             for stale in (args.json_lines, args.mcap):
-                if stale:
+                if stale and not _names_any(stale, inputs):  # never an input (checked above; kept safe)
                     discard_stale(stale)  # an output of an earlier replay must not pass for this one's
             raise
     on_record = None if args.json_lines else (lambda r: print(dumps(r)))
@@ -92,3 +98,18 @@ def run(args) -> int:
                   file=sys.stderr)
             status = 2
     return status
+
+
+def _names_any(path, others) -> bool:
+    """``path`` names the same file as one of ``others`` (resolved, or ``os.path.samefile``)."""
+    import os
+
+    for other in others:
+        if other is None:
+            continue
+        try:
+            if os.path.realpath(path) == os.path.realpath(other) or os.path.samefile(path, other):
+                return True
+        except OSError:  # one of them does not exist: not the same file
+            continue
+    return False

@@ -418,8 +418,10 @@ def run(args) -> int:
     from ..service.traces import check_trace_target
 
     from ..robotics import cli as robotics
+    from . import check_output_paths
 
     setup_logging()
+    check_output_paths(args)  # an output naming an input or another output: one line, nothing written
     scene, cycles = load_run_scene(args)
     check_trace_target(args.log)
     robotics.check(args)
