@@ -22,7 +22,8 @@ else exit 2): the grasp world's ground truth, one JSON line per world step (``do
 flushed per line. ``FILE`` is opened before the twins start and written in place: a regular file
 is truncated (not renamed, so it can be followed while node-sim runs), a FIFO, device or
 ``/dev/stdout`` is written, never replaced nor removed (``taxel_net.outputs.OutputPath``); a
-directory exits 2. A write that fails (a reader that went away) is reported once on stderr and
+directory, or the scene file itself (or its taxels_file, ``--eds``), exits 2 in one line
+(``taxel_net.outputs.check_distinct_paths``). A write that fails (a reader that went away) is reported once on stderr and
 ends the log, not the twins.
 
 ``--serve`` shards a scene over several processes (or hosts): this one runs only the nodes of

@@ -99,7 +99,7 @@ def discard_stale(path) -> bool:
     mode = _mode(p)
     if mode is None or not stat.S_ISREG(mode):
         return False
-    if _identity(str(p)) in _INPUTS:  # the command's own input, never a stale output (stop 32)
+    if _input_marks(str(p)) & _INPUTS:  # the command's own input, never a stale output (stop 32)
         log.warning("%r is an input of this command: not removed", str(path))
         return False
     return _remove(Path(os.path.realpath(p)), "an earlier file at")
@@ -119,7 +119,7 @@ def _remove(path: Path, what: str) -> bool:
 
 # -- inputs and outputs that name one file (stop 32) ---------------------------------------------
 
-_INPUTS: set = set()  # identities (_identity) of the running command's inputs (check_distinct_paths)
+_INPUTS: set = set()  # marks (_input_marks) of the running command's inputs (check_distinct_paths)
 
 SAME_FILE_ALLOWED = ("each output needs a path of its own, neither an input's nor another output's "
                      "(only a character device or FIFO such as /dev/null may be named twice)")
@@ -141,6 +141,18 @@ def _identity(path: str):
     return ("file", st.st_dev, st.st_ino)
 
 
+def _input_marks(path: str) -> set:
+    """How :func:`discard_stale` knows an input again: its resolved path and, when it exists, its
+    (device, inode, ctime) - a hard link is the same file, a new file on a reused inode is not."""
+    marks: set = {("path", os.path.realpath(path))}
+    try:
+        st = os.stat(path)
+    except OSError:
+        return marks
+    marks.add(("file", st.st_dev, st.st_ino, st.st_ctime_ns))
+    return marks
+
+
 def _partials(path: str) -> list[str]:
     """The partial files an output at ``path`` is written as before its rename (``OUT.partial``,
     ``plot``'s ``OUT.partial.png``, a bag's ``DIR.partial``): an input there would be truncated."""
@@ -160,8 +172,9 @@ def check_distinct_paths(inputs, outputs) -> None:
     output's partial file (``OUT.partial``) is refused too. Raises :class:`UsageError` in one
     line naming both options and the path."""
     _INPUTS.clear()  # this command's inputs: discard_stale never removes one of them
-    _INPUTS.update(key for key in (_identity(str(path)) for _, path in inputs
-                                   if path is not None and str(path) != "-") if key is not None)
+    for _, path in inputs:
+        if path is not None and str(path) != "-":
+            _INPUTS.update(_input_marks(str(path)))
     seen: dict = {}  # identity -> (option, path, is_output)
     for is_output, pairs in ((False, inputs), (True, outputs)):
         for option, path in pairs:
@@ -171,15 +184,14 @@ def check_distinct_paths(inputs, outputs) -> None:
             key = _identity(path)
             if key is None:
                 continue
-            if key in seen:
+            if key in seen and is_output:  # an input read twice (two options) harms nothing
                 first_option, first_path, first_is_output = seen[key]
                 what = "another output" if first_is_output else "an input"
                 raise UsageError(f"{option} {path!r}: is {what}, {first_option} {first_path!r}; "
                                  f"{SAME_FILE_ALLOWED}")
-            seen[key] = (option, path, is_output)
-    named = [(option, str(path), False) for option, path in inputs] + [(option, str(path), True)
-                                                                       for option, path in outputs]
-    named = [(o, p, out) for o, p, out in named if p not in ("None", "-")]
+            seen.setdefault(key, (option, path, is_output))
+    named = [(option, str(path), is_output) for is_output, pairs in ((False, inputs), (True, outputs))
+             for option, path in pairs if path is not None and str(path) != "-"]
     for out_option, out_path, is_output in named:
         if not is_output or _identity(out_path) is None:
             continue

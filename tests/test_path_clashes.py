@@ -247,3 +247,10 @@ def test_discard_stale_spares_the_commands_inputs(tmp_path):
     check_distinct_paths([("TRACE", trace)], [("--json-lines", stale)])
     assert discard_stale(trace) is False and trace.read_text() == "x\n"
     assert discard_stale(stale) is True and not stale.exists()
+
+
+def test_an_input_named_twice_is_no_clash(tmp_path):
+    """Reading one file under two options harms nothing (only outputs must be distinct)."""
+    (tmp_path / "a.log").write_text("x\n")
+    check_distinct_paths([("TRACE", tmp_path / "a.log"), ("--truth-log", tmp_path / "a.log")],
+                         [("--json-lines", tmp_path / "None")])

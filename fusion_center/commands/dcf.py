@@ -38,6 +38,10 @@ taxels' (``<scene>_gripper_node032.dcf``), from ``eds/gripper_drive.eds``
 
     fusion-center dcf --scene S --node N -o FILE.dcf     (N, or C:N for a node of channel C > 0)
     fusion-center dcf --scene S --all -o DIR             (one file per node)
+
+A DCF that would be written over the scene file, its taxels_file or ``--eds`` (``-o`` itself, or a
+file ``--all`` / a directory ``-o`` would hold) exits 2 in one line before anything is written
+(``taxel_net.outputs.check_distinct_paths``).
 """
 
 from __future__ import annotations

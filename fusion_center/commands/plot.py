@@ -17,7 +17,8 @@ Four panels over the SYNC cycle, read from the per-cycle records (``--json-lines
 
 The figure is written to ``OUT.partial.png`` and renamed when complete: a failed plot leaves
 no complete-looking file. An ``OUT`` that is not a regular file (a FIFO, a device) is written
-in place, never renamed over nor removed. A log that cannot be read (missing, not JSON lines, not decision
+in place, never renamed over nor removed. An ``OUT`` that is the log itself (or its
+``OUT.partial.png``) exits 2 in one line (``taxel_net.outputs.check_distinct_paths``). A log that cannot be read (missing, not JSON lines, not decision
 records) exits 2 with one line naming the file and the line.
 """
 
