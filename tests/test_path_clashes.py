@@ -254,3 +254,12 @@ def test_an_input_named_twice_is_no_clash(tmp_path):
     (tmp_path / "a.log").write_text("x\n")
     check_distinct_paths([("TRACE", tmp_path / "a.log"), ("--truth-log", tmp_path / "a.log")],
                          [("--json-lines", tmp_path / "None")])
+
+
+def test_run_log_over_its_scene_before_the_bus(capsys, work):
+    """``run`` checks its paths before it looks for a bus (no interface is given here)."""
+    before = (work / "tiny3.toml").read_bytes()
+    done = run_cli(capsys, "run", "--scene", "tiny3.toml", "--cycles", "2", "--no-live", "--log", "./tiny3.toml",
+                   cwd=work)
+    refused(done, "--log", "--scene", "tiny3.toml")
+    assert (work / "tiny3.toml").read_bytes() == before
