@@ -66,8 +66,8 @@ def test_scene_values_out_of_range(cli, tmp_path, old, new, needle):
     (["--boot-timeout", "-1"], "--boot-timeout -1"),
     (["--boot-timeout", "inf"], "--boot-timeout inf"),
     (["--bitrate", "-1"], "--bitrate -1"),
-    (["--rt-priority", "0"], "--rt-priority 0: out of range (allowed: 1-99"),
-    (["--rt-priority", "100"], "--rt-priority 100: out of range (allowed: 1-99"),
+    (["--rt-priority", "0"], "--rt-priority: 0: out of range (allowed: 1-99"),
+    (["--rt-priority", "100"], "--rt-priority: 100: out of range (allowed: 1-99"),
 ])
 def test_cli_values_out_of_range(cli, args, needle):
     assert_one_line_exit_2(cli("run", "--scene", MATRIX, *args), needle)
