@@ -111,8 +111,8 @@ def objects() -> tuple[list[int], list[int], Writer]:
     w.var("607Dsub0", "Highest sub-index supported", UNSIGNED8, "ro", 2)
     w.var("607Dsub1", "Min position limit", INTEGER32, "rw", 0, low=0, high=6553500)
     w.var("607Dsub2", "Max position limit", INTEGER32, "rw", 80000, low=0, high=6553500)
-    w.var("6081", "Profile velocity", UNSIGNED32, "rw", 50000, mappable=True)
-    w.var("6087", "Torque slope", UNSIGNED32, "rw", 5000, mappable=True)
+    w.var("6081", "Profile velocity", UNSIGNED32, "rw", 50000, mappable=True, low=1)   # 0: jaws that never move
+    w.var("6087", "Torque slope", UNSIGNED32, "rw", 5000, mappable=True, low=1)      # 0: a stop ramp that never ends
     w.var("6502", "Supported drive modes", UNSIGNED32, "ro", f"0x{SUPPORTED_MODES:08X}")
     return optional, manufacturer, w
 

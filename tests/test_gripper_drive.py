@@ -319,3 +319,38 @@ def test_rpdo_length_error_and_mapping_rules(bench):
     node.sdo[0x1400][1].raw = 0x200 + NODE
     b.net.send_message(0x200 + NODE, bytes([0x06, 0x00]))      # now 2 bytes is the whole RPDO
     b.wait(lambda: node.state == "READY TO SWITCH ON", "shutdown applied at the next SYNC")
+
+
+# -- 2026-11-30 (stop 32): parameters that would hang the drive, RPDO-written parameters,
+#    NMT stop as an abort-connection event, the RPDO length error's EMCY episode
+
+@pytest.mark.parametrize("index", [0x6087, 0x6081], ids=["0x6087", "0x6081"])
+def test_torque_slope_and_profile_velocity_refuse_zero(bench, index):
+    """0x6087 = 0: a stop ramp that never ends (a fault kept torque on for good); 0x6081 = 0: jaws
+    that never move. Both abort 0x06090032 (value too low), by the EDS's LowLimit and the drive's
+    own rule (which holds for an OD whose EDS has no LowLimit)."""
+    node = bench.node
+    with pytest.raises(SdoAbortedError) as info:
+        node.sdo[index].raw = 0
+    assert info.value.code == 0x06090032
+    assert node.sdo[index].raw == {0x6087: 5000, 0x6081: 50000}[index]
+    with bench.host.lock:
+        with pytest.raises(SdoAbortedError) as info:
+            bench.host.drive.drive.check_write(index, 0, 0, False)
+    assert info.value.code == 0x06090032
+    node.sdo[index].raw = 1                                   # the least allowed
+
+
+def test_a_zero_slope_that_bypassed_the_sdo_still_ends_the_fault_reaction(bench):
+    """A torque slope of 0 in the OD (as a DCF or an RPDO could leave it before the rules held):
+    the fault reaction's stop ramp ends at once (torque 0, FAULT), so a fault reset works."""
+    b, node = bench, bench.node
+    hold_part(b, torque=500)
+    with b.host.lock:
+        b.host.drive.objects.store(0x6087, 0, 0)
+        b.host.drive.drive.invalidate()
+    node.sdo[0x2110].raw = 0x2310
+    b.wait(lambda: node.state == "FAULT", "FAULT after the fault reaction")
+    assert b.values[0x6077] == 0 and b.values[0x2101] == 0
+    node.reset_from_fault()
+    assert node.state == "OPERATION ENABLED"

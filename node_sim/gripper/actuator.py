@@ -14,7 +14,8 @@ drive through :meth:`JawAxis.jaw_blocked_at` and :meth:`JawAxis.part_lost`):
   object blocks them (a position loop saturating at its torque limit);
 * **stop ramp** (quick stop, fault reaction, halt): ``T* = 0`` at the same slope ``s`` (CiA 402 has
   no torque quick-stop slope: slow-down and quick-stop ramps are the same here) and no motion;
-  done when ``T = 0``. **Drive function off** (any state but OPERATION ENABLED, QUICK STOP ACTIVE,
+  done when ``T = 0`` (a slope of 0, which only a value that bypassed the SDO rules can give:
+  ``T = 0`` at once, so the ramp always ends). **Drive function off** (any state but OPERATION ENABLED, QUICK STOP ACTIVE,
   FAULT REACTION ACTIVE): ``T = 0`` at once, no motion - the jaws let go;
 * **grip force per jaw** (0.1 N, the normal force ONE jaw exerts on the part, not the sum of
   both): ``F = T · F_rated / 1000`` while the jaws press on the object (width at the object,
@@ -114,8 +115,11 @@ class JawAxis:
         self._grip_after(opened=False, closing=False)
 
     def stop_ramp(self, dt: float) -> bool:
-        """Quick stop / fault reaction / halt: torque to 0 at the slope, no motion. True when done."""
-        self.torque = _toward(self.torque, 0.0, self.limits.slope_permille_s * dt)
+        """Quick stop / fault reaction / halt: torque to 0 at the slope, no motion. True when done.
+        A slope that is not positive (0x6087 = 0 reached the OD without the SDO's rules) stops at
+        once: a fault reaction or a quick stop always ends."""
+        slope = self.limits.slope_permille_s
+        self.torque = _toward(self.torque, 0.0, slope * dt) if slope > 0 else 0.0
         self.moving = False
         self.internal_limit = False
         self._grip_after(opened=False, closing=False)

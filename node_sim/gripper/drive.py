@@ -50,7 +50,7 @@ from ..heartbeat import EMCY_HEARTBEAT
 from ..node import TaxelNode
 from ..nmt import NMT_STOP, STOPPED
 from ..rpdo import RpdoEngine
-from ..sdo import ABORT_VALUE_RANGE
+from ..sdo import ABORT_VALUE_RANGE, ABORT_VALUE_TOO_LOW
 from . import cia402
 from .actuator import GripState, JawAxis, grip_state_statusword
 
@@ -166,6 +166,9 @@ class DriveApplication:
             other = self._objects.read(POSITION_LIMIT, 3 - subindex)
             low, high = (value, other) if subindex == 1 else (other, value)
             ok = 0 <= value <= POSITION_LIMIT_MAX and low < high
+        elif index in (PROFILE_VELOCITY, TORQUE_SLOPE) and value < 1:
+            # 0: jaws that never move / a stop ramp that never ends (the EDS's LowLimit 1 too)
+            raise SdoAbortedError(ABORT_VALUE_TOO_LOW)
         if not ok:
             raise SdoAbortedError(ABORT_VALUE_RANGE)
 
@@ -347,7 +350,7 @@ class GripperDrive(TaxelNode):
 
     SCALAR_READING = False                 # a SYNC brings no reading: the drive samples itself
     APPLICATION_OBJECTS = (MODES_OF_OPERATION, QUICK_STOP_OPTION, FAULT_REACTION_OPTION, ABORT_CONNECTION,
-                           SIMULATED_FAULT, POSITION_LIMIT)
+                           SIMULATED_FAULT, POSITION_LIMIT, PROFILE_VELOCITY, TORQUE_SLOPE)
 
     def __init__(self, node_id: int, link, od=None, eds_path=GRIPPER_EDS_PATH):
         if od is None:  # checked against the shipped drive EDS, not the taxel node's
