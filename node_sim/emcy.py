@@ -23,7 +23,10 @@ Codes (CiA 301 error-code classes):
 
 A device-profile error (the gripper drive's CiA 402 faults, :mod:`node_sim.gripper.drive`) is
 reported with :meth:`EmcyProducer.device_error`: its own code, error register bit 0 plus the bits the
-device gives, the same pairing with its error reset.
+device gives, the same pairing with its error reset. An RPDO error (:mod:`node_sim.rpdo`: 0x8210 a
+PDO too short, 0xFF10 a value the SDO rules refuse) is an episode (:meth:`EmcyProducer.rpdo_error`):
+one EMCY when it begins, whatever the PDO rate, its error reset at the first RPDO processed again;
+0x1001 holds the bits the EMCY names (0 and 4) for the whole episode.
 
 Error register bits set on a fault: bit 0 (generic error, mandatory whenever any error is
 active) and bit 5 (device-profile specific).
@@ -130,6 +133,8 @@ class EmcyProducer:
         self._comm_reported = False
         self._device: tuple[int, int] | None = None   # a device-profile error (code, register bits)
         self._device_reported = False
+        self._rpdo: tuple[int, int, bytes] | None = None   # an RPDO error episode (code, bits, field)
+        self._rpdo_reported = False
 
     def reset(self) -> None:
         """NMT reset: the fault state is forgotten (the detector starts afresh)."""
@@ -139,6 +144,8 @@ class EmcyProducer:
         self._comm_reported = False
         self._device = None
         self._device_reported = False
+        self._rpdo = None
+        self._rpdo_reported = False
         self._over = None
         self._over_reported = False
         self._drop_queue()
@@ -151,6 +158,8 @@ class EmcyProducer:
             register |= ERR_REG_GENERIC | self._device[1]
         if self._comm_error:
             register |= ERR_REG_GENERIC | ERR_REG_COMMUNICATION
+        if self._rpdo is not None:
+            register |= ERR_REG_GENERIC | self._rpdo[1]
         return register
 
     def _store_register(self) -> int:
@@ -198,6 +207,32 @@ class EmcyProducer:
         self._push_history(code)
         self._device_reported = self.send(code, register)
 
+    def rpdo_error(self, code: int | None, bits: int = ERR_REG_COMMUNICATION, field: bytes = b"") -> None:
+        """An RPDO error episode began (``code``, e.g. 0x8210 a PDO not processed for its length;
+        ``bits`` its error register bits besides bit 0; ``field`` the manufacturer field) or ended
+        (None: an RPDO was processed again): 0x1001 and 0x1003 updated, one EMCY at the start of
+        the episode (a call while one is active does nothing: no flood at the PDO rate) and its
+        error reset at the end (only after a reported one)."""
+        if code is None:
+            if self._rpdo is None:
+                return
+            self._rpdo = None
+            register = self._store_register()
+            if self._rpdo_reported:
+                self._rpdo_reported = not self.send(EMCY_NO_ERROR, register)
+            return
+        if self._rpdo is not None:
+            return
+        self._rpdo = (code, bits, bytes(field))
+        register = self._store_register()
+        self._push_history(code)
+        self._rpdo_reported = self.send_field(code, register, self._rpdo[2])
+
+    @property
+    def rpdo_error_active(self) -> int | None:
+        """The EMCY code of the RPDO error episode now (None: none)."""
+        return None if self._rpdo is None else self._rpdo[0]
+
     @property
     def over_range_active(self) -> bool:
         return self._over is not None
@@ -241,6 +276,10 @@ class EmcyProducer:
             self._comm_reported = self.send(EMCY_HEARTBEAT, self._register())
         elif not self._comm_error and self._comm_reported:
             self._comm_reported = not self.send(EMCY_NO_ERROR, self._register())
+        if self._rpdo is not None and not self._rpdo_reported:
+            self._rpdo_reported = self.send_field(self._rpdo[0], self._register(), self._rpdo[2])
+        elif self._rpdo is None and self._rpdo_reported:
+            self._rpdo_reported = not self.send(EMCY_NO_ERROR, self._register())
         if self._over is not None and not self._over_reported:
             self._over_reported = self.send_field(EMCY_INPUT_OVER_RANGE, self._register(), self._over)
         elif self._over is None and self._over_reported:

@@ -7,6 +7,17 @@ type) and 0x1600.. (mapping), read from the OD when it changes, never per frame:
 * received only in OPERATIONAL, only while valid (0x140x:1 bit 31 clear) and mapped;
 * a frame shorter than the mapping is not processed: EMCY 0x8210 ("PDO not processed due to
   length error"); longer: the mapped bytes are used (CiA 301 allows either; no EMCY 0x8220);
+* a mapped value the object's SDO rules refuse (``check(index, subindex, data)`` False: the EDS's
+  LowLimit / HighLimit, the application's rules - a CiA 402 mode the drive does not support, a max
+  torque beyond 0x6072's HighLimit) is not written: the object keeps its value, the PDO's other
+  entries are written. A PDO cannot abort (CiA 301), so the node reports it: manufacturer-specific
+  EMCY 0xFF10 ("RPDO value not applied"), its field the object's index (UNSIGNED16), subindex
+  and the RPDO's number (1 = 0x1400);
+* an error episode (:meth:`node_sim.emcy.EmcyProducer.rpdo_error`): the first short frame or
+  refused value sends one EMCY with error register bits 0 and 4 (0x1001 holds them too while the
+  episode lasts), the following ones none (``length_errors`` / ``value_errors`` count them: no
+  EMCY flood at the PDO rate; the drive's EDS has no inhibit time 0x1015); the first RPDO of the
+  right length whose every value is written ends it: the error-reset EMCY 0x0000;
 * synchronous (transmission type 0..240): the data of the last frame received are latched and
   written to the OD at the next SYNC (:meth:`RpdoEngine.on_sync`, before the application steps);
   only a frame received since the previous SYNC is applied, so a master that falls silent
@@ -22,32 +33,43 @@ from __future__ import annotations
 
 from typing import Callable, Iterable
 
+import struct
+
 from .nmt import OPERATIONAL, NmtSlave
 from .emcy import ERR_REG_COMMUNICATION
-from .od import COB_INVALID, ERROR_REGISTER, NodeObjects
+from .od import COB_INVALID, NodeObjects
 from .pdo_rules import check_comm_write, check_map_write, mappable_bits
 
-EMCY_PDO_LENGTH = 0x8210      # PDO not processed due to length error
+EMCY_PDO_LENGTH = 0x8210      # PDO not processed due to length error (CiA 301)
+EMCY_PDO_VALUE = 0xFF10       # manufacturer-specific: an RPDO's value refused by its object's rules
 
 
 class RpdoEngine:
     """The RPDOs of one node (see module docstring)."""
 
-    def __init__(self, nmt: NmtSlave, objects: NodeObjects, send_emcy: Callable[[int, int], bool],
+    def __init__(self, nmt: NmtSlave, objects: NodeObjects,
+                 report: Callable[[int | None, int, bytes], None],
                  applied: Callable[[frozenset[int]], None], *, comm: Iterable[int] = (0x1400,),
-                 mapping: Iterable[int] = (0x1600,), max_mapped: int = 8):
+                 mapping: Iterable[int] = (0x1600,), max_mapped: int = 8,
+                 check: Callable[[int, int, bytes], bool] | None = None):
+        """``report(code, register bits, field)``: an error episode begins (``code``) or ends
+        (None) - :meth:`node_sim.emcy.EmcyProducer.rpdo_error`; ``check(index, subindex, data)``:
+        False when the object's SDO rules refuse the value (None: every value written)."""
         self._nmt = nmt
         self._objects = objects
-        self._send_emcy = send_emcy
+        self._report = report
         self._applied = applied
+        self._check = check
         self.comm = tuple(comm)
         self.mapping = tuple(mapping)
         self.max_mapped = max_mapped
         self._cfg: list[tuple[bool, int, int, list[tuple[int, int, int]]]] | None = None
         self._by_cob: dict[int, int] = {}
-        self._latched: dict[int, bytes] = {}
+        self._latched: dict[int, tuple[bytes, int]] = {}   # RPDO -> (data, the error count at its reception)
+        self._errors = 0              # length and value errors so far (an episode ends only after the last)
         self.received = 0
         self.length_errors = 0
+        self.value_errors = 0
 
     # -- configuration
     def _config(self) -> list[tuple[bool, int, int, list[tuple[int, int, int]]]]:
@@ -92,13 +114,14 @@ class RpdoEngine:
         length = sum(bits for _, _, bits in entries) // 8
         if len(data) < length:
             self.length_errors += 1
-            self._send_emcy(EMCY_PDO_LENGTH, self._objects.read(ERROR_REGISTER) | 0x01 | ERR_REG_COMMUNICATION)
+            self._errors += 1
+            self._report(EMCY_PDO_LENGTH, ERR_REG_COMMUNICATION, b"")
             return True
         self.received += 1
         if tt <= 240:
-            self._latched[k] = bytes(data[:length])
+            self._latched[k] = (bytes(data[:length]), self._errors)
         else:
-            self._write(entries, bytes(data[:length]))
+            self._write(k, entries, bytes(data[:length]), self._errors)
         return True
 
     def on_sync(self) -> None:
@@ -107,16 +130,34 @@ class RpdoEngine:
             return
         cfg = self._config()
         latched, self._latched = self._latched, {}
-        for k, data in sorted(latched.items()):
-            self._write(cfg[k][3], data)
+        for k, (data, errors) in sorted(latched.items()):
+            self._write(k, cfg[k][3], data, errors)
 
-    def _write(self, entries: list[tuple[int, int, int]], data: bytes) -> None:
+    def _write(self, k: int, entries: list[tuple[int, int, int]], data: bytes, errors: int) -> None:
+        """RPDO ``k``'s values to the OD, each one its object's rules accept (module docstring);
+        ``errors``: the error count when it was received - a frame received before the last
+        error (latched for the SYNC) does not end the error episode."""
         offset = 0
+        written = set()
+        refused = None
         for index, sub, bits in entries:
             n = bits // 8
-            self._objects.store_raw(index, sub, data[offset:offset + n])
+            value = data[offset:offset + n]
             offset += n
-        self._applied(frozenset(index for index, _, _ in entries))
+            if self._check is not None and not self._check(index, sub, value):
+                self.value_errors += 1
+                if refused is None:
+                    refused = struct.pack("<HBBB", index, sub, k + 1, 0)
+                continue
+            self._objects.store_raw(index, sub, value)
+            written.add(index)
+        if refused is not None:
+            self._errors += 1
+            self._report(EMCY_PDO_VALUE, ERR_REG_COMMUNICATION, refused)
+        elif errors == self._errors:
+            self._report(None, 0, b"")        # received after the last error, processed as sent: the episode ends
+        if written:
+            self._applied(frozenset(written))
 
     # -- SDO rules
     def written(self, index: int, subindex: int) -> None:

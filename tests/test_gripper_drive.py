@@ -10,6 +10,7 @@ x rated grip force 100.0 N (0x2103 = 1000 x 0.1 N)."""
 
 from __future__ import annotations
 
+import struct
 import time
 import uuid
 
@@ -353,4 +354,81 @@ def test_a_zero_slope_that_bypassed_the_sdo_still_ends_the_fault_reaction(bench)
     b.wait(lambda: node.state == "FAULT", "FAULT after the fault reaction")
     assert b.values[0x6077] == 0 and b.values[0x2101] == 0
     node.reset_from_fault()
+    assert node.state == "OPERATION ENABLED"
+
+
+def map_rpdo1(b: Bench, entries: list[int]) -> None:
+    """RPDO1 (0x1400/0x1600) mapped to ``entries`` by SDO, the master's own RPDO sender stopped."""
+    node = b.node
+    b.rpdo.stop()
+    node.sdo[0x1400][1].raw = 0x80000200 + NODE
+    node.sdo[0x1600][0].raw = 0
+    for sub, entry in enumerate(entries, start=1):
+        node.sdo[0x1600][sub].raw = entry
+    node.sdo[0x1600][0].raw = len(entries)
+    node.sdo[0x1400][1].raw = 0x200 + NODE
+
+
+def test_rpdo_written_parameters_obey_the_sdo_rules_and_take_effect(bench):
+    """0x6060 and 0x6072 are mappable: an RPDO's value goes by the SDO's rules (a PDO cannot abort:
+    a refused value is not written, one manufacturer EMCY 0xFF10 names the object), and an
+    accepted parameter takes effect (the drive re-reads it as after an SDO download)."""
+    b, node = bench, bench.node
+    map_rpdo1(b, [0x60400010, 0x60710010, 0x60600008, 0x60720010])
+    node.emcy.reset()
+
+    def send(cw, torque, mode, max_torque, n=5):
+        for _ in range(n):
+            b.net.send_message(0x200 + NODE, struct.pack("<HhbH", cw, torque, mode, max_torque))
+            b.syncs(1)
+
+    send(0x06, 0, 4, 1000)
+    send(0x0F, 0, 4, 1000)
+    assert node.state == "OPERATION ENABLED" and b.values[0x6061] == 4
+    send(0x0F, 0, 3, 1000)                                     # mode 3: not supported (SDO: 0x06090030)
+    assert node.sdo[0x6060].raw == 4 and b.values[0x6061] == 4
+    b.emcy(0xFF10)
+    refused = [e for e in node.emcy.log if e.code == 0xFF10]
+    assert len(refused) == 1                                   # one per episode, not one per frame
+    assert struct.unpack_from("<HBB", refused[0].data) == (0x6060, 0, 1)
+    assert refused[0].register == 0x11 == node.sdo[0x1001].raw
+    send(0x0F, 0, 4, 200)                                      # a correct RPDO ends the episode
+    b.wait(lambda: any(e.code == 0 for e in node.emcy.log), "error-reset EMCY")
+    assert node.sdo[0x1001].raw == 0 and node.sdo[0x6072].raw == 200
+    with b.host.lock:
+        b.host.drive.jaw_blocked_at(30.0)
+    send(0x0F, 600, 4, 200, n=40)                              # max torque 200 from the RPDO holds
+    assert b.values[0x6077] == 200 and node.statusword & 0x0800
+    send(0x0F, 600, 4, 5000, n=3)                              # beyond 0x6072's HighLimit 3000
+    assert node.sdo[0x6072].raw == 200 and b.values[0x6077] == 200
+    assert len([e for e in node.emcy.log if e.code == 0xFF10]) == 2
+
+
+def test_position_limit_min_not_below_max_aborts_max_less_than_min(bench):
+    node = bench.node
+    for sub, value in ((1, 80000), (1, 90000), (2, 0)):
+        with pytest.raises(SdoAbortedError) as info:
+            node.sdo[0x607D][sub].raw = value
+        assert info.value.code == 0x06090036                   # CiA 301: max less than min
+    with pytest.raises(SdoAbortedError) as info:
+        node.sdo[0x607D][2].raw = 6553501
+    assert info.value.code == 0x06090031
+
+
+def test_short_rpdos_are_one_emcy_episode_ended_by_a_correct_one(bench):
+    b, node = bench, bench.node
+    node.state = "OPERATION ENABLED"
+    node.emcy.reset()
+    b.rpdo.stop()
+    for _ in range(10):
+        b.net.send_message(0x200 + NODE, bytes([0x0F, 0x00]))  # 2 of the 8 mapped bytes
+        b.syncs(1)
+    b.emcy(0x8210)
+    assert node.emcy.log[-1].register == 0x11 == node.sdo[0x1001].raw
+    b.net.send_message(0x200 + NODE, struct.pack("<Hhi", 0x0F, 0, 0))
+    b.emcy(0x0000)
+    assert len([e for e in node.emcy.log if e.code == 0x8210]) == 1       # not one per frame
+    with b.host.lock:
+        assert b.host.drive.rpdo.length_errors == 10                     # every one counted
+    assert node.sdo[0x1001].raw == 0 and not node.emcy.active
     assert node.state == "OPERATION ENABLED"

@@ -90,11 +90,15 @@ SIMULATED_FAULT = 0x2110
 PROFILE_POSITION = 1
 PROFILE_TORQUE = 4
 MODES = (PROFILE_POSITION, PROFILE_TORQUE)
+# read at every use, never cached: an RPDO writing only these leaves the parameters as they are
+SET_POINT_OBJECTS = frozenset((CONTROLWORD, TARGET_TORQUE, TARGET_POSITION, MODES_OF_OPERATION,
+                               SIMULATED_FAULT))
 
 CW_NEW_SET_POINT = 0x0010
 CW_RELATIVE = 0x0040
 SW_SET_POINT_ACK = 0x1000
 SIMULATED_FAULT_CODES = range(0x2000, 0x8000)
+ABORT_MAX_LESS_THAN_MIN = 0x06090036   # CiA 301: maximum value is less than minimum value
 DEFAULT_CYCLE_S = 0.01
 POSITION_LIMIT_MAX = 6553500  # µm: 0x2102 (0.1 mm, UNSIGNED16) must hold the width
 
@@ -165,7 +169,9 @@ class DriveApplication:
         elif index == POSITION_LIMIT and subindex in (1, 2):
             other = self._objects.read(POSITION_LIMIT, 3 - subindex)
             low, high = (value, other) if subindex == 1 else (other, value)
-            ok = 0 <= value <= POSITION_LIMIT_MAX and low < high
+            ok = 0 <= value <= POSITION_LIMIT_MAX
+            if ok and low >= high:
+                raise SdoAbortedError(ABORT_MAX_LESS_THAN_MIN)   # CiA 301: min >= max
         elif index in (PROFILE_VELOCITY, TORQUE_SLOPE) and value < 1:
             # 0: jaws that never move / a stop ramp that never ends (the EDS's LowLimit 1 too)
             raise SdoAbortedError(ABORT_VALUE_TOO_LOW)
@@ -184,8 +190,12 @@ class DriveApplication:
         self._publish()
 
     def rpdo_applied(self, indexes: frozenset[int]) -> None:
+        """An RPDO wrote ``indexes``: the controlword is evaluated at once; a parameter (0x6072,
+        0x6081, 0x6087, ...: anything but the set-points) is re-read as after an SDO download."""
         if CONTROLWORD in indexes:
             self._cw_pending = True
+        if indexes - SET_POINT_OBJECTS:
+            self.invalidate()
 
     # -- life cycle
     def reset(self) -> None:
@@ -248,7 +258,8 @@ class DriveApplication:
         if self._drive.objects.read(SIMULATED_FAULT) and self.fault == 0:
             self.raise_fault(read(SIMULATED_FAULT))
         mode = read(MODES_OF_OPERATION)
-        if mode != self._mode:
+        if mode != self._mode and mode in MODES:   # an unsupported mode (only bypassing the rules): kept
+
             self._mode = mode
             self._target_um = None            # a new mode starts from where the jaws are
             self._ack = False
@@ -357,7 +368,8 @@ class GripperDrive(TaxelNode):
             od = odx.load_od(node_id, eds_path, "gripper drive")
         super().__init__(node_id, link, od, eds_path)
         self.drive: DriveApplication = self.detector
-        self.rpdo = RpdoEngine(self.nmt, self.objects, self.emcy.send, self.drive.rpdo_applied)
+        self.rpdo = RpdoEngine(self.nmt, self.objects, self.emcy.rpdo_error, self.drive.rpdo_applied,
+                               check=self._rpdo_value_allowed)
         rpdo_objects = self.rpdo.comm + self.rpdo.mapping
         self.sdo.add_check(rpdo_objects, self.rpdo.check_write)
         self.sdo.add_written(rpdo_objects, self.rpdo.written)
@@ -365,6 +377,15 @@ class GripperDrive(TaxelNode):
 
     def _new_detector(self):
         return DriveApplication(self)
+
+    def _rpdo_value_allowed(self, index: int, subindex: int, data: bytes) -> bool:
+        """An RPDO's value for ``index:subindex``: the SDO rules (EDS limits, the drive's own) hold
+        for it too - a PDO cannot abort, so a refused value is not written (:mod:`node_sim.rpdo`)."""
+        try:
+            self.sdo.check_write(index, subindex, self.objects.variable(index, subindex), data, startup=False)
+        except SdoAbortedError:
+            return False
+        return True
 
     def configure(self, values) -> None:
         super().configure(values)
