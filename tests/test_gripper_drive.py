@@ -415,6 +415,50 @@ def test_position_limit_min_not_below_max_aborts_max_less_than_min(bench):
     assert info.value.code == 0x06090031
 
 
+def nmt_stop_and_start(b: Bench) -> None:
+    """NMT stop, seen by the drive, then NMT start (the master's heartbeat keeps coming)."""
+    b.node.nmt.state = "STOPPED"
+    deadline = time.monotonic() + WAIT_S
+    while True:
+        with b.host.lock:
+            if b.host.drive.state_name == "STOPPED":
+                break
+        assert time.monotonic() < deadline, "NMT stop not seen"
+        time.sleep(0.01)
+    b.node.nmt.state = "OPERATIONAL"
+    b.syncs(3)
+
+
+def test_nmt_stop_with_abort_connection_fault_sends_its_emcy_after_the_stop():
+    b = Bench({(0x6007, 0): 1})
+    try:
+        node = b.node
+        hold_part(b, torque=500)
+        node.emcy.reset()
+        nmt_stop_and_start(b)
+        b.emcy(0x8130)                                         # owed while STOPPED, sent on leaving it
+        b.wait(lambda: node.state == "FAULT", "FAULT after the fault reaction")
+        assert b.values[0x603F] == 0x8130
+        first = [e for e in node.emcy.log if e.code == 0x8130][0]
+        assert first.register == 0x11 == node.sdo[0x1001].raw  # generic + communication
+        assert b.values[0x6077] == 0
+        node.reset_from_fault()                                # the master is there: the fault clears
+        b.wait(lambda: b.values[0x603F] == 0, "error code cleared")
+        b.emcy(0x0000)
+        assert node.sdo[0x1001].raw == 0 and not node.statusword & 0x0080
+    finally:
+        b.close()
+
+
+def test_nmt_stop_then_start_ends_the_communication_warning(bench):
+    b, node = bench, bench.node                                # 0x6007 = 0: no action
+    hold_part(b, torque=500)
+    nmt_stop_and_start(b)
+    b.wait(lambda: not node.statusword & 0x0080, "warning bit 7 cleared")
+    b.wait(lambda: b.values[0x603F] == 0, "0x603F cleared")
+    assert node.state == "OPERATION ENABLED" and b.values[0x6077] == 500 and node.sdo[0x1001].raw == 0
+
+
 def test_short_rpdos_are_one_emcy_episode_ended_by_a_correct_one(bench):
     b, node = bench, bench.node
     node.state = "OPERATION ENABLED"

@@ -46,6 +46,7 @@ from canopen.sdo import SdoAbortedError
 from taxel_net.resources import gripper_eds_path
 
 from .. import od as odx
+from ..emcy import ERR_REG_COMMUNICATION
 from ..heartbeat import EMCY_HEARTBEAT
 from ..node import TaxelNode
 from ..nmt import NMT_STOP, STOPPED
@@ -214,25 +215,33 @@ class DriveApplication:
         self._publish()
 
     # -- events
-    def raise_fault(self, code: int, emcy: bool = True) -> None:
+    def raise_fault(self, code: int, emcy: bool = True, register_bits: int | None = None) -> None:
+        """Transition 13 with ``code`` in 0x603F; ``emcy``: its EMCY (the device error, error
+        register bit 0 and ``register_bits``, by default the code's class bit) - sent now, or,
+        in STOPPED, once the node leaves it (:meth:`node_sim.emcy.EmcyProducer.resume`)."""
         if self.sm.state in (cia402.State.FAULT, cia402.State.FAULT_REACTION_ACTIVE):
             return
         self.fault = code
         self._objects.store(ERROR_CODE, 0, code)
         if emcy:
-            self._drive.emcy.device_error(code, _error_register_bits(code))
+            bits = _error_register_bits(code) if register_bits is None else register_bits
+            self._drive.emcy.device_error(code, bits)
         self.sm.fault()
         if not self.sm.drive_enabled:
             self.axis.disabled()
 
-    def connection_lost(self) -> None:
-        """The master is gone: 0x603F, statusword bit 7, the 0x6007 reaction."""
+    def connection_lost(self, nmt_stop: bool = False) -> None:
+        """The master is gone (a consumed heartbeat lost, or ``nmt_stop``: the NMT stop command):
+        0x603F, statusword bit 7, the 0x6007 reaction. With 0x6007 = 1 the fault's EMCY 0x8130 is
+        the heartbeat consumer's on a lost heartbeat; on an NMT stop the fault's own (error
+        register bits 0 and 4 in 0x1001 at once, the EMCY when the node leaves STOPPED - CiA 301
+        sends none in STOPPED - and its error reset on the fault reset)."""
         self.master_lost = True
         option = self._read_params()["abort"]
         if self.sm.state not in (cia402.State.FAULT, cia402.State.FAULT_REACTION_ACTIVE):
             self._objects.store(ERROR_CODE, 0, EMCY_HEARTBEAT)
         if option == 1:
-            self.raise_fault(EMCY_HEARTBEAT, emcy=False)   # the 0x8130 EMCY is the heartbeat consumer's
+            self.raise_fault(EMCY_HEARTBEAT, emcy=nmt_stop, register_bits=ERR_REG_COMMUNICATION)
         else:
             self.sm.abort_connection(option)
         if not self.sm.drive_enabled:
@@ -400,9 +409,11 @@ class GripperDrive(TaxelNode):
 
     def on_nmt(self, command: int) -> None:
         before = self.nmt.state
-        super().on_nmt(command)
+        super().on_nmt(command)            # leaving STOPPED: the EMCYs owed are sent there
         if command == NMT_STOP and before != STOPPED and self.nmt.state == STOPPED:
-            self.drive.connection_lost()   # CiA 402: NMT stopped is an abort-connection event
+            self.drive.connection_lost(nmt_stop=True)   # CiA 402: NMT stopped is an abort-connection event
+        elif before == STOPPED and self.nmt.state != STOPPED and not self.heartbeat_consumer.lost:
+            self.drive.connection_back()   # the stop's communication error ends (bit 7, 0x603F)
 
     # -- the world's side (call with the channel lock held)
     def jaw_blocked_at(self, width_mm: float | None) -> None:
