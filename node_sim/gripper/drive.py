@@ -32,7 +32,13 @@ bits 0 and 4), 0x603F = 0x8130, statusword bit 7, the NMT state 0x1029:1 asks fo
 change, the drive keeps reporting), and the reaction of abort connection 0x6007: default 0 = no
 action - the drive keeps the last set-points, so a held part stays held (1 fault, 2 disable
 voltage, 3 quick stop all bring the grip force to 0 in profile torque: docs/gripper-drive.md).
-The master's next heartbeat ends the communication error (error-reset EMCY, bit 7 cleared).
+The master's next heartbeat ends the communication error (error-reset EMCY, bit 7 cleared). An
+NMT stop is an abort-connection event too: no EMCY in STOPPED (CiA 301), so with 0x6007 = 1 the
+fault's own EMCY 0x8130 (0x1001 bits 0 and 4 at once) leaves when the drive leaves STOPPED; leaving
+STOPPED ends the stop's communication error unless a consumed heartbeat is lost.
+
+RPDO values go by the SDO rules (a refused one is not written, EMCY 0xFF10: :mod:`node_sim.rpdo`);
+a parameter an RPDO writes is re-read as after an SDO download. 0x6081 and 0x6087 are at least 1.
 
 Threading: every entry point runs with the owning channel's lock held; the world's calls
 (:meth:`GripperDrive.jaw_blocked_at`, :meth:`GripperDrive.part_lost`) take that lock through the
