@@ -476,3 +476,16 @@ def test_short_rpdos_are_one_emcy_episode_ended_by_a_correct_one(bench):
         assert b.host.drive.rpdo.length_errors == 10                     # every one counted
     assert node.sdo[0x1001].raw == 0 and not node.emcy.active
     assert node.state == "OPERATION ENABLED"
+
+
+@pytest.mark.parametrize("index", [0x6087, 0x6081], ids=["0x6087", "0x6081"])
+def test_a_start_up_value_of_zero_is_refused_too(index):
+    """The DCF / start-up path (GripperDrive.configure, the SDO's rules with startup=True)."""
+    from taxel_net.errors import ParameterError
+
+    host = DriveHost(NODE, "virtual", f"g22-{uuid.uuid4().hex[:8]}", startup={(index, 0): 0})
+    try:
+        with pytest.raises(ParameterError, match="0x06090032"):
+            host.start()
+    finally:
+        host.stop()
