@@ -31,9 +31,8 @@ writable entries.
 
 from __future__ import annotations
 
-from typing import Callable, Iterable
-
 import struct
+from typing import Callable, Iterable
 
 from .nmt import OPERATIONAL, NmtSlave
 from .emcy import ERR_REG_COMMUNICATION

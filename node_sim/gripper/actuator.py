@@ -15,8 +15,8 @@ drive through :meth:`JawAxis.jaw_blocked_at` and :meth:`JawAxis.part_lost`):
 * **stop ramp** (quick stop, fault reaction, halt): ``T* = 0`` at the same slope ``s`` (CiA 402 has
   no torque quick-stop slope: slow-down and quick-stop ramps are the same here) and no motion;
   done when ``T = 0`` (a slope of 0, which only a value that bypassed the SDO rules can give:
-  ``T = 0`` at once, so the ramp always ends). **Drive function off** (any state but OPERATION ENABLED, QUICK STOP ACTIVE,
-  FAULT REACTION ACTIVE): ``T = 0`` at once, no motion - the jaws let go;
+  ``T = 0`` at once, so the ramp always ends). **Drive function off** (any state but OPERATION
+  ENABLED, QUICK STOP ACTIVE, FAULT REACTION ACTIVE): ``T = 0`` at once, no motion - the jaws let go;
 * **grip force per jaw** (0.1 N, the normal force ONE jaw exerts on the part, not the sum of
   both): ``F = T · F_rated / 1000`` while the jaws press on the object (width at the object,
   ``T > 0``), else 0; ``F_rated`` = 0x2103, the per-jaw force at rated torque (0.1 N).

@@ -274,7 +274,6 @@ class DriveApplication:
             self.raise_fault(read(SIMULATED_FAULT))
         mode = read(MODES_OF_OPERATION)
         if mode != self._mode and mode in MODES:   # an unsupported mode (only bypassing the rules): kept
-
             self._mode = mode
             self._target_um = None            # a new mode starts from where the jaws are
             self._ack = False
