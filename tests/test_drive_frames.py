@@ -89,6 +89,15 @@ def test_a_drive_not_nmt_operational_has_no_present_cia402_state():
     a.feed(52000, 0, 0x000, bytes([0x02, ID]))
     d = a.feed(61000, 0, 0x080, b"").drive
     assert not d.operational and d.nmt_state == 4 and d.state is None
-    a.feed(62000, 0, 0x700 + ID, b"\x05")            # started by someone: operational again
+    a.feed(62000, 0, 0x700 + ID, b"\x05")            # started by someone: operational again ...
     d = a.feed(71000, 0, 0x080, b"").drive
+    assert d.operational and d.state is None          # ... its state unknown until its next TPDO1 (not the stale one)
+    a.feed(72000, 0, 0x180 + ID, _tpdo1(0x8027 | 0x0400, 50, 40000))
+    d = a.feed(81000, 0, 0x080, b"").drive
     assert d.operational and d.state == "OPERATION ENABLED"
+    # the same after an NMT start that did not take effect: the stop, the start in the stream, no
+    # frame of the drive yet - no present state (the stale statusword said OPERATION ENABLED)
+    a.feed(82000, 0, 0x000, bytes([0x81, ID]))        # a reset command to it
+    a.feed(83000, 0, 0x000, bytes([0x01, ID]))        # and a start before its boot-up
+    d = a.feed(91000, 0, 0x080, b"").drive
+    assert d.operational and d.state is None

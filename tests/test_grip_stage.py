@@ -527,6 +527,18 @@ def test_a_takeover_cross_checks_the_drives_force_with_its_torque(force_01n, exp
     assert stage.counts["drive_force_implausible"] == int(implausible)
 
 
+@pytest.mark.parametrize("grip", [1, 2, 3])   # GRASPING, NO_PART, PART_LOST: jaws not pressing on a part
+def test_a_takeover_of_a_drive_not_holding_takes_the_torques_force_without_a_flag(grip):
+    """A drive whose grip state is not HOLDING reports 0x2101 = 0 whatever its torque (the twin's
+    rule): no drive_force_implausible for it (a reviewer found a healthy drive flagged and logged)."""
+    stage = GripStage(load_scene("grasp_scripted"))
+    r = {"cycle": 0, "t": 0.0, "decision": "H1", "degraded": False, "slip": {"contact": True, "displacement": 0.0}}
+    stage.evaluate(r, _drive(0x8027 | 0x0400, torque=214, force=0, grip=grip))
+    assert stage.takeover and "drive_force_implausible" not in r["grip_flags"]
+    assert stage.counts["drive_force_implausible"] == 0
+    assert stage.law.command_n == pytest.approx(214 * stage.rated_n / 1000.0)
+
+
 def test_a_drive_in_the_wrong_mode_is_counted_per_episode_and_logged(caplog):
     """Stop 32 (hunt-b f_mode.py): drive_mode was flagged every record, never counted nor logged."""
     import logging
@@ -637,3 +649,18 @@ def test_a_drive_reset_or_stopped_mid_hold_is_flagged_started_again_and_re_enabl
     assert seen == {"nmt": "OPERATIONAL", "cia402": "OPERATION ENABLED"}
     held = records[off[0] - 1]["grip"]["command_n"]
     assert held > 0 and records[back]["grip"]["command_n"] >= held
+
+
+def test_the_printed_summary_names_the_drives_upsets():
+    """The printed grip line lists the stage's counts of a drive's upsets (a reviewer found a run
+    whose drive was reset and started again printing only `enable_walks 2`)."""
+    from fusion_center.commands.run import grip_lines
+
+    g = {"commands_sent": 10, "drive_bootups": 1, "drive_not_operational": 2, "nmt_starts": 2, "drive_mode": 1,
+         "drive_force_implausible": 1, "enable_walks": 2, "sync_to_command_ms_p50": 1.0,
+         "sync_to_command_ms_p99": 2.0, "sync_to_command_ms_max": 3.0,
+         "grasp": {"verdict": "held", "max_command_n": 5.0, "final": {}, "slip_cycles": 0}}
+    text = " ".join(v for _, v in grip_lines(g))
+    for key in ("drive_bootups 1", "drive_not_operational 2", "nmt_starts 2", "drive_mode 1",
+                "drive_force_implausible 1", "enable_walks 2"):
+        assert key in text, (key, text)

@@ -283,7 +283,9 @@ def grip_lines(g: dict) -> list[tuple[str, str]]:
     """The grip stage's lines of the summary: the grasp's verdict, the commands and their latency."""
     grasp = g["grasp"]
     events = ", ".join(f"{k} {g[k]}" for k in ("drive_faults", "quick_stops", "drive_disabled", "drive_lost",
-                                              "fault_resets", "enable_walks", "takeovers", "degraded_holds")
+                                              "fault_resets", "enable_walks", "takeovers", "degraded_holds",
+                                              "drive_bootups", "drive_not_operational", "nmt_starts", "drive_mode",
+                                              "drive_force_implausible")
                        if g.get(k))
     final = grasp.get("final") or {}
     lines = [

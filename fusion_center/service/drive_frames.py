@@ -172,6 +172,15 @@ class DriveTracker:
         state = {0x01: 5, 0x02: 4, 0x80: 127, 0x81: 127, 0x82: 127}.get(command)
         if state is not None:
             self.nmt_state = state
+            if state != 5:
+                self._forget_pdos()
+
+    def _forget_pdos(self) -> None:
+        """The drive left OPERATIONAL (a boot-up, an NMT command to it, its heartbeat): its last
+        TPDO values describe a drive that is gone - until its next TPDO1 it has no present CiA 402
+        state (``DriveCycle.state`` None: the command held, nothing sent), so an NMT start that
+        did not take effect never brings the old statusword back as the drive's state."""
+        self.tpdo1 = self.tpdo1_us = self.tpdo2 = None
 
     def feed(self, code: int, t_us: int, data: bytes) -> bool:
         """One frame of the drive (``code``: ``F_*``) at stream time ``t_us``; True when it is the
@@ -195,9 +204,11 @@ class DriveTracker:
                 # a reset drive: its PDO values are gone with it (and it sends none until started)
                 self.bootups_since += 1
                 self.nmt_state = 127
-                self.tpdo1 = self.tpdo1_us = self.tpdo2 = None
+                self._forget_pdos()
             else:
                 self.nmt_state = data[0]
+                if data[0] != 5:
+                    self._forget_pdos()
         elif code == F_EMCY:
             if size != 8:
                 return self._bad()

@@ -293,7 +293,8 @@ class GripStage:
                 # a centre started again while the drive holds: take the grasp over as it is
                 self.takeover = True
                 self.enabled_at, self.enabled_t = cycle, record["t"]
-                force = self.takeover_force(actual, drive.torque_permille, flags)
+                force = self.takeover_force(actual, drive.torque_permille, flags,
+                                            holding=grip_state_name(drive.grip_state) == "HOLDING")
                 self.law = GripState(phase="hold", command_n=force, learned_n=force)
                 self.counts["takeovers"] += 1
                 flags.append("takeover")
@@ -329,13 +330,18 @@ class GripStage:
         self.last_cw = cw
         self._record(record, command_n, actual, state, drive, slip, flags, task, (cw, permille))
 
-    def takeover_force(self, actual: float | None, torque_permille: int, flags: list[str]) -> float:
+    def takeover_force(self, actual: float | None, torque_permille: int, flags: list[str],
+                       holding: bool = True) -> float:
         """The force a takeover starts the law with: the drive's 0x2101 when it is within
         ``[0, max_n]`` and agrees with the torque-derived force ``0x6077 x rated / 1000`` (the
         drive's own rule, docs/gripper-drive.md) within :data:`TAKEOVER_TOLERANCE` of it or
         :data:`TAKEOVER_TOLERANCE_N`, whichever is larger; else the torque-derived force (clamped
-        to ``[0, max_n]``), flagged ``drive_force_implausible`` and counted."""
+        to ``[0, max_n]``), flagged ``drive_force_implausible`` and counted. A drive whose grip state
+        is not HOLDING (0x2100: its jaws not pressing on a part) reports 0x2101 = 0 whatever its
+        torque: the torque-derived force, not flagged."""
         from_torque = min(max(torque_permille * self.rated_n / 1000.0, 0.0), self.params.max_n)
+        if not holding:
+            return from_torque
         tolerance = max(TAKEOVER_TOLERANCE * from_torque, TAKEOVER_TOLERANCE_N)
         if (actual is not None and math.isfinite(actual) and 0.0 <= actual <= self.params.max_n
                 and abs(actual - from_torque) <= tolerance):
