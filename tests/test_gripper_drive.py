@@ -489,3 +489,28 @@ def test_a_start_up_value_of_zero_is_refused_too(index):
             host.start()
     finally:
         host.stop()
+
+
+def test_a_parameter_written_by_a_synchronous_rpdo_holds_from_its_sync():
+    """0x6072 (max torque) mapped in a synchronous RPDO: the SYNC that writes it steps with it
+    (before: the step of that SYNC used the old limit, the new one held one SYNC later)."""
+    host = DriveHost(NODE, "virtual", f"g22-{uuid.uuid4().hex[:8]}").start()
+    try:
+        with host.lock:
+            d = host.drive
+            d.objects.store(0x1600, 0, 0)
+            for sub, entry in enumerate((0x60400010, 0x60710010, 0x60600008, 0x60720010), start=1):
+                d.objects.store(0x1600, sub, entry)
+            d.objects.store(0x1600, 0, 4)
+            d.objects.store(0x1400, 2, 1)                        # synchronous: applied at the SYNC
+            d.rpdo.invalidate()
+            d.on_nmt(0x01)
+            app = d.drive
+            app.sample()
+            assert app.axis.limits.max_torque == 1000.0
+            d.on_rpdo(0x200 + NODE, struct.pack("<HhbH", 0x06, 0, 4, 200))
+            assert app.axis.limits.max_torque == 1000.0          # latched, not yet written
+            app.sample()                                         # the SYNC that writes it
+            assert d.objects.read(0x6072) == 200 and app.axis.limits.max_torque == 200.0
+    finally:
+        host.stop()

@@ -8,7 +8,8 @@ is :class:`DriveApplication`: the CiA 402 state machine (:mod:`.cia402`) and the
 (:mod:`.actuator`) on the object dictionary of ``eds/gripper_drive.eds``.
 
 Per SYNC (:meth:`DriveApplication.sample`, before the TPDOs): the RPDO received since the last
-SYNC is written to the OD (controlword 0x6040, target torque 0x6071, target position 0x607A); a
+SYNC is written to the OD (controlword 0x6040, target torque 0x6071, target position 0x607A; a
+parameter it writes, e.g. 0x6072, is re-read before this SYNC's step); a
 controlword written since the last SYNC (by RPDO or SDO) is evaluated (CiA 402 commands, profile
 position's new set-point on bit 4's rising edge, bit 6 relative, bit 8 halt); the actuator steps
 by the communication cycle period 0x1006 (µs; the rig sets the scene's SYNC period); the
@@ -25,14 +26,16 @@ acknowledge (profile position), bits 8, 14, 15 the grip state (0x2100) bits 0, 1
 Faults: a simulated fault (0x2110 written with an error code 0x2000-0x7FFF) -> 0x603F = the code,
 EMCY with that code (error register bit 0 and the class bit: 1 current, 2 voltage, 3 temperature,
 else 5 device profile), transition 13 and the fault reaction 0x605E. Fault reset (controlword
-bit 7 rising edge) clears 0x603F and 0x2110 and sends the error-reset EMCY.
+bit 7 rising edge) clears 0x603F and 0x2110 and sends the error-reset EMCY (when no other error -
+an RPDO error episode, a lost heartbeat - is left: :mod:`node_sim.emcy`).
 
 Lost master (a heartbeat in 0x1016 not seen in time, or NMT stop): EMCY 0x8130 (error register
 bits 0 and 4), 0x603F = 0x8130, statusword bit 7, the NMT state 0x1029:1 asks for (default 1: no
 change, the drive keeps reporting), and the reaction of abort connection 0x6007: default 0 = no
 action - the drive keeps the last set-points, so a held part stays held (1 fault, 2 disable
 voltage, 3 quick stop all bring the grip force to 0 in profile torque: docs/gripper-drive.md).
-The master's next heartbeat ends the communication error (error-reset EMCY, bit 7 cleared). An
+The master's next heartbeat ends the communication error (error-reset EMCY if no error is left,
+bit 7 cleared). An
 NMT stop is an abort-connection event too: no EMCY in STOPPED (CiA 301), so with 0x6007 = 1 the
 fault's own EMCY 0x8130 (0x1001 bits 0 and 4 at once) leaves when the drive leaves STOPPED; leaving
 STOPPED ends the stop's communication error unless a consumed heartbeat is lost.
@@ -262,8 +265,8 @@ class DriveApplication:
 
     # -- the SYNC step
     def sample(self, reading=None, counter: int | None = None) -> None:
+        self._drive.rpdo.on_sync()    # first: a parameter a synchronous RPDO writes holds from this SYNC
         p = self._read_params()
-        self._drive.rpdo.on_sync()
         self._evaluate()
         self._step(p)
         self._publish()
