@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import signal
 import sys
 import threading
@@ -200,7 +201,7 @@ def main(argv: list[str] | None = None) -> int:
     # down": the one-line error below already says why
     logging.getLogger("can.bus").setLevel(logging.ERROR)
     stop = threading.Event()
-    truth_log = None
+    truth_log = rig = None
 
     def on_signal(signum, frame):
         stop.set()
@@ -220,6 +221,8 @@ def main(argv: list[str] | None = None) -> int:
         rig = Rig(scene, interface=interface, channel=channels, bitrate=bitrate, seed=args.seed,
                   eds_path=args.eds, bus_kwargs=bus_kwargs, serve_channels=args.serve)
         if args.truth_log is not None:
+            if _is_fifo(args.truth_log):  # open() blocks until a reader opens it: say so, not a silent hang
+                print(f"node-sim: --truth-log {args.truth_log!r} is a FIFO: waiting for its reader", flush=True)
             truth_log = TruthLog.open(args.truth_log, scene, rig)
             rig.add_truth_callback(truth_log.write)
         signal.signal(signal.SIGINT, on_signal)
@@ -230,6 +233,13 @@ def main(argv: list[str] | None = None) -> int:
             truth_log.close()
         print(f"node-sim: error: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:  # Ctrl-C before the handlers were set (a FIFO's reader awaited): no traceback
+        if truth_log is not None:
+            truth_log.close()
+        if rig is not None:
+            rig.stop()
+        print("node-sim: interrupted before it was ready", file=sys.stderr)
+        return 130
     try:
         served = [rig.channel_names[i] for i in rig.served]
         taxels = sum(1 for t in scene.taxels if t.channel in rig.served)
@@ -251,6 +261,15 @@ def main(argv: list[str] | None = None) -> int:
         if truth_log is not None:
             truth_log.close()
     return 0
+
+
+def _is_fifo(path) -> bool:
+    import stat
+
+    try:
+        return stat.S_ISFIFO(os.stat(path).st_mode)
+    except OSError:
+        return False
 
 
 class TruthLog:

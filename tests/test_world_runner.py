@@ -283,3 +283,31 @@ def test_a_sync_samples_the_last_step_tagged_before_it():
         assert before and before[-1]["t_s"] == t_s, (cycle, t_s)     # ... and its record already out
         checked += 1
     assert checked >= 60, (checked, len(sampled))
+
+
+def test_node_sim_says_it_waits_for_a_fifos_reader_and_ctrl_c_ends_it_without_a_traceback(tmp_path):
+    """node-sim --truth-log FIFO with no reader: opening it blocks until a reader opens it (as
+    `tee` does) - node-sim says so, and Ctrl-C there ends it with exit 130 and one line (it hung
+    without a word, and Ctrl-C printed a KeyboardInterrupt traceback; 2026-11-30, stop 32)."""
+    import os
+    import signal
+    import sys
+    from pathlib import Path
+
+    here = Path(__file__).resolve().parent
+    sys.path.insert(0, str(here))
+    from process_helpers import start_node_sim, wait_line
+
+    fifo = tmp_path / "truth.fifo"
+    os.mkfifo(fifo)
+    proc = start_node_sim("--scene", "grasp_lift", "-i", "virtual", "-c", "fifo-test", "--truth-log", str(fifo))
+    try:
+        wait_line(proc, proc.stdout, "waiting for its reader", 60, "node-sim did not say it waits for the FIFO")
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    assert proc.returncode == 130, (out, err)
+    assert "Traceback" not in err and err.strip().splitlines()[-1] == "node-sim: interrupted before it was ready"
