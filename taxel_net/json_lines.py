@@ -107,7 +107,7 @@ class JsonLinesWriter:
         self.what = what                      # what the file is, in :attr:`failure`
         self._encode = encode
         try:
-            self._file = open(self.path, "wb", buffering=0)
+            self._file = _open_fifo(self.path) if _is_fifo(self.path) else open(self.path, "wb", buffering=0)
         except OSError as exc:
             raise UsageError(f"{option} {str(path)!r}: cannot be opened for writing: {exc.strerror or exc}") from None
         self.count = 0
@@ -194,3 +194,32 @@ class JsonLinesWriter:
 
 def _cycle_of(value):
     return value.get("cycle") if isinstance(value, dict) else None
+
+
+def _is_fifo(path: Path) -> bool:
+    import stat
+
+    try:
+        return stat.S_ISFIFO(os.stat(path).st_mode)
+    except OSError:
+        return False
+
+
+def _open_fifo(path: Path):
+    """A FIFO opened for writing once a reader has it open - polled (``O_NONBLOCK``: ENXIO while
+    there is none) rather than blocked in ``open()``: a signal the kernel gives another thread of
+    the process (Ctrl-C) never interrupts a blocked ``open()`` of the main thread, so the process
+    could not be stopped while it waited; polling runs the interpreter's handlers between tries."""
+    import errno
+    import time
+
+    while True:
+        try:
+            fd = os.open(path, os.O_WRONLY | os.O_NONBLOCK)
+            break
+        except OSError as exc:
+            if exc.errno != errno.ENXIO:
+                raise
+            time.sleep(0.05)
+    os.set_blocking(fd, True)
+    return os.fdopen(fd, "wb", buffering=0)
