@@ -207,6 +207,13 @@ def main(argv: list[str] | None = None) -> int:
         stop.set()
 
     try:
+        # Ctrl-C during the start (a FIFO's reader awaited) is KeyboardInterrupt -> exit 130 below,
+        # whatever disposition was inherited: a parent that ignores SIGINT (a script's background
+        # job, a test runner's worker) left it ignored until on_signal below replaced it
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+    except ValueError:  # main() called off the main thread (in-process callers): left as it is
+        pass
+    try:
         from taxel_net.scene import load_scene
 
         from taxel_net.outputs import check_distinct_paths, scene_inputs

@@ -286,9 +286,10 @@ def test_a_sync_samples_the_last_step_tagged_before_it():
 
 
 def test_node_sim_says_it_waits_for_a_fifos_reader_and_ctrl_c_ends_it_without_a_traceback(tmp_path):
-    """node-sim --truth-log FIFO with no reader: opening it blocks until a reader opens it (as
-    `tee` does) - node-sim says so, and Ctrl-C there ends it with exit 130 and one line (it hung
-    without a word, and Ctrl-C printed a KeyboardInterrupt traceback; 2026-11-30, stop 32)."""
+    """node-sim --truth-log FIFO with no reader: opening it waits until a reader opens it (as
+    `tee` does) - node-sim says so, and Ctrl-C there ends it with exit 130 and one line, also when
+    it was started with SIGINT ignored (it hung without a word; Ctrl-C printed a traceback, or did
+    nothing at all under an ignoring parent; 2026-11-30, stop 32)."""
     import os
     import signal
     import sys
@@ -296,11 +297,17 @@ def test_node_sim_says_it_waits_for_a_fifos_reader_and_ctrl_c_ends_it_without_a_
 
     here = Path(__file__).resolve().parent
     sys.path.insert(0, str(here))
-    from process_helpers import start_node_sim, wait_line
+    import subprocess
+
+    from process_helpers import NODE_SIM, ROOT, wait_line
 
     fifo = tmp_path / "truth.fifo"
     os.mkfifo(fifo)
-    proc = start_node_sim("--scene", "grasp_lift", "-i", "virtual", "-c", "fifo-test", "--truth-log", str(fifo))
+    # started with SIGINT ignored, as a script's background job or a test runner's worker has it
+    # (inherited: Ctrl-C did nothing until node-sim set its own handler, after the FIFO opened)
+    proc = subprocess.Popen([*NODE_SIM, "--scene", "grasp_lift", "-i", "virtual", "-c", "fifo-test",
+                             "--truth-log", str(fifo)], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))
     try:
         wait_line(proc, proc.stdout, "waiting for its reader", 60, "node-sim did not say it waits for the FIFO")
         proc.send_signal(signal.SIGINT)
