@@ -171,27 +171,24 @@ def check_distinct_paths(inputs, outputs) -> None:
     named any number of times (``--json-lines /dev/null --mcap /dev/null``). An input that is an
     output's partial file (``OUT.partial``) is refused too. Raises :class:`UsageError` in one
     line naming both options and the path."""
-    _INPUTS.clear()  # this command's inputs: discard_stale never removes one of them
-    for _, path in inputs:
-        if path is not None and str(path) != "-":
-            _INPUTS.update(_input_marks(str(path)))
-    seen: dict = {}  # identity -> (option, path, is_output)
-    for is_output, pairs in ((False, inputs), (True, outputs)):
-        for option, path in pairs:
-            if path is None or str(path) == "-":
-                continue
-            path = str(path)
-            key = _identity(path)
-            if key is None:
-                continue
-            if key in seen and is_output:  # an input read twice (two options) harms nothing
-                first_option, first_path, first_is_output = seen[key]
-                what = "another output" if first_is_output else "an input"
-                raise UsageError(f"{option} {path!r}: is {what}, {first_option} {first_path!r}; "
-                                 f"{SAME_FILE_ALLOWED}")
-            seen.setdefault(key, (option, path, is_output))
+    # (option, path, is_output) of every path named, inputs first; None and "-" (stdout) skipped
     named = [(option, str(path), is_output) for is_output, pairs in ((False, inputs), (True, outputs))
              for option, path in pairs if path is not None and str(path) != "-"]
+    _INPUTS.clear()  # this command's inputs: discard_stale never removes one of them
+    for _, path, is_output in named:
+        if not is_output:
+            _INPUTS.update(_input_marks(path))
+    seen: dict = {}  # identity -> (option, path, is_output)
+    for option, path, is_output in named:
+        key = _identity(path)
+        if key is None:
+            continue
+        if key in seen and is_output:  # an input read twice (two options) harms nothing
+            first_option, first_path, first_is_output = seen[key]
+            what = "another output" if first_is_output else "an input"
+            raise UsageError(f"{option} {path!r}: is {what}, {first_option} {first_path!r}; "
+                             f"{SAME_FILE_ALLOWED}")
+        seen.setdefault(key, (option, path, is_output))
     for out_option, out_path, is_output in named:
         if not is_output or _identity(out_path) is None:
             continue
