@@ -76,7 +76,7 @@ def run(args) -> int:
     out = sys.stderr if not args.json_lines else sys.stdout
     print(f"records: {len(records)}", file=out)
     print(f"counters: {({k: v for k, v in counters.items() if v})}", file=out)
-    from ..robotics.outputs import summary_lines
+    from ..robotics.outputs import incomplete_files, summary_lines
 
     for label, text in summary_lines(robotics_stats):
         print(f"{label}: {text}", file=out)
@@ -91,12 +91,9 @@ def run(args) -> int:
             print(f"fusion-center replay: error: --truth-log {args.truth_log!r}: no record's cycle matched "
                   "a world step of it (a truth log of another run?)", file=sys.stderr)
             status = 2
-    for label, option in (("mcap", "--mcap"), ("ros2_bag", "--ros2-bag")):
-        if robotics_stats.get("errors") and label in robotics_stats:
-            print(f"fusion-center replay: error: {option} {robotics_stats[label]['path']!r}: "
-                  f"{robotics_stats['errors']} cycle(s) not published (see the log): the file lacks them",
-                  file=sys.stderr)
-            status = 2
+    for _, text in incomplete_files(robotics_stats):
+        print(f"fusion-center replay: error: {text}", file=sys.stderr)
+        status = 2
     return status
 
 

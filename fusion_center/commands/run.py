@@ -384,11 +384,9 @@ def run_with_outputs(service, outputs, body) -> dict:
     failed = [(label, text) for label, text in (("decision_log", service.writer_failure),
                                                  ("trace", service.trace_failure)) if text]
     # cycles an output could not publish (a record its encoder refused): a file output lacks them
-    robotics_stats = summary.get("robotics") or {}
-    for label, option in (("mcap", "--mcap"), ("ros2_bag", "--ros2-bag")):
-        if robotics_stats.get("errors") and label in robotics_stats:
-            failed.append((label, f"{option} {robotics_stats[label]['path']!r}: {robotics_stats['errors']} cycle(s) "
-                                  "not published (see the log): the file lacks them"))
+    from ..robotics.outputs import incomplete_files
+
+    failed += incomplete_files(summary.get("robotics") or {})
     if failed:
         summary["incomplete"] = failed
     return summary

@@ -222,3 +222,13 @@ def summary_lines(stats: dict) -> list[tuple[str, str]]:
     if "errors" in stats:
         lines.append(("robotics_errors", f"{stats['errors']} cycles not published (see the log)"))
     return lines
+
+
+def incomplete_files(stats: dict) -> list[tuple[str, str]]:
+    """``(label, one line)`` for each file output (MCAP, ROS 2 bag) of ``stats`` (:meth:`RoboticsOutputs.close`)
+    that lacks cycles an encoder refused (counted in ``errors``): the run's exit status says it."""
+    if not stats.get("errors"):
+        return []
+    return [(label, f"{option} {stats[label]['path']!r}: {stats['errors']} cycle(s) not published (see the log): "
+                    "the file lacks them")
+            for label, option in (("mcap", "--mcap"), ("ros2_bag", "--ros2-bag")) if label in stats]
