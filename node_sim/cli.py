@@ -216,6 +216,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         from taxel_net.scene import load_scene
 
+        from taxel_net.json_lines import is_fifo
         from taxel_net.outputs import check_distinct_paths, scene_inputs
 
         from .rig import Rig
@@ -228,7 +229,7 @@ def main(argv: list[str] | None = None) -> int:
         rig = Rig(scene, interface=interface, channel=channels, bitrate=bitrate, seed=args.seed,
                   eds_path=args.eds, bus_kwargs=bus_kwargs, serve_channels=args.serve)
         if args.truth_log is not None:
-            if _is_fifo(args.truth_log):  # open() blocks until a reader opens it: say so, not a silent hang
+            if is_fifo(args.truth_log):  # opening it waits for a reader: say so, not a silent hang
                 print(f"node-sim: --truth-log {args.truth_log!r} is a FIFO: waiting for its reader", flush=True)
             truth_log = TruthLog.open(args.truth_log, scene, rig)
             rig.add_truth_callback(truth_log.write)
@@ -268,15 +269,6 @@ def main(argv: list[str] | None = None) -> int:
         if truth_log is not None:
             truth_log.close()
     return 0
-
-
-def _is_fifo(path) -> bool:
-    import stat
-
-    try:
-        return stat.S_ISFIFO(os.stat(path).st_mode)
-    except OSError:
-        return False
 
 
 class TruthLog:

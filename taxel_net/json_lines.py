@@ -107,7 +107,7 @@ class JsonLinesWriter:
         self.what = what                      # what the file is, in :attr:`failure`
         self._encode = encode
         try:
-            self._file = _open_fifo(self.path) if _is_fifo(self.path) else open(self.path, "wb", buffering=0)
+            self._file = _open_fifo(self.path) if is_fifo(self.path) else open(self.path, "wb", buffering=0)
         except OSError as exc:
             raise UsageError(f"{option} {str(path)!r}: cannot be opened for writing: {exc.strerror or exc}") from None
         self.count = 0
@@ -196,7 +196,8 @@ def _cycle_of(value):
     return value.get("cycle") if isinstance(value, dict) else None
 
 
-def _is_fifo(path: Path) -> bool:
+def is_fifo(path) -> bool:
+    """``path`` names a FIFO (False where it cannot be looked at)."""
     import stat
 
     try:
