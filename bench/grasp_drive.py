@@ -181,8 +181,10 @@ def main(argv=None) -> int:
             ap.error(f"--slopes {s:g}: must be a whole number of ‰/s of the rated force ({rated:g} N: "
                      f"steps of {rated / 1000.0:g} N/s)")
     syncs = args.syncs or [_base().bus.sync_period_ms]
-    for sync in syncs:   # the scene's own rule ([bus] sync_period_ms), and the slowest bus answer must fit
-        if not 1.0 <= sync <= 1000.0:
+    from taxel_net.scene import SYNC_PERIOD_MIN_MS
+
+    for sync in syncs:   # the scene's least [bus] sync_period_ms; at most 1 s (a grasp's phases last 0.3-2 s)
+        if not SYNC_PERIOD_MIN_MS <= sync <= 1000.0:
             ap.error(f"--syncs {sync:g}: every SYNC period must be 1-1000 ms")
     variants = list(itertools.product(args.slopes, args.lags, syncs))
     rng = np.random.default_rng(args.seed)
